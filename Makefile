@@ -1,0 +1,39 @@
+# The two commands of the README: `make demo` and `make test`. Both set up .venv themselves.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench lint format clean system-deps
+
+$(STAMP): setup.py
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e ".[train,dev]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+# Debian packages the renderer needs (EGL + Mesa llvmpipe); skipped when not root or without apt.
+system-deps:
+	@bash .ci/system-deps.sh
+
+demo: $(STAMP) system-deps
+	$(BIN)/tween demo
+
+test: $(STAMP) system-deps
+	$(BIN)/python -m pytest -q tests
+
+bench: $(STAMP)
+	$(BIN)/tween bench --methods zero,interp
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+clean:
+	rm -rf $(VENV) .cache .pytest_cache

@@ -1,0 +1,1 @@
+"""Data: the fixed train/eval split, training windows and normalisation statistics."""

@@ -1,0 +1,1 @@
+"""Post-processing applied after an in-betweener (keys exact, root path, foot contact)."""

@@ -1,0 +1,315 @@
+"""BVH reading and writing (``.bvh`` and ``.bvh.gz``).
+
+Written here because no maintained PyPI package reads BVH with per-source root rules and
+line-numbered errors. Rotations are intrinsic in channel order (``Zrotation Xrotation
+Yrotation`` means R = Rz·Rx·Ry, scipy's ``from_euler("ZXY")``).
+
+The root's position channels need a per-source rule (``root_position``):
+
+- ``"replace"``: the channels are the joint's translation and its OFFSET is ignored
+  (Bandai Namco; its Hips OFFSET differs per clip and is meaningless).
+- ``"add"``: the channels are added to the OFFSET (the CMU/iClone rig; read as a
+  replacement its feet end up about 96 cm below the ground).
+
+Position channels below the root always replace the OFFSET (in Bandai they equal it).
+"""
+
+from __future__ import annotations
+
+import gzip
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import MotionFormatError
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import euler_to_quat, quat_apply, quat_mul, quat_to_euler
+from pipeline.motion.skeleton import Skeleton
+
+ROOT_POSITION_RULES = ("replace", "add")
+_VALID_CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
+
+
+def root_position_rule_for(path: str | Path) -> str:
+    """The documented rule for the data sets we ship support for ("add" for cmu_iclone)."""
+    parts = {p.lower() for p in Path(path).resolve().parts}
+    return "add" if "cmu_iclone" in parts else "replace"
+
+
+@dataclass
+class BvhJoint:
+    name: str
+    parent: int
+    offset: np.ndarray
+    channels: list[str]
+    end_site: np.ndarray | None = None
+
+
+def _open_text(path: Path) -> list[str]:
+    try:
+        if path.suffix == ".gz":
+            with gzip.open(path, "rt", encoding="utf-8", errors="replace") as f:
+                return f.read().splitlines()
+        return path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except FileNotFoundError:
+        raise MotionFormatError(path, None, "file not found") from None
+    except (OSError, EOFError, gzip.BadGzipFile) as e:
+        raise MotionFormatError(path, None, f"cannot read: {e}") from None
+
+
+def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]:
+    """Returns the joints and the index of the line after ``MOTION``."""
+    joints: list[BvhJoint] = []
+    stack: list[int] = []  # joint index per open brace; -2 marks an End Site block
+    pending: tuple[str, int] | None = None  # (name, parent) of a JOINT/ROOT awaiting '{'
+    i = 0
+    while i < len(lines) and not lines[i].strip():
+        i += 1
+    if i >= len(lines) or lines[i].strip() != "HIERARCHY":
+        raise MotionFormatError(path, i + 1, "expected HIERARCHY at the start of the file")
+    i += 1
+    while i < len(lines):
+        tok = lines[i].split()
+        lineno = i + 1
+        i += 1
+        if not tok:
+            continue
+        kw = tok[0]
+        if kw in ("ROOT", "JOINT"):
+            if len(tok) < 2:
+                raise MotionFormatError(path, lineno, f"{kw} without a name")
+            if kw == "ROOT" and joints:
+                raise MotionFormatError(path, lineno, "only one ROOT is supported")
+            parent = next((s for s in reversed(stack) if s >= 0), -1) if stack else -1
+            if kw == "JOINT" and not stack:
+                raise MotionFormatError(path, lineno, "JOINT outside any ROOT")
+            pending = (" ".join(tok[1:]), parent)
+        elif kw == "End" and len(tok) > 1 and tok[1] == "Site":
+            pending = ("__end__", stack[-1] if stack else -1)
+        elif kw == "{":
+            if pending is None:
+                raise MotionFormatError(path, lineno, "'{' without ROOT, JOINT or End Site")
+            name, parent = pending
+            pending = None
+            if name == "__end__":
+                stack.append(-2 - parent)  # remember the owner of the end site
+            else:
+                joints.append(BvhJoint(name, parent, np.zeros(3), []))
+                stack.append(len(joints) - 1)
+        elif kw == "}":
+            if not stack:
+                raise MotionFormatError(path, lineno, "unbalanced '}'")
+            stack.pop()
+        elif kw == "OFFSET":
+            if len(tok) != 4:
+                raise MotionFormatError(path, lineno, f"OFFSET needs 3 numbers, got {len(tok) - 1}")
+            try:
+                off = np.array([float(v) for v in tok[1:]])
+            except ValueError:
+                raise MotionFormatError(path, lineno, f"non-numeric OFFSET {' '.join(tok[1:])!r}") from None
+            if not stack:
+                raise MotionFormatError(path, lineno, "OFFSET outside a joint")
+            top = stack[-1]
+            if top >= 0:
+                joints[top].offset = off
+            else:
+                joints[-2 - top].end_site = off
+        elif kw == "CHANNELS":
+            if not stack or stack[-1] < 0:
+                raise MotionFormatError(path, lineno, "CHANNELS outside a joint")
+            try:
+                n = int(tok[1])
+            except (IndexError, ValueError):
+                raise MotionFormatError(path, lineno, "CHANNELS needs a count") from None
+            names = tok[2:]
+            if n not in (3, 6) or len(names) != n:
+                raise MotionFormatError(path, lineno, f"CHANNELS {n} lists {len(names)} channels; expected 3 or 6")
+            bad = [c for c in names if c not in _VALID_CHANNELS]
+            if bad:
+                raise MotionFormatError(path, lineno, f"unknown channel {bad[0]!r}")
+            joints[stack[-1]].channels = names
+        elif kw == "MOTION":
+            if stack:
+                raise MotionFormatError(path, lineno, "MOTION before the hierarchy's braces close")
+            if not joints:
+                raise MotionFormatError(path, lineno, "no joints in HIERARCHY")
+            return joints, i
+        else:
+            raise MotionFormatError(path, lineno, f"unexpected {kw!r} in HIERARCHY")
+    raise MotionFormatError(path, len(lines), "file ends before MOTION (truncated?)")
+
+
+def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tuple[np.ndarray, float, int]:
+    def header(idx: int, key: str) -> str:
+        if idx >= len(lines):
+            raise MotionFormatError(path, idx, f"file ends before '{key}' (truncated?)")
+        line = lines[idx].strip()
+        if not line.startswith(key):
+            raise MotionFormatError(path, idx + 1, f"expected '{key}', found {line[:40]!r}")
+        return line[len(key) :].strip()
+
+    try:
+        n_frames = int(header(i, "Frames:"))
+    except ValueError:
+        raise MotionFormatError(path, i + 1, "Frames: is not an integer") from None
+    try:
+        frame_time = float(header(i + 1, "Frame Time:"))
+    except ValueError:
+        raise MotionFormatError(path, i + 2, "Frame Time: is not a number") from None
+    if n_frames <= 0:
+        raise MotionFormatError(path, i + 1, f"zero frames (Frames: {n_frames})")
+    if not frame_time > 0:
+        raise MotionFormatError(path, i + 2, f"Frame Time must be positive, got {frame_time}")
+    start = i + 2
+    body = [ln for ln in lines[start : start + n_frames]]
+    try:
+        data = np.array(" ".join(body).split(), dtype=np.float64)
+        ok = data.size == n_frames * n_channels and np.isfinite(data).all()
+    except ValueError:
+        ok = False
+    if not ok:
+        # Slow path only on error: find the first offending line.
+        for k, ln in enumerate(body):
+            vals = ln.split()
+            if len(vals) != n_channels:
+                raise MotionFormatError(path, start + k + 1, f"frame {k} has {len(vals)} values, expected {n_channels}")
+            try:
+                arr = np.array(vals, dtype=np.float64)
+            except ValueError:
+                bad = next(v for v in vals if not _is_float(v))
+                raise MotionFormatError(path, start + k + 1, f"non-numeric value {bad!r} in frame {k}") from None
+            if not np.isfinite(arr).all():
+                raise MotionFormatError(path, start + k + 1, f"non-finite value in frame {k}")
+        raise MotionFormatError(
+            path, start + len(body), f"file has {len(body)} of {n_frames} frames (truncated?)"
+        )
+    fps = 1.0 / frame_time
+    # Frame times are printed rounded (0.0333333); snap to the intended integer rate.
+    if abs(fps - round(fps)) < 1e-3 * fps:
+        fps = float(round(fps))
+    return data.reshape(n_frames, n_channels), fps, start
+
+
+def _is_float(v: str) -> bool:
+    try:
+        float(v)
+        return True
+    except ValueError:
+        return False
+
+
+def read_bvh(
+    path: str | Path,
+    root_position: str | None = None,
+    fold_root: bool = True,
+) -> Motion:
+    """Read a BVH file into a :class:`Motion`.
+
+    ``root_position`` is "replace" or "add" (see the module doc); ``None`` picks the rule
+    for the known data sets. With ``fold_root``, a root that has a single child (Bandai's
+    ``joint_Root``, iClone's ``RL_BoneRoot``) is composed into that child, which becomes
+    the root, as PROTOCOL.md prescribes.
+    """
+    path = Path(path)
+    rule = root_position or root_position_rule_for(path)
+    if rule not in ROOT_POSITION_RULES:
+        raise ValueError(f"root_position must be one of {ROOT_POSITION_RULES}, not {rule!r}")
+    lines = _open_text(path)
+    joints, i = _parse_hierarchy(path, lines)
+    n_channels = sum(len(j.channels) for j in joints)
+    data, fps, _ = _parse_motion(path, lines, i, n_channels)
+    T, J = data.shape[0], len(joints)
+
+    trans = np.empty((T, J, 3))
+    rots = np.empty((T, J, 4))
+    col = 0
+    for j, jt in enumerate(joints):
+        ch = jt.channels
+        block = data[:, col : col + len(ch)]
+        col += len(ch)
+        pos_idx = [ch.index(a + "position") if a + "position" in ch else -1 for a in "XYZ"]
+        if min(pos_idx) >= 0:
+            p = block[:, pos_idx]
+            trans[:, j] = p + jt.offset if (j == 0 and rule == "add") else p
+        else:
+            trans[:, j] = jt.offset
+        rot_ch = [c for c in ch if c.endswith("rotation")]
+        if len(rot_ch) == 3:
+            order = "".join(c[0] for c in rot_ch)
+            rots[:, j] = euler_to_quat(block[:, [ch.index(c) for c in rot_ch]], order)
+        elif rot_ch:
+            raise MotionFormatError(path, None, f"joint {jt.name!r} has {len(rot_ch)} rotation channels")
+        else:
+            rots[:, j] = (0, 0, 0, 1)
+
+    names = [jt.name for jt in joints]
+    parents = [jt.parent for jt in joints]
+    if fold_root and J > 1 and sum(1 for p in parents if p == 0) == 1 and parents[1] == 0:
+        # Compose the root's transform into its only child (index 1 in file order).
+        r0, t0 = rots[:, 0], trans[:, 0]
+        trans[:, 1] = t0 + quat_apply(r0, trans[:, 1])
+        rots[:, 1] = quat_mul(r0, rots[:, 1])
+        trans, rots = trans[:, 1:], rots[:, 1:]
+        joints = joints[1:]
+        names = names[1:]
+        parents = [max(p - 1, -1) for p in parents[1:]]
+        parents[0] = -1
+
+    offsets = np.array([jt.offset for jt in joints], np.float32)
+    # The root's rest position: its first-frame height above the origin (its OFFSET may be
+    # meaningless, as in Bandai); every other joint keeps its file OFFSET.
+    offsets[0] = (0.0, trans[0, 0, 1], 0.0)
+    end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
+    skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
+    name = path.name.removesuffix(".gz").removesuffix(".bvh")
+    return Motion(skel, rots.astype(np.float32), trans[:, 0].astype(np.float32), fps, name)
+
+
+def write_bvh(motion: Motion, path: str | Path, order: str = "ZXY") -> None:
+    """Write a motion: 6 channels on the root, 3 on every other joint, rotations in ``order``.
+
+    The root's channels are written as a replacement of its OFFSET (read back with
+    ``root_position="replace"``). Written atomically.
+    """
+    path = Path(path)
+    skel = motion.skeleton
+    order = order.upper()
+    rot_names = " ".join(f"{a}rotation" for a in order)
+    out: list[str] = ["HIERARCHY"]
+
+    def emit(j: int, depth: int) -> None:
+        pad = "  " * depth
+        kw = "ROOT" if skel.parents[j] < 0 else "JOINT"
+        out.append(f"{pad}{kw} {skel.names[j]}")
+        out.append(f"{pad}{{")
+        o = skel.offsets[j]
+        out.append(f"{pad}  OFFSET {o[0]:.9g} {o[1]:.9g} {o[2]:.9g}")
+        if skel.parents[j] < 0:
+            out.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {rot_names}")
+        else:
+            out.append(f"{pad}  CHANNELS 3 {rot_names}")
+        kids = skel.children(j)
+        for c in kids:
+            emit(c, depth + 1)
+        if not kids:
+            e = skel.end_sites.get(j, np.zeros(3))
+            out += [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}", f"{pad}  }}"]
+        out.append(f"{pad}}}")
+
+    emit(0, 0)
+    # Channel columns follow the depth-first order in which joints were emitted.
+    emitted = [skel.index(line.split()[-1]) for line in out if line.lstrip().startswith(("ROOT ", "JOINT "))]
+    eul = quat_to_euler(motion.rotations.astype(np.float64), order)
+    cols = [motion.root_positions.astype(np.float64)] + [eul[:, j] for j in emitted]
+    frames = np.concatenate(cols, axis=1)
+    out += ["MOTION", f"Frames: {len(motion)}", f"Frame Time: {1.0 / motion.fps:.9g}"]
+    out += [" ".join(f"{v:.9g}" for v in row) for row in frames]
+    text = "\n".join(out) + "\n"
+    tmp = path.with_name(f".{path.name}.tmp")
+    if path.suffix == ".gz":
+        with gzip.open(tmp, "wt", encoding="utf-8") as f:
+            f.write(text)
+    else:
+        tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)

@@ -1,0 +1,38 @@
+"""usd-tween: neural motion in-betweening for UsdSkel shots, as a render-farm job."""
+
+from setuptools import find_packages, setup
+
+setup(
+    name="usd-tween",
+    version="0.1.0",
+    description="Fill the frames between an animator's keys with a learned in-betweener, "
+    "written back as a non-destructive USD layer.",
+    python_requires=">=3.11",
+    packages=find_packages(include=["pipeline*", "workers*", "render*", "usd_schemas*"]),
+    package_data={
+        "usd_schemas": ["*.usda", "*/resources/*.json", "*/resources/*.usda", "*/*.usda"],
+        "models": ["*"],
+    },
+    include_package_data=True,
+    install_requires=[
+        "numpy>=1.26",
+        "scipy>=1.11",
+        "usd-core>=25.5",
+        "onnxruntime>=1.18",
+        "OpenImageIO>=3.0",
+        "celery[redis]>=5.4",
+        "sqlalchemy>=2.0",
+        "typer>=0.12",
+        "rich>=13",
+        "tqdm>=4.66",
+        "moderngl>=5.10",
+        "av>=12",
+    ],
+    extras_require={
+        # torch is pinned: these machines install exactly this CPU build from local disk;
+        # any other request pulls a multi-GB CUDA build.
+        "train": ["torch==2.13.0", "roma>=1.5", "onnx>=1.16", "onnxscript>=0.2"],
+        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3"],
+    },
+    entry_points={"console_scripts": ["tween=pipeline.cli:main"]},
+)
