@@ -21,6 +21,11 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _root() -> None:
+    """Neural motion in-betweening for UsdSkel shots."""
+
+
 def _register() -> None:
     # Command modules import their heavy dependencies inside the commands, so `tween --help`
     # and `tween fill` never import torch.

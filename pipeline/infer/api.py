@@ -38,7 +38,7 @@ def load_inbetweener(name: str = "default") -> Inbetweener:
 
     if name in ("interp", "interpolation"):
         return InterpolationInbetweener()
-    from pipeline.infer.model import find_model, OnnxInbetweener
+    from pipeline.infer.model import OnnxInbetweener, find_model
 
     folder = find_model(name)
     if folder is None:

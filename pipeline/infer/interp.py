@@ -27,7 +27,7 @@ def interpolate_keys(motion: Motion, keys: np.ndarray) -> Motion:
         raise ValueError("interpolation needs at least two keys")
     rot = motion.rotations.copy()
     pos = motion.root_positions.copy()
-    for a, b in zip(keys[:-1], keys[1:]):
+    for a, b in zip(keys[:-1], keys[1:], strict=True):
         if b - a > 1:
             r, p = interpolate_between(rot[a], rot[b], pos[a], pos[b], int(b - a - 1))
             rot[a + 1 : b] = r

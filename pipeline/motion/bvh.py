@@ -245,7 +245,15 @@ def read_bvh(
 
     names = [jt.name for jt in joints]
     parents = [jt.parent for jt in joints]
-    if fold_root and J > 1 and sum(1 for p in parents if p == 0) == 1 and parents[1] == 0:
+    # A container root is not a joint of the character: a root with a single child that
+    # either carries position channels of its own (Bandai's joint_Root above Hips) or whose
+    # name says it is one (iClone's RL_BoneRoot, Maya's *_Root). A real root with one child
+    # (Hips -> Spine) is kept.
+    container = J > 1 and sum(1 for p in parents if p == 0) == 1 and parents[1] == 0
+    container = container and (
+        any(c.endswith("position") for c in joints[1].channels) or "root" in joints[0].name.lower()
+    )
+    if fold_root and container:
         # Compose the root's transform into its only child (index 1 in file order).
         r0, t0 = rots[:, 0], trans[:, 0]
         trans[:, 1] = t0 + quat_apply(r0, trans[:, 1])
@@ -294,7 +302,9 @@ def write_bvh(motion: Motion, path: str | Path, order: str = "ZXY") -> None:
             emit(c, depth + 1)
         if not kids:
             e = skel.end_sites.get(j, np.zeros(3))
-            out += [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}", f"{pad}  }}"]
+            out.extend(
+                [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}", f"{pad}  }}"]
+            )
         out.append(f"{pad}}}")
 
     emit(0, 0)

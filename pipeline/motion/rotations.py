@@ -31,8 +31,8 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a * b (apply b first, then a), broadcasting."""
     a, b = np.broadcast_arrays(a, b)
-    fa, lead = _flat(np.ascontiguousarray(a), 1)
-    fb, _ = _flat(np.ascontiguousarray(b), 1)
+    fa, lead = _flat(np.require(a, np.float64, ["C", "W"]), 1)
+    fb, _ = _flat(np.require(b, np.float64, ["C", "W"]), 1)
     out = (Rotation.from_quat(fa) * Rotation.from_quat(fb)).as_quat()
     return out.reshape(lead + (4,)).astype(a.dtype, copy=False)
 
@@ -46,8 +46,8 @@ def quat_inv(q: np.ndarray) -> np.ndarray:
 def quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors v (..., 3) by quaternions q (..., 4), broadcasting."""
     lead = np.broadcast_shapes(np.shape(q)[:-1], np.shape(v)[:-1])
-    fq = np.ascontiguousarray(np.broadcast_to(q, lead + (4,))).reshape(-1, 4)
-    fv = np.ascontiguousarray(np.broadcast_to(v, lead + (3,))).reshape(-1, 3)
+    fq = np.require(np.broadcast_to(q, lead + (4,)), np.float64, ["C", "W"]).reshape(-1, 4)
+    fv = np.require(np.broadcast_to(v, lead + (3,)), np.float64, ["C", "W"]).reshape(-1, 3)
     out = Rotation.from_quat(fq).apply(fv).reshape(lead + (3,))
     return out.astype(np.result_type(q, v), copy=False)
 

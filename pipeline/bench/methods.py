@@ -1,0 +1,66 @@
+"""In-betweening methods as the benchmark sees them: context + target in, transition out.
+
+A method is any callable ``(ctx_rot, ctx_root, tgt_rot, tgt_root, T) -> (rot, root)`` with
+ctx_* of shape (N, 10, J, 4) / (N, 10, 3), tgt_* (N, J, 4) / (N, 3), returning the T
+predicted frames (N, T, J, 4) / (N, T, 3) of local rotations and root positions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from pipeline.infer.interp import interpolate_between
+
+Method = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int], tuple[np.ndarray, np.ndarray]]
+
+
+def zero_velocity(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
+    """Every predicted frame repeats the last context frame."""
+    rot = np.repeat(ctx_rot[:, -1:], T, axis=1)
+    root = np.repeat(ctx_root[:, -1:], T, axis=1)
+    return rot, root
+
+
+def interpolation(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
+    """Root LERP and local-quaternion SLERP between the last context frame and the target."""
+    rot, root = interpolate_between(ctx_rot[:, -1], tgt_rot, ctx_root[:, -1], tgt_root, T)
+    return np.moveaxis(rot, 0, 1).astype(np.float32), np.moveaxis(root, 0, 1).astype(np.float32)
+
+
+def inbetweener_method(inbetweener, batch: int = 64) -> Method:
+    """Adapts a product :class:`~pipeline.infer.api.Inbetweener` (keys = context + target)."""
+    from pipeline.motion.clip import Motion
+
+    def run(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
+        n, c = ctx_rot.shape[:2]
+        L = c + T + 1
+        rots = np.concatenate([ctx_rot, np.repeat(tgt_rot[:, None], T + 1, axis=1)], axis=1)
+        roots = np.concatenate([ctx_root, np.repeat(tgt_root[:, None], T + 1, axis=1)], axis=1)
+        keys = np.r_[np.arange(c), L - 1]
+        if hasattr(inbetweener, "fill_batch"):
+            out_r, out_p = [], []
+            for s in range(0, n, batch):
+                r, p = inbetweener.fill_batch(rots[s : s + batch], roots[s : s + batch], keys)
+                out_r.append(r)
+                out_p.append(p)
+            r, p = np.concatenate(out_r), np.concatenate(out_p)
+        else:
+            res = [inbetweener.fill(Motion(inbetweener.skeleton, rots[i], roots[i], 30.0), keys) for i in range(n)]
+            r = np.stack([m.rotations for m in res])
+            p = np.stack([m.root_positions for m in res])
+        return r[:, c : c + T], p[:, c : c + T]
+
+    return run
+
+
+BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation}
+
+
+def resolve(name: str) -> Method:
+    if name in BASELINES:
+        return BASELINES[name]
+    from pipeline.infer.api import load_inbetweener
+
+    return inbetweener_method(load_inbetweener("default" if name == "model" else name))

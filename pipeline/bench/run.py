@@ -1,0 +1,104 @@
+"""``tween bench``: the full protocol over a set of methods, as JSON and Markdown."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from pipeline.bench import metrics
+from pipeline.bench.methods import Method, resolve
+from pipeline.bench.protocol import (
+    CONTEXT,
+    TEST_STRIDE,
+    TEST_WINDOW,
+    TRANSITIONS,
+    cut_windows,
+    global_positions,
+    normalize_windows,
+    position_stats,
+)
+from pipeline.data.cache import load_split
+from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
+
+METRICS = ("L2Q", "L2P", "NPSS", "MPJPE", "skate")
+
+
+def test_windows(limit: int | None = None):
+    """The normalised eval windows (``limit`` clips only, for quick checks)."""
+    clips = load_split("eval", limit=limit)
+    rots, roots = cut_windows(clips, TEST_WINDOW, TEST_STRIDE)
+    return normalize_windows(rots, roots)
+
+
+def evaluate(method: Method, rots, roots, mean, std, transitions=TRANSITIONS) -> dict:
+    """Metrics per transition length for one method on normalised windows."""
+    skel = bandai_skeleton()
+    feet = [skel.index(n) for n in FOOT_JOINTS]
+    out = {}
+    for T in transitions:
+        tgt = CONTEXT + T
+        t0 = time.perf_counter()
+        p_rot, p_root = method(rots[:, :CONTEXT], roots[:, :CONTEXT], rots[:, tgt], roots[:, tgt], T)
+        seconds = time.perf_counter() - t0
+        gq_p, gp_p = global_positions(p_rot, p_root)
+        gq_t, gp_t = global_positions(rots[:, CONTEXT:tgt], roots[:, CONTEXT:tgt])
+        _, prev = global_positions(rots[:, CONTEXT - 1], roots[:, CONTEXT - 1])
+        skate, n_contacts = metrics.foot_skate(gp_p, gp_t, prev, prev, feet)
+        skate_gt, _ = metrics.foot_skate(gp_t, gp_t, prev, prev, feet)
+        out[T] = {
+            "L2Q": metrics.l2q(gq_p, gq_t),
+            "L2P": metrics.l2p(gp_p, gp_t, mean, std),
+            "NPSS": metrics.npss(gq_p, gq_t),
+            "MPJPE": metrics.mpjpe(gp_p, gp_t),
+            "skate": skate,
+            "skate_gt": skate_gt,
+            "contacts": n_contacts,
+            "seconds": seconds,
+        }
+    return out
+
+
+def markdown(results: dict, n_windows: int, transitions=TRANSITIONS) -> str:
+    names = list(results)
+    lines = [f"Windows: {n_windows} (eval split, 65 frames every 40, PROTOCOL.md).", ""]
+    head = "| method | " + " | ".join(str(t) for t in transitions) + " |"
+    sep = "|---|" + "---|" * len(transitions)
+    for m in METRICS:
+        lines += [f"**{m}**", "", head, sep]
+        for name in names:
+            cells = [f"{results[name][t][m]:.4f}" for t in transitions]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        if m == "skate":
+            cells = [f"{results[names[0]][t]['skate_gt']:.4f}" for t in transitions]
+            lines.append("| ground truth | " + " | ".join(cells) + " |")
+        if "interp" in results:
+            for name in names:
+                if name in ("interp", "zero"):
+                    continue
+                cells = [f"{results[name][t][m] / results['interp'][t][m]:.3f}" for t in transitions]
+                lines.append(f"| {name} ÷ interp | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def run_bench(methods: list[str], limit: int | None, out_dir: Path) -> dict:
+    print("loading train statistics and eval windows…", file=sys.stderr)
+    mean, std = position_stats(load_split("train"))
+    rots, roots = test_windows(limit)
+    results = {}
+    for name in methods:
+        print(f"evaluating {name} on {len(rots)} windows…", file=sys.stderr)
+        results[name] = evaluate(resolve(name), rots, roots, mean, std)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "protocol": "PROTOCOL.md",
+        "windows": int(len(rots)),
+        "eval_clips_limit": limit,
+        "results": {m: {str(t): v for t, v in r.items()} for m, r in results.items()},
+    }
+    (out_dir / "bench.json").write_text(json.dumps(payload, indent=1))
+    md = markdown(results, len(rots))
+    (out_dir / "bench.md").write_text(md)
+    return {"json": str(out_dir / "bench.json"), "markdown": md, "results": results}

@@ -1,0 +1,70 @@
+"""Parsed clips of a split, cached as one .npz so a second run takes seconds."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pipeline.data.split import list_clips
+from pipeline.motion.bvh import read_bvh
+
+CACHE_VERSION = 1
+
+
+def cache_dir() -> Path:
+    d = Path(os.environ.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+@dataclass
+class ClipSet:
+    """Clips concatenated: rotations (N, J, 4) continuous per clip, roots (N, 3), clip bounds."""
+
+    names: list[str]
+    starts: np.ndarray  # (C,) first frame of each clip in the flat arrays
+    lengths: np.ndarray  # (C,)
+    rotations: np.ndarray
+    roots: np.ndarray
+    fps: float
+
+    def clip(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        s, n = self.starts[i], self.lengths[i]
+        return self.rotations[s : s + n], self.roots[s : s + n]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def load_split(split: str, limit: int | None = None, root: Path | None = None) -> ClipSet:
+    """Every clip of ``split`` read with the protocol's rules, quaternions continuous per clip."""
+    files = list_clips(split, root)
+    if limit:
+        files = files[:limit]
+    key = hashlib.sha1(("\n".join(str(f) for f in files) + f"v{CACHE_VERSION}").encode()).hexdigest()[:12]
+    path = cache_dir() / f"clips-{split}-{len(files)}-{key}.npz"
+    if path.exists():
+        z = np.load(path, allow_pickle=False)
+        return ClipSet(list(z["names"]), z["starts"], z["lengths"], z["rotations"], z["roots"], float(z["fps"]))
+    rots, roots, names, lengths = [], [], [], []
+    fps = None
+    for f in tqdm(files, desc=f"reading {split} clips", file=sys.stderr, unit="clip", disable=len(files) < 50):
+        m = read_bvh(f).continuous()
+        fps = fps or m.fps
+        rots.append(m.rotations)
+        roots.append(m.root_positions)
+        names.append(m.name)
+        lengths.append(len(m))
+    lengths = np.array(lengths, np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    cs = ClipSet(names, starts, lengths, np.concatenate(rots), np.concatenate(roots), float(fps))
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, names=np.array(names), starts=starts, lengths=lengths, rotations=cs.rotations, roots=cs.roots, fps=fps)
+    os.replace(tmp, path)
+    return cs

@@ -1,0 +1,28 @@
+"""Shared fixtures: where the real data lives, and a per-session cache folder."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+from pipeline.data.split import shared_data_dir
+
+DATA = shared_data_dir()
+
+
+def pytest_configure(config):
+    # Keep cache writes (parsed clips, statistics) out of the user's home during tests
+    # unless a cache is configured; reuse one across the session.
+    os.environ.setdefault("TWEEN_CACHE", str(Path(__file__).resolve().parents[1] / ".cache" / "tests"))
+
+
+@pytest.fixture(scope="session")
+def data_dir() -> Path:
+    if not DATA.is_dir():
+        pytest.fail(f"shared data not found at {DATA} (set TWEEN_DATA)")
+    return DATA
+
+
+@pytest.fixture(scope="session")
+def bandai_clip(data_dir) -> Path:
+    return data_dir / "bandai_namco" / "dataset-2" / "dataset-2_walk_active_002.bvh.gz"
