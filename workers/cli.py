@@ -1,7 +1,205 @@
-"""Commands of this package for the ``tween`` CLI."""
+"""Farm commands of the ``tween`` CLI: fill, submit, status, worker, bench-farm."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
 
 import typer
 
+_FILL_OPTS = dict(
+    takes=typer.Option(1, "--takes", min=1, help="Takes (variations) per shot."),
+    seed=typer.Option(0, "--seed", help="Seed of the first take."),
+    keys=typer.Option(
+        None, "--keys", help="Key frames to use, e.g. '1001,1012,1030' (default: the shot's keys)."
+    ),
+    range_=typer.Option(None, "--range", help="Frame range to fill, e.g. 1001-1048."),
+    model=typer.Option("default", "--model", help="In-betweener: default, interp, or a model folder."),
+    out_dir=typer.Option(None, "--out-dir", help="Folder for the layers (default: beside each shot)."),
+    fmt=typer.Option("usda", "--format", help="Layer format: usda or usdc."),
+    mapping=typer.Option(None, "--mapping", help="Joint mapping file (default: built in)."),
+)
+
+
+def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping) -> dict:
+    from workers.jobs import make_opts
+
+    return make_opts(
+        keys=keys,
+        range=range_,
+        takes=takes,
+        seed=seed,
+        model=model,
+        out_dir=out_dir,
+        fmt=fmt,
+        mapping=mapping,
+    )
+
+
+def _err(msg: str) -> None:
+    print(f"tween: error: {msg}", file=sys.stderr)
+
+
+def _report(states) -> int:
+    """Results to stdout, failures to stderr; returns the exit code."""
+    failed = 0
+    for s in states:
+        if s.state == "SUCCESS":
+            r = s.result or {}
+            line = f"{s.shot}: layer {r.get('layer')}"
+            if r.get("review"):
+                line += f", review {r['review']}"
+            for i, rend in enumerate(r.get("renders") or []):
+                line += f", take {i} render {rend.get('mp4') or rend}"
+            if r.get("render_note"):
+                line += f" ({r['render_note']})"
+            typer.echo(line)
+        else:
+            failed += 1
+            _err(s.error or f"{s.shot}: job {s.id} {s.state.lower()}")
+    return 2 if failed else 0
+
 
 def register(app: typer.Typer) -> None:
-    """Adds this package's commands to ``app``."""
+    @app.command()
+    def fill(
+        shots: list[Path] = typer.Argument(..., help="USD shot files (.usda/.usdc/.usd)."),
+        takes: int = _FILL_OPTS["takes"],
+        seed: int = _FILL_OPTS["seed"],
+        keys: str = _FILL_OPTS["keys"],
+        range_: str = _FILL_OPTS["range_"],
+        model: str = _FILL_OPTS["model"],
+        out_dir: Path = _FILL_OPTS["out_dir"],
+        fmt: str = _FILL_OPTS["fmt"],
+        mapping: Path = _FILL_OPTS["mapping"],
+        render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
+        concurrency: int = typer.Option(2, "-c", "--concurrency", help="Embedded worker processes."),
+        progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars on stderr."),
+    ):
+        """Fill shots through the farm and wait; prints where the layers (and renders) are.
+
+        With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
+        embedded farm: a local worker on a SQLite broker, started and stopped here.
+        """
+        from workers import jobs
+        from workers.app import app as celery_app
+
+        s = celery_app.conf.tween
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping)
+        paths = [str(p) for p in shots]
+        for p in paths:
+            if not os.path.isfile(p):
+                _err(f"{p}: no such shot file")
+                raise typer.Exit(2)
+        if not s.embedded:
+            ids = jobs.submit(paths, opts, render=render)
+            raise typer.Exit(_report(jobs.wait(ids, progress=progress)))
+        from workers.embedded import EmbeddedWorker
+
+        roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
+        roots += [opts[k] for k in ("out_dir",) if opts.get(k)]
+        if opts.get("mapping"):
+            roots.append(os.path.dirname(opts["mapping"]))
+        with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
+            ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
+            code = _report(jobs.wait(ids, progress=progress, alive=w.alive))
+        raise typer.Exit(code)
+
+    @app.command()
+    def submit(
+        shots: list[Path] = typer.Argument(..., help="USD shot files, on storage every worker sees."),
+        takes: int = _FILL_OPTS["takes"],
+        seed: int = _FILL_OPTS["seed"],
+        keys: str = _FILL_OPTS["keys"],
+        range_: str = _FILL_OPTS["range_"],
+        model: str = _FILL_OPTS["model"],
+        out_dir: Path = _FILL_OPTS["out_dir"],
+        fmt: str = _FILL_OPTS["fmt"],
+        mapping: Path = _FILL_OPTS["mapping"],
+        render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
+    ):
+        """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
+        from workers import jobs
+        from workers.app import app as celery_app
+
+        if celery_app.conf.tween.embedded:
+            _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
+            raise typer.Exit(2)
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping)
+        for job_id in jobs.submit([str(p) for p in shots], opts, render=render):
+            typer.echo(job_id)
+
+    @app.command()
+    def status(
+        job_ids: list[str] = typer.Argument(..., help="Job ids from `tween submit`."),
+        wait: bool = typer.Option(False, "--wait", help="Wait (with progress bars) until the jobs finish."),
+        as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
+    ):
+        """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
+        from workers import jobs
+
+        states = jobs.wait(job_ids) if wait else [jobs.state(j) for j in job_ids]
+        code = 0
+        for s in states:
+            if as_json:
+                typer.echo(json.dumps(s.as_dict()))
+            elif s.state == "SUCCESS":
+                typer.echo(f"{s.id} {s.shot}: success, layer {(s.result or {}).get('layer')}")
+            elif s.state == "FAILURE" or s.state == "UNKNOWN":
+                typer.echo(f"{s.id} {s.shot}: {s.state.lower()}: {s.error}")
+            else:
+                typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
+            code = code or (2 if s.state in ("FAILURE", "UNKNOWN") else 0)
+        raise typer.Exit(code)
+
+    @app.command()
+    def worker(
+        concurrency: int = typer.Option(
+            None, "-c", "--concurrency", help="Pool processes (default: CPU count)."
+        ),
+        queue: str = typer.Option(None, "--queue", "-Q", help="Queue to consume (default: the fill queue)."),
+        train: bool = typer.Option(False, "--train", help="Run training jobs (their own queue and limits)."),
+        hostname: str = typer.Option(None, "--hostname", "-n", help="Worker name, e.g. node1@%h."),
+        loglevel: str = typer.Option("info", "--loglevel", "-l"),
+        logfile: Path = typer.Option(None, "--logfile"),
+        include: list[str] = typer.Option([], "--include", "-I", help="Extra modules to import."),
+    ):
+        """Run a Celery worker for the farm (several may run per host and across hosts)."""
+        from workers.runtime import thread_env
+
+        n = concurrency or os.cpu_count() or 1
+        # Before any ORT/GL import: each pool process gets its share of the cores.
+        for k, v in thread_env(n).items():
+            os.environ.setdefault(k, v)
+        if train:
+            from workers.app import train_app as celery_app
+        else:
+            from workers.app import app as celery_app
+        s = celery_app.conf.tween
+        q = queue or (s.train_queue if train else s.queue)
+        argv = ["worker", "-c", str(n), "-Q", q, "-l", loglevel, "--without-gossip", "--without-mingle"]
+        argv += ["--pool", "prefork"]
+        if hostname:
+            argv += ["-n", hostname]
+        if logfile:
+            argv += ["--logfile", str(logfile)]
+        for mod in include:
+            argv += ["-I", mod]
+        print(f"tween worker: {s.broker_url.split('@')[-1]} queue {q}, {n} processes", file=sys.stderr)
+        celery_app.worker_main(argv)
+
+    @app.command("bench-farm")
+    def bench_farm(
+        shots: int = typer.Option(50, "--shots", help="Copies of the example shot to fill."),
+        workers: str = typer.Option("1,2", "--workers", help="Worker counts to measure (each -c 1)."),
+        shot: Path = typer.Option(None, "--shot", help="Shot to copy (default: the example shot)."),
+        out: Path = typer.Option(Path("bench_results") / "farm.json", "--out"),
+    ):
+        """Shots per minute with 1 and 2 workers, and Celery's overhead against a direct fill."""
+        from workers.bench import run_bench_farm
+
+        res = run_bench_farm(shots, [int(w) for w in workers.split(",")], shot, out)
+        typer.echo(res["markdown"])
+        typer.echo(f"written: {out}", err=True)

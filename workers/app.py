@@ -1,0 +1,92 @@
+"""The Celery apps of the farm, with all their configuration in this one place.
+
+``app`` runs the per-shot fill job (validate → takes → layer → review) on the fill queue.
+``train_app`` runs long jobs (model training) on their own queue. With Redis the visibility
+timeout is a property of the connection, not of a queue, so the training app keeps its own
+key prefix (its own ``unacked`` set) and a visibility timeout of hours, while the fill app's
+stays about a minute: a dead host's fill is taken over quickly whatever training runs.
+"""
+
+from __future__ import annotations
+
+from celery import Celery
+
+import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
+from workers.settings import FarmSettings, load_settings
+
+#: Celery's own states plus the one the job record is stored under.
+SUBMITTED = "SUBMITTED"
+
+
+def _transport_options(s: FarmSettings, visibility_timeout: int, prefix: str) -> dict:
+    if s.is_redis:
+        return {
+            "visibility_timeout": visibility_timeout,
+            # kombu 5.7 sweeps unacked messages every interval × throttle seconds (default
+            # 10 × 10); throttle 1 makes the interval alone decide the takeover delay.
+            "unacked_restore_interval": s.restore_interval,
+            "unacked_restore_throttle": 1,
+            "global_keyprefix": prefix,
+        }
+    if s.broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
+        return {"confirm_publish": True}
+    return {}
+
+
+def _backend_options(s: FarmSettings, prefix: str) -> dict:
+    if s.result_backend.startswith(("redis://", "rediss://")):
+        return {"global_keyprefix": prefix}
+    return {}
+
+
+def configure(app: Celery, s: FarmSettings, *, train: bool = False) -> Celery:
+    """Applies the farm settings to ``app`` (the fill app, or the training app)."""
+    prefix = s.key_prefix + ("train:" if train else "")
+    vt = s.train_visibility_timeout if train else s.visibility_timeout
+    hard = s.train_time_limit if train else s.fill_time_limit
+    soft = int(hard * 0.95) if train else s.fill_soft_time_limit
+    app.conf.update(
+        broker_url=s.broker_url,
+        result_backend=s.result_backend,
+        broker_transport_options=_transport_options(s, vt, prefix),
+        result_backend_transport_options=_backend_options(s, prefix),
+        broker_connection_retry_on_startup=True,
+        # JSON only: a message can never execute code when it is decoded.
+        task_serializer="json",
+        result_serializer="json",
+        accept_content=["json"],
+        result_accept_content=["json"],
+        # Ack after the task returns, and requeue if the pool child dies: nothing is lost.
+        task_acks_late=True,
+        task_reject_on_worker_lost=True,
+        worker_prefetch_multiplier=1,
+        task_track_started=True,
+        task_time_limit=hard,
+        task_soft_time_limit=soft,
+        task_default_queue=s.train_queue if train else s.queue,
+        task_create_missing_queues=True,
+        result_expires=7 * 24 * 3600,
+        result_extended=True,
+        # The database backend has no native chord counter: poll the header quickly.
+        result_chord_retry_interval=0.2,
+        # Recycle processes now and then: USD, ORT and GL hold caches that only grow.
+        worker_max_tasks_per_child=200,
+        worker_send_task_events=False,
+        worker_hijack_root_logger=False,
+        database_engine_options={"connect_args": {"timeout": 30}} if s.embedded else {},
+        database_create_tables_at_setup=True,
+        # The SQLite broker has no broadcast; remote control only makes sense on a real farm.
+        worker_enable_remote_control=not s.embedded,
+    )
+    app.conf.tween = s
+    return app
+
+
+settings = load_settings()
+app = configure(Celery("tween", include=["workers.tasks"]), settings)
+train_app = configure(Celery("tween-train", include=["workers.train_tasks"]), settings, train=True)
+
+
+def use_queue(queue: str) -> None:
+    """Sends this process's fill jobs to ``queue`` (the embedded default uses a private one)."""
+    app.conf.task_default_queue = queue

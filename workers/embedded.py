@@ -1,0 +1,79 @@
+"""The embedded default: a private worker process on the server-less SQLite broker.
+
+With no broker configured, ``tween fill`` starts ``tween worker`` itself on a private queue
+of the SQLite broker under the cache folder, submits through Celery as on a farm, waits, and
+stops the worker. The worker's shot roots are the folders of the shots on the command line.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+from pipeline.errors import TweenError
+from workers.settings import cache_dir
+
+
+class EmbeddedWorker:
+    """Context manager: a ``tween worker`` subprocess (own session) on a private queue."""
+
+    def __init__(self, roots: list[str], concurrency: int = 2, extra_args: list[str] | None = None):
+        self.queue = f"tween.embedded.{uuid.uuid4().hex[:12]}"
+        self.roots = sorted({os.path.realpath(r) for r in roots})
+        self.concurrency = concurrency
+        self.extra_args = list(extra_args or [])
+        self.log = cache_dir() / "farm" / "logs" / f"{self.queue}.log"
+        self.proc: subprocess.Popen | None = None
+
+    def __enter__(self) -> EmbeddedWorker:
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, TWEEN_SHOT_ROOTS=os.pathsep.join(self.roots))
+        env.pop("TWEEN_BROKER_URL", None)
+        cmd = [
+            sys.executable,
+            "-m",
+            "pipeline.cli",
+            "worker",
+            "--queue",
+            self.queue,
+            "-c",
+            str(self.concurrency),
+        ]
+        cmd += ["--hostname", f"{self.queue}@%h", "--logfile", str(self.log), *self.extra_args]
+        # Own session: the whole worker (main process and pool children) stops as one group.
+        # Its output goes to the log: stdout of `tween fill` carries only results.
+        with open(self.log, "ab") as logf:
+            self.proc = subprocess.Popen(
+                cmd, env=env, start_new_session=True, stdin=subprocess.DEVNULL, stdout=logf, stderr=logf
+            )
+        return self
+
+    def alive(self) -> None:
+        """Raises if the worker has exited (so a waiting client does not hang)."""
+        if self.proc is not None and self.proc.poll() is not None:
+            raise TweenError(
+                f"embedded worker exited with code {self.proc.returncode}; log: {self.log}\n{self.log_tail()}"
+            )
+
+    def log_tail(self, n: int = 15) -> str:
+        try:
+            return "\n".join(Path(self.log).read_text(errors="replace").splitlines()[-n:])
+        except OSError:
+            return ""
+
+    def __exit__(self, *exc) -> None:
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        try:
+            # Warm shutdown of the main process (it stops its pool); nothing is running now.
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+        except ProcessLookupError:
+            pass

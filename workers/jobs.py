@@ -1,0 +1,189 @@
+"""Submitting shots as jobs, and reading their state back.
+
+A job is one shot: ``validate → group(fill_take × N) → write_layer (chord) → render_review``.
+Every stage gets a task id derived from the job id, and a small job record (shot, takes,
+stage ids) is stored in the result backend under the job id, so ``tween status JOB`` works
+from any host with nothing but the id.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import uuid
+from dataclasses import dataclass, field
+
+from celery import chain, chord, group
+from celery import states as cstates
+
+from workers import paths as jobpaths
+from workers.app import SUBMITTED, app
+
+
+@dataclass
+class JobState:
+    id: str
+    shot: str = ""
+    state: str = "UNKNOWN"  # UNKNOWN, QUEUED, RUNNING, SUCCESS, FAILURE
+    done: int = 0
+    total: int = 0
+    stage: str = ""
+    error: str | None = None
+    result: dict | None = None
+    stages: dict = field(default_factory=dict)
+
+    @property
+    def finished(self) -> bool:
+        return self.state in ("SUCCESS", "FAILURE", "UNKNOWN")
+
+    def as_dict(self) -> dict:
+        return {
+            k: getattr(self, k) for k in ("id", "shot", "state", "done", "total", "stage", "error", "result")
+        }
+
+
+def stage_ids(job_id: str, takes: int) -> list[tuple[str, str]]:
+    """(stage name, task id) in execution order."""
+    return (
+        [("validate", f"{job_id}.validate")]
+        + [(f"take {t + 1}/{takes}", f"{job_id}.take{t}") for t in range(takes)]
+        + [("layer", f"{job_id}.layer"), ("review", f"{job_id}.review")]
+    )
+
+
+def work_dir_for(shot: str, opts: dict, job_id: str) -> str:
+    base = opts.get("out_dir") or os.path.dirname(shot)
+    return os.path.join(base, ".tween-work", job_id)
+
+
+def build(shot: str, opts: dict, job: dict, queue: str):
+    """The job's canvas, with deterministic task ids and an explicit queue on every stage."""
+    ids = dict(stage_ids(job["id"], job["takes"]))
+    o = {"queue": queue}
+    takes = group(
+        app.signature("tween.fill_take", (shot, opts, t, job), immutable=True, task_id=ids[name], **o)
+        for t, name in enumerate(n for n in ids if n.startswith("take"))
+    )
+    layer = app.signature("tween.write_layer", (shot, opts, job), task_id=ids["layer"], **o)
+    return chain(
+        app.signature("tween.validate", (shot, opts, job), immutable=True, task_id=ids["validate"], **o),
+        chord(takes, layer),
+        app.signature("tween.render_review", (shot, opts, job), task_id=ids["review"], **o),
+    )
+
+
+def make_opts(**kw) -> dict:
+    """FillOptions as the JSON dict that travels in messages (paths made absolute)."""
+    from dataclasses import asdict
+
+    from pipeline.fill import FillOptions
+
+    opts = asdict(FillOptions(**{k: v for k, v in kw.items() if v is not None}))
+    for key in ("out_dir", "mapping", "review_layer"):
+        if opts.get(key):
+            opts[key] = os.path.abspath(opts[key])
+    return opts
+
+
+def submit(
+    shots: list[str], opts: dict, *, render: bool = False, roots=None, queue: str | None = None
+) -> list[str]:
+    """Sends one job per shot; returns the job ids at once. Refuses paths outside ``roots``."""
+    roots = app.conf.tween.shot_roots if roots is None else roots
+    queue = queue or app.conf.task_default_queue
+    ids = []
+    for shot in shots:
+        shot = os.path.abspath(shot)
+        job_id = uuid.uuid4().hex
+        job = {"id": job_id, "takes": int(opts.get("takes") or 1), "render": bool(render)}
+        job["work_dir"] = work_dir_for(shot, opts, job_id)
+        if roots:  # the worker checks again against its own roots
+            jobpaths.check_job(shot, opts, roots, job["work_dir"])
+        record = {
+            "shot": shot,
+            "takes": job["takes"],
+            "render": job["render"],
+            "queue": queue,
+            "time": time.time(),
+        }
+        app.backend.store_result(job_id, record, SUBMITTED)
+        build(shot, opts, job, queue).apply_async()
+        ids.append(job_id)
+    return ids
+
+
+def _meta(task_id: str) -> dict:
+    return app.backend.get_task_meta(task_id)
+
+
+def state(job_id: str) -> JobState:
+    """The job's state from its record and its stages' results."""
+    rec = _meta(job_id)
+    js = JobState(id=job_id)
+    if rec.get("status") != SUBMITTED or not isinstance(rec.get("result"), dict):
+        js.error = f"{job_id}: no such job (unknown id, or its record expired)"
+        return js
+    info = rec["result"]
+    js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
+    js.total, js.state = len(stages), "QUEUED"
+    failures = []
+    for name, tid in stages:
+        m = _meta(tid)
+        st = m.get("status", cstates.PENDING)
+        js.stages[name] = st
+        if st == cstates.SUCCESS:
+            js.done += 1
+        elif st in (cstates.STARTED, cstates.RETRY):
+            js.state, js.stage = "RUNNING", name
+        elif st == cstates.FAILURE:
+            failures.append((name, app.backend.exception_to_python(m.get("result"))))
+    if js.done and js.state == "QUEUED" and js.done < js.total:
+        js.state = "RUNNING"
+    if failures:
+        # A failed take also fails the chord body with a ChordError; report the cause.
+        name, exc = ([f for f in failures if type(f[1]).__name__ != "ChordError"] or failures)[0]
+        js.state, js.stage = "FAILURE", name
+        js.error = str(exc) or type(exc).__name__
+    elif js.done == js.total:
+        js.state, js.stage = "SUCCESS", ""
+        js.result = _meta(stages[-1][1]).get("result")
+    return js
+
+
+def wait(
+    job_ids: list[str], *, progress: bool = True, poll: float = 0.2, alive=None, timeout=None
+) -> list[JobState]:
+    """Polls until every job has finished; one progress bar per shot on stderr.
+
+    ``alive`` is called each poll and may raise (the embedded launcher uses it to stop
+    waiting when its worker died).
+    """
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    t0 = time.monotonic()
+    states = {j: state(j) for j in job_ids}
+    cols = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[stage]}"),
+    )
+    with Progress(*cols, TimeElapsedColumn(), console=Console(stderr=True), disable=not progress) as bar:
+        bars = {
+            j: bar.add_task(os.path.basename(s.shot) or j, total=s.total or 1, stage=s.state.lower())
+            for j, s in states.items()
+        }
+        while True:
+            for j in job_ids:
+                if not states[j].finished:
+                    states[j] = state(j)
+                s = states[j]
+                bar.update(bars[j], completed=s.done, stage=(s.stage or s.state).lower())
+            if all(s.finished for s in states.values()):
+                return [states[j] for j in job_ids]
+            if alive is not None:
+                alive()
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                raise TimeoutError(f"jobs not finished after {timeout} s")
+            time.sleep(poll)

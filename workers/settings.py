@@ -1,0 +1,143 @@
+"""Where the farm's settings come from: environment, then an optional TOML file, then defaults.
+
+Every knob is ``TWEEN_<NAME>`` in the environment or ``<name>`` in the file named by
+``$TWEEN_FARM_CONFIG`` (default ``~/.config/usd-tween/farm.toml``). With no broker configured
+anywhere the farm runs *embedded*: kombu's SQLAlchemy transport and Celery's database result
+backend on SQLite files under the cache folder, so nothing needs a server.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipeline.errors import TweenError
+
+
+class FarmConfigError(TweenError):
+    """The farm configuration is inconsistent."""
+
+
+def cache_dir() -> Path:
+    """``$TWEEN_CACHE`` or ``~/.cache/usd-tween`` (same rule as :mod:`pipeline.data.cache`)."""
+    return Path(os.environ.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
+
+
+def config_file() -> Path:
+    return Path(os.environ.get("TWEEN_FARM_CONFIG", Path.home() / ".config" / "usd-tween" / "farm.toml"))
+
+
+@dataclass(frozen=True)
+class FarmSettings:
+    """Resolved farm settings; see docs/farm.md for what each one trades off."""
+
+    broker_url: str
+    result_backend: str
+    embedded: bool
+    queue: str = "tween.fill"
+    train_queue: str = "tween.train"
+    key_prefix: str = "tween:"
+    shot_roots: tuple[str, ...] = ()
+    # Redis takeover: a dead host's task comes back after at most visibility_timeout plus one
+    # restore sweep (restore_interval). The hard limit of every fill task must stay below
+    # visibility_timeout, or a live task is handed out twice.
+    visibility_timeout: int = 60
+    restore_interval: int = 5
+    fill_time_limit: int = 50
+    fill_soft_time_limit: int = 40
+    train_time_limit: int = 12 * 3600
+    train_visibility_timeout: int = 13 * 3600
+    max_retries: int = 4
+    retry_backoff_max: int = 30
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def is_redis(self) -> bool:
+        return self.broker_url.startswith(("redis://", "rediss://", "redis+socket://"))
+
+
+_INT_KEYS = (
+    "visibility_timeout",
+    "restore_interval",
+    "fill_time_limit",
+    "fill_soft_time_limit",
+    "train_time_limit",
+    "train_visibility_timeout",
+    "max_retries",
+    "retry_backoff_max",
+)
+_STR_KEYS = ("broker_url", "result_backend", "queue", "train_queue", "key_prefix")
+
+
+def _read_file(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise FarmConfigError(f"{path}: cannot read farm config: {e}") from None
+    unknown = set(data) - set(_INT_KEYS) - set(_STR_KEYS) - {"shot_roots"}
+    if unknown:
+        raise FarmConfigError(f"{path}: unknown farm setting(s): {', '.join(sorted(unknown))}")
+    return data
+
+
+def embedded_urls(folder: Path | None = None) -> tuple[str, str]:
+    """Broker and result URLs of the server-less default, under the cache folder."""
+    folder = (folder or cache_dir() / "farm").resolve()
+    return f"tweensqla+sqlite:///{folder / 'broker.sqlite'}", f"db+sqlite:///{folder / 'results.sqlite'}"
+
+
+def load_settings(env: dict | None = None) -> FarmSettings:
+    """Resolves the settings from ``env`` (default ``os.environ``) and the config file."""
+    env = os.environ if env is None else env
+    data = _read_file(config_file())
+    vals: dict = {}
+    for key in _STR_KEYS + _INT_KEYS:
+        raw = env.get(f"TWEEN_{key.upper()}")
+        if raw is None or raw == "":
+            raw = data.get(key)
+        if raw is None:
+            continue
+        if key in _INT_KEYS:
+            try:
+                raw = int(raw)
+            except (TypeError, ValueError):
+                raise FarmConfigError(f"TWEEN_{key.upper()}: expected an integer, got {raw!r}") from None
+        vals[key] = raw
+    roots = env.get("TWEEN_SHOT_ROOTS")
+    if roots:
+        vals["shot_roots"] = tuple(r for r in roots.split(os.pathsep) if r)
+    elif data.get("shot_roots"):
+        vals["shot_roots"] = tuple(data["shot_roots"])
+
+    broker = vals.pop("broker_url", None)
+    backend = vals.pop("result_backend", None)
+    embedded = broker is None
+    if embedded:
+        broker, default_backend = embedded_urls()
+        backend = backend or default_backend
+    elif backend is None:
+        if broker.startswith(("redis://", "rediss://")):
+            backend = broker
+        else:
+            raise FarmConfigError(
+                "TWEEN_RESULT_BACKEND is required with a non-Redis broker (chords need a real result "
+                "backend: redis://... or db+postgresql://...)"
+            )
+    if backend.startswith("rpc://"):
+        raise FarmConfigError("TWEEN_RESULT_BACKEND: rpc:// cannot run chords; use redis:// or db+...")
+    s = FarmSettings(broker_url=broker, result_backend=backend, embedded=embedded, **vals)
+    if s.fill_soft_time_limit >= s.fill_time_limit:
+        raise FarmConfigError("fill_soft_time_limit must be below fill_time_limit")
+    if s.is_redis and s.fill_time_limit >= s.visibility_timeout:
+        raise FarmConfigError(
+            f"fill_time_limit ({s.fill_time_limit} s) must be below visibility_timeout "
+            f"({s.visibility_timeout} s), or Redis hands a running task to a second worker"
+        )
+    if s.is_redis and s.train_time_limit >= s.train_visibility_timeout:
+        raise FarmConfigError("train_time_limit must be below train_visibility_timeout")
+    return s
