@@ -1,0 +1,181 @@
+"""BVH → USD shot: SkelRoot with Skeleton, SkelAnimation and a skinned box mannequin.
+
+Authored through usd-core's UsdSkel/UsdGeom APIs. The rest and bind pose is the
+canonical T-pose of the rig (when its joints map onto the model skeleton) so the
+mannequin is modelled in a sensible pose and any tool can retarget from it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+import pipeline.usd  # noqa: F401
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul, slerp
+from pipeline.usd.mapping import MODEL_JOINTS, MappingError, map_joints
+
+
+def resample(motion: Motion, fps: float) -> Motion:
+    """The motion at another frame rate (SLERP / LERP between source frames)."""
+    if fps == motion.fps:
+        return motion
+    T = len(motion)
+    n = int(np.floor((T - 1) * fps / motion.fps + 1e-9)) + 1
+    u = np.arange(n) * motion.fps / fps
+    i0 = np.minimum(np.floor(u).astype(int), T - 1)
+    i1 = np.minimum(i0 + 1, T - 1)
+    w = u - i0
+    rot = np.empty((n,) + motion.rotations.shape[1:], np.float32)
+    for k in range(n):  # per-frame weight; rotations.slerp broadcasts one weight list over all pairs
+        rot[k] = slerp(motion.rotations[i0[k]], motion.rotations[i1[k]], [w[k]])[0]
+    pos = (1 - w[:, None]) * motion.root_positions[i0] + w[:, None] * motion.root_positions[i1]
+    return Motion(motion.skeleton, rot, pos, fps, motion.name)
+
+
+def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """Local rest rotations (J,4) and translations (J,3): the canonical T-pose when the rig
+    maps onto the model skeleton, else the first frame."""
+    from pipeline.usd.retarget import reference_pose
+
+    skel = motion.skeleton
+    local = motion.rotations[0].astype(np.float64)
+    trans = skel.offsets.astype(np.float64).copy()
+    trans[0] = (0.0, float(motion.root_positions[0, 1]), 0.0)
+    g, p = motion.slice(0, 1).fk()
+    try:
+        roles = map_joints(skel.names, skel.parents)
+        ref = reference_pose(roles, g[0].astype(np.float64), p[0].astype(np.float64))
+    except MappingError:
+        return local, trans
+    want = {roles[m]: ref[j] for j, m in enumerate(MODEL_JOINTS) if m in roles}
+    gnew = np.empty_like(local)
+    for j, par in enumerate(skel.parents):
+        if j in want:
+            gnew[j] = want[j]
+            local[j] = gnew[j] if par < 0 else quat_mul(quat_inv(gnew[par]), gnew[j])
+        else:
+            gnew[j] = local[j] if par < 0 else quat_mul(gnew[par], local[j])
+    return local, trans
+
+
+def _box(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
+    """8 corners of a box of half-width r around the segment a→b."""
+    d = b - a
+    n = np.linalg.norm(d)
+    x = d / n
+    h = np.array([0.0, 1.0, 0.0]) if abs(x[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    y = np.cross(x, h)
+    y /= np.linalg.norm(y)
+    z = np.cross(x, y)
+    return np.array([a + s1 * r * y + s2 * r * z + e * d for e in (0, 1) for s1 in (-1, 1) for s2 in (-1, 1)])
+
+
+_BOX_FACES = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+
+
+def write_shot(
+    motion: Motion,
+    out: str | Path,
+    start: float = 1001,
+    fps: float | None = None,
+    keys_every: int = 1,
+    up_axis: str = "Y",
+    name: str = "Character",
+) -> str:
+    """Writes ``motion`` as a UsdSkel shot (atomically); returns the path."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+    out = Path(out)
+    if fps:
+        motion = resample(motion, fps)
+    skel = motion.skeleton
+    T, J = motion.rotations.shape[:2]
+    keys = list(range(0, T, max(1, keys_every)))
+    if keys[-1] != T - 1:
+        keys.append(T - 1)
+    tmp = out.with_name(f".{out.stem}.tmp{os.getpid()}{out.suffix}")
+    stage = Usd.Stage.CreateNew(str(tmp))
+    try:
+        stage.SetTimeCodesPerSecond(motion.fps)
+        stage.SetFramesPerSecond(motion.fps)
+        stage.SetStartTimeCode(start)
+        stage.SetEndTimeCode(start + T - 1)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if up_axis.upper() == "Z" else UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, skel.meters_per_unit)
+        world = UsdGeom.Xform.Define(stage, "/World")
+        stage.SetDefaultPrim(world.GetPrim())
+        root = UsdSkel.Root.Define(stage, f"/World/{name}")
+        if up_axis.upper() == "Z":  # the BVH is Y up: stand the character up along Z
+            UsdGeom.Xformable(root).AddRotateXOp().Set(90.0)
+        tokens, paths = [], []
+        for j, par in enumerate(skel.parents):
+            paths.append(skel.names[j] if par < 0 else f"{paths[par]}/{skel.names[j]}")
+        tokens = Vt.TokenArray(paths)
+        sk = UsdSkel.Skeleton.Define(stage, f"/World/{name}/Skel")
+        sk.CreateJointsAttr(tokens)
+        rest_rot, rest_trans = rest_pose(motion)
+        rest_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
+                  for q, t in zip(rest_rot, rest_trans, strict=False)]  # fmt: skip
+        g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
+        for j, par in enumerate(skel.parents):
+            if par < 0:
+                g_rot[j], g_pos[j] = rest_rot[j], rest_trans[j]
+            else:
+                g_rot[j] = quat_mul(g_rot[par], rest_rot[j])
+                g_pos[j] = g_pos[par] + quat_apply(g_rot[par], rest_trans[j])
+        bind_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
+                  for q, t in zip(g_rot, g_pos, strict=False)]  # fmt: skip
+        sk.CreateRestTransformsAttr(Vt.Matrix4dArray(rest_m))
+        sk.CreateBindTransformsAttr(Vt.Matrix4dArray(bind_m))
+        anim = UsdSkel.Animation.Define(stage, f"/World/{name}/Skel/Anim")
+        anim.CreateJointsAttr(tokens)
+        UsdSkel.BindingAPI.Apply(sk.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+        trans = np.broadcast_to(skel.offsets, (T, J, 3)).copy()
+        trans[:, 0] = motion.root_positions
+        ra, ta, sa = anim.CreateRotationsAttr(), anim.CreateTranslationsAttr(), anim.CreateScalesAttr()
+        sa.Set(Vt.Vec3hArray.FromNumpy(np.ones((J, 3), np.float16)))
+        with Sdf.ChangeBlock():
+            for k in keys:
+                t = Usd.TimeCode(start + k)
+                ra.Set(Vt.QuatfArray.FromNumpy(np.ascontiguousarray(motion.rotations[k])), t)
+                ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(trans[k].astype(np.float32))), t)
+        _mannequin(stage, f"/World/{name}/Mannequin", sk, skel, g_pos, tokens)
+        stage.GetRootLayer().Save()
+        del stage
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return str(out)
+
+
+def _mannequin(stage, path, sk, skel, g_pos, tokens) -> None:
+    from pxr import Gf, UsdGeom, UsdSkel, Vt
+
+    pts, idx, counts, faces = [], [], [], []
+    for j, par in enumerate(skel.parents):
+        if par < 0 or np.linalg.norm(g_pos[j] - g_pos[par]) < 1e-3:
+            continue
+        length = np.linalg.norm(g_pos[j] - g_pos[par])
+        base = len(pts)
+        pts.extend(_box(g_pos[par], g_pos[j], max(1.0, min(6.0, 0.18 * length))))
+        idx.extend([par] * 8)
+        for f in _BOX_FACES:
+            counts.append(4)
+            faces.extend(base + v for v in f)
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    pts = np.array(pts, np.float32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray(counts))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(faces))
+    mesh.CreateExtentAttr(
+        Vt.Vec3fArray([Gf.Vec3f(*map(float, pts.min(0))), Gf.Vec3f(*map(float, pts.max(0)))])
+    )
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([sk.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([int(i) for i in idx]))
+    binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(idx)))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))

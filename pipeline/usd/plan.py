@@ -1,0 +1,107 @@
+"""Validating a shot and planning its fill: characters, keys, fill range and retargeters."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.errors import ShotError, TweenError
+from pipeline.usd.keys import merge_times, parse_keys, parse_range
+from pipeline.usd.mapping import MappingError, load_override, map_joints
+from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot
+from pipeline.usd.retarget import Retarget
+
+
+@dataclass
+class CharPlan:
+    char: Character
+    retarget: Retarget
+    keys: np.ndarray  # key time codes (exact authored values where they are samples)
+    fill_range: tuple[float, float]
+
+
+@dataclass
+class Plan:
+    shot: Shot
+    chars: list[CharPlan]
+    refused: list[tuple[str, str]]  # (prim, why)
+    model_fps: float
+
+    def summary(self) -> dict:
+        return {
+            "shot": self.shot.path,
+            "tcps": self.shot.tcps,
+            "start": self.shot.start,
+            "end": self.shot.end,
+            "up_axis": self.shot.up_axis,
+            "meters_per_unit": self.shot.meters_per_unit,
+            "characters": [c.char.anim_path for c in self.chars],
+            "keys": {c.char.anim_path: [float(k) for k in c.keys] for c in self.chars},
+            "range": {c.char.anim_path: [float(x) for x in c.fill_range] for c in self.chars},
+            "refused": [{"prim": p, "reason": r} for p, r in self.refused],
+        }
+
+
+def _keys_for(shot: Shot, char: Character, keys_opt: str | None) -> np.ndarray:
+    if keys_opt:
+        want = parse_keys(keys_opt)
+    elif char.key_override is not None:
+        want = np.unique(char.key_override)
+    else:
+        return char.sample_times
+    # Snap requested keys onto authored samples within tolerance so they keep exact values.
+    return merge_times(
+        char.sample_times[np.any(np.abs(char.sample_times[:, None] - want) < TIME_EPS, 1)], want
+    )
+
+
+def make_plan(path: str, keys: str | None, range_: str | None, mapping: str | None, model_fps: float) -> Plan:
+    shot = read_shot(path)
+    try:
+        override = load_override(mapping)
+    except MappingError as e:
+        raise TweenError(str(e)) from None
+    rng = parse_range(range_) if range_ else None
+    chars: list[CharPlan] = []
+    refused: list[tuple[str, str]] = []
+    for c in shot.characters:
+        try:
+            roles = map_joints(c.joints, c.parents, override)
+            rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit)
+        except MappingError as e:
+            refused.append((c.skel_path, str(e)))
+            continue
+        k = _keys_for(shot, c, keys)
+        if len(k) < 2:
+            raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
+        lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
+        out = k[(k < lo) | (k > hi)]
+        if len(out):
+            raise ShotError(
+                path, f"key {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}", c.anim_path
+            )
+        m = np.round((k - k[0]) / shot.tcps * model_fps)
+        dup = np.nonzero(np.diff(m) == 0)[0]
+        if len(dup):
+            a, b = k[dup[0]], k[dup[0] + 1]
+            raise ShotError(
+                path, f"keys {a:g} and {b:g} fall on one model frame (1/{model_fps:g} s)", c.anim_path
+            )
+        rot, tr, _ = anim_values(shot.stage, c, k)
+        bad = ~(np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)))
+        if bad.any():
+            raise ShotError(path, f"NaN or infinite values at time {k[bad][0]:g}", c.anim_path)
+        fr = rng or (float(k[0]), float(k[-1]))
+        if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:
+            raise ShotError(
+                path, f"range {fr[0]:g}-{fr[1]:g} is outside the stage range {shot.start:g}-{shot.end:g}"
+            )
+        chars.append(CharPlan(c, rt, k, fr))
+    if not chars:
+        prim, why = refused[0]
+        raise ShotError(path, f"rig refused: {why}", prim)
+    for prim, why in refused:
+        print(f"tween: warning: {path} {prim}: skipped: {why}", file=sys.stderr)
+    return Plan(shot, chars, refused, model_fps)

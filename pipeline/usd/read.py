@@ -1,0 +1,247 @@
+"""Reading a shot: every animated skeleton with its joints, rest/bind pose, keys and values.
+
+Skeleton → animation bindings are resolved by UsdSkel's own cache (inherited
+``skel:animationSource`` on a SkelRoot included). Matrices are converted to the column
+convention on read (USD's are row-vector); quaternions are xyzw as everywhere here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
+from pipeline.errors import ShotError
+from pipeline.motion.rotations import matrix_to_quat
+
+TIME_EPS = 1e-4  # time codes closer than this are the same frame (real files carry 3023.000157…)
+
+
+@dataclass
+class Character:
+    """One animated skeleton of a shot."""
+
+    shot: str
+    skel_path: str
+    anim_path: str
+    joints: tuple[str, ...]  # skeleton joint tokens ("Hips/Spine")
+    names: tuple[str, ...]  # leaf names
+    parents: np.ndarray  # (J,)
+    rest_rot: np.ndarray  # (J, 4) local, from restTransforms
+    rest_trans: np.ndarray  # (J, 3)
+    bind_rot: np.ndarray  # (J, 4) skel-space bind pose (FK of rest when not authored)
+    bind_pos: np.ndarray  # (J, 3)
+    skel_to_world: np.ndarray  # (4, 4) column convention, at the start time
+    anim_joints: tuple[str, ...]
+    anim_index: np.ndarray  # (Ja,) skeleton index of each animation joint
+    sample_times: np.ndarray  # authored samples of rotations ∪ translations
+    key_override: np.ndarray | None = None  # tween:keyTimes on the animation
+    blend_shapes: bool = False
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class Shot:
+    path: str
+    stage: object
+    tcps: float
+    start: float
+    end: float
+    up_axis: str
+    meters_per_unit: float
+    characters: list[Character]
+
+
+def _col(m) -> np.ndarray:
+    """A Gf/Vt row-vector matrix (or array of them) as column-convention numpy."""
+    return np.swapaxes(np.array(m, np.float64), -1, -2)
+
+
+def _decompose(mats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (quats, scale removed by polar decomposition) and translation of (N,4,4)."""
+    r = mats[:, :3, :3]
+    u, _, vt = np.linalg.svd(r)
+    rot = u @ vt
+    flip = np.linalg.det(rot) < 0
+    rot[flip] *= -1  # a mirrored bind matrix: keep a proper rotation; the humanoid check judges the pose
+    return matrix_to_quat(rot), mats[:, :3, 3].copy()
+
+
+def open_stage(path: str | Path):
+    """The stage of a shot file, or a one-line ShotError."""
+    from pxr import Tf, Usd
+
+    path = str(path)
+    if not Path(path).exists():
+        raise ShotError(path, "file not found")
+    if not Path(path).is_file():
+        raise ShotError(path, "not a file")
+    try:
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    except Tf.ErrorException as e:
+        msg = str(e).strip().splitlines()
+        raise ShotError(path, f"cannot open as USD: {msg[-1].strip() if msg else 'unreadable'}") from None
+    if stage is None:
+        raise ShotError(path, "cannot open as USD")
+    return stage
+
+
+def _fk_bind(parents, rest_rot, rest_trans):
+    from pipeline.motion.rotations import quat_apply, quat_mul
+
+    J = len(parents)
+    g_rot = np.zeros((J, 4))
+    g_pos = np.zeros((J, 3))
+    for j in range(J):
+        p = parents[j]
+        if p < 0:
+            g_rot[j], g_pos[j] = rest_rot[j], rest_trans[j]
+        else:
+            g_rot[j] = quat_mul(g_rot[p], rest_rot[j])
+            g_pos[j] = g_pos[p] + quat_apply(g_rot[p], rest_trans[j])
+    return g_rot, g_pos
+
+
+def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
+    from pxr import UsdGeom, UsdSkel
+
+    skel_path = str(skel.GetPrim().GetPath())
+    anim_prim = animq.GetPrim()
+    anim_path = str(anim_prim.GetPath())
+    topo = skelq.GetTopology()
+    joints = tuple(str(t) for t in skelq.GetJointOrder())
+    J = len(joints)
+    parents = np.array([topo.GetParent(i) for i in range(J)], np.int64)
+    rest = skel.GetRestTransformsAttr().Get()
+    bind = skel.GetBindTransformsAttr().Get()
+    if rest is not None and len(rest) == J:
+        rest_rot, rest_trans = _decompose(_col(rest))
+    elif bind is not None and len(bind) == J:
+        # No rest pose: derive locals from the bind pose, as UsdSkel itself does.
+        b = _col(bind)
+        loc = np.array([b[j] if parents[j] < 0 else np.linalg.inv(b[parents[j]]) @ b[j] for j in range(J)])
+        rest_rot, rest_trans = _decompose(loc)
+    else:
+        raise ShotError(
+            shot_path, f"skeleton has {J} joints but no rest or bind transforms for them", skel_path
+        )
+    if bind is not None and len(bind) == J:
+        bind_rot, bind_pos = _decompose(_col(bind))
+    else:
+        bind_rot, bind_pos = _fk_bind(parents, rest_rot, rest_trans)
+
+    anim = UsdSkel.Animation(anim_prim)
+    anim_joints = tuple(str(t) for t in (anim.GetJointsAttr().Get() or []))
+    if not anim_joints:
+        raise ShotError(shot_path, "animation lists no joints", anim_path)
+    index = {t: i for i, t in enumerate(joints)}
+    missing = [t for t in anim_joints if t not in index]
+    if missing:
+        raise ShotError(
+            shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
+        )
+    times = sorted(
+        set(anim.GetRotationsAttr().GetTimeSamples()) | set(anim.GetTranslationsAttr().GetTimeSamples())
+    )
+    override = None
+    kt = anim_prim.GetAttribute("tween:keyTimes")
+    if kt and kt.HasAuthoredValue():
+        override = np.array(kt.Get(), np.float64)
+    start = stage.GetStartTimeCode()
+    xf = UsdGeom.Xformable(skel.GetPrim()).ComputeLocalToWorldTransform(start)
+    bs = anim.GetBlendShapeWeightsAttr()
+    return Character(
+        shot=shot_path,
+        skel_path=skel_path,
+        anim_path=anim_path,
+        joints=joints,
+        names=tuple(t.rsplit("/", 1)[-1] for t in joints),
+        parents=parents,
+        rest_rot=rest_rot,
+        rest_trans=rest_trans,
+        bind_rot=bind_rot,
+        bind_pos=bind_pos,
+        skel_to_world=_col(xf),
+        anim_joints=anim_joints,
+        anim_index=np.array([index[t] for t in anim_joints], np.int64),
+        sample_times=np.array(times, np.float64),
+        key_override=override,
+        blend_shapes=bool(bs and bs.HasAuthoredValue()),
+    )
+
+
+def read_shot(path: str | Path) -> Shot:
+    """Every skeleton with a bound animation in the shot (UsdSkel binding resolution)."""
+    from pxr import Usd, UsdGeom, UsdSkel
+
+    path = str(path)
+    stage = open_stage(path)
+    cache = UsdSkel.Cache()
+    chars: list[Character] = []
+    seen: set[str] = set()
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdSkel.Root):
+            continue
+        cache.Populate(UsdSkel.Root(prim), Usd.TraverseInstanceProxies())
+        for sub in Usd.PrimRange(prim, Usd.TraverseInstanceProxies()):
+            if not sub.IsA(UsdSkel.Skeleton) or str(sub.GetPath()) in seen:
+                continue
+            skel = UsdSkel.Skeleton(sub)
+            skelq = cache.GetSkelQuery(skel)
+            if not skelq:
+                continue
+            animq = skelq.GetAnimQuery()
+            if not animq:
+                continue
+            seen.add(str(sub.GetPath()))
+            chars.append(_character(path, stage, skel, skelq, animq))
+    if not chars:
+        raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
+    up = str(UsdGeom.GetStageUpAxis(stage))
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    if not (mpu > 0 and math.isfinite(mpu)):
+        raise ShotError(path, f"metersPerUnit {mpu} is not a positive number")
+    start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+    if not stage.HasAuthoredTimeCodeRange():
+        allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])
+        start, end = float(allt.min()), float(allt.max())
+    return Shot(path, stage, float(stage.GetTimeCodesPerSecond()), float(start), float(end), up, mpu, chars)
+
+
+def anim_values(stage, char: Character, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Animation-ordered local (rotations f32 xyzw, translations f32, scales f16) at ``times``.
+
+    Values between authored samples are USD's own interpolation (SLERP / LERP). An
+    attribute with no value at all falls back to the rest pose, as UsdSkel does.
+    """
+    from pxr import UsdSkel
+
+    anim = UsdSkel.Animation(stage.GetPrimAtPath(char.anim_path))
+    Ja = len(char.anim_joints)
+    T = len(times)
+    rot = np.empty((T, Ja, 4), np.float32)
+    tr = np.empty((T, Ja, 3), np.float32)
+    sc = np.empty((T, Ja, 3), np.float16)
+    attrs = (
+        (anim.GetRotationsAttr(), rot, char.rest_rot[char.anim_index]),
+        (anim.GetTranslationsAttr(), tr, char.rest_trans[char.anim_index]),
+        (anim.GetScalesAttr(), sc, np.ones((Ja, 3))),
+    )
+    for attr, out, fallback in attrs:
+        for i, t in enumerate(times):
+            v = attr.Get(float(t))
+            if v is None:
+                out[i] = fallback
+                continue
+            a = np.array(v)
+            if a.shape[0] != Ja:
+                raise ShotError(
+                    char.shot,
+                    f"{attr.GetName()} holds {a.shape[0]} values for {Ja} joints at time {t:g}",
+                    char.anim_path,
+                )
+            out[i] = a
+    return rot, tr, sc

@@ -1,0 +1,100 @@
+"""Filling one character: keys → model skeleton at the model rate → in-betweener → back
+onto the shot's rig at every shot frame, keys carrying their authored values bitwise."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.errors import ShotError
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import quat_normalize
+from pipeline.usd.keys import merge_times
+from pipeline.usd.plan import CharPlan, Plan
+from pipeline.usd.read import TIME_EPS, anim_values
+
+
+def to_skeleton_order(char, rot_a, tr_a):
+    """Animation-ordered locals → skeleton order (joints the animation lacks keep rest)."""
+    T = rot_a.shape[0]
+    rot = np.broadcast_to(char.rest_rot.astype(np.float32), (T,) + char.rest_rot.shape).copy()
+    tr = np.broadcast_to(char.rest_trans.astype(np.float32), (T,) + char.rest_trans.shape).copy()
+    rot[:, char.anim_index] = rot_a
+    tr[:, char.anim_index] = tr_a
+    return rot, tr
+
+
+def _slerp_frames(q: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """q[i0]…q[i0+1] at per-frame weights w; rotations.slerp takes one weight list for all
+    pairs, this one a weight per frame. w == 0 returns q[i0] unchanged."""
+    i1 = np.minimum(i0 + 1, len(q) - 1)
+    a = q[i0].astype(np.float64)
+    b = q[i1].astype(np.float64)
+    dot = (a * b).sum(-1, keepdims=True)
+    b = np.where(dot < 0, -b, b)
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    ww = w[:, None, None]
+    theta = np.arccos(dot)
+    near = (1 - dot) < 1e-6
+    st = np.where(near, 1.0, np.sin(theta))
+    s0 = np.where(near, 1 - ww, np.sin((1 - ww) * theta) / st)
+    s1 = np.where(near, ww, np.sin(ww * theta) / st)
+    out = quat_normalize(s0 * a + s1 * b)
+    exact = w == 0
+    out[exact] = q[i0[exact]]
+    return out
+
+
+def frames_in(lo: float, hi: float) -> np.ndarray:
+    return np.arange(np.ceil(lo - TIME_EPS), np.floor(hi + TIME_EPS) + 1, dtype=np.float64)
+
+
+def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.ndarray]:
+    """Times and animation-ordered rotations/translations/scales for the fill layer."""
+    shot, c = plan.shot, cp.char
+    k = cp.keys
+    rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
+    loc_k, root_k = cp.retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
+    fps = float(inb.fps)
+    m = np.round((k - k[0]) / shot.tcps * fps).astype(np.int64)
+    T = int(m[-1]) + 1
+    near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
+    motion = Motion(inb.skeleton, loc_k[near], root_k[near], fps, c.anim_path)
+    motion.rotations[m], motion.root_positions[m] = loc_k, root_k
+    filled = inb.fill(motion, m, seed=seed)
+
+    lo, hi = cp.fill_range
+    inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
+    u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
+    i0 = np.floor(u + 1e-9).astype(np.int64)
+    w = np.clip(u - i0, 0.0, 1.0)
+    w[w < 1e-7] = 0.0
+    loc = _slerp_frames(filled.rotations, i0, w)
+    i1 = np.minimum(i0 + 1, T - 1)
+    root = (1 - w[:, None]) * filled.root_positions[i0] + w[:, None] * filled.root_positions[i1]
+    rot_o, tr_o, sc_o = anim_values(shot.stage, c, inside)
+    rot_s, tr_s = cp.retarget.from_model(loc, root, *to_skeleton_order(c, rot_o, tr_o))
+    rot, tr = rot_s[:, c.anim_index], tr_s[:, c.anim_index]
+    if not (np.isfinite(rot).all() and np.isfinite(tr).all()):
+        raise ShotError(shot.path, "the in-betweener produced non-finite values", c.anim_path)
+    # Keys carry exactly the authored values (not round-tripped ones).
+    pos = {float(t): i for i, t in enumerate(inside)}
+    for j, t in enumerate(k):
+        i = pos.get(float(t))
+        if i is not None:
+            rot[i], tr[i], sc_o[i] = rot_k[j], tr_k[j], sc_k[j]
+
+    # Outside the range every frame (and authored sample) keeps what the shot has: the
+    # filled animation replaces the original's samples entirely, so they are copied.
+    outside = merge_times(c.sample_times, frames_in(shot.start, shot.end))
+    outside = outside[(outside < lo - TIME_EPS) | (outside > hi + TIME_EPS)]
+    r2, t2, s2 = anim_values(shot.stage, c, outside)
+    times = np.concatenate([inside, outside])
+    order = np.argsort(times, kind="stable")
+    return {
+        "times": times[order],
+        "rot": np.concatenate([rot, r2])[order],
+        "trans": np.concatenate([tr, t2])[order],
+        "scale": np.concatenate([sc_o, s2])[order],
+        "keys": k,
+        "inside": inside,
+    }
