@@ -1,0 +1,105 @@
+"""Burn-ins drawn with OpenImageIO (ImageBufAlgo.render_text, the wheel's Droid fonts).
+
+Static text (shot, model, take, panel labels) is rendered once into premultiplied RGBA bands;
+only the frame / time code text is rendered per frame, and compositing touches the bands only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FONT = "DroidSansMono"
+KEY_RGB = (1.0, 0.45, 0.12)
+
+
+def timecode(frame: int, fps: float) -> str:
+    """Non-drop SMPTE-style HH:MM:SS:FF for a frame number at ``fps``."""
+    n = max(int(round(fps)), 1)
+    f = int(frame)
+    sign = "-" if f < 0 else ""
+    f = abs(f)
+    return f"{sign}{f // (3600 * n):02d}:{f // (60 * n) % 60:02d}:{f // n % 60:02d}:{f % n:02d}"
+
+
+def _text_band(w: int, h: int, items, size: int, fill_alpha: float) -> np.ndarray:
+    """(h, w, 4) premultiplied float32: a translucent band with (x, y, text, rgb, align) items."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(oiio.ImageSpec(w, h, 4, oiio.FLOAT))
+    oiio.ImageBufAlgo.fill(buf, [0.0, 0.0, 0.0, fill_alpha])
+    for x, y, text, rgb, align in items:
+        if text:
+            oiio.ImageBufAlgo.render_text(buf, int(x), int(y), text, size, FONT, [*rgb, 1.0], align, "center")
+    return buf.get_pixels(oiio.FLOAT).reshape(h, w, 4)
+
+
+def _over(dst: np.ndarray, src: np.ndarray) -> None:
+    """In place: premultiplied ``src`` (float RGBA) over ``dst`` (uint8 RGB) of the same size."""
+    a = src[..., 3:4]
+    dst[...] = np.clip(src[..., :3] * 255.0 + dst * (1.0 - a) + 0.5, 0, 255).astype(np.uint8)
+
+
+class BurnIn:
+    """Burn-ins for frames of ``size``: shot / model / take / frame + time code / KEY."""
+
+    def __init__(self, size, shot: str, facts: dict, fps: float, panel_labels: list[str] | None = None):
+        self.w, self.h = size
+        self.fps = fps
+        self.font = max(12, round(self.h * 0.03))
+        self.band = round(self.font * 1.7)
+        mid = self.band // 2
+        model = facts.get("model")
+        mhash = str(facts.get("model_hash", ""))[:12]
+        right = f"model {model} {mhash}".strip() if model else "no model (plain shot)"
+        take = facts.get("take")
+        take_txt = f"take {take}" if take is not None else "take -"
+        if facts.get("seed") is not None:
+            take_txt += f"   seed {facts['seed']}"
+        pad = self.font // 2
+        top = [(pad, mid, shot, (1, 1, 1), "left"), (self.w - pad, mid, right, (0.85, 0.9, 1.0), "right")]
+        if panel_labels:
+            pw = self.w // len(panel_labels)
+            top_labels = [
+                (pw * k + pw // 2, mid, lab, (0.8, 0.8, 0.8), "center") for k, lab in enumerate(panel_labels)
+            ]
+            self.labels = _text_band(self.w, self.band, top_labels, self.font, 0.0)
+        else:
+            self.labels = None
+        self.top = _text_band(self.w, self.band, top, self.font, 0.55)
+        self.bottom = _text_band(
+            self.w, self.band, [(pad, mid, take_txt, (1, 1, 1), "left")], self.font, 0.55
+        )
+        kw = self.font * 4
+        self.key_rect = (self.w // 2 - kw // 2, 2, kw, self.band - 4)  # x, y, w, h
+        self.key_badge = _text_band(
+            kw,
+            self.band - 4,
+            [(kw // 2, (self.band - 4) // 2, "KEY", (0, 0, 0), "center")],
+            round(self.font * 1.1),
+            0.0,
+        )
+        self.key_badge[..., :3] += np.array(KEY_RGB, np.float32) * (1.0 - self.key_badge[..., 3:4])
+        self.key_badge[..., 3] = 1.0
+        self.frame_w = self.font * 16
+
+    def apply(self, img: np.ndarray, frame: int, is_key: bool) -> None:
+        """Burns the text into ``img`` (h, w, 3) uint8 in place."""
+        b, w = self.band, self.w
+        _over(img[:b], self.top)
+        _over(img[-b:], self.bottom)
+        if self.labels is not None:
+            _over(img[b : 2 * b], self.labels)
+            x = self.w // 2
+            img[b:-b, x - 1 : x + 1] = 150  # the seam between the panels
+        rgb = KEY_RGB if is_key else (1, 1, 1)
+        text = f"{frame:>6d}   {timecode(frame, self.fps)}"
+        strip = _text_band(
+            self.frame_w, b, [(self.frame_w - self.font // 2, b // 2, text, rgb, "right")], self.font, 0.0
+        )
+        _over(img[-b:, w - self.frame_w :], strip)
+        if is_key:
+            x, y, kw, kh = self.key_rect
+            _over(img[y : y + kh, x : x + kw], self.key_badge)
+            t = max(2, self.h // 135)  # a border that reads at thumbnail size
+            k = np.array([round(c * 255) for c in KEY_RGB], np.uint8)
+            img[:t], img[-t:], img[:, :t], img[:, -t:] = k, k, k, k

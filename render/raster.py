@@ -1,0 +1,289 @@
+"""The per-frame rasteriser: background, grid ground with the characters' shadow, root trajectory
+and key markers, the characters (and optional key ghosts), into a 4x MSAA buffer read back as RGB."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from render import shaders
+from render.gl import RenderError, context
+from render.scene import Geometry
+
+CLAY = (0.62, 0.50, 0.38)  # linear albedo of the filled character
+BLOCKING_CLAY = (0.40, 0.47, 0.60)  # the stepped-keys character, so the panels cannot be confused
+GHOST = (0.35, 0.75, 1.0)
+KEY_DIR = np.array([0.45, 0.80, 0.40]) / np.linalg.norm([0.45, 0.80, 0.40])
+FILL_DIR = np.array([-0.6, 0.35, -0.3]) / np.linalg.norm([-0.6, 0.35, -0.3])
+
+
+class MeshSet:
+    """GPU buffers for a list of geometries; ``upload(i)`` writes frame ``i``'s points."""
+
+    def __init__(self, ctx, mesh_prog, shadow_prog, geoms: list[Geometry]):
+        self.geoms, self.items = geoms, []
+        for g in geoms:
+            vbo = ctx.buffer(reserve=g.points.shape[1] * 12, dynamic=True)
+            ibo = ctx.buffer(np.ascontiguousarray(g.tris, np.int32).tobytes())
+            attrs = [(vbo, "3f", "in_pos")]
+            nbo = None
+            if g.normals is not None:
+                nbo = ctx.buffer(reserve=g.points.shape[1] * 12, dynamic=True)
+                attrs.append((nbo, "3f", "in_nrm"))
+            vao = ctx.vertex_array(mesh_prog, attrs, index_buffer=ibo, index_element_size=4)
+            svao = ctx.vertex_array(
+                shadow_prog, [(vbo, "3f", "in_pos")], index_buffer=ibo, index_element_size=4
+            )
+            self.items.append((g, vbo, nbo, vao, svao))
+
+    @property
+    def n_frames(self) -> int:
+        return self.geoms[0].points.shape[0] if self.geoms else 0
+
+    def upload(self, i: int) -> None:
+        for g, vbo, nbo, _, _ in self.items:
+            vbo.write(np.ascontiguousarray(g.points[i], np.float32))
+            if nbo is not None:
+                nbo.write(np.ascontiguousarray(g.normals[i], np.float32))
+
+    def draw(self, prog, shadow=False):
+        for g, _, _, vao, svao in self.items:
+            if shadow:
+                svao.render()
+            else:
+                prog["use_flat"].value = int(g.normals is None)
+                vao.render()
+
+    def release(self):
+        for _, vbo, nbo, vao, svao in self.items:
+            for o in (vao, svao, vbo, nbo):
+                if o is not None:
+                    o.release()
+
+
+def _ribbon(path: np.ndarray, y: float, width: float) -> np.ndarray:
+    """Triangles (as a flat (N, 4) array of x, y, z, frame) of a ground ribbon along ``path``."""
+    p = path[:, [0, 2]].astype(np.float64)
+    d = np.gradient(p, axis=0) if len(p) > 1 else np.zeros_like(p)
+    n = np.stack([-d[:, 1], d[:, 0]], 1)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
+    a, b = p + n * width / 2, p - n * width / 2
+    t = np.arange(len(p), dtype=np.float64)
+    quads = []
+    for i in range(len(p) - 1):
+        quads += [
+            (a[i], t[i]),
+            (b[i], t[i]),
+            (a[i + 1], t[i + 1]),
+            (b[i], t[i]),
+            (b[i + 1], t[i + 1]),
+            (a[i + 1], t[i + 1]),
+        ]
+    return np.array([[q[0], y, q[1], tt] for q, tt in quads], np.float32).reshape(-1, 4)
+
+
+def _discs(centers: np.ndarray, y: float, r_in: float, r_out: float, t: np.ndarray, seg=20) -> np.ndarray:
+    """Flat rings (r_in > 0) or discs on the ground, as (N, 4) x, y, z, frame triangles."""
+    th = np.linspace(0, 2 * np.pi, seg + 1)
+    out = []
+    for c in centers:
+        for k in range(seg):
+            o0 = c[[0, 2]] + r_out * np.array([np.cos(th[k]), np.sin(th[k])])
+            o1 = c[[0, 2]] + r_out * np.array([np.cos(th[k + 1]), np.sin(th[k + 1])])
+            i0 = c[[0, 2]] + r_in * np.array([np.cos(th[k]), np.sin(th[k])])
+            i1 = c[[0, 2]] + r_in * np.array([np.cos(th[k + 1]), np.sin(th[k + 1])])
+            out += [o0, o1, i1, o0, i1, i0]
+    pts = np.array(out, np.float64).reshape(-1, 2)
+    tt = np.repeat(np.asarray(t, np.float64), seg * 6)
+    return np.stack([pts[:, 0], np.full(len(pts), y), pts[:, 1], tt], 1).astype(np.float32)
+
+
+class Renderer:
+    """Renders frames of ``size`` (w, h) split into ``panels`` side by side."""
+
+    def __init__(self, size: tuple[int, int], panels: int = 1, samples: int = 4):
+        import moderngl
+
+        self.mgl = moderngl
+        ctx = self.ctx = context()
+        w, h = size
+        if w < 16 or h < 16 or w % 2 or h % 2:
+            raise RenderError(f"image size {w}x{h}: width and height must be even and at least 16")
+        self.size, self.panels = (w, h), panels
+        max_samples = ctx.info.get("GL_MAX_SAMPLES", 4)
+        samples = min(samples, max_samples)
+        self.msaa = ctx.framebuffer(
+            color_attachments=[ctx.renderbuffer((w, h), 4, samples=samples)],
+            depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples),
+        )
+        self.resolved = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), 4)])
+        self.mask_tex = ctx.texture((w, h), 1, dtype="f1")
+        self.mask_fbo = ctx.framebuffer(color_attachments=[self.mask_tex])
+        self.bg = ctx.program(vertex_shader=shaders.BACKGROUND_VS, fragment_shader=shaders.BACKGROUND_FS)
+        self.bg_vao = ctx.vertex_array(self.bg, [])
+        self.mesh = ctx.program(vertex_shader=shaders.MESH_VS, fragment_shader=shaders.MESH_FS)
+        self.shadow = ctx.program(vertex_shader=shaders.SHADOW_VS, fragment_shader=shaders.SHADOW_FS)
+        self.ground = ctx.program(vertex_shader=shaders.GROUND_VS, fragment_shader=shaders.GROUND_FS)
+        self.flat = ctx.program(vertex_shader=shaders.FLAT_VS, fragment_shader=shaders.FLAT_FS)
+        self._owned = []
+        self.out = np.empty((h, w, 4), np.uint8)  # RGBA: the GL-native read is 10x faster than RGB
+
+    def _own(self, *objs):
+        self._owned.extend(objs)
+        return objs[0]
+
+    def set_stage(self, bbox_min, bbox_max, ground_y: float, roots: list[np.ndarray], key_frames: np.ndarray):
+        """Static scene: ground plane, trajectories and key markers (frame indices ``key_frames``)."""
+        ctx = self.ctx
+        lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+        ext = hi - lo
+        self.height = max(float(ext[1]), 1e-3)
+        self.ground_y = float(ground_y)
+        self.center = (lo + hi) / 2
+        self.radius = float(max(ext[0], ext[2], self.height) * 2.2)
+        # A "nice" grid spacing near a quarter of the character's height (0.5 m for a person).
+        nice = np.array([1.0, 2.5, 5.0]) * 10.0 ** np.floor(np.log10(self.height / 4))
+        self.cell = float(nice[np.argmin(np.abs(np.log(nice / (self.height / 4))))])
+        c, r, y = self.center, self.radius, self.ground_y
+        quad = np.array(
+            [
+                [c[0] - r, y, c[2] - r],
+                [c[0] + r, y, c[2] - r],
+                [c[0] + r, y, c[2] + r],
+                [c[0] - r, y, c[2] - r],
+                [c[0] + r, y, c[2] + r],
+                [c[0] - r, y, c[2] + r],
+            ],
+            np.float32,
+        )
+        self.ground_vao = self._own(
+            ctx.vertex_array(self.ground, [(self._own(ctx.buffer(quad.tobytes())), "3f", "in_pos")])
+        )
+        eps = self.height * 0.002
+        w = self.height * 0.012
+        tri = [_ribbon(rt, y + eps, w) for rt in roots if len(rt) > 1]
+        marks = [
+            _discs(rt[key_frames], y + 2 * eps, 0.0, self.height * 0.03, key_frames)
+            for rt in roots
+            if len(key_frames)
+        ]
+        self.path_vao = self._flat_vao(np.concatenate(tri) if tri else None)
+        self.keymark_vao = self._flat_vao(np.concatenate(marks) if marks else None)
+        self.roots = roots
+
+    def _flat_vao(self, data):
+        if data is None or not len(data):
+            return None
+        buf = self._own(self.ctx.buffer(np.ascontiguousarray(data, np.float32).tobytes()))
+        return self._own(self.ctx.vertex_array(self.flat, [(buf, "3f 1f", "in_pos", "in_t")]))
+
+    def mesh_set(self, geoms: list[Geometry]) -> MeshSet:
+        return MeshSet(self.ctx, self.mesh, self.shadow, geoms)
+
+    def render(
+        self, frame: int, cameras, sets: list[MeshSet], colors, is_key: bool, ghosts: MeshSet | None = None
+    ):
+        """One frame: panel k shows ``sets[k]`` through ``cameras[k]``; returns (h, w, 4) uint8 (reused)."""
+        mgl, ctx = self.mgl, self.ctx
+        w, h = self.size
+        pw = w // self.panels
+        self.msaa.use()
+        self.msaa.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        for k, (cam, ms, color) in enumerate(zip(cameras, sets, colors, strict=True)):
+            vp_rect = (k * pw, 0, pw, h)
+            vp = cam.view_proj(frame).T.copy()
+            eye = cam.eye(frame)
+            ms.upload(frame)
+            # 1. the shadow mask: characters projected along the key light
+            self.mask_fbo.use()
+            self.mask_fbo.viewport = vp_rect
+            self.mask_fbo.clear(0.0, viewport=vp_rect)
+            ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
+            self.shadow["vp"].write(vp)
+            self.shadow["key_dir"].value = tuple(KEY_DIR)
+            self.shadow["ground_y"].value = self.ground_y
+            ms.draw(self.shadow, shadow=True)
+            # 2. background, ground (with the mask), trajectory, markers
+            self.msaa.use()
+            self.msaa.viewport = vp_rect
+            self.bg["viewport"].value = tuple(float(v) for v in vp_rect)
+            self.bg_vao.render(mgl.TRIANGLES, vertices=3)
+            ctx.enable(mgl.BLEND)
+            ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
+            self.mask_tex.use(0)
+            self.ground["vp"].write(vp)
+            self.ground["center"].value = (float(self.center[0]), float(self.center[2]))
+            self.ground["radius"].value = self.radius
+            self.ground["cell"].value = self.cell
+            self.ground["shadow_mask"].value = 0
+            self.ground_vao.render()
+            self.flat["vp"].write(vp)
+            self.flat["current"].value = float(frame)
+            if self.path_vao is not None:
+                self.flat["color_past"].value = (1.0, 0.78, 0.25, 0.95)
+                self.flat["color_future"].value = (0.85, 0.85, 0.9, 0.35)
+                self.path_vao.render()
+            if self.keymark_vao is not None:
+                self.flat["color_past"].value = (1.0, 0.45, 0.15, 1.0)
+                self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
+                self.keymark_vao.render()
+            if is_key:
+                ring = _discs(
+                    np.array([r[frame] for r in self.roots]),
+                    self.ground_y + self.height * 0.006,
+                    self.height * 0.16,
+                    self.height * 0.19,
+                    np.zeros(len(self.roots)),
+                    seg=48,
+                )
+                rvao = self._flat_vao(ring)
+                self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
+                rvao.render()
+                self._release_last(2)
+            # 3. characters, then translucent key ghosts
+            ctx.enable(mgl.DEPTH_TEST)
+            ctx.disable(mgl.BLEND)
+            m = self.mesh
+            m["vp"].write(vp)
+            m["eye"].value = tuple(float(v) for v in eye)
+            m["key_dir"].value = tuple(KEY_DIR)
+            m["fill_dir"].value = tuple(FILL_DIR)
+            m["ground_y"].value = self.ground_y
+            m["ao_height"].value = self.height * 0.25
+            m["base"].value = color
+            m["alpha"].value = 1.0
+            ms.draw(m)
+            if ghosts is not None:
+                ctx.enable(mgl.BLEND)
+                self.msaa.depth_mask = False
+                m["base"].value = GHOST
+                m["alpha"].value = 0.22
+                for i in range(ghosts.n_frames):
+                    ghosts.upload(i)
+                    ghosts.draw(m)
+                self.msaa.depth_mask = True
+        ctx.copy_framebuffer(self.resolved, self.msaa)
+        self.resolved.read_into(self.out, components=4, alignment=1)
+        return self.out
+
+    def _release_last(self, n):
+        for o in self._owned[-n:][::-1]:
+            o.release()
+        del self._owned[-n:]
+
+    def release(self):
+        for o in self._owned[::-1]:
+            o.release()
+        self._owned.clear()
+        for o in (
+            self.msaa,
+            self.resolved,
+            self.mask_fbo,
+            self.mask_tex,
+            self.bg_vao,
+            self.bg,
+            self.mesh,
+            self.shadow,
+            self.ground,
+            self.flat,
+        ):
+            o.release()

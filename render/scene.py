@@ -1,0 +1,288 @@
+"""What a review renders, read from a composed stage with plain Usd/UsdSkel API.
+
+Every animated skeleton in the stage becomes a :class:`Character`; its geometry is the stage's
+own skinned meshes (UsdSkel linear blend skinning) or, when nothing is bound to it, a mannequin
+of capsules built from its joints. Everything is returned in metres, Y up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import ShotError
+from render import mannequin
+
+TAKE_VARIANT_SET = "tweenTake"
+FACT_ATTRS = {
+    "model": "tween:model",
+    "model_hash": "tween:modelHash",
+    "take": "tween:take",
+    "seed": "tween:seed",
+}
+
+
+@dataclass
+class Geometry:
+    """Triangles (M, 3) with per-frame points (T, N, 3); smooth normals (T, N, 3) or None (flat)."""
+
+    tris: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray | None = None
+
+
+@dataclass
+class Character:
+    skel_path: str
+    anim_path: str
+    key_times: np.ndarray
+    facts: dict
+    _skel_query: object = field(repr=False)
+    _skinning: list = field(repr=False)
+    _world: np.ndarray = field(repr=False)  # stage -> metres Y up (4x4, row vectors)
+
+
+@dataclass
+class Shot:
+    name: str
+    path: str
+    fps: float
+    times: np.ndarray  # time codes rendered, one per output frame
+    frames: np.ndarray  # the shot's own frame numbers (int)
+    key_times: np.ndarray
+    facts: dict
+    take: str | None
+    characters: list[Character]
+    stage: object = field(repr=False)
+
+    def is_key(self, tol: float | None = None) -> np.ndarray:
+        """(T,) bool: frames within a small tolerance of a key (time codes may be non-integer)."""
+        step = float(np.median(np.diff(self.times))) if len(self.times) > 1 else 1.0
+        tol = 0.01 * step if tol is None else tol
+        if not len(self.key_times):
+            return np.zeros(len(self.times), bool)
+        d = np.abs(self.times[:, None] - self.key_times[None, :]).min(axis=1)
+        return d <= tol
+
+    def held_times(self) -> np.ndarray:
+        """Stepped blocking: each frame's time code replaced by the last key at or before it."""
+        keys = np.sort(self.key_times)
+        if not len(keys):
+            return self.times.copy()
+        step = float(np.median(np.diff(self.times))) if len(self.times) > 1 else 1.0
+        i = np.searchsorted(keys, self.times + 0.01 * step, side="right") - 1
+        return keys[np.clip(i, 0, len(keys) - 1)]
+
+
+def _select_take(stage, path: str, take: int | None) -> str | None:
+    from pxr import Usd
+
+    holders = [
+        p
+        for p in stage.Traverse(Usd.PrimAllPrimsPredicate)
+        if p.GetVariantSets().HasVariantSet(TAKE_VARIANT_SET)
+    ]
+    if take is None:
+        if holders:
+            return holders[0].GetVariantSets().GetVariantSet(TAKE_VARIANT_SET).GetVariantSelection() or None
+        return None
+    if not holders:
+        raise ShotError(path, f"--take {take} given but no prim has a {TAKE_VARIANT_SET!r} variant set")
+    name = f"take{take}"
+    # Select in the session layer: the user's files are never edited.
+    stage.SetEditTarget(stage.GetSessionLayer())
+    for prim in holders:
+        vset = prim.GetVariantSets().GetVariantSet(TAKE_VARIANT_SET)
+        names = vset.GetVariantNames()
+        if name not in names:
+            raise ShotError(path, f"no take {take} (variants: {', '.join(names)})", str(prim.GetPath()))
+        vset.SetVariantSelection(name)
+    return name
+
+
+def _stage_to_metres_yup(stage) -> np.ndarray:
+    from pxr import UsdGeom
+
+    m = np.eye(4)
+    if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z:
+        # (x, y, z) -> (x, z, -y): Z-up stages stand up in the Y-up viewer.
+        m[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    s = UsdGeom.GetStageMetersPerUnit(stage)
+    return m @ np.diag([s, s, s, 1.0])
+
+
+def _attr(prim, name):
+    a = prim.GetAttribute(name)
+    return a.Get() if a and a.HasAuthoredValue() else None
+
+
+def _character(stage, path, skel, query, skinning, world) -> Character | None:
+    anim = query.GetAnimQuery()
+    if not anim or not anim.GetPrim():
+        return None
+    aprim = anim.GetPrim()
+    keys = _attr(aprim, "tween:keyTimes")
+    if keys is None:
+        from pxr import UsdSkel
+
+        rot = UsdSkel.Animation(aprim).GetRotationsAttr() if aprim.IsA(UsdSkel.Animation) else None
+        samples = rot.GetTimeSamples() if rot else anim.GetJointTransformTimeSamples()
+        keys = samples
+    facts = {k: _attr(aprim, a) for k, a in FACT_ATTRS.items()}
+    facts = {k: v for k, v in facts.items() if v is not None}
+    if not len(anim.GetJointTransformTimeSamples()) and not len(keys):
+        return None  # bound to a static pose: nothing to review
+    return Character(
+        str(skel.GetPath()), str(aprim.GetPath()), np.asarray(keys, np.float64), facts, query, skinning, world
+    )
+
+
+def open_shot(
+    stage_path: str,
+    take: int | None = None,
+    frame_range: tuple[float, float] | None = None,
+    name: str | None = None,
+) -> Shot:
+    """Opens ``stage_path`` (never writing to it), selects the take and finds the animated skeletons."""
+    from pxr import Sdf, Usd, UsdSkel
+
+    if not Path(stage_path).exists():
+        raise ShotError(stage_path, "no such file")
+    try:
+        stage = Usd.Stage.Open(stage_path, load=Usd.Stage.LoadAll)
+    except Exception as e:  # Tf errors carry the C++ location first; keep the reason after it
+        reason = str(e).strip().splitlines()[-1].rsplit(" : ", 1)[-1].strip(" '")
+        raise ShotError(stage_path, f"cannot open as USD ({reason})") from None
+    if stage is None:
+        raise ShotError(stage_path, "cannot open as USD")
+    take_name = _select_take(stage, stage_path, take)
+    world = _stage_to_metres_yup(stage)
+
+    cache = UsdSkel.Cache()
+    chars: list[Character] = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdSkel.Root):
+            continue
+        root = UsdSkel.Root(prim)
+        cache.Populate(root, Usd.PrimDefaultPredicate)
+        bound = {
+            str(b.GetSkeleton().GetPath()): list(b.GetSkinningTargets())
+            for b in cache.ComputeSkelBindings(root, Usd.PrimDefaultPredicate)
+        }
+        for sprim in Usd.PrimRange(prim):
+            if not sprim.IsA(UsdSkel.Skeleton):
+                continue
+            skel = UsdSkel.Skeleton(sprim)
+            query = cache.GetSkelQuery(skel)
+            if not query:
+                continue
+            c = _character(stage, stage_path, skel, query, bound.get(str(sprim.GetPath()), []), world)
+            if c is not None:
+                chars.append(c)
+    if not chars:
+        raise ShotError(
+            stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"
+        )
+
+    tcps = stage.GetTimeCodesPerSecond()
+    fps = stage.GetFramesPerSecond() or tcps
+    if stage.HasAuthoredTimeCodeRange():
+        start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+    else:
+        samples = [t for c in chars for t in c._skel_query.GetAnimQuery().GetJointTransformTimeSamples()]
+        start, end = (min(samples), max(samples)) if samples else (0.0, 0.0)
+    if frame_range is not None:
+        start, end = max(start, frame_range[0]), min(end, frame_range[1])
+        if end < start:
+            raise ShotError(stage_path, f"frame range {frame_range} is outside the shot")
+    step = tcps / fps
+    n = int(np.floor((end - start) / step + 1e-6)) + 1
+    times = start + step * np.arange(n)
+    frames = np.round(times).astype(int) if step >= 1 else np.round(start).astype(int) + np.arange(n)
+
+    key_times = np.unique(np.concatenate([c.key_times for c in chars]))
+    facts: dict = {}
+    for c in chars:
+        for k, v in c.facts.items():
+            facts.setdefault(k, v)
+    if take_name and "take" not in facts:
+        facts["take"] = take_name
+    shot_name = name or Path(stage_path).name.split(".")[0]
+    del Sdf
+    return Shot(
+        shot_name, str(stage_path), float(fps), times, frames, key_times, facts, take_name, chars, stage
+    )
+
+
+def _apply(points: np.ndarray, m: np.ndarray) -> np.ndarray:
+    return points @ m[:3, :3] + m[3, :3]
+
+
+def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.ndarray]]:
+    """Geometry of every character at ``times`` (metres, Y up) and each one's root path (T, 3)."""
+    from pxr import UsdGeom
+
+    uniq, inv = np.unique(np.asarray(times, np.float64), return_inverse=True)
+    geoms: list[Geometry] = []
+    roots: list[np.ndarray] = []
+    for c in shot.characters:
+        q = c._skel_query
+        skel_prim = UsdGeom.Imageable(q.GetSkeleton().GetPrim())
+        joints = np.empty((len(uniq), len(q.GetJointOrder()), 3), np.float64)
+        mesh_pts = [np.empty((len(uniq), len(_mesh_points(s, uniq[0])), 3), np.float32) for s in c._skinning]
+        for i, t in enumerate(uniq):
+            to_world = np.array(skel_prim.ComputeLocalToWorldTransform(t)) @ c._world
+            skel_xf = np.array(q.ComputeJointSkelTransforms(t))
+            joints[i] = _apply(skel_xf[:, 3, :3], to_world)
+            if c._skinning:
+                xf = q.ComputeSkinningTransforms(t)
+                for k, sq in enumerate(c._skinning):
+                    mesh_pts[k][i] = _apply(_skinned(sq, xf, t), to_world)
+        roots.append(joints[inv, 0].astype(np.float32))
+        if c._skinning:
+            for sq, pts in zip(c._skinning, mesh_pts, strict=True):
+                geoms.append(Geometry(_triangles(sq.GetPrim(), shot.path), pts[inv]))
+        else:
+            parents = np.asarray(q.GetTopology().GetParentIndices())
+            names = [str(j).split("/")[-1] for j in q.GetJointOrder()]
+            tris, pts, nrm = mannequin.capsules(joints[inv].astype(np.float32), parents, names)
+            geoms.append(Geometry(tris, pts, nrm))
+    return geoms, roots
+
+
+def _mesh_points(sq, t) -> np.ndarray:
+    from pxr import UsdGeom
+
+    pts = UsdGeom.Mesh(sq.GetPrim()).GetPointsAttr().Get(t)
+    return np.asarray(pts if pts is not None else [], np.float32).reshape(-1, 3)
+
+
+def _skinned(sq, xf, t) -> np.ndarray:
+    from pxr import UsdGeom, Vt
+
+    pts = UsdGeom.Mesh(sq.GetPrim()).GetPointsAttr().Get(t)
+    if sq.IsRigidlyDeformed():
+        m = np.array(sq.ComputeSkinnedTransform(xf, t))
+        return _apply(np.asarray(pts, np.float64), m)
+    pts = Vt.Vec3fArray(pts)
+    sq.ComputeSkinnedPoints(xf, pts, t)  # in place, into skeleton space
+    return np.asarray(pts, np.float64)
+
+
+def _triangles(prim, path) -> np.ndarray:
+    """Fan triangulation of the mesh's faces (numpy; usd-core has no triangulation helper in Python)."""
+    from pxr import UsdGeom
+
+    mesh = UsdGeom.Mesh(prim)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), np.int64)
+    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), np.int64)
+    if counts.sum() != len(idx):
+        raise ShotError(path, "faceVertexCounts do not add up to faceVertexIndices", str(prim.GetPath()))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    ntri = np.maximum(counts - 2, 0)
+    face = np.repeat(np.arange(len(counts)), ntri)
+    k = np.arange(ntri.sum()) - np.repeat(np.cumsum(ntri) - ntri, ntri) + 1
+    s = starts[face]
+    return np.stack([idx[s], idx[s + k], idx[s + k + 1]], axis=1).astype(np.int32)
