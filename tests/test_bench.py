@@ -8,8 +8,21 @@ import sys
 def test_bench_cli_writes_json_and_table(tmp_path):
     out = tmp_path / "bench"
     res = subprocess.run(
-        [sys.executable, "-m", "pipeline.cli", "bench", "--methods", "zero,interp", "--limit", "25", "--out", str(out)],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            "-m",
+            "pipeline.cli",
+            "bench",
+            "--methods",
+            "zero,interp",
+            "--limit",
+            "25",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert res.returncode == 0, res.stderr
     assert "**L2P**" in res.stdout and "| interp |" in res.stdout

@@ -20,8 +20,11 @@ RNG = np.random.default_rng(0)
 
 def chain_skeleton():
     # root -> a -> b, root -> c: offsets chosen so mistakes in order or parent show up.
-    return Skeleton(("root", "a", "b", "c"), np.array([-1, 0, 1, 0]), np.array(
-        [[0, 90, 0], [0, 10, 0], [5, 0, 0], [0, -20, 3]], np.float32))
+    return Skeleton(
+        ("root", "a", "b", "c"),
+        np.array([-1, 0, 1, 0]),
+        np.array([[0, 90, 0], [0, 10, 0], [5, 0, 0], [0, -20, 3]], np.float32),
+    )
 
 
 def matrix_fk(rot, root, parents, offsets):

@@ -8,7 +8,9 @@ import typer
 def register(app: typer.Typer) -> None:
     @app.command()
     def bench(
-        methods: str = typer.Option("zero,interp", help="Comma-separated: zero, interp, model, or a model folder."),
+        methods: str = typer.Option(
+            "zero,interp", help="Comma-separated: zero, interp, model, or a model folder."
+        ),
         limit: int = typer.Option(None, help="Use only the first N eval clips (quick check)."),
         out: Path = typer.Option(Path("bench_results"), help="Folder for bench.json and bench.md."),
     ):

@@ -47,7 +47,10 @@ def inbetweener_method(inbetweener, batch: int = 64) -> Method:
                 out_p.append(p)
             r, p = np.concatenate(out_r), np.concatenate(out_p)
         else:
-            res = [inbetweener.fill(Motion(inbetweener.skeleton, rots[i], roots[i], 30.0), keys) for i in range(n)]
+            res = [
+                inbetweener.fill(Motion(inbetweener.skeleton, rots[i], roots[i], 30.0), keys)
+                for i in range(n)
+            ]
             r = np.stack([m.rotations for m in res])
             p = np.stack([m.root_positions for m in res])
         return r[:, c : c + T], p[:, c : c + T]

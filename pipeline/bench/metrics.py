@@ -45,7 +45,11 @@ def mpjpe(p_pred: np.ndarray, p_true: np.ndarray) -> float:
 
 
 def foot_skate(
-    p_pred: np.ndarray, p_true: np.ndarray, prev_pred: np.ndarray, prev_true: np.ndarray, feet: list[int],
+    p_pred: np.ndarray,
+    p_true: np.ndarray,
+    prev_pred: np.ndarray,
+    prev_true: np.ndarray,
+    feet: list[int],
     threshold: float = 0.02,
 ) -> tuple[float, int]:
     """Mean horizontal foot displacement (cm/frame) on the true contact joint-frames.

@@ -47,14 +47,40 @@ def load_split(split: str, limit: int | None = None, root: Path | None = None) -
     files = list_clips(split, root)
     if limit:
         files = files[:limit]
+    return load_files(files, split)
+
+
+def load_folder(folder: Path, skeleton=None) -> ClipSet:
+    """A studio's own clips: every BVH under ``folder``, all on the model skeleton's joints."""
+    from pipeline.data.skeletons import bandai_skeleton
+    from pipeline.errors import MotionFormatError
+
+    files = sorted(p for p in Path(folder).rglob("*") if p.name.endswith((".bvh", ".bvh.gz")))
+    if not files:
+        raise MotionFormatError(folder, None, "no .bvh or .bvh.gz files in this folder")
+    want = (skeleton or bandai_skeleton()).names
+    for f in files:
+        names = read_bvh(f).skeleton.names
+        if names != want:
+            raise MotionFormatError(
+                f, None, f"skeleton has joints {names[:4]}..., the model needs {want[:4]}..."
+            )
+    return load_files(files, "folder")
+
+
+def load_files(files: list[Path], split: str) -> ClipSet:
     key = hashlib.sha1(("\n".join(str(f) for f in files) + f"v{CACHE_VERSION}").encode()).hexdigest()[:12]
     path = cache_dir() / f"clips-{split}-{len(files)}-{key}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
-        return ClipSet(list(z["names"]), z["starts"], z["lengths"], z["rotations"], z["roots"], float(z["fps"]))
+        return ClipSet(
+            list(z["names"]), z["starts"], z["lengths"], z["rotations"], z["roots"], float(z["fps"])
+        )
     rots, roots, names, lengths = [], [], [], []
     fps = None
-    for f in tqdm(files, desc=f"reading {split} clips", file=sys.stderr, unit="clip", disable=len(files) < 50):
+    for f in tqdm(
+        files, desc=f"reading {split} clips", file=sys.stderr, unit="clip", disable=len(files) < 50
+    ):
         m = read_bvh(f).continuous()
         fps = fps or m.fps
         rots.append(m.rotations)
@@ -65,6 +91,14 @@ def load_split(split: str, limit: int | None = None, root: Path | None = None) -
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     cs = ClipSet(names, starts, lengths, np.concatenate(rots), np.concatenate(roots), float(fps))
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, names=np.array(names), starts=starts, lengths=lengths, rotations=cs.rotations, roots=cs.roots, fps=fps)
+    np.savez(
+        tmp,
+        names=np.array(names),
+        starts=starts,
+        lengths=lengths,
+        rotations=cs.rotations,
+        roots=cs.roots,
+        fps=fps,
+    )
     os.replace(tmp, path)
     return cs

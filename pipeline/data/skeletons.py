@@ -34,8 +34,12 @@ def skeleton_from_json(path: str | Path) -> Skeleton:
     names = d["names"]
     ends = {names.index(k): np.array(v, np.float32) for k, v in d.get("end_sites", {}).items()}
     return Skeleton(
-        tuple(names), np.array(d["parents"]), np.array(d["offsets"], np.float32),
-        d.get("up_axis", "Y"), d.get("meters_per_unit", 0.01), ends,
+        tuple(names),
+        np.array(d["parents"]),
+        np.array(d["offsets"], np.float32),
+        d.get("up_axis", "Y"),
+        d.get("meters_per_unit", 0.01),
+        ends,
     )
 
 

@@ -1,1 +1,179 @@
-"""Post-processing applied after an in-betweener (keys exact, root path, foot contact)."""
+"""Post-processing after the networks: keys exact, root through every key, foot contacts locked.
+
+All in numpy (scipy rotations), on motions of the model skeleton:
+- :func:`match_keys` — the residual at each key (rotation vector per joint, vector for the
+  root) is spread over the frames between neighbouring keys with smoothstep weights, so key
+  frames equal the input exactly and the correction has zero velocity at keys (no pop).
+- The same correction makes the root path pass through every key's root position, with the
+  drift spread over each gap rather than dumped on its last frame.
+- :func:`lock_feet` — frames predicted in contact pull the ankle to the contact's mean
+  position with a two-bone IK (hip, knee) blended in and out; bone lengths are untouched
+  (only rotations change) and key frames are left exact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.motion.fk import fk
+from pipeline.motion.rotations import quat_continuity, quat_mul
+
+
+def _smoothstep(x):
+    return x * x * (3 - 2 * x)
+
+
+def key_weights(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each frame: previous key, next key and the smoothstep weight of the next key."""
+    from pipeline.infer.features import key_neighbours
+
+    prev, nxt = key_neighbours(n, keys)
+    span = np.maximum(nxt - prev, 1)
+    s = np.where(nxt > prev, (np.arange(n) - prev) / span, 0.0)
+    return prev, nxt, _smoothstep(s)
+
+
+def match_keys(rot, root, key_rot, key_root, keys):
+    """Make frames ``keys`` equal the given key values; spread the corrections smoothly.
+
+    ``rot`` (B, N, J, 4), ``root`` (B, N, 3); ``key_rot`` (B, K, J, 4), ``key_root`` (B, K, 3).
+    Frames before the first key and after the last hold those keys.
+    """
+    B, N, J = rot.shape[:3]
+    keys = np.asarray(keys)
+    K = len(keys)
+    pred_k = rot[:, keys].astype(np.float64)
+    kr = key_rot.astype(np.float64)
+    # Residual rotation r with r · pred = key, as a rotation vector (world-from-local side).
+    inv = pred_k.copy()
+    inv[..., :3] *= -1
+    delta = quat_mul(kr, inv).reshape(-1, 4)
+    rv = Rotation.from_quat(delta).as_rotvec().reshape(B, K, J, 3)
+    dr = key_root.astype(np.float64) - root[:, keys]
+    prev, nxt, s = key_weights(N, keys)
+    kidx = {int(k): i for i, k in enumerate(keys)}
+    ip = np.array([kidx[int(k)] for k in prev])
+    inx = np.array([kidx[int(k)] for k in nxt])
+    w = s[None, :, None, None]
+    corr = (1 - w) * rv[:, ip] + w * rv[:, inx]  # (B, N, J, 3)
+    out_rot = quat_mul(
+        Rotation.from_rotvec(corr.reshape(-1, 3)).as_quat().reshape(B, N, J, 4), rot.astype(np.float64)
+    )
+    out_root = root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
+    # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
+    out_rot[:, keys] = key_rot
+    out_root[:, keys] = key_root
+    out_rot[:, : keys[0]] = key_rot[:, :1]
+    out_root[:, : keys[0]] = key_root[:, :1]
+    out_rot[:, keys[-1] + 1 :] = key_rot[:, -1:]
+    out_root[:, keys[-1] + 1 :] = key_root[:, -1:]
+    out_rot = quat_continuity(out_rot, axis=1)
+    out_rot[:, keys] = key_rot  # continuity may have flipped a key's sign; keep its value
+    return out_rot.astype(np.float32), out_root.astype(np.float32)
+
+
+def integrate_path(vel, root_keys, keys, n):
+    """Root path from per-frame velocities (B, N, 3), passing through every key root.
+
+    Between keys a and b the path is integrated from a; the mismatch at b is spread with
+    smoothstep weights over the gap.
+    """
+    cum = np.cumsum(vel, axis=1)
+    cum = cum - cum[:, :1]
+    out = np.empty_like(cum)
+    prev, nxt, s = key_weights(n, keys)
+    kidx = {int(k): i for i, k in enumerate(keys)}
+    ip = np.array([kidx[int(k)] for k in prev])
+    inx = np.array([kidx[int(k)] for k in nxt])
+    start = root_keys[:, ip] + (cum - cum[:, prev])
+    end_err = root_keys[:, inx] - (root_keys[:, ip] + (cum[:, nxt] - cum[:, prev]))
+    out = start + s[None, :, None] * end_err
+    return out
+
+
+def contact_segments(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) runs of True."""
+    d = np.diff(np.r_[0, flags.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True))
+
+
+def _rot_between(u, v):
+    """Minimal rotations taking directions u to v, (N, 3) -> scipy Rotation."""
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    axis = np.cross(u, v)
+    s = np.linalg.norm(axis, axis=-1, keepdims=True)
+    c = (u * v).sum(-1, keepdims=True)
+    ang = np.arctan2(s, c)
+    axis = np.where(s > 1e-9, axis / np.maximum(s, 1e-12), 0.0)
+    return Rotation.from_rotvec(axis * ang)
+
+
+def two_bone_ik(rot, root, skeleton, leg, targets, weight):
+    """Move the ankle of ``leg`` = (hip, knee, ankle, toe) toward ``targets`` (N, 3) by ``weight`` (N,).
+
+    Changes the local rotations of hip, knee and ankle only (the ankle keeps its world
+    orientation), so bone lengths never change. ``rot`` (N, J, 4) local, ``root`` (N, 3).
+    """
+    hip, knee, ankle, _ = leg
+    sel = weight > 1e-4
+    if not sel.any():
+        return rot
+    rot = rot.copy()
+    gq, gp = fk(rot[sel].astype(np.float64), root[sel], skeleton.parents, skeleton.offsets)
+    a, b, c = gp[:, hip], gp[:, knee], gp[:, ankle]
+    t = c + weight[sel, None] * (targets[sel] - c)
+    lab = np.linalg.norm(b - a, axis=-1)
+    lcb = np.linalg.norm(c - b, axis=-1)
+    lat = np.clip(np.linalg.norm(t - a, axis=-1), 1e-3, (lab + lcb) * 0.999)
+    # Knee: set the interior angle so that hip–ankle distance equals hip–target distance.
+    cos_now = ((a - b) * (c - b)).sum(-1) / (lab * lcb)
+    cos_want = (lab**2 + lcb**2 - lat**2) / (2 * lab * lcb)
+    dtheta = np.arccos(np.clip(cos_want, -1, 1)) - np.arccos(np.clip(cos_now, -1, 1))
+    n = np.cross(a - b, c - b)
+    n_norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    # A straight leg has no bend plane: bend forward around the hip's local X as a fallback.
+    fallback = Rotation.from_quat(gq[:, hip]).apply(np.array([1.0, 0, 0]))
+    n = np.where(n_norm > 1e-6, n / np.maximum(n_norm, 1e-12), fallback)
+    # Rotating c about the knee by +angle around n opens the interior angle.
+    r_knee = Rotation.from_rotvec(n * dtheta[:, None])
+    c1 = b + r_knee.apply(c - b)
+    r_hip = _rot_between(c1 - a, t - a)
+    g_hip = r_hip * Rotation.from_quat(gq[:, hip])
+    g_knee = r_hip * r_knee * Rotation.from_quat(gq[:, knee])
+    g_ankle = Rotation.from_quat(gq[:, ankle])
+    parent = skeleton.parents[hip]
+    g_parent = Rotation.from_quat(gq[:, parent])
+    rot[sel, hip] = (g_parent.inv() * g_hip).as_quat()
+    rot[sel, knee] = (g_hip.inv() * g_knee).as_quat()
+    rot[sel, ankle] = (g_knee.inv() * g_ankle).as_quat()
+    return rot
+
+
+def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4):
+    """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
+
+    Key frames get weight 0 and the weight rises over ``ramp`` frames away from them.
+    """
+    N = len(rot)
+    _, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
+    dist_key = np.min(np.abs(np.arange(N)[:, None] - np.asarray(keys)[None]), axis=1)
+    key_fade = np.clip(dist_key / ramp, 0, 1)
+    out = rot.copy()
+    for li, leg in enumerate(legs):
+        ankle = leg[2]
+        weight = np.zeros(N)
+        targets = gp[:, ankle].copy()
+        for s0, s1 in contact_segments(contacts[:, li] > 0.5):
+            if s1 - s0 < 2:
+                continue
+            lock = gp[s0:s1, ankle].mean(0)
+            targets[s0:s1, 0] = lock[0]
+            targets[s0:s1, 2] = lock[2]
+            ramp_in = np.clip((np.arange(s0, s1) - s0 + 1) / ramp, 0, 1)
+            ramp_out = np.clip((s1 - np.arange(s0, s1)) / ramp, 0, 1)
+            weight[s0:s1] = _smoothstep(np.minimum(ramp_in, ramp_out))
+        weight *= _smoothstep(key_fade)
+        out = two_bone_ik(out, root, skeleton, leg, targets, weight)
+    return out.astype(np.float32)

@@ -124,7 +124,9 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]
                 raise MotionFormatError(path, lineno, "CHANNELS needs a count") from None
             names = tok[2:]
             if n not in (3, 6) or len(names) != n:
-                raise MotionFormatError(path, lineno, f"CHANNELS {n} lists {len(names)} channels; expected 3 or 6")
+                raise MotionFormatError(
+                    path, lineno, f"CHANNELS {n} lists {len(names)} channels; expected 3 or 6"
+                )
             bad = [c for c in names if c not in _VALID_CHANNELS]
             if bad:
                 raise MotionFormatError(path, lineno, f"unknown channel {bad[0]!r}")
@@ -173,12 +175,16 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
         for k, ln in enumerate(body):
             vals = ln.split()
             if len(vals) != n_channels:
-                raise MotionFormatError(path, start + k + 1, f"frame {k} has {len(vals)} values, expected {n_channels}")
+                raise MotionFormatError(
+                    path, start + k + 1, f"frame {k} has {len(vals)} values, expected {n_channels}"
+                )
             try:
                 arr = np.array(vals, dtype=np.float64)
             except ValueError:
                 bad = next(v for v in vals if not _is_float(v))
-                raise MotionFormatError(path, start + k + 1, f"non-numeric value {bad!r} in frame {k}") from None
+                raise MotionFormatError(
+                    path, start + k + 1, f"non-numeric value {bad!r} in frame {k}"
+                ) from None
             if not np.isfinite(arr).all():
                 raise MotionFormatError(path, start + k + 1, f"non-finite value in frame {k}")
         raise MotionFormatError(
@@ -303,7 +309,12 @@ def write_bvh(motion: Motion, path: str | Path, order: str = "ZXY") -> None:
         if not kids:
             e = skel.end_sites.get(j, np.zeros(3))
             out.extend(
-                [f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}", f"{pad}  }}"]
+                [
+                    f"{pad}  End Site",
+                    f"{pad}  {{",
+                    f"{pad}    OFFSET {e[0]:.9g} {e[1]:.9g} {e[2]:.9g}",
+                    f"{pad}  }}",
+                ]
             )
         out.append(f"{pad}}}")
 

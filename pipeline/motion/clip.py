@@ -49,4 +49,6 @@ class Motion:
         return replace(self, rotations=quat_continuity(quat_normalize(self.rotations), axis=0))
 
     def slice(self, start: int, stop: int) -> Motion:
-        return replace(self, rotations=self.rotations[start:stop], root_positions=self.root_positions[start:stop])
+        return replace(
+            self, rotations=self.rotations[start:stop], root_positions=self.root_positions[start:stop]
+        )

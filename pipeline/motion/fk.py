@@ -29,7 +29,9 @@ def fk(local_rot: np.ndarray, root_pos: np.ndarray, parents, offsets) -> tuple[n
             g_pos[j] = g_pos[p] + quat_apply(g_rot[p], offsets[j])
     rot = np.stack(g_rot, axis=-2)
     pos = np.stack(g_pos, axis=-2)
-    return rot.astype(local_rot.dtype, copy=False), pos.astype(np.result_type(root_pos, np.float32), copy=False)
+    return rot.astype(local_rot.dtype, copy=False), pos.astype(
+        np.result_type(root_pos, np.float32), copy=False
+    )
 
 
 def fk_torch(local_rot, root_pos, parents, offsets):

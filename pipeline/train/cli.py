@@ -1,7 +1,67 @@
-"""Commands of this package for the ``tween`` CLI."""
+"""``tween train`` and ``tween export`` (need the ``[train]`` extra: torch)."""
+
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
-    """Adds this package's commands to ``app``."""
+    @app.command()
+    def train(
+        out: Path = typer.Option(
+            Path("runs/default"), help="Run folder: checkpoints, logs (resumes if present)."
+        ),
+        steps: int = typer.Option(7000, help="Generator steps."),
+        path_steps: int = typer.Option(2000, help="Path-predictor steps (trained first, then frozen)."),
+        batch: int = typer.Option(32),
+        seed: int = typer.Option(0),
+        threads: int = typer.Option(1, help="torch threads; 1 is fastest on 2 shared cores."),
+        data: Path = typer.Option(
+            None, help="A folder of your own BVH clips (model skeleton) instead of Bandai train."
+        ),
+        limit_clips: int = typer.Option(None, help="Use only the first N train clips (smoke tests)."),
+    ):
+        """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
+        from pipeline.train.generator import TrainConfig
+        from pipeline.train.generator import train as train_generator
+        from pipeline.train.path import PathTrainConfig, train_path
+
+        if path_steps:
+            train_path(
+                PathTrainConfig(
+                    steps=path_steps,
+                    batch=batch,
+                    seed=seed,
+                    threads=threads,
+                    limit_clips=limit_clips,
+                    data=str(data) if data else None,
+                ),
+                out,
+            )
+        ckpt = train_generator(
+            TrainConfig(
+                steps=steps,
+                batch=batch,
+                seed=seed,
+                threads=threads,
+                limit_clips=limit_clips,
+                data=str(data) if data else None,
+            ),
+            out,
+        )
+        typer.echo(str(ckpt))
+
+    @app.command()
+    def export(
+        run: Path = typer.Argument(..., help="Run folder written by `tween train`."),
+        out: Path = typer.Option(..., help="Model folder to write (ONNX files + model.json)."),
+        name: str = typer.Option(None, help="Model name (default: the folder name)."),
+        root: str = typer.Option("generator", help="Root path source at inference: generator or path."),
+    ):
+        """Export both networks to ONNX and check onnxruntime against torch."""
+        from pipeline.train.export import export as do_export
+        from pipeline.train.export import verify
+
+        meta = do_export(run, out, name or out.name, {"root": root})
+        err = verify(run, out)
+        typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")

@@ -1,0 +1,135 @@
+"""The network's input, built in numpy (shared by training and the ONNX farm path).
+
+Per frame: the interpolation baseline between the surrounding keys (the network predicts
+a residual over it), the dense key format of Generative Tweening (a copy of the nearest
+key's pose plus the distance to it), a key flag, and time-to-arrival sinusoids (RMIB) of the
+distances to the previous and next key. Windows are first put in a canonical frame: the
+first key's root at the origin (X/Z) and facing +X, so the network never sees absolute
+position or heading.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.motion.fk import fk
+from pipeline.motion.rotations import quat_apply, quat_mul, quat_to_6d, slerp
+
+TTA_FREQS = 8
+MAX_TTA = 300.0  # frames; the longest gap the embedding distinguishes (10 s at 30 fps)
+ROOT_SCALE = 100.0  # cm -> m, so root channels are of order one
+
+
+def n_input_channels(n_joints: int) -> int:
+    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS
+
+
+def n_output_channels(n_joints: int) -> int:
+    return n_joints * 6 + 3 + 4  # rotation residual, root residual, four foot contacts
+
+
+def key_neighbours(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of n frames, the previous key at or before it and the next key at or after it."""
+    keys = np.asarray(keys, np.int64)
+    idx = np.arange(n)
+    pos = np.searchsorted(keys, idx, side="right") - 1
+    prev = keys[np.clip(pos, 0, len(keys) - 1)]
+    prev = np.where(idx < keys[0], keys[0], prev)
+    pos_n = np.searchsorted(keys, idx, side="left")
+    nxt = keys[np.clip(pos_n, 0, len(keys) - 1)]
+    nxt = np.where(idx > keys[-1], keys[-1], nxt)
+    return prev, nxt
+
+
+def canonical_transform(rot_key: np.ndarray, root_key: np.ndarray, skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """(yaw quaternion (B, 4), offset (B, 3)) taking the given key pose to origin, facing +X."""
+    from pipeline.bench.protocol import facing, yaw_quat
+
+    _, pos = fk(rot_key, root_key, skeleton.parents, skeleton.offsets)
+    f = facing(pos, skeleton)
+    q = yaw_quat(np.arctan2(f[:, 2], f[:, 0]))
+    off = np.asarray(root_key, np.float64).copy()
+    off[:, 1] = 0.0
+    return q, off
+
+
+def apply_transform(rot, root, q, off):
+    """Rotate (B, N, J, 4)/(B, N, 3) windows by yaw q (B, 4) after subtracting off (B, 3)."""
+    root = quat_apply(q[:, None], root - off[:, None])
+    rot = rot.astype(np.float64).copy()
+    rot[:, :, 0] = quat_mul(q[:, None], rot[:, :, 0])
+    return rot, root
+
+
+def invert_transform(rot, root, q, off):
+    qi = q.copy()
+    qi[:, :3] *= -1
+    root = quat_apply(qi[:, None], root) + off[:, None]
+    rot = rot.astype(np.float64).copy()
+    rot[:, :, 0] = quat_mul(qi[:, None], rot[:, :, 0])
+    return rot, root
+
+
+def tta_embedding(d: np.ndarray) -> np.ndarray:
+    """Sinusoidal embedding of frame distances (..., ) -> (..., 2 * TTA_FREQS)."""
+    freqs = np.pi / (MAX_TTA ** (np.arange(TTA_FREQS) / TTA_FREQS))
+    a = d[..., None] * freqs
+    return np.concatenate([np.sin(a), np.cos(a)], axis=-1)
+
+
+def interpolate(rot, root, keys):
+    """Interpolation baseline over a whole window (B, N, J, 4) given sorted key indices."""
+    B, N = rot.shape[:2]
+    prev, nxt = key_neighbours(N, keys)
+    span = np.maximum(nxt - prev, 1)
+    w = np.where(nxt > prev, (np.arange(N) - prev) / span, 0.0)
+    q0, q1 = rot[:, prev], rot[:, nxt]  # (B, N, J, 4)
+    dot = (q0 * q1).sum(-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    # slerp with per-frame weights: do it elementwise through the (T, ...) form per frame.
+    out = np.empty_like(q0, dtype=np.float64)
+    for n in range(N):
+        out[:, n] = slerp(q0[:, n], q1[:, n], np.array([w[n]]))[0]
+    ipos = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
+    return out, ipos, prev, nxt
+
+
+def build_features(rot, root, keys, skeleton):
+    """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
+
+    ``rot`` (B, N, J, 4), ``root`` (B, N, 3) hold real values at ``keys`` (sorted, shared by
+    the batch); other frames are ignored.
+    """
+    keys = np.asarray(keys, np.int64)
+    B, N, J = rot.shape[:3]
+    q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
+    crot, croot = apply_transform(rot, root, q, off)
+    irot, iroot, prev, nxt = interpolate(crot, croot, keys)
+    idx = np.arange(N)
+    nearest = np.where(idx - prev <= nxt - idx, prev, nxt)
+    dist = np.minimum(np.abs(idx - prev), np.abs(nxt - idx)).astype(np.float64)
+    is_key = np.isin(idx, keys).astype(np.float64)
+    tta = np.concatenate(
+        [tta_embedding((idx - prev).astype(np.float64)), tta_embedding((nxt - idx).astype(np.float64))], -1
+    )
+    per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta], axis=-1)  # (N, 2 + 4F)
+    feats = np.concatenate(
+        [
+            quat_to_6d(irot).reshape(B, N, J * 6),
+            iroot / ROOT_SCALE,
+            quat_to_6d(crot[:, nearest]).reshape(B, N, J * 6),
+            croot[:, nearest] / ROOT_SCALE,
+            np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
+        ],
+        axis=-1,
+    )
+    ctx = {"q": q, "off": off, "irot": irot, "iroot": iroot, "crot": crot, "croot": croot}
+    return np.ascontiguousarray(feats.transpose(0, 2, 1), np.float32), ctx
+
+
+def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
+    """(B, N, J, 4), (B, N, 3) -> (B, (J−1)·3, N) root-relative positions, world-oriented, metres."""
+    _, pos = fk(rot, root, skeleton.parents, skeleton.offsets)
+    rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
+    B, N = rel.shape[:2]
+    return np.ascontiguousarray(rel.reshape(B, N, -1).transpose(0, 2, 1), np.float32)

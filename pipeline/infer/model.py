@@ -1,0 +1,111 @@
+"""The shipped in-betweener on onnxruntime: generator + path predictor + post-processing.
+
+No torch here. Sessions are created lazily, once per process (after a Celery fork).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.data.skeletons import LEGS, bandai_skeleton
+from pipeline.infer.features import ROOT_SCALE, build_features, invert_transform, path_inputs
+from pipeline.infer.post import integrate_path, lock_feet, match_keys
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix
+
+
+def models_root() -> Path:
+    env = os.environ.get("TWEEN_MODELS")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "models"
+
+
+def find_model(name: str) -> Path | None:
+    p = Path(name)
+    if (p / "model.json").exists():
+        return p
+    cand = models_root() / name
+    return cand if (cand / "model.json").exists() else None
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+class OnnxInbetweener:
+    """Fills shots with the exported networks; ``root`` is "generator" or "path"."""
+
+    def __init__(self, folder: str | Path, root: str | None = None, feet: bool = True):
+        self.folder = Path(folder)
+        self.meta = json.loads((self.folder / "model.json").read_text())
+        self.name = self.meta["name"]
+        self.model_hash = self.meta["hash"]
+        self.fps = float(self.meta["fps"])
+        self.skeleton = bandai_skeleton()
+        self.root_mode = root or self.meta.get("root", "generator")
+        self.feet = feet
+        self._sessions: dict[str, object] = {}
+        self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
+
+    def session(self, which: str):
+        if which not in self._sessions:
+            import onnxruntime as ort
+
+            opts = ort.SessionOptions()
+            opts.intra_op_num_threads = int(os.environ.get("TWEEN_ORT_THREADS", "1"))
+            opts.inter_op_num_threads = 1
+            self._sessions[which] = ort.InferenceSession(
+                str(self.folder / self.meta["files"][which]), opts, providers=["CPUExecutionProvider"]
+            )
+        return self._sessions[which]
+
+    def raw(self, rot, root, keys):
+        """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed."""
+        skel = self.skeleton
+        B, N, J = rot.shape[:3]
+        mult = int(self.meta["multiple"])
+        pad = (-N) % mult
+        if pad:  # frames after the last key are held anyway; pad by repeating the last frame
+            rot = np.concatenate([rot, np.repeat(rot[:, -1:], pad, 1)], 1)
+            root = np.concatenate([root, np.repeat(root[:, -1:], pad, 1)], 1)
+        feats, ctx = build_features(rot, root, keys, skel)
+        out = self.session("generator").run(None, {"features": feats})[0]
+        o = out.transpose(0, 2, 1)
+        f = feats.transpose(0, 2, 1)
+        J6 = J * 6
+        mats = sixd_to_matrix((f[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
+        q = matrix_to_quat(mats)
+        croot = (f[..., J6 : J6 + 3] + o[..., J6 : J6 + 3]).astype(np.float64) * ROOT_SCALE
+        contacts = _sigmoid(o[..., J6 + 3 : J6 + 7])
+        if self.root_mode == "path" and "path" in self.meta["files"]:
+            vel = self.session("path").run(None, {"local_positions": path_inputs(q, croot, skel)})[0]
+            vel = vel.transpose(0, 2, 1).astype(np.float64) * ROOT_SCALE
+            keys_a = np.asarray(keys)
+            croot = integrate_path(vel, ctx["croot"][:, keys_a], keys_a, croot.shape[1])
+        q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
+        return q[:, :N], wroot[:, :N], contacts[:, :N]
+
+    def fill_batch(self, rot, root, keys):
+        keys = np.unique(np.asarray(keys, np.int64))
+        q, r, contacts = self.raw(rot, root, keys)
+        q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys)
+        if self.feet:
+            # Contact per leg: the ankle (Foot_*) channels 0 and 2.
+            for b in range(len(q)):
+                q[b] = lock_feet(q[b], r[b], self.skeleton, contacts[b][:, [0, 2]], keys, self.legs)
+        return q, r
+
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+        if len(self.skeleton) != len(motion.skeleton):
+            raise ValueError(
+                f"{self.name}: motion has {len(motion.skeleton)} joints, model {len(self.skeleton)}"
+            )
+        keys = np.unique(np.asarray(keys, np.int64))
+        if len(keys) < 2:
+            raise ValueError("in-betweening needs at least two keys")
+        q, r = self.fill_batch(motion.rotations[None], motion.root_positions[None], keys)
+        return replace(motion, rotations=q[0], root_positions=r[0])

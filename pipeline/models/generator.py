@@ -1,0 +1,84 @@
+"""Local motion generator: a 1D fully-convolutional encoder–decoder over time.
+
+Scaled-down Generative Tweening G: the input is the dense key format plus the
+interpolation baseline and time-to-arrival channels (``pipeline/infer/features.py``), the
+output a residual over interpolation for every joint's 6D rotation and the root, plus
+four foot-contact logits. Encoder: strided residual layers (k=4, s=2); decoder:
+transposed residual layers back to full rate with additive skips from the encoder.
+Sequence length must be a multiple of ``2**len(levels)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from pipeline.infer.features import n_input_channels, n_output_channels
+from pipeline.models.layers import ResLayer
+
+
+@dataclass
+class GeneratorConfig:
+    n_joints: int = 21
+    width: int = 160
+    levels: tuple[int, ...] = (160, 192, 256, 256, 256)  # channels after each stride-2 layer
+    bottleneck_dilations: tuple[int, ...] = (1, 2)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def multiple(self) -> int:
+        return 2 ** len(self.levels)
+
+    def receptive_field(self) -> int:
+        """Frames one output sees: k=4 s=2 layers, then k=3 dilated convs at the bottleneck."""
+        rf, jump = 1, 1
+        for _ in self.levels:
+            rf += 3 * jump
+            jump *= 2
+        for d in self.bottleneck_dilations:
+            rf += 2 * d * jump
+        return rf
+
+
+class Generator(nn.Module):
+    def __init__(self, cfg: GeneratorConfig):
+        super().__init__()
+        self.cfg = cfg
+        cin, cout = n_input_channels(cfg.n_joints), n_output_channels(cfg.n_joints)
+        self.inp = ResLayer(cin, cfg.width, 3, sigma=1.0)
+        n = len(cfg.levels)
+        chans = [cfg.width, *cfg.levels]
+        self.down = nn.ModuleList(
+            ResLayer(chans[i], chans[i + 1], 4, stride=2, sigma=1.0 / (i + 2)) for i in range(n)
+        )
+        self.mid = nn.ModuleList(
+            ResLayer(chans[-1], chans[-1], 3, sigma=0.5, dilation=d) for d in cfg.bottleneck_dilations
+        )
+        # Decoder σ falls toward the output, as in the paper's Table 5.
+        self.up = nn.ModuleList(
+            ResLayer(chans[i + 1], chans[i], 4, stride=2, sigma=1.0 / (2 + 1.5 * (n - i)), transposed=True)
+            for i in reversed(range(n))
+        )
+        self.refine = nn.ModuleList(
+            ResLayer(chans[i], chans[i], 3, sigma=1.0 / (3 + 1.5 * (n - i))) for i in reversed(range(n))
+        )
+        self.out = nn.Conv1d(cfg.width, cout, 3, padding=1)
+        nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
+        nn.init.zeros_(self.out.bias)
+
+    def res_layers(self) -> list[ResLayer]:
+        return [m for m in self.modules() if isinstance(m, ResLayer)]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.inp(x)
+        skips = []
+        for layer in self.down:
+            skips.append(h)
+            h = layer(h)
+        for layer in self.mid:
+            h = layer(h)
+        for up, ref in zip(self.up, self.refine, strict=True):
+            h = ref(up(h) + skips.pop())
+        return self.out(h)

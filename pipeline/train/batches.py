@@ -1,0 +1,42 @@
+"""Training batches: random windows of train clips with a random key layout per batch.
+
+Key layouts (curriculum: the longest gap grows from ``gap_start`` to ``gap_end`` frames
+over the first ``curriculum`` fraction of training):
+- "context": 10 context keys, one target after a gap (the benchmark's task), then sparse
+  keys to the end of the window;
+- "sparse": keys every 1..max_gap frames (an animator's blocking).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.data.cache import ClipSet
+
+
+def sample_keys(rng: np.random.Generator, n: int, max_gap: int) -> np.ndarray:
+    keys = [0]
+    if rng.random() < 0.5:
+        keys = list(range(10))
+    while keys[-1] < n - 1:
+        keys.append(min(keys[-1] + int(rng.integers(1, max_gap + 1)), n - 1))
+    return np.array(keys, np.int64)
+
+
+def sample_batch(clips: ClipSet, rng: np.random.Generator, batch: int, length: int):
+    """(rot (B, L, J, 4), root (B, L, 3)) windows from clips at least ``length`` long."""
+    ok = np.flatnonzero(clips.lengths >= length)
+    pick = rng.choice(ok, size=batch)
+    rots, roots = [], []
+    for c in pick:
+        s = clips.starts[c] + rng.integers(0, clips.lengths[c] - length + 1)
+        rots.append(clips.rotations[s : s + length])
+        roots.append(clips.roots[s : s + length])
+    return np.stack(rots), np.stack(roots)
+
+
+def foot_contacts(pos: np.ndarray, feet: list[int], threshold: float = 1.0) -> np.ndarray:
+    """(B, N, 4) labels: squared displacement from the previous frame below ``threshold`` cm²."""
+    p = pos[:, :, feet]
+    d = np.square(np.diff(p, axis=1, prepend=p[:, :1])).sum(-1)
+    return (d < threshold).astype(np.float32)

@@ -1,0 +1,139 @@
+"""``tween export``: both networks to ONNX, plus model.json (what inference needs) and hashes."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from pipeline.models.generator import Generator, GeneratorConfig
+from pipeline.models.path import PathConfig, PathPredictor
+
+
+def _load(cls, cfg_cls, ckpt: Path, key="model"):
+    state = torch.load(ckpt, weights_only=False)
+    mcfg = state["config"]["model"]
+    cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
+    net = cls(cfg)
+    net.load_state_dict(state[key])
+    net.eval()
+    return net, cfg, state
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -> dict:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    gen, gcfg, gstate = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
+    files = {}
+    x = torch.randn(1, gen.inp.conv.in_channels, 2 * gcfg.multiple)
+    torch.onnx.export(
+        gen,
+        (x,),
+        str(out_dir / "generator.onnx"),
+        input_names=["features"],
+        output_names=["residual"],
+        dynamic_axes={"features": {0: "batch", 2: "frames"}, "residual": {0: "batch", 2: "frames"}},
+        opset_version=17,
+        dynamo=False,
+    )
+    files["generator"] = "generator.onnx"
+    meta = {
+        "name": name,
+        "format": 1,
+        "fps": 30.0,
+        "skeleton": "bandai_skeleton.json",
+        "multiple": gcfg.multiple,
+        "receptive_field": gcfg.receptive_field(),
+        "generator": asdict(gcfg),
+        "train_steps": gstate["step"],
+        "train_seconds": round(gstate["elapsed"], 1),
+        "parameters": {"generator": sum(p.numel() for p in gen.parameters())},
+    }
+    if (run_dir / "path.pt").exists():
+        path, pcfg, pstate = _load(PathPredictor, PathConfig, run_dir / "path.pt")
+        xp = torch.randn(1, (pcfg.n_joints - 1) * 3, 64)
+        torch.onnx.export(
+            path,
+            (xp,),
+            str(out_dir / "path.onnx"),
+            input_names=["local_positions"],
+            output_names=["root_velocity"],
+            dynamic_axes={
+                "local_positions": {0: "batch", 2: "frames"},
+                "root_velocity": {0: "batch", 2: "frames"},
+            },
+            opset_version=17,
+            dynamo=False,
+        )
+        files["path"] = "path.onnx"
+        meta["path"] = asdict(pcfg)
+        meta["parameters"]["path"] = sum(p.numel() for p in path.parameters())
+        meta["path_train_steps"] = pstate["step"]
+    meta["files"] = files
+    meta.update(extra or {})
+    h = hashlib.sha256()
+    for f in sorted(files.values()):
+        h.update(sha256(out_dir / f).encode())
+    meta["hash"] = h.hexdigest()[:16]
+    (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
+    return meta
+
+
+def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
+    """Max |onnxruntime − torch| over random and real inputs, for every exported network."""
+    import numpy as np
+    import onnxruntime as ort
+
+    from pipeline.data.skeletons import bandai_skeleton
+    from pipeline.infer.features import build_features, path_inputs
+    from pipeline.motion.bvh import read_bvh
+
+    meta = json.loads((model_dir / "model.json").read_text())
+    gen, gcfg, _ = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
+    rng = np.random.default_rng(seed)
+    skel = bandai_skeleton()
+    inputs = [rng.normal(size=(2, gen.inp.conv.in_channels, 96)).astype(np.float32)]
+    try:
+        from pipeline.data.split import list_clips
+
+        m = read_bvh(list_clips("eval")[0]).continuous()
+        n = (len(m) // gcfg.multiple) * gcfg.multiple
+        keys = np.arange(0, n, 8)
+        keys[-1] = n - 1
+        feats, ctx = build_features(m.rotations[None, :n], m.root_positions[None, :n], keys, skel)
+        inputs.append(feats)
+    except FileNotFoundError:
+        ctx = None
+    worst = 0.0
+    sess = ort.InferenceSession(
+        str(model_dir / meta["files"]["generator"]), providers=["CPUExecutionProvider"]
+    )
+    with torch.no_grad():
+        for x in inputs:
+            a = sess.run(None, {"features": x})[0]
+            b = gen(torch.from_numpy(x)).numpy()
+            worst = max(worst, float(np.abs(a - b).max()))
+        if "path" in meta["files"]:
+            path, _, _ = _load(PathPredictor, PathConfig, run_dir / "path.pt")
+            ps = ort.InferenceSession(
+                str(model_dir / meta["files"]["path"]), providers=["CPUExecutionProvider"]
+            )
+            xs = [rng.normal(size=(2, 60, 64)).astype(np.float32)]
+            if ctx is not None:
+                xs.append(path_inputs(ctx["crot"], ctx["croot"], skel))
+            for x in xs:
+                worst = max(
+                    worst,
+                    float(
+                        np.abs(
+                            ps.run(None, {"local_positions": x})[0] - path(torch.from_numpy(x)).numpy()
+                        ).max()
+                    ),
+                )
+    return worst

@@ -1,0 +1,180 @@
+"""Training loop of the local motion generator (supervised reconstruction on in-between frames).
+
+Losses on the frames between keys: L1 on rotation matrices, L1 on FK joint positions and the
+root (both in decimetres), foot-contact BCE, and the batch-regularisation term of eq. 9.
+Checkpoints every few minutes; resumes from the last one; deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from pipeline.data.cache import load_folder, load_split
+from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
+from pipeline.infer.features import ROOT_SCALE, build_features
+from pipeline.models.generator import Generator, GeneratorConfig
+from pipeline.models.layers import batch_regularisation
+from pipeline.motion.fk import fk
+from pipeline.train.batches import foot_contacts, sample_batch, sample_keys
+
+POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 6000
+    batch: int = 32
+    lengths: tuple[int, ...] = (64, 96, 128)
+    lr: float = 1e-3
+    gap_start: int = 15
+    gap_end: int = 90
+    curriculum: float = 0.4
+    w_rot: float = 1.0
+    w_pos: float = 1.0
+    w_root: float = 1.0
+    w_contact: float = 0.1
+    w_br: float = 0.01
+    seed: int = 0
+    threads: int = 1  # two cores shared with data prep and other jobs: more threads thrash
+    checkpoint_minutes: float = 3.0
+    limit_clips: int | None = None
+    data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
+    model: GeneratorConfig = field(default_factory=GeneratorConfig)
+
+
+def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
+    a1, a2 = d6[..., :3], d6[..., 3:]
+    b1 = torch.nn.functional.normalize(a1, dim=-1)
+    b2 = torch.nn.functional.normalize(a2 - (b1 * a2).sum(-1, keepdim=True) * b1, dim=-1)
+    return torch.stack([b1, b2, torch.cross(b1, b2, dim=-1)], dim=-1)
+
+
+def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int):
+    """Network output + baseline channels -> (rotation matrices, root (cm), contact logits)."""
+    B, _, N = out.shape
+    J6 = n_joints * 6
+    o = out.transpose(1, 2)
+    f = feats.transpose(1, 2)
+    d6 = (f[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6)
+    root = (f[..., J6 : J6 + 3] + o[..., J6 : J6 + 3]) * ROOT_SCALE
+    return sixd_to_matrix_t(d6), root, o[..., J6 + 3 : J6 + 7]
+
+
+def train(cfg: TrainConfig, out_dir: Path) -> Path:
+    import roma
+
+    from pipeline.motion.fk import fk_torch
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    skel = bandai_skeleton()
+    feet = [skel.index(n) for n in FOOT_JOINTS]
+    clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
+    model = Generator(cfg.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=cfg.lr, total_steps=cfg.steps, pct_start=max(0.05, 3 / cfg.steps)
+    )
+    ckpt = out_dir / "generator.pt"
+    step, elapsed = 0, 0.0
+    if ckpt.exists():
+        state = torch.load(ckpt, weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        sched.load_state_dict(state["sched"])
+        step, elapsed = state["step"], state["elapsed"]
+        print(f"resumed {ckpt} at step {step}", file=sys.stderr)
+    log = (out_dir / "train_log.jsonl").open("a")
+    t_start, t_ckpt = time.time() - elapsed, time.time()
+
+    def save():
+        state = {
+            "model": model.state_dict(),
+            "opt": opt.state_dict(),
+            "sched": sched.state_dict(),
+            "step": step,
+            "elapsed": time.time() - t_start,
+            "config": asdict(cfg),
+        }
+        torch.save(state, ckpt.with_suffix(".tmp"))
+        ckpt.with_suffix(".tmp").replace(ckpt)
+
+    bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator")
+    model.train()
+    while step < cfg.steps:
+        # Each step's randomness depends only on (seed, step): resuming replays the same batches.
+        rng = np.random.default_rng([cfg.seed, step])
+        frac = min(step / max(cfg.curriculum * cfg.steps, 1), 1.0)
+        max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
+        L = int(rng.choice(cfg.lengths))
+        rot, root = sample_batch(clips, rng, cfg.batch, L)
+        keys = sample_keys(rng, L, max_gap)
+        feats, ctx = build_features(rot, root, keys, skel)
+        _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
+        contacts = foot_contacts(gpos, feet)
+        between = np.zeros(L, bool)
+        between[keys[0] : keys[-1] + 1] = True
+        between[keys] = False
+        if not between.any():
+            step += 1
+            continue
+        x = torch.from_numpy(feats)
+        out = model(x)
+        mats, proot, clog = decode(out, x, skel.__len__())
+        gt_rot = torch.from_numpy(ctx["crot"]).float()
+        gt_mats = roma.unitquat_to_rotmat(gt_rot)
+        m = torch.from_numpy(between)
+        q_pred = roma.rotmat_to_unitquat(mats)
+        _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
+        gt_pos = torch.from_numpy(gpos).float()
+        l_rot = (mats - gt_mats).abs()[:, m].mean()
+        l_pos = (ppos - gt_pos).abs()[:, m].mean() / POS_SCALE
+        l_root = (proot - torch.from_numpy(ctx["croot"]).float()).abs()[:, m].mean() / POS_SCALE
+        l_con = torch.nn.functional.binary_cross_entropy_with_logits(
+            clog[:, m], torch.from_numpy(contacts)[:, m]
+        )
+        l_br = batch_regularisation(model.res_layers())
+        loss = (
+            cfg.w_rot * l_rot
+            + cfg.w_pos * l_pos
+            + cfg.w_root * l_root
+            + cfg.w_contact * l_con
+            + cfg.w_br * l_br
+        )
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        sched.step()
+        step += 1
+        bar.update(1)
+        if step % 25 == 0:
+            rec = {
+                "step": step,
+                "loss": loss.item(),
+                "rot": l_rot.item(),
+                "pos": l_pos.item(),
+                "root": l_root.item(),
+                "contact": l_con.item(),
+                "br": l_br.item(),
+                "max_gap": max_gap,
+                "t": time.time() - t_start,
+            }
+            log.write(json.dumps(rec) + "\n")
+            log.flush()
+            bar.set_postfix(loss=f"{rec['loss']:.4f}", pos=f"{rec['pos']:.4f}", gap=max_gap)
+        if time.time() - t_ckpt > cfg.checkpoint_minutes * 60:
+            save()
+            t_ckpt = time.time()
+    save()
+    bar.close()
+    return ckpt

@@ -1,0 +1,202 @@
+"""The in-betweener: dense key format, networks, post-processing, ONNX export, a tiny training run."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pipeline.data.skeletons import LEGS, bandai_skeleton
+from pipeline.infer.features import build_features, key_neighbours, n_input_channels, n_output_channels
+from pipeline.infer.post import integrate_path, lock_feet, match_keys, two_bone_ik
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.fk import fk
+
+torch = pytest.importorskip("torch")
+SKEL = bandai_skeleton()
+RNG = np.random.default_rng(0)
+
+
+def random_motion(B, N, J=21, seed=0):
+    rot = Rotation.random(B * N * J, random_state=seed).as_quat().reshape(B, N, J, 4).astype(np.float32)
+    root = RNG.normal(scale=30, size=(B, N, 3)).astype(np.float32)
+    return rot, root
+
+
+def test_key_neighbours_and_dense_format_on_hand_made_keys():
+    keys = np.array([3, 8, 10])
+    prev, nxt = key_neighbours(13, keys)
+    assert prev.tolist() == [3, 3, 3, 3, 3, 3, 3, 3, 8, 8, 10, 10, 10]
+    assert nxt.tolist() == [3, 3, 3, 3, 8, 8, 8, 8, 8, 10, 10, 10, 10]
+    rot, root = random_motion(1, 13)
+    feats, ctx = build_features(rot, root, keys, SKEL)
+    assert feats.shape == (1, n_input_channels(21), 13)
+    J6 = 21 * 6
+    dense = feats[0, J6 + 3 : 2 * J6 + 3]  # nearest-key pose channels
+    dist = feats[0, 2 * J6 + 6] * 30  # distance-to-key channel, in frames
+    assert np.allclose(dist, [3, 2, 1, 0, 1, 2, 2, 1, 0, 1, 0, 1, 2])
+    # Frames 5 (nearer 3? no: 2 from 3, 3 from 8) and 6 (3 from 3, 2 from 8) copy different keys.
+    assert np.allclose(dense[:, 5], dense[:, 3]) and np.allclose(dense[:, 6], dense[:, 8])
+    is_key = feats[0, 2 * J6 + 7]
+    assert is_key.tolist() == [float(i in (3, 8, 10)) for i in range(13)]
+    # Baseline channels equal the keys' own (canonical) pose at key frames.
+    assert np.allclose(feats[0, :J6, 8], feats[0, J6 + 3 : 2 * J6 + 3, 8], atol=1e-5)
+
+
+def test_canonical_frame_puts_first_key_at_origin_facing_x():
+    m = read_bvh(__import__("pipeline.data.split", fromlist=["x"]).list_clips("eval")[1]).continuous()
+    assert len(m) > 41
+    keys = np.array([0, 20, 40])
+    _, ctx = build_features(m.rotations[None, :41], m.root_positions[None, :41], keys, SKEL)
+    assert np.allclose(ctx["croot"][0, 0, [0, 2]], 0, atol=1e-4)
+    from pipeline.bench.protocol import facing
+
+    _, pos = fk(ctx["crot"][:, 0], ctx["croot"][:, 0], SKEL.parents, SKEL.offsets)
+    assert np.allclose(facing(pos, SKEL)[0], [1, 0, 0], atol=1e-5)
+
+
+def test_generator_and_path_shapes():
+    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.models.path import PathConfig, PathPredictor
+
+    cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
+    g = Generator(cfg)
+    x = torch.randn(2, n_input_channels(21), 5 * cfg.multiple)
+    assert g(x).shape == (2, n_output_channels(21), 5 * cfg.multiple)
+    assert cfg.receptive_field() == 1 + 3 * (1 + 2 + 4) + 2 * 8 * (1 + 2)
+    p = PathPredictor(PathConfig(channels=(16, 24)))
+    assert p(torch.randn(3, 60, 64)).shape == (3, 3, 64)
+
+
+def test_match_keys_exact_and_smooth_for_random_inputs():
+    B, N = 2, 40
+    rot, root = random_motion(B, N, seed=1)
+    rot = np.cumsum(RNG.normal(scale=0.02, size=(B, N, 21, 4)), axis=1) + np.array([0, 0, 0, 1.0])
+    rot = (rot / np.linalg.norm(rot, axis=-1, keepdims=True)).astype(np.float32)
+    keys = np.array([2, 11, 25, 39])
+    key_rot, key_root = random_motion(B, len(keys), seed=2)
+    key_rot = (rot[:, keys] + RNG.normal(scale=0.05, size=(B, 4, 21, 4))).astype(np.float32)
+    key_rot /= np.linalg.norm(key_rot, axis=-1, keepdims=True)
+    key_root = (root[:, keys] + RNG.normal(scale=5, size=(B, 4, 3))).astype(np.float32)
+    out_r, out_p = match_keys(rot, root, key_rot, key_root, keys)
+    assert np.array_equal(out_r[:, keys], key_rot) and np.array_equal(out_p[:, keys], key_root)
+    # No pop: the correction changes slowly near keys (smoothstep has zero slope at keys).
+    corr = out_p - root
+    step = np.abs(np.diff(corr, axis=1))
+    jump_at_keys = np.abs(key_root - root[:, keys]).max()
+    assert step[:, 2:38].max() < 0.5 * jump_at_keys
+    assert np.array_equal(out_p[:, :2], np.repeat(key_root[:, :1], 2, 1))  # held before the first key
+
+
+def test_path_integration_hits_every_key():
+    B, N = 1, 50
+    vel = RNG.normal(size=(B, N, 3))
+    keys = np.array([0, 13, 30, 49])
+    key_root = RNG.normal(scale=50, size=(B, 4, 3))
+    path = integrate_path(vel, key_root, keys, N)
+    np.testing.assert_allclose(path[:, keys], key_root, atol=1e-9)
+    # Inside a gap, the shape of the integrated velocity is kept up to a smooth correction.
+    assert np.isfinite(path).all()
+
+
+def test_two_bone_ik_keeps_bone_lengths_and_reaches_target(bandai_clip):
+    m = read_bvh(bandai_clip)
+    rot, root = m.rotations[:20], m.root_positions[:20]
+    leg = tuple(SKEL.index(n) for n in LEGS[0])
+    _, pos = fk(rot, root, SKEL.parents, SKEL.offsets)
+    target = pos[:, leg[2]] + np.array([4.0, 3.0, -2.0])
+    out = two_bone_ik(rot, root, SKEL, leg, target, np.ones(20))
+    _, new = fk(out, root, SKEL.parents, SKEL.offsets)
+    np.testing.assert_allclose(new[:, leg[2]], target, atol=1e-2)
+    bones = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(bones(new), bones(pos), atol=1e-3)
+    # The other leg and the upper body did not move.
+    other = [SKEL.index(n) for n in LEGS[1]] + [SKEL.index("Head")]
+    np.testing.assert_allclose(new[:, other], pos[:, other], atol=1e-4)
+
+
+def test_lock_feet_reduces_slide_and_keeps_keys(bandai_clip):
+    m = read_bvh(bandai_clip)
+    rot, root = m.rotations[:30].copy(), m.root_positions[:30].copy()
+    root[:, 0] += np.linspace(0, 15, 30)  # make the whole body (and feet) slide
+    legs = [tuple(SKEL.index(n) for n in leg) for leg in LEGS]
+    contacts = np.ones((30, 2))
+    keys = np.array([0, 29])
+    out = lock_feet(rot, root, SKEL, contacts, keys, legs)
+    _, before = fk(rot, root, SKEL.parents, SKEL.offsets)
+    _, after = fk(out, root, SKEL.parents, SKEL.offsets)
+    ankle = legs[0][2]
+    slide = lambda p: np.linalg.norm(np.diff(p[8:22, ankle][:, [0, 2]], axis=0), axis=-1).mean()  # noqa: E731
+    assert slide(after) < 0.5 * slide(before)
+    assert np.array_equal(out[keys], rot[keys])
+
+
+def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip):
+    from dataclasses import asdict
+
+    from pipeline.infer.model import OnnxInbetweener
+    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.models.path import PathConfig, PathPredictor
+    from pipeline.train.export import export, verify
+
+    torch.manual_seed(0)
+    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64))
+    g = Generator(gcfg)
+    torch.nn.init.normal_(g.out.weight, std=0.01)  # not the zero start: a real residual
+    pcfg = PathConfig(channels=(16, 24))
+    run = tmp_path / "run"
+    run.mkdir()
+    torch.save(
+        {"model": g.state_dict(), "config": {"model": asdict(gcfg)}, "step": 0, "elapsed": 0.0},
+        run / "generator.pt",
+    )
+    torch.save(
+        {"model": PathPredictor(pcfg).state_dict(), "config": {"model": asdict(pcfg)}, "step": 0},
+        run / "path.pt",
+    )
+    meta = export(run, tmp_path / "model", "tiny")
+    assert set(meta["files"]) == {"generator", "path"}
+    assert verify(run, tmp_path / "model") < 1e-4
+    m = read_bvh(bandai_clip).continuous().slice(0, 70)
+    keys = np.array([0, 1, 2, 20, 45, 69])
+    for root_mode in ("generator", "path"):
+        out = OnnxInbetweener(tmp_path / "model", root=root_mode).fill(m, keys)
+        assert np.array_equal(out.rotations[keys], m.rotations[keys])
+        assert np.array_equal(out.root_positions[keys], m.root_positions[keys])
+        assert len(out) == 70 and np.isfinite(out.rotations).all()
+
+
+def test_tiny_training_run_loss_falls(tmp_path):
+    from pipeline.models.generator import GeneratorConfig
+    from pipeline.train.generator import TrainConfig, train
+
+    cfg = TrainConfig(
+        steps=60,
+        batch=8,
+        lengths=(64,),
+        lr=3e-3,
+        limit_clips=40,
+        model=GeneratorConfig(width=48, levels=(48, 64, 64)),
+        checkpoint_minutes=100,
+    )
+    train(cfg, tmp_path)
+    log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
+    assert log[-1]["pos"] < log[0]["pos"] and log[-1]["loss"] < log[0]["loss"]
+    assert (tmp_path / "generator.pt").exists()
+
+
+def test_filling_does_not_import_torch(bandai_clip):
+    code = (
+        "import sys, numpy as np\n"
+        "from pipeline.infer import load_inbetweener\n"
+        "from pipeline.motion.bvh import read_bvh\n"
+        f"m = read_bvh({str(bandai_clip)!r}).continuous().slice(0, 64)\n"
+        "inb = load_inbetweener('default')\n"
+        "out = inb.fill(m, np.array([0, 30, 63]))\n"
+        "assert 'torch' not in sys.modules, 'torch imported'\n"
+        "print(inb.name)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
