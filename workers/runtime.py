@@ -22,7 +22,7 @@ def thread_env(concurrency: int) -> dict[str, str]:
         "MKL_NUM_THREADS": n,
         "OPENBLAS_NUM_THREADS": n,
         "LP_NUM_THREADS": n,  # Mesa llvmpipe render threads
-        "TWEEN_THREADS": n,  # read by the ORT session options of pipeline.infer
+        "TWEEN_ORT_THREADS": n,  # intra-op threads of the ORT sessions (pipeline.infer.model)
     }
 
 
@@ -35,8 +35,30 @@ def get_inbetweener(name: str = "default"):
     return _MODELS[name]
 
 
+def _cache_fill_model() -> None:
+    """Makes pipeline.fill reuse this process's in-betweener instead of loading one per call.
+
+    pipeline.fill resolves the model on every call (right in a one-shot CLI); in a worker
+    that would rebuild the ORT sessions for every task. Same name, same instance.
+    """
+    from pipeline import fill
+
+    real = getattr(fill, "_model", None)
+    if real is None or getattr(real, "_tween_cached", False):
+        return
+
+    def cached(name: str):
+        if name not in _MODELS:
+            _MODELS[name] = real(name)
+        return _MODELS[name]
+
+    cached._tween_cached = True
+    fill._model = cached
+
+
 def init_process() -> None:
-    """Runs in each pool child after fork: loads the default model once."""
+    """Runs in each pool child after fork: loads the default model once, and keeps it."""
+    _cache_fill_model()
     try:
         get_inbetweener(os.environ.get("TWEEN_WORKER_MODEL", "default"))
     except Exception as e:  # a missing model must not kill the pool; the task reports it

@@ -20,13 +20,15 @@ class FarmConfigError(TweenError):
     """The farm configuration is inconsistent."""
 
 
-def cache_dir() -> Path:
+def cache_dir(env=None) -> Path:
     """``$TWEEN_CACHE`` or ``~/.cache/usd-tween`` (same rule as :mod:`pipeline.data.cache`)."""
-    return Path(os.environ.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
+    env = os.environ if env is None else env
+    return Path(env.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
 
 
-def config_file() -> Path:
-    return Path(os.environ.get("TWEEN_FARM_CONFIG", Path.home() / ".config" / "usd-tween" / "farm.toml"))
+def config_file(env=None) -> Path:
+    env = os.environ if env is None else env
+    return Path(env.get("TWEEN_FARM_CONFIG", Path.home() / ".config" / "usd-tween" / "farm.toml"))
 
 
 @dataclass(frozen=True)
@@ -85,16 +87,17 @@ def _read_file(path: Path) -> dict:
     return data
 
 
-def embedded_urls(folder: Path | None = None) -> tuple[str, str]:
-    """Broker and result URLs of the server-less default, under the cache folder."""
-    folder = (folder or cache_dir() / "farm").resolve()
+def embedded_urls(folder: Path) -> tuple[str, str]:
+    """Broker and result URLs of the server-less default, in ``folder``."""
+    folder = folder.resolve()
+    folder.mkdir(parents=True, exist_ok=True)
     return f"tweensqla+sqlite:///{folder / 'broker.sqlite'}", f"db+sqlite:///{folder / 'results.sqlite'}"
 
 
 def load_settings(env: dict | None = None) -> FarmSettings:
     """Resolves the settings from ``env`` (default ``os.environ``) and the config file."""
     env = os.environ if env is None else env
-    data = _read_file(config_file())
+    data = _read_file(config_file(env))
     vals: dict = {}
     for key in _STR_KEYS + _INT_KEYS:
         raw = env.get(f"TWEEN_{key.upper()}")
@@ -118,7 +121,7 @@ def load_settings(env: dict | None = None) -> FarmSettings:
     backend = vals.pop("result_backend", None)
     embedded = broker is None
     if embedded:
-        broker, default_backend = embedded_urls()
+        broker, default_backend = embedded_urls(cache_dir(env) / "farm")
         backend = backend or default_backend
     elif backend is None:
         if broker.startswith(("redis://", "rediss://")):

@@ -1,0 +1,105 @@
+"""The embedded default: `tween fill` with no broker configured goes through Celery on a
+local SQLite broker and worker, and never opens a network connection."""
+
+from __future__ import annotations
+
+import json
+import os
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+from redis_server import REPO, copy_shot, example_shot, layer_samples
+
+# Loaded into every Python process of the run (CLI, worker, pool children): records and
+# refuses any connection to a network address, so "no broker contacted" is checked, not assumed.
+GUARD = """
+import os, socket, sys
+_LOG = os.environ["TWEEN_TEST_NET_LOG"]
+def _hook(event, args):
+    if event == "socket.connect" and args[0].family in (socket.AF_INET, socket.AF_INET6):
+        with open(_LOG, "a") as f:
+            f.write(f"{os.getpid()} {args[1]!r}\\n")
+        raise ConnectionRefusedError(f"test guard: network connection to {args[1]!r} refused")
+sys.addaudithook(_hook)
+"""
+
+
+def _env(tmp_path: Path) -> dict:
+    guard_dir = tmp_path / "guard"
+    guard_dir.mkdir()
+    (guard_dir / "sitecustomize.py").write_text(GUARD)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    env.update(
+        TWEEN_CACHE=str(tmp_path / "cache"),
+        TWEEN_FARM_CONFIG=str(tmp_path / "no-such-farm.toml"),
+        TWEEN_TEST_NET_LOG=str(tmp_path / "net.log"),
+        PYTHONPATH=os.pathsep.join([str(guard_dir), str(REPO)]),
+    )
+    if "TWEEN_DATA" in os.environ:
+        env["TWEEN_DATA"] = os.environ["TWEEN_DATA"]
+    return env
+
+
+def test_guard_catches_connections(tmp_path):
+    env = _env(tmp_path)
+    code = "import socket\ntry: socket.create_connection(('127.0.0.1', 6379), timeout=1)\nexcept OSError as e: print(e)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert "test guard" in out.stdout
+    assert "6379" in (tmp_path / "net.log").read_text()
+
+
+def test_embedded_fill_without_any_broker(tmp_path):
+    env = _env(tmp_path)
+    shot = copy_shot(example_shot(), tmp_path / "shots", "demo")
+    before = shot.read_bytes()
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "fill",
+        str(shot),
+        "--takes",
+        "2",
+        "--seed",
+        "3",
+        "--no-progress",
+    ]
+    res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert not (tmp_path / "net.log").exists(), (tmp_path / "net.log").read_text()
+    layer = Path(res.stdout.split("layer ", 1)[1].split(",")[0].strip())
+    assert layer.parent == shot.parent and layer.is_file()
+    assert shot.read_bytes() == before  # the user's shot is never modified
+    # The same values as filling in process.
+    from pipeline.fill import FillOptions, fill_shot
+
+    direct = fill_shot(str(copy_shot(shot, tmp_path / "direct", "demo")), FillOptions(takes=2, seed=3))
+    samples = layer_samples(layer)
+    ref = layer_samples(direct["layer"])
+    assert sorted(samples) == sorted(ref) and samples
+    # It went through Celery: the worker ran each stage and stored results in SQLite.
+    db = tmp_path / "cache" / "farm" / "results.sqlite"
+    with sqlite3.connect(db) as con:
+        rows = dict(con.execute("select task_id, status from celery_taskmeta"))
+    stages = {k.split(".", 1)[1] for k, v in rows.items() if "." in k and v == "SUCCESS"}
+    assert stages == {"validate", "take0", "take1", "layer", "review"}
+    assert not list(shot.parent.glob(".tween-work"))
+    logs = list((tmp_path / "cache" / "farm" / "logs").glob("*.log"))
+    assert logs and "tween.fill_take" in logs[0].read_text()
+
+
+def test_embedded_bad_shot_reports_and_fails(tmp_path):
+    env = _env(tmp_path)
+    bad = tmp_path / "shots" / "broken.usda"
+    bad.parent.mkdir()
+    bad.write_text("#usda 1.0\n(\n  this is not usd\n")
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(bad), "--no-progress"]
+    res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("tween: error:")]
+    assert len(lines) == 1 and str(bad) in lines[0], res.stderr[-2000:]
+    assert res.stdout == ""
+    assert sorted(p.name for p in bad.parent.iterdir()) == ["broken.usda"]
+    json.dumps(lines)
