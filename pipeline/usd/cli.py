@@ -1,7 +1,78 @@
-"""Commands of this package for the ``tween`` CLI."""
+"""USD commands of the ``tween`` CLI: ``convert`` (BVH → shot) and ``fill-local`` (in process).
+
+``tween fill`` (the farm) is defined in ``workers/cli.py``; ``fill-local`` runs the same
+fill in this process, for debugging.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
     """Adds this package's commands to ``app``."""
+
+    @app.command()
+    def convert(
+        bvh: Path = typer.Argument(..., help="BVH motion file (.bvh or .bvh.gz)."),
+        out: Path = typer.Argument(..., help="USD shot to write (.usda or .usdc)."),
+        keys_every: int = typer.Option(1, "--keys-every", min=1, help="Keep every Nth frame as a key (blocking)."),
+        start: float = typer.Option(1001, "--start", help="Time code of the first frame."),
+        fps: float = typer.Option(None, "--fps", help="Shot rate (resampled; default: the BVH's)."),
+        up: str = typer.Option("y", "--up", help="Stage up axis: y or z."),
+        frames: str = typer.Option(None, "--frames", help="Source frame span to keep, e.g. 0-120."),
+        name: str = typer.Option("Character", "--name", help="Name of the SkelRoot prim."),
+    ):
+        """BVH → UsdSkel shot with a skinned box mannequin."""
+        from pipeline.errors import TweenError
+        from pipeline.motion.bvh import read_bvh
+        from pipeline.usd.convert import write_shot
+
+        if up.lower() not in ("y", "z"):
+            raise TweenError(f"--up must be y or z, not {up!r}")
+        if out.suffix not in (".usda", ".usdc", ".usd"):
+            raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
+        motion = read_bvh(bvh)
+        if frames:
+            a, _, b = frames.partition("-")
+            motion = motion.slice(int(a), int(b) + 1)
+        if len(motion) < 2:
+            raise TweenError(f"{bvh}: fewer than two frames to convert")
+        path = write_shot(motion, out, start=start, fps=fps, keys_every=keys_every, up_axis=up.upper(), name=name)
+        typer.echo(path)
+
+    @app.command("fill-local")
+    def fill_local(
+        shot: Path = typer.Argument(..., help="USD shot."),
+        keys: str = typer.Option(None, "--keys", help="Key time codes: '1001,1012,1030' or '1001-1100x8'."),
+        range_: str = typer.Option(None, "--range", help="Time codes to fill, e.g. 1010-1050."),
+        takes: int = typer.Option(1, "--takes", min=1, help="Takes (variations)."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the first take."),
+        model: str = typer.Option("default", "--model", help="In-betweener: default, interp, or a model folder."),
+        out: Path = typer.Option(None, "--out", "--out-dir", help="Folder for the layers (default: beside the shot)."),
+        fmt: str = typer.Option("usda", "--format", help="Fill layer format: usda or usdc."),
+        mapping: Path = typer.Option(None, "--mapping", help="JSON joint-mapping override."),
+        review_layer: Path = typer.Option(None, "--review-layer", help="Add the fill to this root layer instead."),
+        job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
+    ):
+        """Fill a shot in this process and print the result as JSON."""
+        from pipeline.fill import FillOptions, fill_shot
+
+        opts = FillOptions(
+            keys=keys,
+            range=range_,
+            takes=takes,
+            seed=seed,
+            model=model,
+            out_dir=str(out) if out else None,
+            fmt=fmt,
+            mapping=str(mapping) if mapping else None,
+            review_layer=str(review_layer) if review_layer else None,
+        )
+        result = fill_shot(str(shot), opts, job_id=job_id)
+        print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
+        typer.echo(json.dumps(result, indent=1))

@@ -97,7 +97,10 @@ def humanoid_check(roles: dict[str, int], pos: np.ndarray) -> None:
                 "front legs?)"
             )
         if not 0.5 < leg_len / max(spine_len, 1e-9) < 4.0:
-            raise MappingError(f"not a humanoid rest pose: leg/spine length ratio {leg_len / spine_len:.2f}")
+            raise MappingError(
+                f"not a humanoid: leg {s} is {leg_len / spine_len:.2f}x the hips-to-head length "
+                "(a human's is 0.5-4x; short legs under a long body are a quadruped's)"
+            )
 
 
 def reference_pose(roles: dict[str, int], rot: np.ndarray, pos: np.ndarray) -> np.ndarray:

@@ -1,0 +1,54 @@
+"""The TweenAPI codeless schema: registered on import, attributes and fallbacks, plugin path."""
+
+import os
+import subprocess
+import sys
+
+import pipeline.usd  # noqa: F401  (registers the plugin before any stage exists)
+import usd_schemas
+
+
+def test_registry_knows_tween_api_with_fallbacks():
+    from pxr import Usd
+
+    reg = Usd.SchemaRegistry()
+    assert reg.IsAppliedAPISchema("TweenAPI")
+    d = reg.FindAppliedAPIPrimDefinition("TweenAPI")
+    names = set(d.GetPropertyNames())
+    want = {"tween:keyTimes", "tween:model", "tween:modelHash", "tween:seed", "tween:take", "tween:jobId",
+            "tween:createdAt", "tween:reviewStatus", "tween:approvedTake"}  # fmt: skip
+    assert want <= names
+    stage = Usd.Stage.CreateInMemory()
+    prim = stage.DefinePrim("/Shot")
+    assert prim.ApplyAPI("TweenAPI") and prim.HasAPI("TweenAPI")
+    status = prim.GetAttribute("tween:reviewStatus")
+    assert status.Get() == "pending" and not status.HasAuthoredValue()
+    assert list(status.GetMetadata("allowedTokens")) == ["pending", "approved", "rejected"]
+    assert prim.GetAttribute("tween:approvedTake").Get() == -1
+    assert prim.GetAttribute("tween:seed").Get() == 0
+    assert prim.GetAttribute("tween:model").Get() == ""
+    assert str(prim.GetAttribute("tween:keyTimes").GetTypeName()) == "double[]"
+
+
+def test_plugin_found_through_pxr_pluginpath_name_by_other_tools():
+    # A process that never imports this package (a DCC, usdview) finds the schema
+    # through the documented environment variable.
+    code = "from pxr import Usd; print(Usd.SchemaRegistry().IsAppliedAPISchema('TweenAPI'))"
+    env = dict(os.environ, PXR_PLUGINPATH_NAME=str(usd_schemas.PLUGIN_DIR))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True"
+    env.pop("PXR_PLUGINPATH_NAME")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_generated_files_match_schema_source(tmp_path):
+    from pathlib import Path
+
+    subprocess.run(
+        [sys.executable, "-m", "pxr.Usd.usdGenSchema", str(usd_schemas.PLUGIN_DIR.parent / "schema.usda"), str(tmp_path)],
+        check=True,
+        capture_output=True,
+    )
+    gen = (tmp_path / "generatedSchema.usda").read_text()
+    assert gen == Path(usd_schemas.PLUGIN_DIR / "generatedSchema.usda").read_text()

@@ -1,0 +1,47 @@
+"""Helpers for the USD tests: real shots built from ../shared/data clips with `tween convert`."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.data.split import shared_data_dir
+
+DATA = shared_data_dir()
+BANDAI_CLIP = DATA / "bandai_namco" / "dataset-2" / "dataset-2_walk_active_002.bvh.gz"
+CMU_CLIP = DATA / "cmu_iclone" / "001_01.bvh.gz"
+USD_ASSETS = DATA / "usd_assets"
+ELEPHANT = USD_ASSETS / "ElephantWithMonochord" / "SoC-ElephantWithMonochord.usdc"
+FIGURE = USD_ASSETS / "RiggedFigure" / "RiggedFigure.usdz"
+SIMPLE = USD_ASSETS / "RiggedSimple" / "RiggedSimple.usdz"
+ANIM = "/World/Character/Skel/Anim"
+FILLED = "/World/Character/Skel/Anim_tween"
+
+
+def bandai_shot(path: Path, frames: int = 61, keys_every: int = 10, **kw) -> Path:
+    from pipeline.motion.bvh import read_bvh
+    from pipeline.usd.convert import write_shot
+
+    m = read_bvh(BANDAI_CLIP).slice(0, frames)
+    write_shot(m, path, keys_every=keys_every, **kw)
+    return path
+
+
+def cmu_shot(path: Path, frames: int = 121, keys_every: int = 12, **kw) -> Path:
+    from pipeline.motion.bvh import read_bvh
+    from pipeline.usd.convert import write_shot
+
+    m = read_bvh(CMU_CLIP).slice(0, frames)
+    write_shot(m, path, keys_every=keys_every, up_axis="Z", **kw)
+    return path
+
+
+def tree_hashes(folder: Path) -> dict[str, str]:
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def samples(stage, path: str, attr: str = "rotations") -> dict[float, np.ndarray]:
+    a = stage.GetPrimAtPath(path).GetAttribute(attr)
+    return {t: np.array(a.Get(t)) for t in a.GetTimeSamples()}
