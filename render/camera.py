@@ -39,9 +39,10 @@ def _direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
 
 
 def fit_distance(
-    corners: np.ndarray, target: np.ndarray, direction: np.ndarray, aspect: float, margin=1.12
+    corners: np.ndarray, target: np.ndarray, direction: np.ndarray, aspect: float, margin=1.12, safe=1.0
 ) -> float:
-    """Smallest distance along ``direction`` at which every corner is inside the frustum."""
+    """Smallest distance along ``direction`` at which every corner is inside the frustum
+    (vertically inside the middle ``safe`` fraction, clear of the burn-in bands)."""
     f = -direction
     s = np.cross(f, [0.0, 1.0, 0.0])
     s /= np.linalg.norm(s)
@@ -49,6 +50,7 @@ def fit_distance(
     p = (corners - target) * margin
     ty = np.tan(np.radians(FOV_Y_DEG) / 2)
     tx = ty * aspect
+    ty *= safe
     d = np.maximum(np.abs(p @ s) / tx - p @ f, np.abs(p @ u) / ty - p @ f)
     return float(d.max())
 
@@ -57,7 +59,7 @@ class Camera:
     """Per-frame view-projection for ``mode`` in turntable | front | side."""
 
     def __init__(
-        self, bbox_min, bbox_max, aspect: float, n_frames: int, mode="turntable", turns=1.0, ground_y=0.0
+        self, bbox_min, bbox_max, aspect: float, n_frames: int, mode="turntable", turns=1.0, safe=1.0
     ):
         if mode not in ("turntable", "front", "side"):
             raise ValueError(f"camera must be turntable, front or side, not {mode!r}")
@@ -71,10 +73,9 @@ class Camera:
         azimuths = np.linspace(0, 360, 37) if mode == "turntable" else [self.start_az]
         # One distance for the whole orbit, so the character does not pump in and out.
         self.distance = max(
-            fit_distance(corners, self.target, _direction(a, ELEVATION_DEG), aspect) for a in azimuths
+            fit_distance(corners, self.target, _direction(a, ELEVATION_DEG), aspect, safe=safe) for a in azimuths
         )
         self.distance = max(self.distance, 1e-3 + np.linalg.norm(hi - lo) * 0.5)
-        self.ground_y = ground_y
         self.near = max(self.distance * 0.02, 1e-3)
         self.far = self.distance * 20 + np.linalg.norm(hi - lo) * 4
 

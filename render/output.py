@@ -35,7 +35,8 @@ def write_frame(path: str, rgb: np.ndarray, meta: dict, exr: bool = False) -> No
     else:
         buf.specmod().attribute("png:compressionLevel", 3)  # zlib level 6 costs 3x the time for ~10% size
     for k, v in meta.items():
-        buf.specmod().attribute(k, v)
+        # PNG keeps only text chunks (ints are dropped), EXR keeps typed attributes
+        buf.specmod().attribute(k, v if exr else str(v))
     tmp = f"{path}.tmp{os.getpid()}{Path(path).suffix}"
     if not buf.write(tmp):
         raise RenderError(f"{path}: cannot write image: {buf.geterror()}")

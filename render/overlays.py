@@ -45,7 +45,7 @@ class BurnIn:
     def __init__(self, size, shot: str, facts: dict, fps: float, panel_labels: list[str] | None = None):
         self.w, self.h = size
         self.fps = fps
-        self.font = max(12, round(self.h * 0.03))
+        self.font = max(9, round(min(self.h * 0.03, self.w * 0.018)))
         self.band = round(self.font * 1.7)
         mid = self.band // 2
         model = facts.get("model")
@@ -80,7 +80,7 @@ class BurnIn:
         )
         self.key_badge[..., :3] += np.array(KEY_RGB, np.float32) * (1.0 - self.key_badge[..., 3:4])
         self.key_badge[..., 3] = 1.0
-        self.frame_w = self.font * 16
+        self.frame_w = min(self.font * 16, self.w)
 
     def apply(self, img: np.ndarray, frame: int, is_key: bool) -> None:
         """Burns the text into ``img`` (h, w, 3) uint8 in place."""

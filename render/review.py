@@ -78,9 +78,10 @@ def render_review(
         sets = [renderer.mesh_set(g) for g in panels]
         colors = [BLOCKING_CLAY, CLAY] if side_by_side else [CLAY]
         ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
-        cam = Camera(lo, hi, (w / len(panels)) / h, T, camera, turns)
         labels = ["BLOCKING (stepped keys)", "FILLED"] if side_by_side else None
         burn = BurnIn((w, h), shot.name, shot.facts, shot.fps, labels)
+        covered = burn.band * (4 if side_by_side else 2)  # the bands (and panel labels) are symmetric-ish
+        cam = Camera(lo, hi, (w / len(panels)) / h, T, camera, turns, safe=1.0 - covered / h)
         movie = Movie(
             str(tmp / f"{stem}.mp4"), (w, h), shot.fps, comment=f"{shot.name} {shot.take or ''} {shot.facts}"
         )

@@ -1,4 +1,8 @@
-"""Builds review stages from a real Bandai clip with UsdSkel APIs, until ``tween convert`` lands.
+"""Review stages from a real Bandai clip.
+
+``converted_review`` uses the project's own path (``pipeline.usd.convert.write_shot`` then
+``pipeline.fill.fill_shot`` with the interpolation model). ``build_shot`` authors a stage
+directly with UsdSkel APIs (no skinned mesh, so the renderer's capsule mannequin is used).
 
 The shot is on the shot's own frame numbers (1001...), centimetres, Y up, 30 fps, like a
 studio shot; the fill's facts are authored as ``tween:*`` attributes on the SkelAnimation, and
@@ -126,3 +130,23 @@ def build_shot(
         _author_anim(anim, motion, range(T) if filled else keys, {**facts, "take": 0} if filled else None)
     stage.GetRootLayer().Save()
     return {"path": str(out), "keys": [START + k for k in keys], "frames": T}
+
+
+def start_frames() -> int:
+    return START
+
+
+def converted_review(clip: Path, work: Path, frames: int = 60, key_step: int = 10, takes: int = 2,
+                     name: str = "sh010") -> tuple[str, list[int]]:  # fmt: skip
+    """Converts ``clip`` to a shot keyed every ``key_step`` frames and fills it with the
+    interpolation model; returns (review root layer, key frame numbers)."""
+    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.usd.convert import write_shot
+
+    motion = read_bvh(clip).slice(0, frames)
+    shot = write_shot(motion, work / f"{name}.usda", start=START, keys_every=key_step)
+    result = fill_shot(shot, FillOptions(takes=takes, model="interp", out_dir=str(work)))
+    keys = list(range(0, len(motion), key_step))
+    if keys[-1] != len(motion) - 1:
+        keys.append(len(motion) - 1)
+    return result["review"], [START + k for k in keys]
