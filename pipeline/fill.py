@@ -55,8 +55,11 @@ def _plan(shot: str, opts: FillOptions, fps: float):
 
 def validate_shot(shot: str, opts: FillOptions) -> dict:
     """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled."""
+    from pipeline.usd.write import check_out_dir
+
     inb = _model(opts.model)
     summary = _plan(shot, opts, float(inb.fps)).summary()
+    summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     summary.update(model=inb.name, model_hash=inb.model_hash)
     return summary
 

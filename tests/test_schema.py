@@ -46,7 +46,13 @@ def test_generated_files_match_schema_source(tmp_path):
     from pathlib import Path
 
     subprocess.run(
-        [sys.executable, "-m", "pxr.Usd.usdGenSchema", str(usd_schemas.PLUGIN_DIR.parent / "schema.usda"), str(tmp_path)],
+        [
+            sys.executable,
+            "-m",
+            "pxr.Usd.usdGenSchema",
+            str(usd_schemas.PLUGIN_DIR.parent / "schema.usda"),
+            str(tmp_path),
+        ],
         check=True,
         capture_output=True,
     )

@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
-from usd_fixtures import ANIM, FILLED, bandai_shot, cmu_shot, samples, tree_hashes
+from usd_fixtures import ANIM, BANDAI_CLIP, FILLED, bandai_shot, cmu_shot, samples, tree_hashes
 
 from pipeline.fill import FillOptions, fill_shot, fill_take, validate_shot, write_layers
 from pipeline.infer.interp import interpolate_keys
 from pipeline.motion.bvh import read_bvh
-from usd_fixtures import BANDAI_CLIP
 
 
 def _open(path):
@@ -89,7 +88,10 @@ def test_fill_take_idempotent_and_takes_variant_set(walk, tmp_path):
     vs = world.GetVariantSets().GetVariantSet("tweenTake")
     assert vs.GetVariantNames() == ["take0", "take1"] and vs.GetVariantSelection() == "take0"
     anim = stage.GetPrimAtPath(FILLED)
-    assert anim.GetAttribute("tween:seed").Get() == 7 and len(anim.GetAttribute("rotations").GetTimeSamples()) == 61
+    assert (
+        anim.GetAttribute("tween:seed").Get() == 7
+        and len(anim.GetAttribute("rotations").GetTimeSamples()) == 61
+    )
     vs.SetVariantSelection("take1")
     assert anim.GetAttribute("tween:seed").Get() == 8 and anim.GetAttribute("tween:take").Get() == 1
     assert len(anim.GetAttribute("rotations").GetTimeSamples()) == 61
@@ -187,7 +189,9 @@ def test_animators_sublayers_untouched_and_named_review_layer(walk, tmp_path):
     before = tree_hashes(shots)
     res = fill_shot(
         str(shots / "sh010.usda"),
-        FillOptions(model="interp", out_dir=str(tmp_path / "out"), review_layer=str(tmp_path / "dailies.usda")),
+        FillOptions(
+            model="interp", out_dir=str(tmp_path / "out"), review_layer=str(tmp_path / "dailies.usda")
+        ),
     )
     assert tree_hashes(shots) == before
     assert res["review"] == str(tmp_path / "dailies.usda")

@@ -39,7 +39,9 @@ def cmu_shot(path: Path, frames: int = 121, keys_every: int = 12, **kw) -> Path:
 
 
 def tree_hashes(folder: Path) -> dict[str, str]:
-    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def samples(stage, path: str, attr: str = "rotations") -> dict[float, np.ndarray]:

@@ -20,7 +20,9 @@ def register(app: typer.Typer) -> None:
     def convert(
         bvh: Path = typer.Argument(..., help="BVH motion file (.bvh or .bvh.gz)."),
         out: Path = typer.Argument(..., help="USD shot to write (.usda or .usdc)."),
-        keys_every: int = typer.Option(1, "--keys-every", min=1, help="Keep every Nth frame as a key (blocking)."),
+        keys_every: int = typer.Option(
+            1, "--keys-every", min=1, help="Keep every Nth frame as a key (blocking)."
+        ),
         start: float = typer.Option(1001, "--start", help="Time code of the first frame."),
         fps: float = typer.Option(None, "--fps", help="Shot rate (resampled; default: the BVH's)."),
         up: str = typer.Option("y", "--up", help="Stage up axis: y or z."),
@@ -42,7 +44,9 @@ def register(app: typer.Typer) -> None:
             motion = motion.slice(int(a), int(b) + 1)
         if len(motion) < 2:
             raise TweenError(f"{bvh}: fewer than two frames to convert")
-        path = write_shot(motion, out, start=start, fps=fps, keys_every=keys_every, up_axis=up.upper(), name=name)
+        path = write_shot(
+            motion, out, start=start, fps=fps, keys_every=keys_every, up_axis=up.upper(), name=name
+        )
         typer.echo(path)
 
     @app.command("fill-local")
@@ -52,11 +56,17 @@ def register(app: typer.Typer) -> None:
         range_: str = typer.Option(None, "--range", help="Time codes to fill, e.g. 1010-1050."),
         takes: int = typer.Option(1, "--takes", min=1, help="Takes (variations)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the first take."),
-        model: str = typer.Option("default", "--model", help="In-betweener: default, interp, or a model folder."),
-        out: Path = typer.Option(None, "--out", "--out-dir", help="Folder for the layers (default: beside the shot)."),
+        model: str = typer.Option(
+            "default", "--model", help="In-betweener: default, interp, or a model folder."
+        ),
+        out: Path = typer.Option(
+            None, "--out", "--out-dir", help="Folder for the layers (default: beside the shot)."
+        ),
         fmt: str = typer.Option("usda", "--format", help="Fill layer format: usda or usdc."),
         mapping: Path = typer.Option(None, "--mapping", help="JSON joint-mapping override."),
-        review_layer: Path = typer.Option(None, "--review-layer", help="Add the fill to this root layer instead."),
+        review_layer: Path = typer.Option(
+            None, "--review-layer", help="Add the fill to this root layer instead."
+        ),
         job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
     ):
         """Fill a shot in this process and print the result as JSON."""

@@ -161,6 +161,18 @@ def _link_new(tmp: Path, final: Path) -> bool:
     return True
 
 
+def check_out_dir(shot: str, out_dir: str | None) -> Path:
+    """The folder layers go to; raises ShotError when it cannot be written."""
+    out = Path(out_dir) if out_dir else Path(shot).resolve().parent
+    probe = out
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    # The mode bits too: a published (read-only) shot folder stays untouched even for root.
+    if not probe.is_dir() or not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
+        raise ShotError(shot, f"output folder {out} is read-only (use --out DIR)")
+    return out
+
+
 def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, fmt: str,
           review_layer: str | None) -> dict:  # fmt: skip
     """Writes ``<stem>.tween.vNNN.<fmt>`` and its review root layer; returns the result dict."""
@@ -168,13 +180,11 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
 
     if fmt not in ("usda", "usdc"):
         raise ShotError(shot, f"unknown layer format {fmt!r} (usda or usdc)")
-    out = Path(out_dir) if out_dir else Path(shot).resolve().parent
+    out = check_out_dir(shot, out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ShotError(shot, f"cannot create output folder {out}: {e.strerror}") from None
-    if not os.access(out, os.W_OK):
-        raise ShotError(shot, f"output folder {out} is not writable (use --out DIR)")
     animator = {os.path.realpath(p) for p in _layer_files(stage)}
     if review_layer and os.path.realpath(review_layer) in animator:
         raise ShotError(
