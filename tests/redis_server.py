@@ -152,7 +152,7 @@ class WorkerPool:
         cmd += ["--logfile", str(log), "-l", "info"]
         for mod in include:
             cmd += ["--include", mod]
-        full_env = dict(os.environ, **self.env, **{k: str(v) for k, v in env.items()})
+        full_env = {**os.environ, **self.env, **{k: str(v) for k, v in env.items()}}
         full_env["PYTHONPATH"] = os.pathsep.join([str(REPO), full_env.get("PYTHONPATH", "")]).rstrip(
             os.pathsep
         )

@@ -29,12 +29,12 @@ def bandai_shot(path: Path, frames: int = 61, keys_every: int = 10, **kw) -> Pat
     return path
 
 
-def cmu_shot(path: Path, frames: int = 121, keys_every: int = 12, **kw) -> Path:
+def cmu_shot(path: Path, frames: int = 121, keys_every: int = 12, up_axis: str = "Z", **kw) -> Path:
     from pipeline.motion.bvh import read_bvh
     from pipeline.usd.convert import write_shot
 
     m = read_bvh(CMU_CLIP).slice(0, frames)
-    write_shot(m, path, keys_every=keys_every, up_axis="Z", **kw)
+    write_shot(m, path, keys_every=keys_every, up_axis=up_axis, **kw)
     return path
 
 
