@@ -20,8 +20,11 @@ MAX_TTA = 300.0  # frames; the longest gap the embedding distinguishes (10 s at 
 ROOT_SCALE = 100.0  # cm -> m, so root channels are of order one
 
 
+NOISE_CHANNELS = 8  # a per-take latent: zeros for the deterministic take, N(0, 1) from the seed otherwise
+
+
 def n_input_channels(n_joints: int) -> int:
-    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS
+    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS + NOISE_CHANNELS
 
 
 def n_output_channels(n_joints: int) -> int:
@@ -94,11 +97,12 @@ def interpolate(rot, root, keys):
     return out, ipos, prev, nxt
 
 
-def build_features(rot, root, keys, skeleton):
+def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
     ``rot`` (B, N, J, 4), ``root`` (B, N, 3) hold real values at ``keys`` (sorted, shared by
-    the batch); other frames are ignored.
+    the batch); other frames are ignored. ``noise`` (B, NOISE_CHANNELS) is the take's
+    latent, constant over time (zeros when None).
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
@@ -109,10 +113,12 @@ def build_features(rot, root, keys, skeleton):
     nearest = np.where(idx - prev <= nxt - idx, prev, nxt)
     dist = np.minimum(np.abs(idx - prev), np.abs(nxt - idx)).astype(np.float64)
     is_key = np.isin(idx, keys).astype(np.float64)
-    tta = np.concatenate(
+    tta_ch = np.concatenate(
         [tta_embedding((idx - prev).astype(np.float64)), tta_embedding((nxt - idx).astype(np.float64))], -1
     )
-    per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta], axis=-1)  # (N, 2 + 4F)
+    if not tta:
+        tta_ch = np.zeros_like(tta_ch)
+    per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
     feats = np.concatenate(
         [
             quat_to_6d(irot).reshape(B, N, J * 6),
@@ -120,6 +126,10 @@ def build_features(rot, root, keys, skeleton):
             quat_to_6d(crot[:, nearest]).reshape(B, N, J * 6),
             croot[:, nearest] / ROOT_SCALE,
             np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
+            np.broadcast_to(
+                np.zeros((B, 1, NOISE_CHANNELS)) if noise is None else np.asarray(noise)[:, None, :],
+                (B, N, NOISE_CHANNELS),
+            ),
         ],
         axis=-1,
     )

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.data.skeletons import LEGS, bandai_skeleton
-from pipeline.infer.features import ROOT_SCALE, build_features, invert_transform, path_inputs
+from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, invert_transform, path_inputs
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix
@@ -30,6 +30,13 @@ def find_model(name: str) -> Path | None:
         return p
     cand = models_root() / name
     return cand if (cand / "model.json").exists() else None
+
+
+def take_latent(seed: int) -> np.ndarray:
+    """The take's latent: zeros for seed 0 (the model's most likely motion), N(0, 1) otherwise."""
+    if seed == 0:
+        return np.zeros(NOISE_CHANNELS)
+    return np.random.default_rng(seed).normal(size=NOISE_CHANNELS)
 
 
 def _sigmoid(x):
@@ -63,7 +70,7 @@ class OnnxInbetweener:
             )
         return self._sessions[which]
 
-    def raw(self, rot, root, keys):
+    def raw(self, rot, root, keys, noise=None):
         """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed."""
         skel = self.skeleton
         B, N, J = rot.shape[:3]
@@ -72,14 +79,16 @@ class OnnxInbetweener:
         if pad:  # frames after the last key are held anyway; pad by repeating the last frame
             rot = np.concatenate([rot, np.repeat(rot[:, -1:], pad, 1)], 1)
             root = np.concatenate([root, np.repeat(root[:, -1:], pad, 1)], 1)
-        feats, ctx = build_features(rot, root, keys, skel)
+        gcfg = self.meta.get("generator", {})
+        feats, ctx = build_features(rot, root, keys, skel, noise, tta=gcfg.get("tta", True))
         out = self.session("generator").run(None, {"features": feats})[0]
         o = out.transpose(0, 2, 1)
         f = feats.transpose(0, 2, 1)
         J6 = J * 6
-        mats = sixd_to_matrix((f[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
+        base = f[..., : J6 + 3] if gcfg.get("residual", True) else np.zeros_like(f[..., : J6 + 3])
+        mats = sixd_to_matrix((base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
         q = matrix_to_quat(mats)
-        croot = (f[..., J6 : J6 + 3] + o[..., J6 : J6 + 3]).astype(np.float64) * ROOT_SCALE
+        croot = (base[..., J6:] + o[..., J6 : J6 + 3]).astype(np.float64) * ROOT_SCALE
         contacts = _sigmoid(o[..., J6 + 3 : J6 + 7])
         if self.root_mode == "path" and "path" in self.meta["files"]:
             vel = self.session("path").run(None, {"local_positions": path_inputs(q, croot, skel)})[0]
@@ -89,9 +98,9 @@ class OnnxInbetweener:
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
         return q[:, :N], wroot[:, :N], contacts[:, :N]
 
-    def fill_batch(self, rot, root, keys):
+    def fill_batch(self, rot, root, keys, noise=None):
         keys = np.unique(np.asarray(keys, np.int64))
-        q, r, contacts = self.raw(rot, root, keys)
+        q, r, contacts = self.raw(rot, root, keys, noise)
         q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys)
         if self.feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
@@ -107,5 +116,7 @@ class OnnxInbetweener:
         keys = np.unique(np.asarray(keys, np.int64))
         if len(keys) < 2:
             raise ValueError("in-betweening needs at least two keys")
-        q, r = self.fill_batch(motion.rotations[None], motion.root_positions[None], keys)
+        q, r = self.fill_batch(
+            motion.rotations[None], motion.root_positions[None], keys, take_latent(seed)[None]
+        )
         return replace(motion, rotations=q[0], root_positions=r[0])

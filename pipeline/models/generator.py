@@ -25,6 +25,8 @@ class GeneratorConfig:
     width: int = 160
     levels: tuple[int, ...] = (160, 192, 256, 256, 256)  # channels after each stride-2 layer
     bottleneck_dilations: tuple[int, ...] = (1, 2)
+    residual: bool = True  # predict the correction to interpolation (Δ-interpolator) or the raw pose
+    tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -65,8 +67,9 @@ class Generator(nn.Module):
             ResLayer(chans[i], chans[i], 3, sigma=1.0 / (3 + 1.5 * (n - i))) for i in reversed(range(n))
         )
         self.out = nn.Conv1d(cfg.width, cout, 3, padding=1)
-        nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
-        nn.init.zeros_(self.out.bias)
+        if cfg.residual:
+            nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
+            nn.init.zeros_(self.out.bias)
 
     def res_layers(self) -> list[ResLayer]:
         return [m for m in self.modules() if isinstance(m, ResLayer)]

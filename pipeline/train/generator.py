@@ -19,7 +19,8 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
-from pipeline.infer.features import ROOT_SCALE, build_features
+from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features
+from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
 from pipeline.motion.fk import fk
@@ -42,6 +43,10 @@ class TrainConfig:
     w_root: float = 1.0
     w_contact: float = 0.1
     w_br: float = 0.01
+    noise_prob: float = 0.5  # share of batches with a random take latent (else the zero latent)
+    adv_start: int | None = None  # step from which the LSGAN term refines the generator
+    w_adv: float = 0.02
+    d_lr: float = 1e-4
     seed: int = 0
     threads: int = 1  # two cores shared with data prep and other jobs: more threads thrash
     checkpoint_minutes: float = 3.0
@@ -57,15 +62,27 @@ def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
     return torch.stack([b1, b2, torch.cross(b1, b2, dim=-1)], dim=-1)
 
 
-def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int):
+def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int, residual: bool = True):
     """Network output + baseline channels -> (rotation matrices, root (cm), contact logits)."""
     B, _, N = out.shape
     J6 = n_joints * 6
     o = out.transpose(1, 2)
     f = feats.transpose(1, 2)
-    d6 = (f[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6)
-    root = (f[..., J6 : J6 + 3] + o[..., J6 : J6 + 3]) * ROOT_SCALE
+    base = f[..., : J6 + 3] if residual else torch.zeros_like(f[..., : J6 + 3])
+    d6 = (base[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6)
+    root = (base[..., J6:] + o[..., J6 : J6 + 3]) * ROOT_SCALE
     return sixd_to_matrix_t(d6), root, o[..., J6 + 3 : J6 + 7]
+
+
+def make_discriminator(cfg: TrainConfig):
+    disc = Discriminator(DiscriminatorConfig(n_joints=cfg.model.n_joints))
+    return disc, torch.optim.Adam(disc.parameters(), lr=cfg.d_lr, betas=(0.5, 0.99))
+
+
+def rel_positions(pos: torch.Tensor) -> torch.Tensor:
+    """(B, N, J, 3) cm -> (B, (J−1)·3, N) root-relative metres, the discriminator's input."""
+    rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
+    return rel.flatten(2).transpose(1, 2)
 
 
 def train(cfg: TrainConfig, out_dir: Path) -> Path:
@@ -96,7 +113,15 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     log = (out_dir / "train_log.jsonl").open("a")
     t_start, t_ckpt = time.time() - elapsed, time.time()
 
-    def save():
+    disc, d_opt = None, None
+    if ckpt.exists():
+        state = torch.load(ckpt, weights_only=False)
+        if "disc" in state:
+            disc, d_opt = make_discriminator(cfg)
+            disc.load_state_dict(state["disc"])
+            d_opt.load_state_dict(state["d_opt"])
+
+    def save(path=ckpt):
         state = {
             "model": model.state_dict(),
             "opt": opt.state_dict(),
@@ -105,8 +130,10 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             "elapsed": time.time() - t_start,
             "config": asdict(cfg),
         }
-        torch.save(state, ckpt.with_suffix(".tmp"))
-        ckpt.with_suffix(".tmp").replace(ckpt)
+        if disc is not None:
+            state["disc"], state["d_opt"] = disc.state_dict(), d_opt.state_dict()
+        torch.save(state, path.with_suffix(".tmp"))
+        path.with_suffix(".tmp").replace(path)
 
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator")
     model.train()
@@ -118,7 +145,11 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         L = int(rng.choice(cfg.lengths))
         rot, root = sample_batch(clips, rng, cfg.batch, L)
         keys = sample_keys(rng, L, max_gap)
-        feats, ctx = build_features(rot, root, keys, skel)
+        adversarial = cfg.adv_start is not None and step >= cfg.adv_start
+        noise = None
+        if adversarial or rng.random() < cfg.noise_prob:
+            noise = rng.normal(size=(cfg.batch, NOISE_CHANNELS))
+        feats, ctx = build_features(rot, root, keys, skel, noise, tta=cfg.model.tta)
         _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
         contacts = foot_contacts(gpos, feet)
         between = np.zeros(L, bool)
@@ -129,7 +160,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             continue
         x = torch.from_numpy(feats)
         out = model(x)
-        mats, proot, clog = decode(out, x, skel.__len__())
+        mats, proot, clog = decode(out, x, len(skel), cfg.model.residual)
         gt_rot = torch.from_numpy(ctx["crot"]).float()
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
         m = torch.from_numpy(between)
@@ -150,11 +181,28 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             + cfg.w_contact * l_con
             + cfg.w_br * l_br
         )
+        l_adv = torch.zeros(())
+        if adversarial:
+            if disc is None:
+                disc, d_opt = make_discriminator(cfg)
+                save(out_dir / "generator_supervised.pt")
+            # Keys re-inserted before D sees the fake (§3.3); D sees root-relative positions.
+            kmask = torch.zeros(L, dtype=torch.bool)
+            kmask[keys] = True
+            fake = rel_positions(torch.where(kmask[None, :, None, None], gt_pos, ppos))
+            real = rel_positions(gt_pos)
+            l_adv = g_loss(disc(fake))
+            loss = loss + cfg.w_adv * l_adv
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
         sched.step()
+        if adversarial:
+            ld = d_loss(disc(real), disc(fake.detach())) + cfg.w_br * batch_regularisation(disc.res_layers())
+            d_opt.zero_grad(set_to_none=True)
+            ld.backward()
+            d_opt.step()
         step += 1
         bar.update(1)
         if step % 25 == 0:
@@ -166,6 +214,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
                 "root": l_root.item(),
                 "contact": l_con.item(),
                 "br": l_br.item(),
+                "adv": l_adv.item(),
                 "max_gap": max_gap,
                 "t": time.time() - t_start,
             }
