@@ -13,9 +13,31 @@ def register(app: typer.Typer) -> None:
         ),
         limit: int = typer.Option(None, help="Use only the first N eval clips (quick check)."),
         out: Path = typer.Option(Path("bench_results"), help="Folder for bench.json and bench.md."),
+        long_gaps: bool = typer.Option(False, "--long-gaps", help="Keys 2/5/10 s apart on long takes instead."),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
+
+        if long_gaps:
+            import json
+
+            from pipeline.bench import long_gaps as lg
+            from pipeline.infer.api import load_inbetweener
+
+            takes = lg.long_takes(limit)
+            res = {}
+            for m in [m.strip() for m in methods.split(",") if m.strip()]:
+                name = {"model": "default", "zero": None}.get(m, m)
+                if name is None:
+                    continue
+                typer.echo(f"long gaps: {m} on {len(takes)} takes…", err=True)
+                res[m] = lg.evaluate_long_gaps(load_inbetweener(name), takes)
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "long_gaps.json").write_text(json.dumps(res, indent=1))
+            md = lg.markdown(res)
+            (out / "long_gaps.md").write_text(md)
+            typer.echo(md)
+            return
 
         res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out)
         typer.echo(res["markdown"])
