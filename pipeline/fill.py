@@ -64,9 +64,12 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     return summary
 
 
-def _digest(shot: str, opts: FillOptions, take: int, model_hash: str) -> str:
+def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash: str) -> str:
+    """Hash of every layer file the shot uses, the options that change values, the take, the model."""
     h = hashlib.sha256()
-    h.update(Path(shot).read_bytes())
+    for path in sorted({layer.realPath for layer in stage.GetUsedLayers() if layer.realPath}):
+        h.update(path.encode())
+        h.update(Path(path).read_bytes())
     if opts.mapping:
         h.update(Path(opts.mapping).read_bytes())
     d = {k: v for k, v in asdict(opts).items() if k in ("keys", "range", "seed", "model", "mapping")}
@@ -79,14 +82,14 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     from pipeline.usd.solve import fill_character
 
     inb = _model(opts.model)
+    plan = _plan(shot, opts, float(inb.fps))
     try:
-        digest = _digest(shot, opts, take, inb.model_hash)
+        digest = _digest(shot, plan.shot.stage, opts, take, inb.model_hash)
     except OSError as e:
         raise ShotError(shot, f"cannot read: {e.strerror}") from None
     out = Path(work_dir) / f"{Path(shot).name.split('.')[0]}.take{take:03d}.{digest}.npz"
     if out.exists():
         return str(out)
-    plan = _plan(shot, opts, float(inb.fps))
     arrays: dict[str, np.ndarray] = {}
     chars = []
     for i, cp in enumerate(plan.chars):
