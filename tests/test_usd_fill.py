@@ -58,6 +58,11 @@ def test_fill_writes_layers_keys_bitwise_every_frame(walk, tmp_path):
     q = cache.GetSkelQuery(skel)
     assert q.GetAnimQuery().GetPrim().GetPath() == FILLED
     assert len(q.GetAnimQuery().ComputeJointLocalTransformComponents(1005)[1]) == 21
+    # usd-core's own validators find nothing wrong with the composed review stage.
+    from pxr import UsdValidation
+
+    ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
+    assert [e.GetMessage() for e in ctx.Validate(review)] == []
 
 
 def test_versions_never_overwrite_and_usdc_and_job_id(walk, tmp_path):

@@ -57,7 +57,9 @@ def test_rig_with_other_rest_orientations_units_and_up_axis_maps_exactly(tmp_pat
         g[j] = q_st[j] if par < 0 else quat_mul(g[par], q_st[j])
         p[j] = t if par < 0 else p[par] + quat_apply(g[par], t)
         for out, q, v in ((rest, q_st[j], t), (bind, g[j], p[j])):
-            out.append(Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, v))))
+            out.append(
+                Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, v)))
+            )
     skel.GetAttribute("restTransforms").Set(Vt.Matrix4dArray(rest))
     skel.GetAttribute("bindTransforms").Set(Vt.Matrix4dArray(bind))
     stage.GetRootLayer().Save()

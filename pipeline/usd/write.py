@@ -195,7 +195,9 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
     meta = dict(meta, created_at=meta.get("created_at") or datetime.datetime.now(datetime.UTC).isoformat())
     for _ in range(1000):
         taken = set(_versions(out, stem)) | {
-            int(m.group(1)) for p in out.glob(f"{stem}.review.v*.usd*") if (m := re.search(r"\.v(\d+)\.", p.name))
+            int(m.group(1))
+            for p in out.glob(f"{stem}.review.v*.usd*")
+            if (m := re.search(r"\.v(\d+)\.", p.name))
         }
         n = max(taken, default=0) + 1
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
