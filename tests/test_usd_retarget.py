@@ -86,7 +86,7 @@ def test_several_characters_filled_independently_with_takes(tmp_path):
 
     a = bandai_shot(tmp_path / "a.usda", frames=41, keys_every=10, fps=60, name="Walker")
     # A Y-up stage: its up axis comes from the root layer, so every character in it is Y up.
-    b = cmu_shot(tmp_path / "b.usda", frames=81, keys_every=16, up_axis="Y", name="Dancer")
+    cmu_shot(tmp_path / "b.usda", frames=81, keys_every=16, up_axis="Y", name="Dancer")
     root = Sdf.Layer.CreateNew(str(tmp_path / "sh020.usda"))
     UsdUtils.CopyLayerMetadata(Sdf.Layer.FindOrOpen(str(a)), root, True, True)
     root.endTimeCode = 1081
