@@ -147,8 +147,10 @@ def register(app: typer.Typer) -> None:
                 typer.echo(json.dumps(s.as_dict()))
             elif s.state == "SUCCESS":
                 typer.echo(f"{s.id} {s.shot}: success, layer {(s.result or {}).get('layer')}")
-            elif s.state == "FAILURE" or s.state == "UNKNOWN":
-                typer.echo(f"{s.id} {s.shot}: {s.state.lower()}: {s.error}")
+            elif s.state == "UNKNOWN":
+                typer.echo(f"{s.id}: unknown: {s.error}")
+            elif s.state == "FAILURE":
+                typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
             else:
                 typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
             code = code or (2 if s.state in ("FAILURE", "UNKNOWN") else 0)

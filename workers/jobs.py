@@ -91,25 +91,41 @@ def submit(
     """Sends one job per shot; returns the job ids at once. Refuses paths outside ``roots``."""
     roots = app.conf.tween.shot_roots if roots is None else roots
     queue = queue or app.conf.task_default_queue
-    ids = []
-    for shot in shots:
+    planned = []
+    for shot in shots:  # every path is checked before anything is sent: all or nothing
         shot = os.path.abspath(shot)
         job_id = uuid.uuid4().hex
         job = {"id": job_id, "takes": int(opts.get("takes") or 1), "render": bool(render)}
         job["work_dir"] = work_dir_for(shot, opts, job_id)
         if roots:  # the worker checks again against its own roots
             jobpaths.check_job(shot, opts, roots, job["work_dir"])
-        record = {
-            "shot": shot,
-            "takes": job["takes"],
-            "render": job["render"],
-            "queue": queue,
-            "time": time.time(),
-        }
-        app.backend.store_result(job_id, record, SUBMITTED)
-        build(shot, opts, job, queue).apply_async()
-        ids.append(job_id)
-    return ids
+        planned.append((shot, job))
+    try:
+        for shot, job in planned:
+            rec = {
+                "shot": shot,
+                "takes": job["takes"],
+                "render": job["render"],
+                "queue": queue,
+                "time": time.time(),
+            }
+            app.backend.store_result(job["id"], rec, SUBMITTED)
+            build(shot, opts, job, queue).apply_async()
+    finally:
+        _drop_result_subscriptions()
+    return [job["id"] for _, job in planned]
+
+
+def _drop_result_subscriptions() -> None:
+    """Closes the Redis result pub/sub the backend opened for every sent task.
+
+    This client polls results instead; left open, the AsyncResults finalised at interpreter
+    exit try to unsubscribe on a dead connection and print tracebacks.
+    """
+    rc = getattr(app.backend, "result_consumer", None)
+    if rc is not None and hasattr(rc, "subscribed_to"):
+        rc.subscribed_to.clear()
+        rc.stop()
 
 
 def _meta(task_id: str) -> dict:
