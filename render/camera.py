@@ -73,7 +73,8 @@ class Camera:
         azimuths = np.linspace(0, 360, 37) if mode == "turntable" else [self.start_az]
         # One distance for the whole orbit, so the character does not pump in and out.
         self.distance = max(
-            fit_distance(corners, self.target, _direction(a, ELEVATION_DEG), aspect, safe=safe) for a in azimuths
+            fit_distance(corners, self.target, _direction(a, ELEVATION_DEG), aspect, safe=safe)
+            for a in azimuths
         )
         self.distance = max(self.distance, 1e-3 + np.linalg.norm(hi - lo) * 0.5)
         self.near = max(self.distance * 0.02, 1e-3)

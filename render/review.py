@@ -69,7 +69,7 @@ def render_review(
     out = Path(out_dir)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    stem = shot.name + (f"_{shot.take}" if shot.take else "")
+    stem = shot.name.replace(" ", "_") + (f"_{shot.take}" if shot.take else "")
     tmp = Path(tempfile.mkdtemp(prefix=".tween-review-", dir=out))
     renderer = movie = None
     try:

@@ -7,6 +7,7 @@ of capsules built from its joints. Everything is returned in metres, Y up.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,6 +75,13 @@ class Shot:
         step = float(np.median(np.diff(self.times))) if len(self.times) > 1 else 1.0
         i = np.searchsorted(keys, self.times + 0.01 * step, side="right") - 1
         return keys[np.clip(i, 0, len(keys) - 1)]
+
+
+def shot_label(stage_path: str) -> str:
+    """``sh010`` for ``sh010.usda``; ``sh010 v003`` for the review layer ``sh010.review.v003.usda``."""
+    fname = Path(stage_path).name
+    m = re.match(r"^(?P<shot>[^.]+)\.review\.(?P<ver>v\d+)\.usd[acz]?$", fname)
+    return f"{m['shot']} {m['ver']}" if m else fname.split(".")[0]
 
 
 def _select_take(stage, path: str, take: int | None) -> str | None:
@@ -209,7 +217,7 @@ def open_shot(
             facts.setdefault(k, v)
     if take_name and "take" not in facts:
         facts["take"] = take_name
-    shot_name = name or Path(stage_path).name.split(".")[0]
+    shot_name = name or shot_label(stage_path)
     del Sdf
     return Shot(
         shot_name, str(stage_path), float(fps), times, frames, key_times, facts, take_name, chars, stage

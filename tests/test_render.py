@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from render_fixtures import converted_review, start_frames
 
 from pipeline.errors import ShotError
 from render.gl import RenderError
 from render.overlays import KEY_RGB, BurnIn
 from render.review import render_review
-from render_fixtures import converted_review, start_frames
 
 SIZE = (320, 180)
 KEY = np.array([round(c * 255) for c in KEY_RGB])
@@ -52,10 +52,13 @@ def test_frames_count_size_and_numbers(review):
     out = review["out"]
     assert len(out["frames"]) == 60
     assert out["frame_numbers"] == list(range(1001, 1061))
-    for f in out["frames"][:: 20]:
+    for f in out["frames"][::20]:
         spec = oiio.ImageInput.open(f).spec()
         assert (spec.width, spec.height, spec.nchannels) == (*SIZE, 3)
-    assert [Path(f).name for f in out["frames"][:2]] == ["sh010_take1.1001.png", "sh010_take1.1002.png"]
+    assert [Path(f).name for f in out["frames"][:2]] == [
+        "sh010_v001_take1.1001.png",
+        "sh010_v001_take1.1002.png",
+    ]
 
 
 def test_character_visible_and_moving(review):
@@ -103,7 +106,7 @@ def test_mp4_frames_rate_and_format(review):
 
 def test_metadata_reads_back(review):
     spec = oiio.ImageInput.open(review["out"]["frames"][10]).spec()
-    assert spec.getattribute("tween:shot") == "sh010"
+    assert spec.getattribute("tween:shot") == "sh010 v001"
     assert spec.getattribute("tween:take") == "take1"
     assert spec.getattribute("tween:model") == "interpolation"
     assert int(spec.getattribute("tween:frame")) == 1011
@@ -117,7 +120,7 @@ def test_takes_differ(review):
     out0 = render_review(review["stage"], str(review["work"] / "t0"), take=0, size=SIZE, camera="front",
                          frame_range=(1005, 1005))  # fmt: skip
     f1 = [f for f in review["out"]["frames"] if f.endswith(".1005.png")][0]
-    assert Path(out0["frames"][0]).name == "sh010_take0.1005.png"
+    assert Path(out0["frames"][0]).name == "sh010_v001_take0.1005.png"
     assert np.abs(_read(out0["frames"][0]).astype(int) - _read(f1)).max() > 0
 
 
@@ -141,7 +144,7 @@ def test_exr_frames(review, tmp_path):
     assert [Path(f).suffix for f in out["frames"]] == [".exr", ".exr"]
     spec = oiio.ImageInput.open(out["frames"][0]).spec()
     assert spec.format == oiio.HALF
-    assert spec.getattribute("tween:shot") == "sh010"
+    assert spec.getattribute("tween:shot") == "sh010 v001"
     assert spec.getattribute("oiio:ColorSpace").startswith("lin_rec709")  # OIIO may add "_scene"
 
 
@@ -168,7 +171,10 @@ def test_z_up_shot_stands_up(tmp_path, bandai_clip):
 
 @pytest.mark.parametrize(
     "asset, frames",
-    [("RiggedFigure/RiggedFigure.usdz", None), ("ElephantWithMonochord/SoC-ElephantWithMonochord.usdc", (1, 24))],
+    [
+        ("RiggedFigure/RiggedFigure.usdz", None),
+        ("ElephantWithMonochord/SoC-ElephantWithMonochord.usdc", (1, 24)),
+    ],
 )
 def test_real_usd_assets(data_dir, tmp_path, asset, frames):
     """Skinned meshes of real assets (Z_UP transforms, metersPerUnit 0.01) are framed and upright."""
@@ -190,7 +196,9 @@ def test_bad_input(tmp_path, review):
         render_review(review["stage"], str(tmp_path / "o2"), take=7)
     with pytest.raises(RenderError, match="even"):
         render_review(review["stage"], str(tmp_path / "o3"), size=(321, 180))
-    assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
+    assert (
+        not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
+    )
     bad = tmp_path / "bad.usda"
     bad.write_text("#usda 1.0\n(\n garbage")
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", "review", str(bad), "-o", str(tmp_path / "o4")],
@@ -226,7 +234,10 @@ def test_cli_review(review, tmp_path):
 
     summary = json.loads(r.stdout)
     assert summary["frame_count"] == 10 and Path(summary["mp4"]).is_file()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["sh010_take0.mp4", "sh010_take0_contact.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "sh010_v001_take0.mp4",
+        "sh010_v001_take0_contact.png",
+    ]
 
 
 def test_start_frames_helper():
