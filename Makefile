@@ -19,7 +19,7 @@ system-deps:
 	@bash .ci/system-deps.sh
 
 demo: $(STAMP) system-deps
-	$(BIN)/tween demo
+	$(BIN)/tween fill examples/sh010_walk.usda --render --out-dir out/demo
 
 test: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q tests

@@ -11,7 +11,8 @@ setup(
     packages=find_packages(include=["pipeline*", "workers*", "render*", "usd_schemas*"]),
     package_data={
         "usd_schemas": ["*.usda", "*/resources/*.json", "*/resources/*.usda", "*/*.usda"],
-        "models": ["*"],
+        "pipeline.data": ["*.json"],
+        "pipeline.usd": ["*.json"],
     },
     include_package_data=True,
     install_requires=[

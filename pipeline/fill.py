@@ -34,13 +34,21 @@ class FillOptions:
     review_layer: str | None = None  # root layer to add the fill to instead of a new review layer
 
 
+_MODELS: dict[tuple[int, str], object] = {}
+
+
 def _model(name: str):
+    """The in-betweener ``name``, loaded once per process (a forked worker loads its own:
+    onnxruntime sessions must not cross a fork)."""
     from pipeline.infer.api import load_inbetweener
 
-    try:
-        return load_inbetweener(name)
-    except FileNotFoundError as e:
-        raise TweenError(f"model {name!r}: {e}") from None
+    key = (os.getpid(), name)
+    if key not in _MODELS:
+        try:
+            _MODELS[key] = load_inbetweener(name)
+        except FileNotFoundError as e:
+            raise TweenError(f"model {name!r}: {e}") from None
+    return _MODELS[key]
 
 
 def _plan(shot: str, opts: FillOptions, fps: float):

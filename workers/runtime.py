@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import os
 
-_MODELS: dict = {}
-
 
 def thread_budget(concurrency: int, cpus: int | None = None) -> int:
     """Threads per pool process so that ORT, torch and llvmpipe do not oversubscribe the cores."""
@@ -27,38 +25,14 @@ def thread_env(concurrency: int) -> dict[str, str]:
 
 
 def get_inbetweener(name: str = "default"):
-    """The process's in-betweener for ``name``, loaded on first use and kept."""
-    if name not in _MODELS:
-        from pipeline.infer.api import load_inbetweener
-
-        _MODELS[name] = load_inbetweener(name)
-    return _MODELS[name]
-
-
-def _cache_fill_model() -> None:
-    """Makes pipeline.fill reuse this process's in-betweener instead of loading one per call.
-
-    pipeline.fill resolves the model on every call (right in a one-shot CLI); in a worker
-    that would rebuild the ORT sessions for every task. Same name, same instance.
-    """
+    """The process's in-betweener for ``name``, loaded on first use and kept (pipeline.fill caches it)."""
     from pipeline import fill
 
-    real = getattr(fill, "_model", None)
-    if real is None or getattr(real, "_tween_cached", False):
-        return
-
-    def cached(name: str):
-        if name not in _MODELS:
-            _MODELS[name] = real(name)
-        return _MODELS[name]
-
-    cached._tween_cached = True
-    fill._model = cached
+    return fill._model(name)
 
 
 def init_process() -> None:
     """Runs in each pool child after fork: loads the default model once, and keeps it."""
-    _cache_fill_model()
     try:
         get_inbetweener(os.environ.get("TWEEN_WORKER_MODEL", "default"))
     except Exception as e:  # a missing model must not kill the pool; the task reports it
