@@ -31,6 +31,7 @@ def review(
     take: int | None = typer.Option(
         None, "--take", help="Take N: selects variant takeN of the tweenTake set."
     ),
+    all_takes: bool = typer.Option(False, "--all-takes", help="Render every take of the tweenTake set."),
     size: str = typer.Option("960x540", "--size", help="Frame size WIDTHxHEIGHT (even numbers)."),
     side_by_side: bool = typer.Option(
         False, "--side-by-side", help="Stepped keys-only blocking next to the fill."
@@ -47,30 +48,29 @@ def review(
     from pathlib import Path
 
     from render.review import render_review
+    from render.scene import list_takes
 
     w, h = _size(size)
     fr = _range(frames)
     if camera not in ("turntable", "front", "side"):
         raise typer.BadParameter(f"{camera!r}: expected turntable, front or side", param_hint="--camera")
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
-    result = render_review(
-        shot,
-        out_dir,
-        take=take,
-        size=(w, h),
-        side_by_side=side_by_side,
-        exr=exr,
-        camera=camera,
-        turns=turns,
-        ghosts=ghosts,
-        write_frames=not no_frames,
-        frame_range=fr,
-        progress=True,
-    )
-    summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers")}
-    summary["frame_count"] = len(result["frame_numbers"])
-    summary["frames_dir"] = out_dir if result["frames"] else None
-    typer.echo(json.dumps(summary, indent=2))
+    takes = [take]
+    if all_takes:
+        if take is not None:
+            raise typer.BadParameter("give --take N or --all-takes, not both", param_hint="--all-takes")
+        takes = (list_takes(shot) if Path(shot).exists() else []) or [None]
+    summaries = []
+    for t in takes:
+        result = render_review(
+            shot, out_dir, take=t, size=(w, h), side_by_side=side_by_side, exr=exr, camera=camera, turns=turns,
+            ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True,
+        )  # fmt: skip
+        summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers")}
+        summary["frame_count"] = len(result["frame_numbers"])
+        summary["frames_dir"] = out_dir if result["frames"] else None
+        summaries.append(summary)
+    typer.echo(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
 
 
 def register(app: typer.Typer) -> None:

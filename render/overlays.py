@@ -33,10 +33,20 @@ def _text_band(w: int, h: int, items, size: int, fill_alpha: float) -> np.ndarra
     return buf.get_pixels(oiio.FLOAT).reshape(h, w, 4)
 
 
-def _over(dst: np.ndarray, src: np.ndarray) -> None:
-    """In place: premultiplied ``src`` (float RGBA) over ``dst`` (uint8 RGB) of the same size."""
-    a = src[..., 3:4]
-    dst[...] = np.clip(src[..., :3] * 255.0 + dst * (1.0 - a) + 0.5, 0, 255).astype(np.uint8)
+def _fixed(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A premultiplied float RGBA layer as 8.8 fixed point (colour*256*255, 256*(1-alpha))."""
+    rgb = np.round(np.clip(src[..., :3], 0, 1) * 255 * 256).astype(np.uint16)
+    inv = np.round((1.0 - np.clip(src[..., 3:4], 0, 1)) * 256).astype(np.uint16)
+    return rgb, inv
+
+
+def _over(dst: np.ndarray, src) -> None:
+    """In place: premultiplied ``src`` (float RGBA, or ``_fixed`` of it) over ``dst`` (uint8 RGB).
+
+    Static layers are pre-converted to fixed point, so a frame's burn-in is a few integer ops.
+    """
+    rgb, inv = _fixed(src) if isinstance(src, np.ndarray) else src
+    dst[...] = ((dst * inv + rgb + 128) >> 8).astype(np.uint8)
 
 
 class BurnIn:
@@ -81,6 +91,9 @@ class BurnIn:
         self.key_badge[..., :3] += np.array(KEY_RGB, np.float32) * (1.0 - self.key_badge[..., 3:4])
         self.key_badge[..., 3] = 1.0
         self.frame_w = min(self.font * 16, self.w)
+        self.top, self.bottom, self.key_badge = _fixed(self.top), _fixed(self.bottom), _fixed(self.key_badge)
+        if self.labels is not None:
+            self.labels = _fixed(self.labels)
 
     def apply(self, img: np.ndarray, frame: int, is_key: bool) -> None:
         """Burns the text into ``img`` (h, w, 3) uint8 in place."""

@@ -256,7 +256,7 @@ class Renderer:
                 ctx.enable(mgl.BLEND)
                 self.msaa.depth_mask = False
                 m["base"].value = GHOST
-                m["alpha"].value = 0.22
+                m["alpha"].value = 0.15
                 for i in range(ghosts.n_frames):
                     ghosts.upload(i)
                     ghosts.draw(m)

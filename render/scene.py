@@ -84,6 +84,19 @@ def shot_label(stage_path: str) -> str:
     return f"{m['shot']} {m['ver']}" if m else fname.split(".")[0]
 
 
+def list_takes(stage_path: str) -> list[int]:
+    """Take numbers N of the ``takeN`` variants of the stage's ``tweenTake`` set ([] if none)."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(stage_path, load=Usd.Stage.LoadNone)
+    for prim in stage.Traverse(Usd.PrimAllPrimsPredicate):
+        vsets = prim.GetVariantSets()
+        if vsets.HasVariantSet(TAKE_VARIANT_SET):
+            names = vsets.GetVariantSet(TAKE_VARIANT_SET).GetVariantNames()
+            return sorted(int(n[4:]) for n in names if re.fullmatch(r"take\d+", n))
+    return []
+
+
 def _select_take(stage, path: str, take: int | None) -> str | None:
     from pxr import Usd
 

@@ -242,3 +242,14 @@ def test_cli_review(review, tmp_path):
 
 def test_start_frames_helper():
     assert start_frames() == 1001
+
+
+def test_cli_all_takes(review, tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "review", review["stage"], "--all-takes", "--size", "160x90",
+         "--no-frames", "--frames", "1001:1003", "-o", str(tmp_path)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".mp4")
+    assert names == ["sh010_v001_take0.mp4", "sh010_v001_take1.mp4"]
