@@ -57,6 +57,8 @@ class Shot:
     take: str | None
     characters: list[Character]
     stage: object = field(repr=False)
+    props: list = field(default_factory=list, repr=False)  # unskinned meshes under animated SkelRoots
+    world: np.ndarray = field(default_factory=lambda: np.eye(4), repr=False)
 
     def is_key(self, tol: float | None = None) -> np.ndarray:
         """(T,) bool: frames within a small tolerance of a key (time codes may be non-integer)."""
@@ -167,7 +169,7 @@ def open_shot(
     name: str | None = None,
 ) -> Shot:
     """Opens ``stage_path`` (never writing to it), selects the take and finds the animated skeletons."""
-    from pxr import Sdf, Usd, UsdSkel
+    from pxr import Usd, UsdGeom, UsdSkel
 
     if not Path(stage_path).exists():
         raise ShotError(stage_path, "no such file")
@@ -183,6 +185,7 @@ def open_shot(
 
     cache = UsdSkel.Cache()
     chars: list[Character] = []
+    props: list = []
     for prim in stage.Traverse():
         if not prim.IsA(UsdSkel.Root):
             continue
@@ -192,6 +195,7 @@ def open_shot(
             str(b.GetSkeleton().GetPath()): list(b.GetSkinningTargets())
             for b in cache.ComputeSkelBindings(root, Usd.PrimDefaultPredicate)
         }
+        n_before = len(chars)
         for sprim in Usd.PrimRange(prim):
             if not sprim.IsA(UsdSkel.Skeleton):
                 continue
@@ -202,6 +206,15 @@ def open_shot(
             c = _character(stage, stage_path, skel, query, bound.get(str(sprim.GetPath()), []), world)
             if c is not None:
                 chars.append(c)
+        if len(chars) > n_before:
+            # Unskinned meshes beside an animated character (an instrument's base, a prop) are drawn
+            # as they are, so the performance is seen in its setting.
+            skinned = {str(q.GetPrim().GetPath()) for qs in bound.values() for q in qs}
+            props.extend(
+                m for m in Usd.PrimRange(prim)
+                if m.IsA(UsdGeom.Mesh) and str(m.GetPath()) not in skinned
+                and UsdGeom.Imageable(m).ComputeVisibility() != UsdGeom.Tokens.invisible
+            )  # fmt: skip
     if not chars:
         raise ShotError(
             stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"
@@ -231,9 +244,19 @@ def open_shot(
     if take_name and "take" not in facts:
         facts["take"] = take_name
     shot_name = name or shot_label(stage_path)
-    del Sdf
     return Shot(
-        shot_name, str(stage_path), float(fps), times, frames, key_times, facts, take_name, chars, stage
+        shot_name,
+        str(stage_path),
+        float(fps),
+        times,
+        frames,
+        key_times,
+        facts,
+        take_name,
+        chars,
+        stage,
+        props,
+        world,
     )
 
 
@@ -270,6 +293,14 @@ def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.nda
             names = [str(j).split("/")[-1] for j in q.GetJointOrder()]
             tris, pts, nrm = mannequin.capsules(joints[inv].astype(np.float32), parents, names)
             geoms.append(Geometry(tris, pts, nrm))
+    for prim in shot.props:
+        mesh, img = UsdGeom.Mesh(prim), UsdGeom.Imageable(prim)
+        frames = []
+        for t in uniq:
+            pts = np.asarray(mesh.GetPointsAttr().Get(t) or [], np.float64).reshape(-1, 3)
+            frames.append(_apply(pts, np.array(img.ComputeLocalToWorldTransform(t)) @ shot.world))
+        if frames and len(frames[0]) and all(len(f) == len(frames[0]) for f in frames):
+            geoms.append(Geometry(_triangles(prim, shot.path), np.asarray(frames, np.float32)[inv]))
     return geoms, roots
 
 
