@@ -35,16 +35,40 @@ def _template():
 _VERTS, _TRIS = _template()
 
 
-def capsules(joints: np.ndarray, parents, names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Triangles, per-frame points (T, N, 3) and normals for joint positions (T, J, 3)."""
+class Mannequin:
+    """Capsules over joint positions (T, J, 3); sizes fixed from the first frame."""
+
+    def __init__(self, joints: np.ndarray, parents, names):
+        self.joints = np.asarray(joints, np.float32)
+        self.parents, self.names = np.asarray(parents), list(names)
+        self.tris, pts, _ = capsules(self.joints[:1], self.parents, self.names)
+        self.n_points = pts.shape[1]
+
+    def frame(self, i: int):
+        _, pts, nrm = capsules(self.joints[i : i + 1], self.parents, self.names, self.joints[0])
+        return pts[0], nrm[0]
+
+    def geometry(self):
+        from render.scene import Geometry
+
+        return Geometry(self.tris, self.n_points, len(self.joints), self.frame, smooth=True)
+
+
+def capsules(joints: np.ndarray, parents, names, sizing: np.ndarray | None = None):
+    """Triangles, per-frame points (T, N, 3) and normals for joint positions (T, J, 3).
+
+    Radii come from ``sizing`` (J, 3) joint positions (default: the first frame), so a
+    character keeps its proportions whatever pose a frame is in.
+    """
     joints = np.asarray(joints, np.float32)
     parents = np.asarray(parents)
-    height = float(np.ptp(joints[0, :, 1])) or float(np.ptp(joints[0], axis=0).max()) or 1.0
+    ref = joints[0] if sizing is None else np.asarray(sizing, np.float32)
+    height = float(np.ptp(ref[:, 1])) or float(np.ptp(ref, axis=0).max()) or 1.0
     starts, ends, radii = [], [], []
     for j, p in enumerate(parents):
         if p < 0:
             continue
-        length = float(np.linalg.norm(joints[0, j] - joints[0, p]))
+        length = float(np.linalg.norm(ref[j] - ref[p]))
         if length < 1e-4 * height:
             continue
         starts.append(p)

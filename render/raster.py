@@ -22,12 +22,12 @@ class MeshSet:
     def __init__(self, ctx, mesh_prog, shadow_prog, geoms: list[Geometry]):
         self.geoms, self.items = geoms, []
         for g in geoms:
-            vbo = ctx.buffer(reserve=g.points.shape[1] * 12, dynamic=True)
+            vbo = ctx.buffer(reserve=g.n_points * 12, dynamic=True)
             ibo = ctx.buffer(np.ascontiguousarray(g.tris, np.int32).tobytes())
             attrs = [(vbo, "3f", "in_pos")]
             nbo = None
-            if g.normals is not None:
-                nbo = ctx.buffer(reserve=g.points.shape[1] * 12, dynamic=True)
+            if g.smooth:
+                nbo = ctx.buffer(reserve=g.n_points * 12, dynamic=True)
                 attrs.append((nbo, "3f", "in_nrm"))
             vao = ctx.vertex_array(mesh_prog, attrs, index_buffer=ibo, index_element_size=4)
             svao = ctx.vertex_array(
@@ -37,20 +37,21 @@ class MeshSet:
 
     @property
     def n_frames(self) -> int:
-        return self.geoms[0].points.shape[0] if self.geoms else 0
+        return self.geoms[0].n_frames if self.geoms else 0
 
     def upload(self, i: int) -> None:
         for g, vbo, nbo, _, _ in self.items:
-            vbo.write(np.ascontiguousarray(g.points[i], np.float32))
+            pts, nrm = g.frame(i)
+            vbo.write(np.ascontiguousarray(pts, np.float32))
             if nbo is not None:
-                nbo.write(np.ascontiguousarray(g.normals[i], np.float32))
+                nbo.write(np.ascontiguousarray(nrm, np.float32))
 
     def draw(self, prog, shadow=False):
         for g, _, _, vao, svao in self.items:
             if shadow:
                 svao.render()
             else:
-                prog["use_flat"].value = int(g.normals is None)
+                prog["use_flat"].value = int(not g.smooth)
                 vao.render()
 
     def release(self):

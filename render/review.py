@@ -15,17 +15,23 @@ from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, thumbnail, write_frame
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import evaluate, open_shot
+from render.scene import Geometry, evaluate, open_shot
 
 MAX_GHOSTS = 8
 CONTACT_FRAMES = 12
 
 
 def _bounds(geom_lists) -> tuple[np.ndarray, np.ndarray]:
-    pts = [g.points.reshape(-1, 3) for gl in geom_lists for g in gl if g.points.size]
-    lo = np.min([p.min(0) for p in pts], axis=0)
-    hi = np.max([p.max(0) for p in pts], axis=0)
+    b = [g.bounds() for gl in geom_lists for g in gl if g.n_points and g.n_frames]
+    lo, hi = np.min([x[0] for x in b], axis=0), np.max([x[1] for x in b], axis=0)
     return lo.astype(np.float64), hi.astype(np.float64)
+
+
+def _materialise(g: Geometry) -> Geometry:
+    frames = [g.frame(i) for i in range(g.n_frames)]
+    pts = np.stack([f[0] for f in frames])
+    nrm = np.stack([f[1] for f in frames]) if g.smooth else None
+    return Geometry.from_arrays(g.tris, pts, nrm)
 
 
 def render_review(
@@ -63,7 +69,8 @@ def render_review(
         ]
         if len(kt):
             kt = kt[np.unique(np.linspace(0, len(kt) - 1, min(MAX_GHOSTS, len(kt))).round().astype(int))]
-            ghost_geoms = evaluate(shot, kt)[0]
+            # few frames, drawn every frame: materialise them once
+            ghost_geoms = [_materialise(g) for g in evaluate(shot, kt)[0]]
     t_scene = time.perf_counter() - t0
 
     out = Path(out_dir)

@@ -25,13 +25,28 @@ FACT_ATTRS = {
 }
 
 
-@dataclass
 class Geometry:
-    """Triangles (M, 3) with per-frame points (T, N, 3); smooth normals (T, N, 3) or None (flat)."""
+    """Triangles (M, 3) whose N points (and smooth normals, or None for flat shading) are made
+    per frame on demand, so a long shot of a dense mesh never holds every frame in memory."""
 
-    tris: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray | None = None
+    def __init__(self, tris: np.ndarray, n_points: int, n_frames: int, frame_fn, smooth: bool = False):
+        self.tris, self.n_points, self.n_frames, self.smooth = tris, n_points, n_frames, smooth
+        self._fn = frame_fn
+
+    @classmethod
+    def from_arrays(cls, tris, points: np.ndarray, normals: np.ndarray | None = None) -> Geometry:
+        """All frames given: ``points`` (T, N, 3), ``normals`` (T, N, 3) or None."""
+        fn = (lambda i: (points[i], None)) if normals is None else (lambda i: (points[i], normals[i]))
+        return cls(tris, points.shape[1], points.shape[0], fn, normals is not None)
+
+    def frame(self, i: int) -> tuple[np.ndarray, np.ndarray | None]:
+        return self._fn(i)
+
+    def bounds(self, samples: int = 96) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) over up to ``samples`` evenly spaced frames (all frames on short shots)."""
+        idx = np.unique(np.linspace(0, self.n_frames - 1, min(samples, self.n_frames)).round().astype(int))
+        pts = [self.frame(int(i))[0] for i in idx]
+        return np.min([p.min(0) for p in pts], 0), np.max([p.max(0) for p in pts], 0)
 
 
 @dataclass
@@ -265,43 +280,74 @@ def _apply(points: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.ndarray]]:
-    """Geometry of every character at ``times`` (metres, Y up) and each one's root path (T, 3)."""
+    """Geometry of every character at ``times`` (metres, Y up) and each one's root path (T, 3).
+
+    Joint positions are computed for every frame now (small); skinned points per frame on demand.
+    """
     from pxr import UsdGeom
 
-    uniq, inv = np.unique(np.asarray(times, np.float64), return_inverse=True)
+    times = np.asarray(times, np.float64)
+    uniq, inv = np.unique(times, return_inverse=True)
     geoms: list[Geometry] = []
     roots: list[np.ndarray] = []
     for c in shot.characters:
         q = c._skel_query
         skel_prim = UsdGeom.Imageable(q.GetSkeleton().GetPrim())
         joints = np.empty((len(uniq), len(q.GetJointOrder()), 3), np.float64)
-        mesh_pts = [np.empty((len(uniq), len(_mesh_points(s, uniq[0])), 3), np.float32) for s in c._skinning]
         for i, t in enumerate(uniq):
             to_world = np.array(skel_prim.ComputeLocalToWorldTransform(t)) @ c._world
-            skel_xf = np.array(q.ComputeJointSkelTransforms(t))
-            joints[i] = _apply(skel_xf[:, 3, :3], to_world)
-            if c._skinning:
-                xf = q.ComputeSkinningTransforms(t)
-                for k, sq in enumerate(c._skinning):
-                    mesh_pts[k][i] = _apply(_skinned(sq, xf, t), to_world)
+            joints[i] = _apply(np.array(q.ComputeJointSkelTransforms(t))[:, 3, :3], to_world)
         roots.append(joints[inv, 0].astype(np.float32))
         if c._skinning:
-            for sq, pts in zip(c._skinning, mesh_pts, strict=True):
-                geoms.append(Geometry(_triangles(sq.GetPrim(), shot.path), pts[inv]))
+            skin = _SkinCache(q, skel_prim, c._world)
+            for sq in c._skinning:
+                n = len(_mesh_points(sq, uniq[0]))
+
+                def fn(i, sq=sq, skin=skin):
+                    return skin.points(sq, float(times[i])), None
+
+                geoms.append(Geometry(_triangles(sq.GetPrim(), shot.path), n, len(times), fn))
         else:
             parents = np.asarray(q.GetTopology().GetParentIndices())
             names = [str(j).split("/")[-1] for j in q.GetJointOrder()]
-            tris, pts, nrm = mannequin.capsules(joints[inv].astype(np.float32), parents, names)
-            geoms.append(Geometry(tris, pts, nrm))
+            geoms.append(mannequin.Mannequin(joints[inv].astype(np.float32), parents, names).geometry())
     for prim in shot.props:
         mesh, img = UsdGeom.Mesh(prim), UsdGeom.Imageable(prim)
-        frames = []
-        for t in uniq:
+        n = len(np.asarray(mesh.GetPointsAttr().Get(uniq[0]) or []))
+        if not n:
+            continue
+
+        def prop_frame(i, mesh=mesh, img=img, n=n):
+            t = float(times[i])
             pts = np.asarray(mesh.GetPointsAttr().Get(t) or [], np.float64).reshape(-1, 3)
-            frames.append(_apply(pts, np.array(img.ComputeLocalToWorldTransform(t)) @ shot.world))
-        if frames and len(frames[0]) and all(len(f) == len(frames[0]) for f in frames):
-            geoms.append(Geometry(_triangles(prim, shot.path), np.asarray(frames, np.float32)[inv]))
+            if len(pts) != n:  # topology changes over time: keep the first frame's points count
+                pts = np.resize(pts, (n, 3))
+            return _apply(pts, np.array(img.ComputeLocalToWorldTransform(t)) @ shot.world).astype(
+                np.float32
+            ), None
+
+        geoms.append(Geometry(_triangles(prim, shot.path), n, len(times), prop_frame))
     return geoms, roots
+
+
+class _SkinCache:
+    """Skinning transforms of one skeleton for the last time asked (shared by its meshes)."""
+
+    def __init__(self, query, skel_prim, world):
+        self.q, self.skel_prim, self.world, self.t, self.xf, self.to_world = (
+            query,
+            skel_prim,
+            world,
+            None,
+            None,
+            None,
+        )
+
+    def points(self, sq, t: float) -> np.ndarray:
+        if t != self.t:
+            self.t, self.xf = t, self.q.ComputeSkinningTransforms(t)
+            self.to_world = np.array(self.skel_prim.ComputeLocalToWorldTransform(t)) @ self.world
+        return _apply(_skinned(sq, self.xf, t), self.to_world).astype(np.float32)
 
 
 def _mesh_points(sq, t) -> np.ndarray:
