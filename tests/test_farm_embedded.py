@@ -103,3 +103,16 @@ def test_embedded_bad_shot_reports_and_fails(tmp_path):
     assert res.stdout == ""
     assert sorted(p.name for p in bad.parent.iterdir()) == ["broken.usda"]
     json.dumps(lines)
+
+
+def test_embedded_fill_single_take_with_render(tmp_path):
+    # `make demo`'s path: one take (no variant set to select) rendered by the farm's last stage.
+    env = _env(tmp_path)
+    shot = copy_shot(example_shot(), tmp_path / "shots", "demo")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--render", "--out-dir", str(out), "--no-progress"]
+    res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr[-3000:]
+    mp4 = Path(res.stdout.split("render ", 1)[1].split()[0].strip(","))
+    assert mp4.suffix == ".mp4" and mp4.stat().st_size > 10_000
+    assert len(list(mp4.parent.glob("*.png"))) > 10

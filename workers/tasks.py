@@ -142,7 +142,9 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
             result["render_note"] = "render.review is not available on this worker; review not rendered"
             return result
         out_dir = os.path.join(os.path.dirname(layer["review"] or layer["layer"]), "review")
-        takes = list(range(int(layer.get("takes") or 1)))
+        n_takes = int(layer.get("takes") or 1)
+        # One take has no variant set to select: render the stage as composed.
+        takes = list(range(n_takes)) if n_takes > 1 else [None]
         result["renders"] = [
             runtime.small_json(render_fn(layer["review"] or layer["layer"], out_dir, take=t)) for t in takes
         ]
