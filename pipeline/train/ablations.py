@@ -19,6 +19,7 @@ VARIANTS = {
     "no_residual": {"model": {"residual": False}},
     "no_tta": {"model": {"tta": False}},
     "no_curriculum": {"gap_start": 90},
+    "no_velocity_loss": {"w_vel": 0.0},
 }
 
 

@@ -5,6 +5,7 @@ over the first ``curriculum`` fraction of training):
 - "context": 10 context keys, one target after a gap (the benchmark's task), then sparse
   keys to the end of the window;
 - "sparse": keys every 1..max_gap frames (an animator's blocking).
+Gaps are drawn log-uniformly in [1, max_gap].
 """
 
 from __future__ import annotations
@@ -19,7 +20,10 @@ def sample_keys(rng: np.random.Generator, n: int, max_gap: int) -> np.ndarray:
     if rng.random() < 0.5:
         keys = list(range(10))
     while keys[-1] < n - 1:
-        keys.append(min(keys[-1] + int(rng.integers(1, max_gap + 1)), n - 1))
+        # Log-uniform gaps: short transitions are as common as long ones, so the network
+        # learns to leave a near-perfect interpolation alone.
+        gap = int(np.round(np.exp(rng.uniform(0.0, np.log(max_gap + 0.5)))))
+        keys.append(min(keys[-1] + max(gap, 1), n - 1))
     return np.array(keys, np.int64)
 
 

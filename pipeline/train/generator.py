@@ -1,7 +1,7 @@
 """Training loop of the local motion generator (supervised reconstruction on in-between frames).
 
-Losses on the frames between keys: L1 on rotation matrices, L1 on FK joint positions and the
-root (both in decimetres), foot-contact BCE, and the batch-regularisation term of eq. 9.
+Losses on the frames between keys: L1 on rotation matrices, L1 on FK joint positions, their
+frame-to-frame velocities and the root (in decimetres), foot-contact BCE, and the batch-regularisation term of eq. 9.
 Checkpoints every few minutes; resumes from the last one; deterministic for a seed.
 """
 
@@ -41,6 +41,7 @@ class TrainConfig:
     w_rot: float = 1.0
     w_pos: float = 1.0
     w_root: float = 1.0
+    w_vel: float = 1.0  # joint-velocity L1: suppresses frame-to-frame jitter (foot skate, L2P)
     w_contact: float = 0.1
     w_br: float = 0.01
     noise_prob: float = 0.5  # share of batches with a random take latent (else the zero latent)
@@ -170,6 +171,10 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         l_rot = (mats - gt_mats).abs()[:, m].mean()
         l_pos = (ppos - gt_pos).abs()[:, m].mean() / POS_SCALE
         l_root = (proot - torch.from_numpy(ctx["croot"]).float()).abs()[:, m].mean() / POS_SCALE
+        moving = torch.from_numpy(between[1:] | between[:-1])
+        l_vel = ((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs()[
+            :, moving
+        ].mean() / POS_SCALE
         l_con = torch.nn.functional.binary_cross_entropy_with_logits(
             clog[:, m], torch.from_numpy(contacts)[:, m]
         )
@@ -178,6 +183,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             cfg.w_rot * l_rot
             + cfg.w_pos * l_pos
             + cfg.w_root * l_root
+            + cfg.w_vel * l_vel
             + cfg.w_contact * l_con
             + cfg.w_br * l_br
         )
@@ -212,6 +218,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
                 "rot": l_rot.item(),
                 "pos": l_pos.item(),
                 "root": l_root.item(),
+                "vel": l_vel.item(),
                 "contact": l_con.item(),
                 "br": l_br.item(),
                 "adv": l_adv.item(),
