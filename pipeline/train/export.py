@@ -23,6 +23,30 @@ def _load(cls, cfg_cls, ckpt: Path, key="model"):
     return net, cfg, state
 
 
+def macs_per_frame(net: torch.nn.Module, channels: int, frames: int = 256) -> float:
+    """Multiply-accumulates per output frame, counted from every convolution's shapes."""
+    total = 0
+
+    def hook(mod, inp, out):
+        nonlocal total
+        k = mod.kernel_size[0]
+        if isinstance(mod, torch.nn.ConvTranspose1d):
+            total += inp[0].shape[-1] * mod.in_channels * mod.out_channels * k // mod.groups
+        else:
+            total += out.shape[-1] * mod.in_channels * mod.out_channels * k // mod.groups
+
+    hooks = [
+        m.register_forward_hook(hook)
+        for m in net.modules()
+        if isinstance(m, torch.nn.Conv1d | torch.nn.ConvTranspose1d)
+    ]
+    with torch.no_grad():
+        net(torch.zeros(1, channels, frames))
+    for h in hooks:
+        h.remove()
+    return total / frames
+
+
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -54,6 +78,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         "train_steps": gstate["step"],
         "train_seconds": round(gstate["elapsed"], 1),
         "parameters": {"generator": sum(p.numel() for p in gen.parameters())},
+        "flops_per_frame": {"generator": 2 * macs_per_frame(gen, gen.inp.conv.in_channels)},
     }
     if (run_dir / "path.pt").exists():
         path, pcfg, pstate = _load(PathPredictor, PathConfig, run_dir / "path.pt")
@@ -74,6 +99,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         files["path"] = "path.onnx"
         meta["path"] = asdict(pcfg)
         meta["parameters"]["path"] = sum(p.numel() for p in path.parameters())
+        meta["flops_per_frame"]["path"] = 2 * macs_per_frame(path, (pcfg.n_joints - 1) * 3)
         meta["path_train_steps"] = pstate["step"]
     meta["files"] = files
     meta.update(extra or {})
