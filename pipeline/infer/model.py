@@ -16,7 +16,7 @@ from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, invert_transform, path_inputs
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix
+from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix, slerp
 
 
 def models_root() -> Path:
@@ -46,7 +46,9 @@ def _sigmoid(x):
 class OnnxInbetweener:
     """Fills shots with the exported networks; ``root`` is "generator" or "path"."""
 
-    def __init__(self, folder: str | Path, root: str | None = None, feet: bool = True):
+    def __init__(
+        self, folder: str | Path, root: str | None = None, feet: bool = True, hierarchical: bool = True
+    ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
         self.name = self.meta["name"]
@@ -55,6 +57,8 @@ class OnnxInbetweener:
         self.skeleton = bandai_skeleton()
         self.root_mode = root or self.meta.get("root", "generator")
         self.feet = feet
+        self.hierarchical = hierarchical
+        self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
@@ -100,6 +104,8 @@ class OnnxInbetweener:
 
     def fill_batch(self, rot, root, keys, noise=None):
         keys = np.unique(np.asarray(keys, np.int64))
+        if self.hierarchical and np.diff(keys).max() > self.max_gap:
+            rot, root, keys = self._insert_keys(rot, root, keys, noise)
         q, r, contacts = self.raw(rot, root, keys, noise)
         q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys)
         if self.feet:
@@ -107,6 +113,40 @@ class OnnxInbetweener:
             for b in range(len(q)):
                 q[b] = lock_feet(q[b], r[b], self.skeleton, contacts[b][:, [0, 2]], keys, self.legs)
         return q, r
+
+    def _insert_keys(self, rot, root, keys, noise):
+        """Hierarchical key insertion for gaps longer than the model was trained on.
+
+        A coarse pass fills the shot at 1/f of the frame rate (every gap then fits), and
+        its poses become extra keys, at most ``max_gap / 2`` apart, inside the long gaps;
+        the fine pass then fills between all keys. The animator's keys stay exact.
+        """
+        f = int(np.ceil(np.diff(keys).max() / (0.66 * self.max_gap)))
+        ck = np.round(keys / f).astype(np.int64)
+        keep = np.r_[True, np.diff(ck) > 0]
+        ck, fk_ = ck[keep], keys[keep]
+        nc = int(ck[-1]) + 1
+        c_rot = np.repeat(rot[:, :1], nc, 1).copy()
+        c_root = np.repeat(root[:, :1], nc, 1).copy()
+        c_rot[:, ck], c_root[:, ck] = rot[:, fk_], root[:, fk_]
+        q, r, _ = self.raw(c_rot, c_root, ck, noise)
+        q, r = match_keys(q, r, c_rot[:, ck], c_root[:, ck], ck)
+        new = []
+        for a, b in zip(keys[:-1], keys[1:], strict=True):
+            if b - a > self.max_gap:
+                n = int(np.ceil((b - a) / (self.max_gap / 2)))
+                new += [int(round(a + (b - a) * i / n)) for i in range(1, n)]
+        new = np.array(sorted(set(new) - set(keys.tolist())), np.int64)
+        # The coarse pose at fine frame t: between coarse frames floor(t/f) and ceil(t/f).
+        x = np.clip(new / f, 0, nc - 1)
+        i0 = np.floor(x).astype(np.int64)
+        i1 = np.minimum(i0 + 1, nc - 1)
+        w = x - i0
+        rot, root = rot.copy(), root.copy()
+        for j, t in enumerate(new):
+            rot[:, t] = slerp(q[:, i0[j]], q[:, i1[j]], np.array([w[j]]))[0]
+            root[:, t] = (1 - w[j]) * r[:, i0[j]] + w[j] * r[:, i1[j]]
+        return rot, root, np.union1d(keys, new)
 
     def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
         if len(self.skeleton) != len(motion.skeleton):

@@ -75,6 +75,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         "multiple": gcfg.multiple,
         "receptive_field": gcfg.receptive_field(),
         "generator": asdict(gcfg),
+        "max_gap": int(gstate["config"].get("gap_end", 90)),
         "train_steps": gstate["step"],
         "train_seconds": round(gstate["elapsed"], 1),
         "parameters": {"generator": sum(p.numel() for p in gen.parameters())},
