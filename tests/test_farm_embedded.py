@@ -110,7 +110,17 @@ def test_embedded_fill_single_take_with_render(tmp_path):
     env = _env(tmp_path)
     shot = copy_shot(example_shot(), tmp_path / "shots", "demo")
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--render", "--out-dir", str(out), "--no-progress"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "fill",
+        str(shot),
+        "--render",
+        "--out-dir",
+        str(out),
+        "--no-progress",
+    ]
     res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
     mp4 = Path(res.stdout.split("render ", 1)[1].split()[0].strip(","))

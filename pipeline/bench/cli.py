@@ -13,7 +13,9 @@ def register(app: typer.Typer) -> None:
         ),
         limit: int = typer.Option(None, help="Use only the first N eval clips (quick check)."),
         out: Path = typer.Option(Path("bench_results"), help="Folder for bench.json and bench.md."),
-        long_gaps: bool = typer.Option(False, "--long-gaps", help="Keys 2/5/10 s apart on long takes instead."),
+        long_gaps: bool = typer.Option(
+            False, "--long-gaps", help="Keys 2/5/10 s apart on long takes instead."
+        ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench

@@ -96,7 +96,9 @@ def evaluate_long_gaps(inbetweener, takes, gaps_s=GAPS_S) -> dict:
                 "gaps": n,
                 "speed_ratio_mean": float(r.mean()) if n else None,
                 "speed_ratio_in_50_150": float(((r >= 0.5) & (r <= 1.5)).mean()) if n else None,
-                "speed_ratio_p10_p90": [float(np.percentile(r, 10)), float(np.percentile(r, 90))] if n else None,
+                "speed_ratio_p10_p90": [float(np.percentile(r, 10)), float(np.percentile(r, 90))]
+                if n
+                else None,
                 "max_bone_length_change_cm": bone_err,
                 "mpjpe_cm": float(np.mean(mpjpe)) if n else None,
             }

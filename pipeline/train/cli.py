@@ -11,8 +11,11 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(
             Path("runs/default"), help="Run folder: checkpoints, logs (resumes if present)."
         ),
-        steps: int = typer.Option(7000, help="Generator steps."),
+        steps: int = typer.Option(8000, help="Generator steps."),
         path_steps: int = typer.Option(2000, help="Path-predictor steps (trained first, then frozen)."),
+        adv_start: int = typer.Option(
+            6800, help="Generator step where the LSGAN refinement starts (none: -1)."
+        ),
         batch: int = typer.Option(32),
         seed: int = typer.Option(0),
         threads: int = typer.Option(1, help="torch threads; 1 is fastest on 2 shared cores."),
@@ -26,29 +29,13 @@ def register(app: typer.Typer) -> None:
         from pipeline.train.generator import train as train_generator
         from pipeline.train.path import PathTrainConfig, train_path
 
-        if path_steps:
-            train_path(
-                PathTrainConfig(
-                    steps=path_steps,
-                    batch=batch,
-                    seed=seed,
-                    threads=threads,
-                    limit_clips=limit_clips,
-                    data=str(data) if data else None,
-                ),
-                out,
-            )
-        ckpt = train_generator(
-            TrainConfig(
-                steps=steps,
-                batch=batch,
-                seed=seed,
-                threads=threads,
-                limit_clips=limit_clips,
-                data=str(data) if data else None,
-            ),
-            out,
+        adv_start = None if adv_start < 0 or adv_start >= steps else adv_start
+        common = dict(
+            batch=batch, seed=seed, threads=threads, limit_clips=limit_clips, data=str(data) if data else None
         )
+        if path_steps:
+            train_path(PathTrainConfig(steps=path_steps, **common), out)
+        ckpt = train_generator(TrainConfig(steps=steps, adv_start=adv_start, **common), out)
         typer.echo(str(ckpt))
 
     @app.command()
