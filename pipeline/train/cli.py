@@ -23,6 +23,8 @@ def register(app: typer.Typer) -> None:
             None, help="A folder of your own BVH clips (model skeleton) instead of Bandai train."
         ),
         limit_clips: int = typer.Option(None, help="Use only the first N train clips (smoke tests)."),
+        init: Path = typer.Option(None, help="Continue from this generator checkpoint's weights."),
+        lr: float = typer.Option(1e-3, help="Peak learning rate of the one-cycle schedule."),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.train.generator import TrainConfig
@@ -35,7 +37,10 @@ def register(app: typer.Typer) -> None:
         )
         if path_steps:
             train_path(PathTrainConfig(steps=path_steps, **common), out)
-        ckpt = train_generator(TrainConfig(steps=steps, adv_start=adv_start, **common), out)
+        ckpt = train_generator(
+            TrainConfig(steps=steps, adv_start=adv_start, lr=lr, init=str(init) if init else None, **common),
+            out,
+        )
         typer.echo(str(ckpt))
 
     @app.command()

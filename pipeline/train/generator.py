@@ -53,6 +53,7 @@ class TrainConfig:
     checkpoint_minutes: float = 3.0
     limit_clips: int | None = None
     data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
+    init: str | None = None  # start from this checkpoint's generator weights (a continuation run)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
 
 
@@ -104,6 +105,9 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     )
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
+    if cfg.init and not ckpt.exists():
+        model.load_state_dict(torch.load(cfg.init, weights_only=False)["model"])
+        print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
         state = torch.load(ckpt, weights_only=False)
         model.load_state_dict(state["model"])
