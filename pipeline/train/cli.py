@@ -25,6 +25,7 @@ def register(app: typer.Typer) -> None:
         limit_clips: int = typer.Option(None, help="Use only the first N train clips (smoke tests)."),
         init: Path = typer.Option(None, help="Continue from this generator checkpoint's weights."),
         lr: float = typer.Option(1e-3, help="Peak learning rate of the one-cycle schedule."),
+        pos_zscore: bool = typer.Option(False, help="Weigh position errors by 1/std per coordinate."),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.train.generator import TrainConfig
@@ -38,7 +39,14 @@ def register(app: typer.Typer) -> None:
         if path_steps:
             train_path(PathTrainConfig(steps=path_steps, **common), out)
         ckpt = train_generator(
-            TrainConfig(steps=steps, adv_start=adv_start, lr=lr, init=str(init) if init else None, **common),
+            TrainConfig(
+                steps=steps,
+                adv_start=adv_start,
+                lr=lr,
+                pos_zscore=pos_zscore,
+                init=str(init) if init else None,
+                **common,
+            ),
             out,
         )
         typer.echo(str(ckpt))

@@ -54,6 +54,7 @@ class TrainConfig:
     limit_clips: int | None = None
     data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
     init: str | None = None  # start from this checkpoint's generator weights (a continuation run)
+    pos_zscore: bool = False  # weigh position errors by 1/std of each coordinate (train statistics)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
 
 
@@ -115,6 +116,14 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         sched.load_state_dict(state["sched"])
         step, elapsed = state["step"], state["elapsed"]
         print(f"resumed {ckpt} at step {step}", file=sys.stderr)
+    pos_w = torch.ones(len(skel), 3)
+    if cfg.pos_zscore:
+        from pipeline.bench.protocol import position_stats
+
+        # Per-coordinate weights 10 cm / std: a coordinate that varies little (a joint's
+        # height) counts as much as its spread says, as in the benchmark's L2P.
+        _, std = position_stats(load_split("train"))
+        pos_w = torch.from_numpy(POS_SCALE / std.reshape(len(skel), 3)).float()
     log = (out_dir / "train_log.jsonl").open("a")
     t_start, t_ckpt = time.time() - elapsed, time.time()
 
@@ -173,7 +182,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
         gt_pos = torch.from_numpy(gpos).float()
         l_rot = (mats - gt_mats).abs()[:, m].mean()
-        l_pos = (ppos - gt_pos).abs()[:, m].mean() / POS_SCALE
+        l_pos = ((ppos - gt_pos).abs() * pos_w)[:, m].mean() / POS_SCALE
         l_root = (proot - torch.from_numpy(ctx["croot"]).float()).abs()[:, m].mean() / POS_SCALE
         moving = torch.from_numpy(between[1:] | between[:-1])
         l_vel = ((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs()[
