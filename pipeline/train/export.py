@@ -102,6 +102,13 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         meta["parameters"]["path"] = sum(p.numel() for p in path.parameters())
         meta["flops_per_frame"]["path"] = 2 * macs_per_frame(path, (pcfg.n_joints - 1) * 3)
         meta["path_train_steps"] = pstate["step"]
+    # Weights-only torch checkpoints beside the ONNX files: a later run continues from them
+    # (`tween train --init <model>/torch/generator.pt`) without the optimiser state.
+    (out_dir / "torch").mkdir(exist_ok=True)
+    keep = ("model", "config", "step", "elapsed")
+    torch.save({k: gstate[k] for k in keep if k in gstate}, out_dir / "torch" / "generator.pt")
+    if "path" in files:
+        torch.save({k: pstate[k] for k in keep if k in pstate}, out_dir / "torch" / "path.pt")
     meta["files"] = files
     meta.update(extra or {})
     h = hashlib.sha256()
