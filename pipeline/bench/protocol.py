@@ -75,10 +75,17 @@ def position_stats(train: ClipSet, skeleton=None) -> tuple[np.ndarray, np.ndarra
     if key.exists():
         z = np.load(key)
         return z["mean"], z["std"]
+    import sys
+
+    from tqdm import tqdm
+
     rots, roots = cut_windows(train, STATS_WINDOW, STATS_STRIDE)
-    rots, roots = normalize_windows(rots, roots, skeleton)
-    _, pos = global_positions(rots, roots, skeleton)
-    flat = pos.reshape(-1, pos.shape[-2] * 3).astype(np.float64)
+    chunks = []
+    for s in tqdm(range(0, len(rots), 1000), desc="train statistics", unit=" ×1000 windows", file=sys.stderr):
+        r, p = normalize_windows(rots[s : s + 1000], roots[s : s + 1000], skeleton)
+        _, pos = global_positions(r, p, skeleton)
+        chunks.append(pos.reshape(-1, pos.shape[-2] * 3).astype(np.float64))
+    flat = np.concatenate(chunks)
     mean, std = flat.mean(0), flat.std(0)
     np.savez(key, mean=mean, std=std)
     return mean, std
