@@ -25,13 +25,14 @@ def _smoothstep(x):
 
 
 def key_weights(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For each frame: previous key, next key and the smoothstep weight of the next key."""
+    """For each frame: the position in ``keys`` of the previous and of the next key, and the
+    smoothstep weight of the next key."""
     from pipeline.infer.features import key_neighbours
 
     prev, nxt = key_neighbours(n, keys)
     span = np.maximum(nxt - prev, 1)
     s = np.where(nxt > prev, (np.arange(n) - prev) / span, 0.0)
-    return prev, nxt, _smoothstep(s)
+    return np.searchsorted(keys, prev), np.searchsorted(keys, nxt), _smoothstep(s)
 
 
 def match_keys(rot, root, key_rot, key_root, keys):
@@ -51,10 +52,7 @@ def match_keys(rot, root, key_rot, key_root, keys):
     delta = quat_mul(kr, inv).reshape(-1, 4)
     rv = Rotation.from_quat(delta).as_rotvec().reshape(B, K, J, 3)
     dr = key_root.astype(np.float64) - root[:, keys]
-    prev, nxt, s = key_weights(N, keys)
-    kidx = {int(k): i for i, k in enumerate(keys)}
-    ip = np.array([kidx[int(k)] for k in prev])
-    inx = np.array([kidx[int(k)] for k in nxt])
+    ip, inx, s = key_weights(N, keys)
     w = s[None, :, None, None]
     corr = (1 - w) * rv[:, ip] + w * rv[:, inx]  # (B, N, J, 3)
     out_rot = quat_mul(
@@ -81,11 +79,8 @@ def integrate_path(vel, root_keys, keys, n):
     """
     cum = np.cumsum(vel, axis=1)
     cum = cum - cum[:, :1]
-    out = np.empty_like(cum)
-    prev, nxt, s = key_weights(n, keys)
-    kidx = {int(k): i for i, k in enumerate(keys)}
-    ip = np.array([kidx[int(k)] for k in prev])
-    inx = np.array([kidx[int(k)] for k in nxt])
+    ip, inx, s = key_weights(n, keys)
+    prev, nxt = keys[ip], keys[inx]
     start = root_keys[:, ip] + (cum - cum[:, prev])
     end_err = root_keys[:, inx] - (root_keys[:, ip] + (cum[:, nxt] - cum[:, prev]))
     out = start + s[None, :, None] * end_err
