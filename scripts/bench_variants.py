@@ -29,4 +29,8 @@ for name, method in variants.items():
     print(f"evaluating {name}…", file=sys.stderr)
     results[name] = evaluate(method, rots, roots, mean, std)
 print(markdown(results, len(rots), TRANSITIONS))
-json.dump({k: {str(t): v for t, v in r.items()} for k, r in results.items()}, open("runs/bench_variants.json", "w"), indent=1)
+json.dump(
+    {k: {str(t): v for t, v in r.items()} for k, r in results.items()},
+    open("runs/bench_variants.json", "w"),
+    indent=1,
+)
