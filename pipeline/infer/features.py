@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.motion.fk import fk
-from pipeline.motion.rotations import quat_apply, quat_mul, quat_to_6d, slerp
+from pipeline.motion.rotations import quat_apply, quat_mul, quat_to_6d, slerp_pairs
 
 TTA_FREQS = 8
 MAX_TTA = 300.0  # frames; the longest gap the embedding distinguishes (10 s at 30 fps)
@@ -86,13 +86,7 @@ def interpolate(rot, root, keys):
     prev, nxt = key_neighbours(N, keys)
     span = np.maximum(nxt - prev, 1)
     w = np.where(nxt > prev, (np.arange(N) - prev) / span, 0.0)
-    q0, q1 = rot[:, prev], rot[:, nxt]  # (B, N, J, 4)
-    dot = (q0 * q1).sum(-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    # slerp with per-frame weights: do it elementwise through the (T, ...) form per frame.
-    out = np.empty_like(q0, dtype=np.float64)
-    for n in range(N):
-        out[:, n] = slerp(q0[:, n], q1[:, n], np.array([w[n]]))[0]
+    out = slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])  # one weight per frame
     ipos = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
     return out, ipos, prev, nxt
 

@@ -16,7 +16,7 @@ from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, invert_transform, path_inputs
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix, slerp
+from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix, slerp_pairs
 
 
 def models_root() -> Path:
@@ -143,9 +143,8 @@ class OnnxInbetweener:
         i1 = np.minimum(i0 + 1, nc - 1)
         w = x - i0
         rot, root = rot.copy(), root.copy()
-        for j, t in enumerate(new):
-            rot[:, t] = slerp(q[:, i0[j]], q[:, i1[j]], np.array([w[j]]))[0]
-            root[:, t] = (1 - w[j]) * r[:, i0[j]] + w[j] * r[:, i1[j]]
+        rot[:, new] = slerp_pairs(q[:, i0], q[:, i1], w[None, :, None])
+        root[:, new] = (1 - w)[None, :, None] * r[:, i0] + w[None, :, None] * r[:, i1]
         return rot, root, np.union1d(keys, new)
 
     def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:

@@ -114,8 +114,15 @@ def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01)
     here because scipy's Slerp interpolates one key track, not arrays of joint pairs.
     """
     q0 = np.asarray(q0, np.float64)
+    w = np.asarray(w, np.float64).reshape((-1,) + (1,) * (q0.ndim - 1))
+    return slerp_pairs(q0[None], np.asarray(q1, np.float64)[None], w, lerp_eps)
+
+
+def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
+    """Elementwise SLERP: one weight per pair, ``w`` broadcastable to ``q0.shape[:-1]``."""
+    q0 = np.asarray(q0, np.float64)
     q1 = np.asarray(q1, np.float64)
-    w = np.asarray(w, np.float64).reshape((-1,) + (1,) * q0.ndim)
+    w = np.asarray(w, np.float64)[..., None]
     dot = (q0 * q1).sum(-1, keepdims=True)
     q1 = np.where(dot < 0, -q1, q1)
     dot = np.abs(dot)
