@@ -3,6 +3,11 @@
 ``validate_shot`` checks everything before any work; ``fill_take`` computes one take into
 an ``.npz`` (idempotent: same inputs → same file); ``write_layers`` writes the versioned
 fill layer and the review root layer; ``fill_shot`` does all three in process.
+
+Models per character: with ``model="default"`` a character whose skeleton fits a stored
+per-rig model (``rig.json`` under the models root, :mod:`pipeline.rig.store`) is filled by
+it, any other by the human model; ``model=<rig model name or folder>`` forces that rig
+model, ``model=interp`` / a human model folder forces the human model (no rig models).
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -27,7 +33,7 @@ class FillOptions:
     range: str | None = None  # "1010-1050"; None = whole key span
     takes: int = 1
     seed: int = 0
-    model: str = "default"  # passed to pipeline.infer.load_inbetweener
+    model: str = "default"  # default (rig model if one fits, else human), interp, or a model name/folder
     out_dir: str | None = None  # default: beside the shot
     fmt: str = "usda"  # or "usdc"
     mapping: str | None = None  # JSON joint-mapping override file
@@ -37,43 +43,97 @@ class FillOptions:
 _MODELS: dict[tuple[int, str], object] = {}
 
 
+def _load_rig(folder: str):
+    """A per-rig model (pipeline.rig; numpy/ORT at fill time)."""
+    from pipeline.rig.infer import RigInbetweener
+
+    return RigInbetweener(folder)
+
+
+def rig_folder(name: str) -> str | None:
+    """The rig model folder ``name`` refers to (a folder with rig.json, or one under the
+    models root), or None when it is not a rig model."""
+    from pipeline.rig.store import is_rig_folder, models_root
+
+    if name in ("default", "interp", "interpolation"):
+        return None
+    for cand in (Path(name), models_root() / name):
+        if is_rig_folder(cand):
+            return str(cand.resolve())
+    return None
+
+
 def _model(name: str):
-    """The in-betweener ``name``, loaded once per process (a forked worker loads its own:
-    onnxruntime sessions must not cross a fork)."""
+    """The in-betweener ``name`` (a human model, or a rig model folder), loaded once per
+    process (a forked worker loads its own: onnxruntime sessions must not cross a fork)."""
     from pipeline.infer.api import load_inbetweener
 
     key = (os.getpid(), name)
     if key not in _MODELS:
         try:
-            _MODELS[key] = load_inbetweener(name)
+            folder = rig_folder(name)
+            _MODELS[key] = _load_rig(folder) if folder else load_inbetweener(name)
         except FileNotFoundError as e:
             raise TweenError(f"model {name!r}: {e}") from None
     return _MODELS[key]
 
 
-def _plan(shot: str, opts: FillOptions, fps: float):
-    from pipeline.usd.plan import make_plan
+def _human(opts: FillOptions):
+    """The human model of the job, or None when a rig model is forced."""
+    return None if rig_folder(opts.model) else _model(opts.model)
+
+
+def _plan(shot: str, opts: FillOptions, human):
+    from pipeline.usd.plan import RIG_AUTO, RIG_OFF, make_plan
 
     if opts.takes < 1:
         raise TweenError(f"takes must be at least 1, not {opts.takes}")
     if opts.fmt not in ("usda", "usdc"):
         raise TweenError(f"format must be usda or usdc, not {opts.fmt!r}")
-    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps)
+    rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
+    fps = float(human.fps) if human is not None else 30.0
+    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig)
+
+
+def _char_model(cp, human):
+    return _model(cp.model) if cp.model else human
+
+
+def _joined(values) -> str:
+    return "+".join(dict.fromkeys(values))
 
 
 def validate_shot(shot: str, opts: FillOptions) -> dict:
-    """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled."""
+    """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled,
+    with the model of each character under ``models``."""
     from pipeline.usd.write import check_out_dir
 
-    inb = _model(opts.model)
-    summary = _plan(shot, opts, float(inb.fps)).summary()
+    human = _human(opts)
+    plan = _plan(shot, opts, human)
+    summary = plan.summary()
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
-    summary.update(model=inb.name, model_hash=inb.model_hash)
+    models = {}
+    for cp in plan.chars:
+        inb = _char_model(cp, human)
+        models[cp.char.anim_path] = {
+            "name": inb.name,
+            "hash": inb.model_hash,
+            "kind": "rig" if cp.model else "human",
+            **({"folder": cp.model} if cp.model else {}),
+        }
+    summary.update(
+        model=_joined(m["name"] for m in models.values()),
+        model_hash=_joined(m["hash"] for m in models.values()),
+        models=models,
+    )
+    for anim, m in models.items():
+        print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}", file=sys.stderr)
     return summary
 
 
-def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash: str) -> str:
-    """Hash of every layer file the shot uses, the options that change values, the take, the model."""
+def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
+    """Hash of every layer file the shot uses, the options that change values, the take, and
+    the model hash of every character's model."""
     h = hashlib.sha256()
     for path in sorted({layer.realPath for layer in stage.GetUsedLayers() if layer.realPath}):
         h.update(path.encode())
@@ -89,10 +149,11 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     """Fills every character for take ``take`` (seed = opts.seed + take) into an .npz."""
     from pipeline.usd.solve import fill_character
 
-    inb = _model(opts.model)
-    plan = _plan(shot, opts, float(inb.fps))
+    human = _human(opts)
+    plan = _plan(shot, opts, human)
+    inbs = [_char_model(cp, human) for cp in plan.chars]
     try:
-        digest = _digest(shot, plan.shot.stage, opts, take, inb.model_hash)
+        digest = _digest(shot, plan.shot.stage, opts, take, [m.model_hash for m in inbs])
     except OSError as e:
         raise ShotError(shot, f"cannot read: {e.strerror}") from None
     out = Path(work_dir) / f"{Path(shot).name.split('.')[0]}.take{take:03d}.{digest}.npz"
@@ -100,15 +161,17 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         return str(out)
     arrays: dict[str, np.ndarray] = {}
     chars = []
-    for i, cp in enumerate(plan.chars):
+    for i, (cp, inb) in enumerate(zip(plan.chars, inbs, strict=True)):
         data = fill_character(plan, cp, inb, seed=opts.seed + take)
         for k, v in data.items():
             arrays[f"c{i}_{k}"] = v
         c = cp.char
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
-                      "keys": [float(x) for x in cp.keys]})  # fmt: skip
-    meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take, "model": inb.name,
-            "model_hash": inb.model_hash, "chars": chars}  # fmt: skip
+                      "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
+                      "model_kind": "rig" if cp.model else "human"})  # fmt: skip
+    meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
+            "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
+            "chars": chars}  # fmt: skip
     arrays["meta"] = np.array(json.dumps(meta))
     Path(work_dir).mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=work_dir, prefix=f".{out.name}.", suffix=".tmp")

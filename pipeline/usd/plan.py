@@ -1,4 +1,9 @@
-"""Validating a shot and planning its fill: characters, keys, fill range and retargeters."""
+"""Validating a shot and planning its fill: characters, keys, fill range and retargeters.
+
+Each character gets a model: a stored per-rig model when its skeleton fits one exactly
+(:mod:`pipeline.rig.store`; checked first, it wins), otherwise the human model through the
+joint mapping and retargeting, otherwise it is refused with a hint to train a rig model.
+"""
 
 from __future__ import annotations
 
@@ -12,14 +17,21 @@ from pipeline.usd.keys import merge_times, parse_keys, parse_range
 from pipeline.usd.mapping import MappingError, load_override, map_joints
 from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot
 from pipeline.usd.retarget import Retarget
+from pipeline.usd.rigmap import RigMap, skeleton_space
 
 
 @dataclass
 class CharPlan:
     char: Character
-    retarget: Retarget
+    retarget: Retarget | RigMap
     keys: np.ndarray  # key time codes (exact authored values where they are samples)
     fill_range: tuple[float, float]
+    model: str | None = None  # a rig model folder; None = the job's human model
+    fps: float = 30.0  # the frame rate of this character's model
+
+
+#: ``make_plan(rig=...)``: look for a stored rig model first (the default), or never.
+RIG_AUTO, RIG_OFF = "auto", "off"
 
 
 @dataclass
@@ -41,6 +53,7 @@ class Plan:
             "keys": {c.char.anim_path: [float(k) for k in c.keys] for c in self.chars},
             "range": {c.char.anim_path: [float(x) for x in c.fill_range] for c in self.chars},
             "refused": [{"prim": p, "reason": r} for p, r in self.refused],
+            "rig_models": {c.char.anim_path: c.model for c in self.chars if c.model},
         }
 
 
@@ -57,7 +70,38 @@ def _keys_for(shot: Shot, char: Character, keys_opt: str | None) -> np.ndarray:
     )
 
 
-def make_plan(path: str, keys: str | None, range_: str | None, mapping: str | None, model_fps: float) -> Plan:
+def _rig_for(shot: Shot, c: Character, rig: str):
+    """(RigMap, folder) for ``c`` on a rig model, or (None, why not) when none fits."""
+    from pipeline.rig import store
+
+    up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
+    if not up:
+        return None, None if rig == RIG_AUTO else "the stage's up axis is X or down in skeleton space"
+    lengths = np.linalg.norm(c.rest_trans, axis=-1) * mpu
+    if rig == RIG_AUTO:
+        found = store.find_rig(c.names, c.parents, lengths)
+        if found is None:
+            return None, None
+        info, perm = found
+    else:
+        info = store.read_rig_json(rig)
+        perm, why = store.match_rig(info, c.names, c.parents, lengths)
+        if perm is None:
+            return None, f"does not fit rig model {info.name} ({info.folder}): {why}"
+    return RigMap(c, info, perm, up, mpu), str(info.folder)
+
+
+def make_plan(
+    path: str,
+    keys: str | None,
+    range_: str | None,
+    mapping: str | None,
+    model_fps: float,
+    rig: str = RIG_OFF,
+) -> Plan:
+    """``model_fps`` is the human model's rate; ``rig`` is RIG_AUTO (a stored rig model that
+    fits a character wins over the human mapping), RIG_OFF (human model only) or a rig
+    model folder (that model only)."""
     shot = read_shot(path)
     try:
         override = load_override(mapping)
@@ -67,12 +111,26 @@ def make_plan(path: str, keys: str | None, range_: str | None, mapping: str | No
     chars: list[CharPlan] = []
     refused: list[tuple[str, str]] = []
     for c in shot.characters:
-        try:
-            roles = map_joints(c.joints, c.parents, override)
-            rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit)
-        except MappingError as e:
-            refused.append((c.skel_path, str(e)))
-            continue
+        rt, folder, fps = None, None, model_fps
+        if rig != RIG_OFF:
+            rt, folder = _rig_for(shot, c, rig)
+            if rt is None and rig != RIG_AUTO:
+                refused.append((c.skel_path, folder))
+                continue
+            if rt is not None:
+                fps = rt.info.fps
+        if rt is None:
+            try:
+                roles = map_joints(c.joints, c.parents, override)
+                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit)
+            except MappingError as e:
+                why = str(e)
+                if rig == RIG_AUTO:
+                    from pipeline.rig.store import no_model_hint
+
+                    why += "; " + no_model_hint(path, c.skel_path, c.names)
+                refused.append((c.skel_path, why))
+                continue
         k = _keys_for(shot, c, keys)
         if len(k) < 2:
             raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
@@ -82,13 +140,11 @@ def make_plan(path: str, keys: str | None, range_: str | None, mapping: str | No
             raise ShotError(
                 path, f"key {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}", c.anim_path
             )
-        m = np.round((k - k[0]) / shot.tcps * model_fps)
+        m = np.round((k - k[0]) / shot.tcps * fps)
         dup = np.nonzero(np.diff(m) == 0)[0]
         if len(dup):
             a, b = k[dup[0]], k[dup[0] + 1]
-            raise ShotError(
-                path, f"keys {a:g} and {b:g} fall on one model frame (1/{model_fps:g} s)", c.anim_path
-            )
+            raise ShotError(path, f"keys {a:g} and {b:g} fall on one model frame (1/{fps:g} s)", c.anim_path)
         rot, tr, _ = anim_values(shot.stage, c, k)
         bad = ~(np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)))
         if bad.any():
@@ -98,7 +154,7 @@ def make_plan(path: str, keys: str | None, range_: str | None, mapping: str | No
             raise ShotError(
                 path, f"range {fr[0]:g}-{fr[1]:g} is outside the stage range {shot.start:g}-{shot.end:g}"
             )
-        chars.append(CharPlan(c, rt, k, fr))
+        chars.append(CharPlan(c, rt, k, fr, folder, float(fps)))
     if not chars:
         prim, why = refused[0]
         raise ShotError(path, f"rig refused: {why}", prim)

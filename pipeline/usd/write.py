@@ -54,6 +54,7 @@ def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
                 "takes": int(info.get("takes", 1)),
                 "model": info.get("model", ""),
                 "model_hash": info.get("modelHash", ""),
+                "models": dict(info.get("models", {})),
             }
     return None
 
@@ -124,7 +125,9 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
             _apply_api(spec, "TweenAPI")
             _attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True)
             _attr(spec, "tween:keyTimes", Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
-            for name, val in (("model", meta["model"]), ("modelHash", meta["model_hash"]),
+            # Each character's own model (a rig model or the human one).
+            for name, val in (("model", c.get("model", meta["model"])),
+                              ("modelHash", c.get("model_hash", meta["model_hash"])),
                               ("jobId", meta["job_id"]), ("createdAt", meta["created_at"])):  # fmt: skip
                 _attr(spec, f"tween:{name}", Sdf.ValueTypeNames.String, val)
             # Blend shape weights are the animator's: copied as authored.
@@ -211,6 +214,7 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
                     "jobId": meta["job_id"],
                     "model": meta["model"],
                     "modelHash": meta["model_hash"],
+                    "models": {c["anim"]: c.get("model", meta["model"]) for c in takes[0]["chars"]},
                     "takes": len(takes),
                     "version": n,
                     "review": review.name,
@@ -233,7 +237,8 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
         final.unlink(missing_ok=True)
         raise
     return {"layer": str(final), "review": str(review), "version": n, "takes": len(takes),
-            "model": meta["model"], "model_hash": meta["model_hash"]}  # fmt: skip
+            "model": meta["model"], "model_hash": meta["model_hash"],
+            "models": {c["anim"]: c.get("model", meta["model"]) for c in takes[0]["chars"]}}  # fmt: skip
 
 
 def _rel(target: Path, base_dir: Path) -> str:
