@@ -1,0 +1,316 @@
+"""Filling shots with per-rig models: model choice per character, the rig path through the
+writer (keys bitwise), provenance, digest, refusals; the elephant with a rig model."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_rig_store import NAMES, OFFSETS, PARENTS, write_rig
+from usd_fixtures import ELEPHANT, bandai_shot, tree_hashes
+
+from pipeline import fill
+from pipeline.errors import TweenError
+from pipeline.fill import FillOptions, fill_shot, validate_shot
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import euler_to_quat
+from pipeline.motion.skeleton import Skeleton
+
+CREATURE_ANIM = "/World/Creature/Skel/Anim"
+
+
+def creature_motion(T: int = 61, fps: float = 30.0) -> Motion:
+    """A small quadruped-ish rig (no human mapping) walking forward with swinging legs."""
+    skel = Skeleton(NAMES, np.array(PARENTS), OFFSETS.astype(np.float32), "Y", 0.01)
+    t = np.arange(T) / fps
+    J = len(NAMES)
+    ang = np.zeros((T, J, 3))
+    ang[:, 0, 1] = 20 * np.sin(0.5 * t)  # root yaw
+    ang[:, 1, 0] = 10 * np.sin(2 * t)
+    ang[:, 2, 0] = 15 * np.sin(3 * t + 1)
+    ang[:, 3, 1] = 30 * np.sin(4 * t)
+    ang[:, 4, 0] = 35 * np.sin(5 * t)
+    ang[:, 5, 0] = 20 * np.sin(5 * t + 0.5) + 20
+    ang[:, 6, 0] = -35 * np.sin(5 * t)
+    ang[:, 7, 0] = 20 * np.sin(5 * t + 2) + 20
+    rot = euler_to_quat(ang.reshape(-1, 3), "XYZ").reshape(T, J, 4)
+    root = np.stack([5 * np.sin(t), 60 + 2 * np.sin(10 * t), 80 * t], axis=1)
+    return Motion(skel, rot, root, fps, "creature")
+
+
+def creature_shot(path: Path, T: int = 61, keys_every: int = 10, **kw) -> Path:
+    from pipeline.usd.convert import write_shot
+
+    write_shot(creature_motion(T), path, keys_every=keys_every, name="Creature", **kw)
+    return path
+
+
+def rig_from_shot(folder: Path, shot: Path, skeleton: str | None = None, **kw) -> Path:
+    """A rig.json for the shot's skeleton, written the way the rig source reads it."""
+    from pipeline.rig.source import load_rig_source
+
+    m = load_rig_source(shot, skeleton)
+    s = m.skeleton
+    return write_rig(folder, s.names, s.parents.tolist(), s.offsets, s.meters_per_unit, s.up_axis, **kw)
+
+
+class FakeRig:
+    """Stands in for pipeline.rig.infer.RigInbetweener: SLERP/LERP between keys on the rig
+    skeleton, plus a seed-dependent sway so takes differ; records every call."""
+
+    calls: list = []
+
+    def __init__(self, folder):
+        meta = json.loads((Path(folder) / "rig.json").read_text())
+        sk = meta["skeleton"]
+        self.meta, self.name, self.model_hash, self.fps = meta, meta["name"], meta["hash"], float(meta["fps"])
+        self.skeleton = Skeleton(sk["names"], np.array(sk["parents"]), np.array(sk["offsets"]), sk["up_axis"],
+                                 sk["meters_per_unit"])  # fmt: skip
+
+    def fill(self, motion, keys, seed=0):
+        from pipeline.infer.interp import interpolate_keys
+
+        assert motion.skeleton is self.skeleton and motion.fps == self.fps
+        FakeRig.calls.append(
+            (self.name, motion.rotations[keys].copy(), motion.root_positions[keys].copy(), seed)
+        )
+        out = interpolate_keys(motion, keys)
+        if seed:
+            sway = np.zeros(len(out), np.float32)
+            for a, b in zip(keys[:-1], keys[1:], strict=True):
+                sway[a + 1 : b] = np.sin(np.linspace(0, np.pi, b - a + 1)[1:-1]) * seed
+            out.root_positions[:, 0] += sway
+        return out
+
+
+@pytest.fixture
+def models(tmp_path, monkeypatch):
+    """An empty models root of its own (with the shipped human model linked in) and the fake rig model class."""
+    root = tmp_path / "models"
+    root.mkdir()
+    shipped = Path(fill.__file__).resolve().parents[1] / "models" / "default"
+    if shipped.is_dir():
+        (root / "default").symlink_to(shipped)
+    monkeypatch.setenv("TWEEN_MODELS", str(root))
+    monkeypatch.setattr(fill, "_load_rig", FakeRig)
+    fill._MODELS.clear()
+    FakeRig.calls = []
+    yield root
+    fill._MODELS.clear()
+
+
+def _anim(layer_path, anim):
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(layer_path))
+    return stage, stage.GetPrimAtPath(anim + "_tween")
+
+
+def test_rig_character_fills_with_its_rig_model_keys_bitwise(tmp_path, models):
+    from pxr import Sdf, Usd
+
+    shot = creature_shot(tmp_path / "shots" / "cr010.usda")
+    rig = rig_from_shot(models / "creature", shot)
+    before = tree_hashes(shot.parent)
+    summary = validate_shot(str(shot), FillOptions())
+    assert summary["models"][CREATURE_ANIM]["kind"] == "rig"
+    assert summary["models"][CREATURE_ANIM]["name"] == "creature"
+    assert summary["model"] == "creature" and summary["model_hash"] == "hash-creature"
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "out")))
+    assert res["model"] == "creature" and res["models"] == {CREATURE_ANIM: "creature"}
+    assert tree_hashes(shot.parent) == before
+
+    src_stage = Usd.Stage.Open(str(shot))
+    src = src_stage.GetPrimAtPath(CREATURE_ANIM)
+    stage, filled = _anim(res["review"], CREATURE_ANIM)
+    assert filled.GetAttribute("tween:model").Get() == "creature"
+    assert filled.GetAttribute("tween:modelHash").Get() == "hash-creature"
+    info = Sdf.Layer.FindOrOpen(res["layer"]).customLayerData["tween"]
+    assert info["model"] == "creature" and dict(info["models"]) == {CREATURE_ANIM: "creature"}
+    keys = src.GetAttribute("rotations").GetTimeSamples()
+    assert keys == [1001.0 + 10 * i for i in range(7)]
+    for attr in ("rotations", "translations", "scales"):
+        a, b = src.GetAttribute(attr), filled.GetAttribute(attr)
+        for t in keys:  # keys: the authored arrays, bit for bit
+            assert np.array_equal(np.array(a.Get(t)), np.array(b.Get(t)), equal_nan=False), (attr, t)
+    assert filled.GetAttribute("rotations").GetTimeSamples() == [1001.0 + i for i in range(61)]
+    # Between keys: the (fake) model's SLERP on the rig's own joints, in skeleton order.
+    rot = np.array(filled.GetAttribute("rotations").Get(1005))
+    q0, q1 = (
+        np.array(src.GetAttribute("rotations").Get(1001)),
+        np.array(src.GetAttribute("rotations").Get(1011)),
+    )
+    from pipeline.motion.rotations import slerp
+
+    want = slerp(q0, q1, [0.4])[0]
+    np.testing.assert_allclose(np.abs((rot * want).sum(-1)), 1.0, atol=1e-6)
+    tr = np.array(filled.GetAttribute("translations").Get(1005))
+    t0, t1 = (
+        np.array(src.GetAttribute("translations").Get(1001)),
+        np.array(src.GetAttribute("translations").Get(1011)),
+    )
+    np.testing.assert_allclose(tr[0], 0.6 * t0[0] + 0.4 * t1[0], atol=1e-4)
+    np.testing.assert_array_equal(tr[1:], t0[1:])  # bone offsets stay the rig's
+    # The model saw the keys in its own joint order and space: here the shot's own values.
+    (name, krot, kroot, seed) = FakeRig.calls[-1]
+    assert name == "creature" and seed == 0
+    assert np.array_equal(krot[0], np.array(src.GetAttribute("rotations").Get(1001)))
+    assert np.array_equal(kroot[0], np.array(src.GetAttribute("translations").Get(1001))[0])
+    assert rig.name == "creature"
+
+
+def test_takes_seeds_and_digest_include_the_rig_model(tmp_path, models):
+    shot = creature_shot(tmp_path / "cr020.usda", T=31)
+    rig_from_shot(models / "creature", shot)
+    work = tmp_path / "work"
+    opts = FillOptions(takes=2, seed=3)
+    a0 = fill.fill_take(str(shot), opts, 0, str(work))
+    a1 = fill.fill_take(str(shot), opts, 1, str(work))
+    assert [c[3] for c in FakeRig.calls] == [3, 4]
+    t0, t1 = fill.load_take(a0), fill.load_take(a1)
+    assert t0["chars"][0]["model"] == "creature" and t0["chars"][0]["model_kind"] == "rig"
+    assert not np.array_equal(t0["data"][0]["trans"], t1["data"][0]["trans"])
+    assert fill.fill_take(str(shot), opts, 0, str(work)) == a0  # same inputs, same file
+    # Retrained model (new hash): a new digest, so no stale take is reused.
+    meta = json.loads((models / "creature" / "rig.json").read_text())
+    meta["hash"] = "hash-retrained"
+    (models / "creature" / "rig.json").write_text(json.dumps(meta))
+    fill._MODELS.clear()
+    b0 = fill.fill_take(str(shot), opts, 0, str(work))
+    assert b0 != a0 and fill.load_take(b0)["model_hash"] == "hash-retrained"
+    res = fill.write_layers(str(shot), FillOptions(takes=2, seed=3, out_dir=str(tmp_path / "o")), [b0, a1])
+    stage, filled = _anim(res["review"], CREATURE_ANIM)
+    assert res["takes"] == 2 and filled.GetAttribute("tween:model").Get() == "creature"
+
+
+def test_human_and_rig_characters_in_one_shot_each_get_their_model(tmp_path, models):
+    """A shot holding a human (Bandai) and the creature: one layer, two models."""
+    from pxr import Sdf, Usd
+
+    human = bandai_shot(tmp_path / "h.usda", frames=31, keys_every=10)
+    creature = creature_shot(tmp_path / "c.usda", T=31)
+    rig_from_shot(models / "creature", creature)
+    shot = tmp_path / "both.usda"
+    layer = Sdf.Layer.CreateNew(str(shot))
+    Usd.Stage.Open(layer)  # a root layer over both shots, as a layout department would make
+    layer.subLayerPaths = [creature.name, human.name]
+    src = Sdf.Layer.FindOrOpen(str(human))
+    layer.startTimeCode, layer.endTimeCode = src.startTimeCode, src.endTimeCode
+    layer.timeCodesPerSecond = src.timeCodesPerSecond
+    layer.Save()
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    human_model = fill._model("default").name
+    assert res["models"] == {CREATURE_ANIM: "creature", "/World/Character/Skel/Anim": human_model}
+    assert sorted(res["model"].split("+")) == sorted(["creature", human_model])
+    stage = Usd.Stage.Open(res["review"])
+    assert stage.GetPrimAtPath(CREATURE_ANIM + "_tween").GetAttribute("tween:model").Get() == "creature"
+    got = stage.GetPrimAtPath("/World/Character/Skel/Anim_tween").GetAttribute("tween:model").Get()
+    assert got == human_model
+    # Forcing the human model leaves the creature without a model: skipped with the hint.
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o2")))
+    assert res["models"] == {"/World/Character/Skel/Anim": "interpolation"}
+
+
+def test_rig_without_model_is_refused_with_the_train_hint(tmp_path, models, capfd):
+    shot = creature_shot(tmp_path / "cr030.usda", T=21)
+    with pytest.raises(TweenError) as ei:
+        fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    msg = str(ei.value)
+    assert "\n" not in msg and str(shot) in msg and "rig refused: joints do not map" in msg
+    assert (
+        f"/World/Creature/Skel (8 joints, root Root) matches no human mapping and no rig model in {models}/; "
+        f"train one with: tween train-rig {shot} --skeleton /World/Creature/Skel --out {models}/cr030"
+    ) in msg
+    assert not (tmp_path / "o").exists()
+    # Through the CLI: one line, exit 2.
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, env={**__import__("os").environ, "TWEEN_MODELS": str(models)})  # fmt: skip
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip().count("\n") == 0 and "train-rig" in r.stderr
+    # A rig model of another creature (a longer neck) does not fit either.
+    write_rig(models / "other", offsets=OFFSETS * np.r_[1, 1, 1.5, 1, 1, 1, 1, 1][:, None])
+    with pytest.raises(TweenError, match="no rig model"):
+        fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    # Forced onto it, the reason is the bone that differs.
+    with pytest.raises(TweenError) as ei:
+        fill_shot(str(shot), FillOptions(model="other", out_dir=str(tmp_path / "o")))
+    assert "does not fit rig model other" in str(ei.value) and "bone 'Head'" in str(ei.value)
+    # A forced rig model that is not there: the human-model lookup's one-line error.
+    with pytest.raises(TweenError, match="no such model"):
+        fill_shot(str(shot), FillOptions(model="nope", out_dir=str(tmp_path / "o")))
+
+
+def test_forced_rig_model_by_folder_and_human_shot_unaffected(tmp_path, models):
+    shot = creature_shot(tmp_path / "cr040.usda", T=21)
+    elsewhere = rig_from_shot(tmp_path / "my_models" / "creature_v2", shot, name="creature-v2")
+    res = fill_shot(str(shot), FillOptions(model=str(elsewhere), out_dir=str(tmp_path / "o")))
+    assert res["model"] == "creature-v2"
+    human = bandai_shot(tmp_path / "h.usda", frames=21, keys_every=10)
+    with pytest.raises(TweenError, match="does not fit rig model creature-v2"):
+        fill_shot(str(human), FillOptions(model=str(elsewhere), out_dir=str(tmp_path / "o")))
+    rig_from_shot(models / "creature", shot)
+    res = fill_shot(str(human), FillOptions(out_dir=str(tmp_path / "o")))
+    assert res["model"] == fill._model("default").name and FakeRig.calls[-1][0] == "creature-v2"
+
+
+def test_rigmap_up_axis_and_units_round_trip():
+    from pipeline.motion.rotations import quat_apply
+    from pipeline.rig.store import RigModelInfo
+    from pipeline.usd.rigmap import RigMap
+
+    info = RigModelInfo(Path("."), "m", "h", 30.0, NAMES, np.array(PARENTS), OFFSETS, "Y", 0.01, {})
+    from pipeline.motion.rotations import matrix_to_quat, quat_mul
+
+    m = creature_motion(5)
+    order = np.array([0, 3, 6, 7, 1, 2, 4, 5])  # the shot lists joints in another order
+    perm = np.argsort(order)  # perm[model joint] = shot joint
+    rot = m.rotations[:, order].copy()
+    # ... and is Z up, in metres.
+    zfix = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # Y-up → Z-up
+    rot[:, perm[0]] = quat_mul(
+        np.broadcast_to(matrix_to_quat(zfix), (5, 4)), m.rotations[:, 0].astype(np.float64)
+    )
+    tr = np.zeros((5, 8, 3), np.float32)
+    tr[:, perm[0]] = (m.root_positions @ zfix.T) / 100
+    rm = RigMap(None, info, perm, "Z", 1.0)
+    loc, root = rm.to_model(rot, tr)
+    np.testing.assert_allclose(root, m.root_positions, atol=1e-4)
+    # The root's rotation is re-expressed in Y-up: same world direction for a bone.
+    v = np.array([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(quat_apply(loc[:, 0], v), quat_apply(m.rotations[:, 0], v), atol=1e-5)
+    np.testing.assert_array_equal(loc[:, 1:], m.rotations[:, 1:])
+    assert quat_apply(rot[0, perm[0]], np.array([0.0, 1.0, 0.0]))[2] > 0.9  # the shot's bone points up Z
+    back_r, back_t = rm.from_model(loc, root, rot, tr)
+    np.testing.assert_allclose(np.abs((back_r * rot).sum(-1)), 1.0, atol=1e-6)
+    np.testing.assert_allclose(back_t, tr, atol=1e-6)
+    # Same space: a pass-through, bit for bit.
+    same = RigMap(None, info, perm, "Y", 0.01)
+    loc, root = same.to_model(rot, tr)
+    r2, t2 = same.from_model(loc, root, rot, tr)
+    assert np.array_equal(r2, rot) and np.array_equal(t2, tr)
+
+
+def test_elephant_fills_with_its_rig_model_and_the_vibrator_is_skipped(tmp_path, models, capfd):
+    rig_from_shot(models / "elephant", ELEPHANT, "/SoC_ElephantWithMonochord/Object/Elefant/_skel")
+    # 60 fps shot, keys every 30 frames over one second of it.
+    opts = FillOptions(keys="1-61x30", range="1-61", out_dir=str(tmp_path / "o"), fmt="usdc")
+    before = tree_hashes(ELEPHANT.parent)
+    summary = validate_shot(str(ELEPHANT), opts)
+    anim = "/SoC_ElephantWithMonochord/Object/Elefant/_anim"
+    assert summary["models"][anim]["name"] == "elephant"
+    assert [r["prim"] for r in summary["refused"]] == [
+        "/SoC_ElephantWithMonochord/Object/Elefant_Monochord_Play/_skel"
+    ]
+    assert "train-rig" in summary["refused"][0]["reason"]
+    res = fill_shot(str(ELEPHANT), opts)
+    assert res["models"] == {anim: "elephant"}
+    assert tree_hashes(ELEPHANT.parent) == before
+    name, krot, kroot, _ = FakeRig.calls[-1]
+    assert len(krot) == 3  # keys at model frames 0, 15, 30 (60 → 30 fps)
+    err = capfd.readouterr().err
+    assert f"{anim}: rig model elephant" in err
