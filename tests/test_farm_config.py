@@ -81,3 +81,53 @@ def test_shot_roots(tmp_path):
     with pytest.raises(PathRefused, match="no shot roots"):
         check_under_roots(str(shot), [])
     check_job(str(shot), {"out_dir": str(root / "out"), "mapping": None}, [str(root)])
+
+
+def test_rig_training_has_its_own_app_queue_and_limits(tmp_path):
+    import workers.rig_tasks  # noqa: F401  (what a worker imports through the app's include)
+    import workers.train_tasks  # noqa: F401
+    from workers.app import app, rig_app, train_app
+
+    s = load_settings(_env(tmp_path, TWEEN_BROKER_URL="redis://h:6379/0"))
+    assert s.train_rig_queue == "tween.train_rig" and s.train_rig_time_limit < s.train_rig_visibility_timeout
+    with pytest.raises(FarmConfigError, match="train_rig_time_limit"):
+        load_settings(_env(tmp_path, TWEEN_BROKER_URL="redis://h", TWEEN_TRAIN_RIG_TIME_LIMIT="90000",
+                           TWEEN_TRAIN_RIG_VISIBILITY_TIMEOUT="3600"))  # fmt: skip
+    with pytest.raises(FarmConfigError, match="three different queues"):
+        load_settings(_env(tmp_path, TWEEN_TRAIN_RIG_QUEUE="tween.fill"))
+    r, f = rig_app.conf, app.conf
+    assert r.task_default_queue == r.tween.train_rig_queue != f.task_default_queue
+    assert r.task_time_limit == r.tween.train_rig_time_limit and r.task_soft_time_limit < r.task_time_limit
+    assert r.task_acks_late and r.accept_content == ["json"] and r.worker_prefetch_multiplier == 1
+    assert "tween.train_rig" in rig_app.tasks and "tween.train_rig" not in app.tasks
+    assert "tween.train_rig" not in train_app.tasks
+    # With Redis: its own key prefix (own unacked set) and visibility timeout of hours,
+    # while the fill app keeps its minute.
+    from celery import Celery
+
+    from workers.app import configure
+
+    rig = configure(Celery("r"), s, rig=True).conf.broker_transport_options
+    fill = configure(Celery("f"), s).conf.broker_transport_options
+    assert rig["global_keyprefix"] == "tween:rig:" and fill["global_keyprefix"] == "tween:"
+    assert rig["visibility_timeout"] == s.train_rig_visibility_timeout > 3600 > fill["visibility_timeout"]
+
+
+def test_train_rig_job_arguments_and_progress_parsing():
+    from workers.errors import JobError
+    from workers.rig_tasks import parse_progress, train_args
+
+    args = train_args(
+        "/s/clip.usda", "/m/x", {"schedule": "tiny", "seed": 3, "skeleton": "/W/Skel", "iters": None}
+    )
+    assert args == ["train-rig", "/s/clip.usda", "--out", "/m/x", "--skeleton", "/W/Skel", "--schedule", "tiny",
+                    "--seed", "3"]  # fmt: skip
+    with pytest.raises(JobError, match="unknown train-rig option"):
+        train_args("/s/clip.usda", "/m/x", {"rm": "-rf"})
+    text = (
+        "levels 1-2/5:  50%|█████     | 15/30 [00:01<00:01, 9.9it/s, d=0.1]\r"
+        "levels 1-2/5: 100%|██████████| 30/30 [00:03<00:00, 9.9it/s]\n"
+        "levels 3-4/5:  10%|█         | 3/30 [00:00<00:03, 9.9it/s]\r"
+    )
+    assert parse_progress(text) == {"levels": "3-4/5", "iteration": 3, "iterations": 30, "fraction": 0.44}
+    assert parse_progress("loading clip\n") is None

@@ -5,6 +5,8 @@
 timeout is a property of the connection, not of a queue, so the training app keeps its own
 key prefix (its own ``unacked`` set) and a visibility timeout of hours, while the fill app's
 stays about a minute: a dead host's fill is taken over quickly whatever training runs.
+``rig_app`` does the same for per-rig model training (``tween train-rig``): its own queue,
+key prefix (``<prefix>rig:``), time limits and visibility timeout.
 """
 
 from __future__ import annotations
@@ -39,12 +41,26 @@ def _backend_options(s: FarmSettings, prefix: str) -> dict:
     return {}
 
 
-def configure(app: Celery, s: FarmSettings, *, train: bool = False) -> Celery:
-    """Applies the farm settings to ``app`` (the fill app, or the training app)."""
-    prefix = s.key_prefix + ("train:" if train else "")
-    vt = s.train_visibility_timeout if train else s.visibility_timeout
-    hard = s.train_time_limit if train else s.fill_time_limit
-    soft = int(hard * 0.95) if train else s.fill_soft_time_limit
+def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = False) -> Celery:
+    """Applies the farm settings to ``app`` (the fill app, the training app, or with
+    ``rig`` the per-rig training app)."""
+    if rig:
+        prefix, vt, hard, queue = (
+            s.key_prefix + "rig:",
+            s.train_rig_visibility_timeout,
+            s.train_rig_time_limit,
+            s.train_rig_queue,
+        )
+    elif train:
+        prefix, vt, hard, queue = (
+            s.key_prefix + "train:",
+            s.train_visibility_timeout,
+            s.train_time_limit,
+            s.train_queue,
+        )
+    else:
+        prefix, vt, hard, queue = s.key_prefix, s.visibility_timeout, s.fill_time_limit, s.queue
+    soft = int(hard * 0.95) if (train or rig) else s.fill_soft_time_limit
     app.conf.update(
         broker_url=s.broker_url,
         result_backend=s.result_backend,
@@ -63,7 +79,7 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False) -> Celery:
         task_track_started=True,
         task_time_limit=hard,
         task_soft_time_limit=soft,
-        task_default_queue=s.train_queue if train else s.queue,
+        task_default_queue=queue,
         task_create_missing_queues=True,
         result_expires=7 * 24 * 3600,
         result_extended=True,
@@ -85,6 +101,7 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False) -> Celery:
 settings = load_settings()
 app = configure(Celery("tween", include=["workers.tasks"]), settings)
 train_app = configure(Celery("tween-train", include=["workers.train_tasks"]), settings, train=True)
+rig_app = configure(Celery("tween-rig", include=["workers.rig_tasks"]), settings, rig=True)
 
 
 def use_queue(queue: str) -> None:

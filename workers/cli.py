@@ -1,4 +1,4 @@
-"""Farm commands of the ``tween`` CLI: fill, submit, status, worker, bench-farm."""
+"""Farm commands of the ``tween`` CLI: fill, submit, submit-train-rig, status, worker, bench-farm."""
 
 from __future__ import annotations
 
@@ -140,11 +140,27 @@ def register(app: typer.Typer) -> None:
         """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
         from workers import jobs
 
-        states = jobs.wait(job_ids) if wait else [jobs.state(j) for j in job_ids]
+        fills = [j for j in job_ids if not j.startswith("rig-")]
+        by_id = dict(
+            zip(fills, jobs.wait(fills) if wait and fills else [jobs.state(j) for j in fills], strict=True)
+        )
+        for j in job_ids:
+            if j.startswith("rig-"):
+                by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
+        states = [by_id[j] for j in job_ids]
         code = 0
         for s in states:
             if as_json:
                 typer.echo(json.dumps(s.as_dict()))
+            elif s.id.startswith("rig-") and s.state == "SUCCESS":
+                r = s.result or {}
+                typer.echo(
+                    f"{s.id} {s.shot}: success, model {r.get('out')} ({r.get('model')}, hash {r.get('model_hash')})"
+                )
+            elif s.id.startswith("rig-") and s.state == "RUNNING" and (s.result or {}).get("levels"):
+                r = s.result
+                typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "
+                           f"{r['iteration']}/{r['iterations']} ({100 * r['fraction']:.0f} %)")  # fmt: skip
             elif s.state == "SUCCESS":
                 typer.echo(f"{s.id} {s.shot}: success, layer {(s.result or {}).get('layer')}")
             elif s.state == "UNKNOWN":
@@ -163,6 +179,9 @@ def register(app: typer.Typer) -> None:
         ),
         queue: str = typer.Option(None, "--queue", "-Q", help="Queue to consume (default: the fill queue)."),
         train: bool = typer.Option(False, "--train", help="Run training jobs (their own queue and limits)."),
+        train_rig: bool = typer.Option(
+            False, "--train-rig", help="Run per-rig model training jobs (their own queue and limits)."
+        ),
         hostname: str = typer.Option(None, "--hostname", "-n", help="Worker name, e.g. node1@%h."),
         loglevel: str = typer.Option("info", "--loglevel", "-l"),
         logfile: Path = typer.Option(None, "--logfile"),
@@ -175,12 +194,16 @@ def register(app: typer.Typer) -> None:
         # Before any ORT/GL import: each pool process gets its share of the cores.
         for k, v in thread_env(n).items():
             os.environ.setdefault(k, v)
-        if train:
+        if train and train_rig:
+            raise typer.BadParameter("--train and --train-rig are two different workers; start one of each")
+        if train_rig:
+            from workers.app import rig_app as celery_app
+        elif train:
             from workers.app import train_app as celery_app
         else:
             from workers.app import app as celery_app
         s = celery_app.conf.tween
-        q = queue or (s.train_queue if train else s.queue)
+        q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
         argv = ["worker", "-c", str(n), "-Q", q, "-l", loglevel, "--without-gossip", "--without-mingle"]
         argv += ["--pool", "prefork"]
         if hostname:
@@ -191,6 +214,51 @@ def register(app: typer.Typer) -> None:
             argv += ["-I", mod]
         print(f"tween worker: {s.broker_url.split('@')[-1]} queue {q}, {n} processes", file=sys.stderr)
         celery_app.worker_main(argv)
+
+    @app.command("submit-train-rig")
+    def submit_train_rig(
+        source: Path = typer.Argument(
+            ..., help="The reference clip: a USD shot or a BVH, on shared storage."
+        ),
+        out: Path = typer.Option(
+            ..., "--out", help="Model folder (e.g. models/<rig>); resubmitting resumes."
+        ),
+        skeleton: str = typer.Option(None, "--skeleton", help="USD: the Skeleton prim path."),
+        frames: str = typer.Option(None, "--frames", help="START:STOP frame indices of the clip."),
+        schedule: str = typer.Option("reduced", "--schedule", help="tiny, reduced or paper."),
+        iters: int = typer.Option(
+            None, "--iters", help="Iterations per group of levels (overrides the schedule)."
+        ),
+        seed: int = typer.Option(0, "--seed"),
+        threads: int = typer.Option(1, "--threads", help="torch threads on the worker."),
+        device: str = typer.Option("cpu", "--device", help="cpu or cuda (on the worker)."),
+        name: str = typer.Option(None, "--name", help="Model name (default: the --out folder's name)."),
+        wait: bool = typer.Option(False, "--wait", help="Wait with a progress bar; print the model folder."),
+    ):
+        """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
+        prints the job id (`tween status ID` shows its progress)."""
+        from workers import jobs
+        from workers.app import rig_app
+
+        if rig_app.conf.tween.embedded:
+            _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
+            raise typer.Exit(2)
+        if not source.is_file():
+            _err(f"{source}: no such file")
+            raise typer.Exit(2)
+        opts = dict(skeleton=skeleton, frames=frames, schedule=schedule, iters=iters, seed=seed, threads=threads,
+                    device=device, name=name)  # fmt: skip
+        job_id = jobs.submit_train_rig(str(source), str(out), opts)
+        if not wait:
+            typer.echo(job_id)
+            return
+        print(job_id, file=sys.stderr)
+        s = jobs.wait_train_rig(job_id)
+        if s.state != "SUCCESS":
+            _err(s.error or f"{source}: training {job_id} {s.state.lower()}")
+            raise typer.Exit(2)
+        r = s.result or {}
+        typer.echo(f"{r.get('out')}  ({r.get('model')}, hash {r.get('model_hash')})")
 
     @app.command("bench-farm")
     def bench_farm(

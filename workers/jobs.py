@@ -17,7 +17,7 @@ from celery import chain, chord, group
 from celery import states as cstates
 
 from workers import paths as jobpaths
-from workers.app import SUBMITTED, app
+from workers.app import SUBMITTED, app, rig_app
 
 
 @dataclass
@@ -202,4 +202,87 @@ def wait(
                 alive()
             if timeout is not None and time.monotonic() - t0 > timeout:
                 raise TimeoutError(f"jobs not finished after {timeout} s")
+            time.sleep(poll)
+
+
+# --- per-rig model training (workers/rig_tasks.py) ---------------------------------------
+
+
+def submit_train_rig(
+    source: str, out: str, options: dict | None = None, roots=None, queue: str | None = None
+) -> str:
+    """Sends one ``tween train-rig`` job to the rig training queue; returns its id at once.
+
+    A job record (state SUBMITTED) is stored under the id first, so ``tween status`` tells a
+    queued training from an unknown id; the task's own states replace it.
+    """
+    from workers.rig_tasks import check_paths, train_args
+
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    source, out = os.path.abspath(source), os.path.abspath(out)
+    train_args(source, out, options)  # unknown options are refused here, not on the worker
+    roots = rig_app.conf.tween.shot_roots if roots is None else roots
+    if roots:
+        check_paths(source, out, roots)
+    job_id = f"rig-{uuid.uuid4().hex}"
+    queue = queue or rig_app.conf.tween.train_rig_queue
+    rig_app.backend.store_result(job_id, {"kind": "train-rig", "source": source, "out": out, "queue": queue,
+                                          "time": time.time()}, SUBMITTED)  # fmt: skip
+    rig_app.send_task("tween.train_rig", (source, out, options), task_id=job_id, queue=queue)
+    rc = getattr(rig_app.backend, "result_consumer", None)
+    if rc is not None and hasattr(rc, "subscribed_to"):
+        rc.subscribed_to.clear()
+        rc.stop()
+    return job_id
+
+
+def train_rig_state(job_id: str) -> JobState:
+    """QUEUED, RUNNING (with progress in ``result``), SUCCESS, FAILURE or UNKNOWN."""
+    m = rig_app.backend.get_task_meta(job_id)
+    st, res = m.get("status", cstates.PENDING), m.get("result")
+    js = JobState(id=job_id, total=1)
+    if st == SUBMITTED and isinstance(res, dict):
+        js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", "train-rig"
+    elif st in (cstates.STARTED, "PROGRESS", cstates.RETRY):
+        js.state, js.stage = "RUNNING", "train-rig"
+        js.result = res if isinstance(res, dict) else None
+        js.shot = (js.result or {}).get("source", "")
+    elif st == cstates.SUCCESS:
+        js.state, js.done, js.result = "SUCCESS", 1, res
+        js.shot = (res or {}).get("source", "")
+    elif st == cstates.FAILURE:
+        exc = rig_app.backend.exception_to_python(res)
+        js.state, js.stage, js.error = "FAILURE", "train-rig", str(exc) or type(exc).__name__
+    else:
+        js.error = f"{job_id}: no such training job (unknown id, or its record expired)"
+    return js
+
+
+def wait_train_rig(job_id: str, *, progress: bool = True, poll: float = 1.0, timeout=None) -> JobState:
+    """Polls one training job until it finishes; a progress bar (overall fraction) on stderr."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    t0 = time.monotonic()
+    cols = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.fields[stage]}"),
+        TimeElapsedColumn(),
+    )
+    with Progress(*cols, console=Console(stderr=True), disable=not progress) as bar:
+        task = bar.add_task(job_id, total=1.0, stage="queued")
+        while True:
+            s = train_rig_state(job_id)
+            p = (s.result or {}) if s.state == "RUNNING" else {}
+            stage = (
+                f"levels {p['levels']} it {p['iteration']}/{p['iterations']}"
+                if p.get("levels")
+                else s.state.lower()
+            )
+            bar.update(task, completed=p.get("fraction", 1.0 if s.finished else 0.0), stage=stage)
+            if s.finished:
+                return s
+            if timeout is not None and time.monotonic() - t0 > timeout:
+                raise TimeoutError(f"training {job_id} not finished after {timeout} s")
             time.sleep(poll)

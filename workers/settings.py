@@ -51,6 +51,11 @@ class FarmSettings:
     fill_soft_time_limit: int = 40
     train_time_limit: int = 12 * 3600
     train_visibility_timeout: int = 13 * 3600
+    # Per-rig model training (`tween train-rig`, hours per clip on CPU): its own app, queue,
+    # key prefix and visibility timeout, so it never blocks fills nor slows their takeover.
+    train_rig_queue: str = "tween.train_rig"
+    train_rig_time_limit: int = 16 * 3600
+    train_rig_visibility_timeout: int = 17 * 3600
     max_retries: int = 4
     retry_backoff_max: int = 30
     extra: dict = field(default_factory=dict)
@@ -67,10 +72,12 @@ _INT_KEYS = (
     "fill_soft_time_limit",
     "train_time_limit",
     "train_visibility_timeout",
+    "train_rig_time_limit",
+    "train_rig_visibility_timeout",
     "max_retries",
     "retry_backoff_max",
 )
-_STR_KEYS = ("broker_url", "result_backend", "queue", "train_queue", "key_prefix")
+_STR_KEYS = ("broker_url", "result_backend", "queue", "train_queue", "train_rig_queue", "key_prefix")
 
 
 def _read_file(path: Path) -> dict:
@@ -143,4 +150,11 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         )
     if s.is_redis and s.train_time_limit >= s.train_visibility_timeout:
         raise FarmConfigError("train_time_limit must be below train_visibility_timeout")
+    if s.is_redis and s.train_rig_time_limit >= s.train_rig_visibility_timeout:
+        raise FarmConfigError(
+            f"train_rig_time_limit ({s.train_rig_time_limit} s) must be below train_rig_visibility_timeout "
+            f"({s.train_rig_visibility_timeout} s), or Redis hands a running training to a second worker"
+        )
+    if len({s.queue, s.train_queue, s.train_rig_queue}) < 3:
+        raise FarmConfigError("queue, train_queue and train_rig_queue must be three different queues")
     return s
