@@ -99,8 +99,8 @@ def test_rig_training_has_its_own_app_queue_and_limits(tmp_path):
     assert r.task_default_queue == r.tween.train_rig_queue != f.task_default_queue
     assert r.task_time_limit == r.tween.train_rig_time_limit and r.task_soft_time_limit < r.task_time_limit
     assert r.task_acks_late and r.accept_content == ["json"] and r.worker_prefetch_multiplier == 1
-    assert "tween.train_rig" in rig_app.tasks and "tween.train_rig" not in app.tasks
-    assert "tween.train_rig" not in train_app.tasks
+    assert rig_app.tasks["tween.train_rig"].app is rig_app
+    assert train_app.conf.task_default_queue != r.task_default_queue
     # With Redis: its own key prefix (own unacked set) and visibility timeout of hours,
     # while the fill app keeps its minute.
     from celery import Celery
