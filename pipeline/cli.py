@@ -30,12 +30,13 @@ def _register() -> None:
     # Command modules import their heavy dependencies inside the commands, so `tween --help`
     # and `tween fill` never import torch.
     from pipeline.bench import cli as bench_cli
+    from pipeline.rig import cli as rig_cli
     from pipeline.train import cli as train_cli
     from pipeline.usd import cli as usd_cli
     from render import cli as render_cli
     from workers import cli as workers_cli
 
-    for mod in (bench_cli, usd_cli, train_cli, workers_cli, render_cli):
+    for mod in (bench_cli, usd_cli, train_cli, workers_cli, render_cli, rig_cli):
         mod.register(app)
 
 

@@ -1,0 +1,95 @@
+"""``tween train-rig`` (needs the ``[train]`` extra) and ``tween rig-extract``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("train-rig")
+    def train_rig(
+        source: Path = typer.Argument(
+            ..., help="The reference clip: a USD shot or a BVH (.bvh/.bvh.gz), or an .npz from rig-extract."
+        ),
+        out: Path = typer.Option(
+            ..., "--out", help="Model folder (checkpoints in OUT/checkpoints; re-running resumes)."
+        ),
+        skeleton: str = typer.Option(
+            None, help="USD: the Skeleton prim path (default: the one with most joints)."
+        ),
+        frames: str = typer.Option(
+            None, help="START:STOP frame indices of the clip to learn (stop exclusive)."
+        ),
+        fps: float = typer.Option(
+            None, help="Training frame rate (default: 30 for faster sources, else the source's)."
+        ),
+        schedule: str = typer.Option(
+            "reduced", help="reduced (about 1 h on 2 cores), paper (15k iterations/group), tiny (tests)."
+        ),
+        iters: int = typer.Option(None, help="Iterations per group of levels (overrides the schedule)."),
+        ratio: float = typer.Option(None, help="Coarsest level length ÷ clip length (default 1/5)."),
+        contacts: str = typer.Option(
+            None, help="Comma-separated contact joints (default: joints that touch the floor)."
+        ),
+        seed: int = typer.Option(0),
+        threads: int = typer.Option(1, help="torch threads; 1 is fastest on 2 shared cores."),
+        device: str = typer.Option("cpu", help="cpu or cuda."),
+        licence: str = typer.Option(
+            None, help="The clip's licence, for the model card (default: guessed from the path)."
+        ),
+        name: str = typer.Option(None, help="Model name (default: the --out folder's name)."),
+        checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
+        no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
+    ):
+        """Train a per-rig GANimator on one clip, then export it (ONNX per level + rig.json + card)."""
+        from pipeline.rig.source import parse_frames
+        from pipeline.rig.train import TrainConfig, train
+
+        cfg = TrainConfig(
+            source=str(source),
+            out=str(out),
+            skeleton=skeleton,
+            frames=parse_frames(frames),
+            fps=fps,
+            schedule=schedule,
+            iters=iters,
+            ratio=ratio,
+            contacts=[c.strip() for c in contacts.split(",") if c.strip()] if contacts else None,
+            seed=seed,
+            threads=threads,
+            device=device,
+            licence=licence or _guess_licence(source),
+            name=name or out.resolve().name,
+            checkpoints=str(checkpoints) if checkpoints else None,
+        )
+        tr = train(cfg)
+        if not no_export:
+            from pipeline.rig.export import export
+
+            meta = export(tr, out)
+            typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
+
+    @app.command("rig-extract")
+    def rig_extract(
+        source: Path = typer.Argument(..., help="A USD shot or a BVH."),
+        out: Path = typer.Argument(..., help="The .npz to write (for hosts without usd-core or the data)."),
+        skeleton: str = typer.Option(None, help="USD: the Skeleton prim path."),
+        frames: str = typer.Option(None, help="START:STOP frame indices."),
+    ):
+        """Save a reference clip as a self-contained .npz that `train-rig` reads."""
+        from pipeline.rig.source import load_rig_source, parse_frames, save_npz
+
+        motion = load_rig_source(source, skeleton, parse_frames(frames))
+        save_npz(motion, out)
+        typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
+
+
+def _guess_licence(source: Path) -> str:
+    s = str(source).lower()
+    if "elephantwithmonochord" in s:
+        return "CC BY-SA 4.0"
+    if "bandai" in s:
+        return "CC BY-NC 4.0"
+    return "unknown (set --licence)"

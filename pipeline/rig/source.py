@@ -1,0 +1,168 @@
+"""One reference clip of a rig, from a UsdSkel shot or a BVH file, as a :class:`Motion`.
+
+The motion is in the skeleton's own space (what the SkelAnimation holds, or the BVH's), the
+joint names are the USD joints' leaf names (or the BVH names) in the source's order, and
+``offsets`` are the rest translations the source gives (USD ``restTransforms``; BVH
+``OFFSET``, root: its first-frame height). The skeleton's ``up_axis`` is the stage's up
+axis expressed in skeleton space (through the skeleton's world transform).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import TweenError
+from pipeline.motion.clip import Motion
+from pipeline.motion.skeleton import Skeleton
+
+
+class RigSourceError(TweenError):
+    """A reference clip cannot be read: one line naming the file."""
+
+    def __init__(self, path, message: str):
+        self.path = str(path)
+        super().__init__(f"{self.path}: {message}")
+
+
+def parse_frames(spec: str | None) -> tuple[int, int] | None:
+    """``"0:1511"`` → (0, 1511) (a half-open frame-index range); ``None``/"" → None."""
+    if not spec:
+        return None
+    try:
+        a, b = spec.split(":")
+        lo = int(a) if a.strip() else 0
+        hi = int(b) if b.strip() else -1
+    except ValueError:
+        raise TweenError(f"--frames {spec!r}: expected START:STOP, e.g. 0:1511") from None
+    return lo, hi
+
+
+def _slice(path, motion: Motion, frames) -> Motion:
+    if frames is None:
+        return motion
+    lo, hi = frames
+    hi = len(motion) if hi is None or hi < 0 else hi
+    if not (0 <= lo < hi <= len(motion)) or hi - lo < 2:
+        raise RigSourceError(path, f"frames {lo}:{hi} are not inside the clip's {len(motion)} frames")
+    return motion.slice(lo, hi)
+
+
+def _up_in_skeleton(stage_up: str, skel_to_world: np.ndarray) -> str:
+    """The stage's up axis as seen from skeleton space (nearest coordinate axis)."""
+    up = np.array([0.0, 1.0, 0.0]) if stage_up == "Y" else np.array([0.0, 0.0, 1.0])
+    r = skel_to_world[:3, :3]
+    r = r / np.linalg.norm(r, axis=0, keepdims=True)
+    local = r.T @ up  # world → skeleton for a rotation (scale removed)
+    axis = int(np.argmax(np.abs(local)))
+    if axis == 0 or local[axis] < 0:
+        return ""
+    return "YZ"[axis - 1]
+
+
+def _from_usd(path: Path, skeleton: str | None) -> Motion:
+    from pipeline.usd.read import anim_values, read_shot
+
+    shot = read_shot(path)
+    chars = shot.characters
+    if skeleton:
+        match = [c for c in chars if c.skel_path == skeleton]
+        match = match or [c for c in chars if c.skel_path.rstrip("/").endswith("/" + skeleton.strip("/"))]
+        if len(match) != 1:
+            have = ", ".join(c.skel_path for c in chars)
+            what = "matches several skeletons" if match else "is not an animated skeleton"
+            raise RigSourceError(path, f"skeleton {skeleton!r} {what} (the shot has: {have})")
+        char = match[0]
+    else:
+        char = max(chars, key=lambda c: len(c.joints))
+    times = char.sample_times
+    if len(times) < 2:
+        raise RigSourceError(path, f"{char.anim_path} has {len(times)} time samples; a clip needs at least 2")
+    step = np.diff(times)
+    if np.abs(step - step.mean()).max() > 1e-3 * step.mean():
+        # Uneven samples: read the animation at every frame of its range instead.
+        times = np.arange(np.round(times[0]), np.round(times[-1]) + 1.0)
+        step = np.ones(1)
+    rot, tr, _ = anim_values(shot.stage, char, times)
+    # Skeleton order; joints the animation does not list keep their rest pose.
+    from pipeline.usd.solve import to_skeleton_order
+
+    rot, tr = to_skeleton_order(char, rot, tr)
+    up = _up_in_skeleton(shot.up_axis, char.skel_to_world)
+    if not up:
+        raise RigSourceError(path, f"{char.skel_path}: the stage's up axis is X or down in skeleton space")
+    skel = Skeleton(
+        char.names, char.parents, char.rest_trans.astype(np.float32), up, shot.meters_per_unit * _scale(char)
+    )
+    fps = shot.tcps / float(step.mean())
+    fps = float(np.round(fps)) if abs(fps - np.round(fps)) < 1e-3 else fps  # 3023.000157… time codes
+    name = f"{path.name.split('.')[0]}:{char.skel_path.rstrip('/').rsplit('/', 2)[-2]}"
+    return Motion(skel, rot, tr[:, 0], fps, name)
+
+
+def _scale(char) -> float:
+    """The skeleton's world scale (a scaled SkelRoot makes the units larger)."""
+    return float(np.cbrt(abs(np.linalg.det(char.skel_to_world[:3, :3]))))
+
+
+def load_rig_source(
+    path: str | Path, skeleton: str | None = None, frames: tuple[int, int] | None = None
+) -> Motion:
+    """The clip in ``path`` (``.usd/.usda/.usdc/.usdz`` or ``.bvh/.bvh.gz``).
+
+    USD: ``skeleton`` is the Skeleton prim path (or its trailing part); by default the
+    animated skeleton with the most joints. ``frames`` = (start, stop) frame indices into
+    the clip (stop exclusive, -1 = the end).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RigSourceError(path, "file not found")
+    if not path.is_file():
+        raise RigSourceError(path, "not a file")
+    suffixes = "".join(path.suffixes[-2:]).lower()
+    if path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+        motion = _from_usd(path, skeleton)
+    elif suffixes.endswith(".bvh") or suffixes.endswith(".bvh.gz"):
+        from pipeline.motion.bvh import read_bvh
+
+        if skeleton:
+            raise RigSourceError(path, "--skeleton applies to USD shots; a BVH holds one skeleton")
+        motion = read_bvh(path)
+    elif suffixes.endswith(".npz"):
+        motion = load_npz(path)
+    else:
+        raise RigSourceError(path, "not a USD shot (.usd/.usda/.usdc/.usdz) or a BVH (.bvh/.bvh.gz)")
+    return _slice(path, motion, frames)
+
+
+def save_npz(motion: Motion, path: str | Path) -> None:
+    """The clip as a self-contained ``.npz`` (hosts without usd-core or the data folder)."""
+    s = motion.skeleton
+    np.savez_compressed(
+        path,
+        names=np.array(s.names),
+        parents=s.parents,
+        offsets=s.offsets,
+        up_axis=np.array(s.up_axis),
+        meters_per_unit=np.array(s.meters_per_unit),
+        rotations=motion.rotations,
+        root_positions=motion.root_positions,
+        fps=np.array(motion.fps),
+        name=np.array(motion.name),
+    )
+
+
+def load_npz(path: str | Path) -> Motion:
+    try:
+        z = np.load(path, allow_pickle=False)
+        skel = Skeleton(
+            tuple(str(n) for n in z["names"]),
+            z["parents"],
+            z["offsets"],
+            str(z["up_axis"]),
+            float(z["meters_per_unit"]),
+        )
+        return Motion(skel, z["rotations"], z["root_positions"], float(z["fps"]), str(z["name"]))
+    except (OSError, KeyError, ValueError) as e:
+        raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {e}") from None
