@@ -26,6 +26,15 @@ def register(app: typer.Typer) -> None:
         init: Path = typer.Option(None, help="Continue from this generator checkpoint's weights."),
         lr: float = typer.Option(1e-3, help="Peak learning rate of the one-cycle schedule."),
         pos_zscore: bool = typer.Option(False, help="Weigh position errors by 1/std per coordinate."),
+        device: str = typer.Option("cpu", help="cpu, or cuda where a GPU is available."),
+        gap_weighting: float = typer.Option(
+            0.0, help="Weigh frames by gap length ** -this (1: every gap alike)."
+        ),
+        lengths: str = typer.Option("64,96,128", help="Training window lengths, comma-separated."),
+        workers: int = typer.Option(0, help="Processes making batches ahead (useful with --device cuda)."),
+        data_pack: Path = typer.Option(
+            None, help="Train split packed by `python -m pipeline.data.pack` (hosts without ../shared)."
+        ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.train.generator import TrainConfig
@@ -45,6 +54,11 @@ def register(app: typer.Typer) -> None:
                 lr=lr,
                 pos_zscore=pos_zscore,
                 init=str(init) if init else None,
+                device=device,
+                gap_weighting=gap_weighting,
+                lengths=tuple(int(x) for x in lengths.split(",")),
+                workers=workers,
+                data_pack=str(data_pack) if data_pack else None,
                 **common,
             ),
             out,

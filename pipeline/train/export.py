@@ -14,7 +14,7 @@ from pipeline.models.path import PathConfig, PathPredictor
 
 
 def _load(cls, cfg_cls, ckpt: Path, key="model"):
-    state = torch.load(ckpt, weights_only=False)
+    state = torch.load(ckpt, weights_only=False, map_location="cpu")
     mcfg = state["config"]["model"]
     cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
     net = cls(cfg)

@@ -11,6 +11,7 @@ import json
 import sys
 import time
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
-from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features
+from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, key_neighbours
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
@@ -55,6 +56,12 @@ class TrainConfig:
     data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
     init: str | None = None  # start from this checkpoint's generator weights (a continuation run)
     pos_zscore: bool = False  # weigh position errors by 1/std of each coordinate (train statistics)
+    data_pack: str | None = None  # the train split packed by pipeline.data.pack (hosts without ../shared)
+    gap_weighting: float = (
+        0.0  # frames weighted by gap length ** −this (0: every frame alike; 1: every gap alike)
+    )
+    device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
+    workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
 
 
@@ -77,8 +84,8 @@ def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int, residual: bool
     return sixd_to_matrix_t(d6), root, o[..., J6 + 3 : J6 + 7]
 
 
-def make_discriminator(cfg: TrainConfig):
-    disc = Discriminator(DiscriminatorConfig(n_joints=cfg.model.n_joints))
+def make_discriminator(cfg: TrainConfig, dev=None):
+    disc = Discriminator(DiscriminatorConfig(n_joints=cfg.model.n_joints)).to(dev or "cpu")
     return disc, torch.optim.Adam(disc.parameters(), lr=cfg.d_lr, betas=(0.5, 0.99))
 
 
@@ -86,6 +93,78 @@ def rel_positions(pos: torch.Tensor) -> torch.Tensor:
     """(B, N, J, 3) cm -> (B, (J−1)·3, N) root-relative metres, the discriminator's input."""
     rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
     return rel.flatten(2).transpose(1, 2)
+
+
+def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dict | None:
+    """Everything step ``step`` trains on, made in numpy from (seed, step) alone, so that
+    resuming replays the same batches and batch-making processes agree with each other."""
+    rng = np.random.default_rng([cfg.seed, step])
+    frac = min(step / max(cfg.curriculum * cfg.steps, 1), 1.0)
+    max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
+    L = int(rng.choice(cfg.lengths))
+    rot, root = sample_batch(clips, rng, cfg.batch, L)
+    keys = sample_keys(rng, L, max_gap)
+    adversarial = cfg.adv_start is not None and step >= cfg.adv_start
+    noise = None
+    if adversarial or rng.random() < cfg.noise_prob:
+        noise = rng.normal(size=(cfg.batch, NOISE_CHANNELS))
+    feats, ctx = build_features(rot, root, keys, skel, noise, tta=cfg.model.tta)
+    _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
+    between = np.zeros(L, bool)
+    between[keys[0] : keys[-1] + 1] = True
+    between[keys] = False
+    if not between.any():
+        return None
+    # Long gaps hold most frames and the largest errors; weighting by gap length ** −α stops
+    # them from drowning the short transitions, where only a small correction is needed.
+    prev, nxt = key_neighbours(L, keys)
+    fw = np.maximum(nxt - prev, 1).astype(np.float64) ** -cfg.gap_weighting
+    fw = fw / fw[between].mean()
+    t = torch.from_numpy
+    return {
+        "feats": t(feats),
+        "crot": t(ctx["crot"].astype(np.float32)),
+        "croot": t(ctx["croot"].astype(np.float32)),
+        "gpos": t(gpos.astype(np.float32)),
+        "contacts": t(foot_contacts(gpos, feet)),
+        "between": t(between),
+        "frame_weight": t(fw.astype(np.float32)),
+        "keys": t(keys),
+        "max_gap": max_gap,
+        "L": L,
+    }
+
+
+class _Steps(torch.utils.data.Dataset):
+    def __init__(self, make, first: int, last: int):
+        self.make, self.first, self.last = make, first, last
+
+    def __len__(self) -> int:
+        return self.last - self.first
+
+    def __getitem__(self, i: int):
+        return self.make(self.first + i)
+
+
+def _one_thread(_):
+    torch.set_num_threads(1)
+
+
+def batches_from(cfg: TrainConfig, clips, skel, feet, first: int):
+    """Iterator over the batches of steps ``first`` … ``cfg.steps − 1``, made ahead by
+    ``cfg.workers`` processes when asked (a GPU step is faster than one batch in numpy)."""
+    make = partial(step_batch, cfg, clips, skel, feet)
+    if cfg.workers <= 0:
+        return (make(s) for s in range(first, cfg.steps))
+    loader = torch.utils.data.DataLoader(
+        _Steps(make, first, cfg.steps),
+        batch_size=None,
+        num_workers=cfg.workers,
+        prefetch_factor=4,
+        worker_init_fn=_one_thread,
+        collate_fn=lambda b: b,
+    )
+    return iter(loader)
 
 
 def train(cfg: TrainConfig, out_dir: Path) -> Path:
@@ -96,10 +175,16 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
+    dev = torch.device(cfg.device)
     skel = bandai_skeleton()
     feet = [skel.index(n) for n in FOOT_JOINTS]
-    clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
-    model = Generator(cfg.model)
+    if cfg.data_pack:
+        from pipeline.data.pack import load_pack
+
+        clips = load_pack(cfg.data_pack)
+    else:
+        clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
+    model = Generator(cfg.model).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(
         opt, max_lr=cfg.lr, total_steps=cfg.steps, pct_start=max(0.05, 3 / cfg.steps)
@@ -107,10 +192,10 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
     if cfg.init and not ckpt.exists():
-        model.load_state_dict(torch.load(cfg.init, weights_only=False)["model"])
+        model.load_state_dict(torch.load(cfg.init, weights_only=False, map_location=dev)["model"])
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False)
+        state = torch.load(ckpt, weights_only=False, map_location=dev)
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
@@ -122,16 +207,17 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
 
         # Per-coordinate weights 10 cm / std: a coordinate that varies little (a joint's
         # height) counts as much as its spread says, as in the benchmark's L2P.
-        _, std = position_stats(load_split("train"))
+        _, std = position_stats(clips if cfg.data_pack else load_split("train"))
         pos_w = torch.from_numpy(POS_SCALE / std.reshape(len(skel), 3)).float()
+    pos_w = pos_w.to(dev)
     log = (out_dir / "train_log.jsonl").open("a")
     t_start, t_ckpt = time.time() - elapsed, time.time()
 
     disc, d_opt = None, None
     if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False)
+        state = torch.load(ckpt, weights_only=False, map_location=dev)
         if "disc" in state:
-            disc, d_opt = make_discriminator(cfg)
+            disc, d_opt = make_discriminator(cfg, dev)
             disc.load_state_dict(state["disc"])
             d_opt.load_state_dict(state["d_opt"])
 
@@ -150,47 +236,35 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         path.with_suffix(".tmp").replace(path)
 
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator")
+    batches = batches_from(cfg, clips, skel, feet, step)
     model.train()
     while step < cfg.steps:
-        # Each step's randomness depends only on (seed, step): resuming replays the same batches.
-        rng = np.random.default_rng([cfg.seed, step])
-        frac = min(step / max(cfg.curriculum * cfg.steps, 1), 1.0)
-        max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
-        L = int(rng.choice(cfg.lengths))
-        rot, root = sample_batch(clips, rng, cfg.batch, L)
-        keys = sample_keys(rng, L, max_gap)
-        adversarial = cfg.adv_start is not None and step >= cfg.adv_start
-        noise = None
-        if adversarial or rng.random() < cfg.noise_prob:
-            noise = rng.normal(size=(cfg.batch, NOISE_CHANNELS))
-        feats, ctx = build_features(rot, root, keys, skel, noise, tta=cfg.model.tta)
-        _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
-        contacts = foot_contacts(gpos, feet)
-        between = np.zeros(L, bool)
-        between[keys[0] : keys[-1] + 1] = True
-        between[keys] = False
-        if not between.any():
+        b = next(batches)
+        if b is None:
             step += 1
             continue
-        x = torch.from_numpy(feats)
+        max_gap, L, keys = b["max_gap"], int(b["L"]), b["keys"].numpy()
+        adversarial = cfg.adv_start is not None and step >= cfg.adv_start
+        between = b["between"].numpy()
+        x = b["feats"].to(dev)
         out = model(x)
         mats, proot, clog = decode(out, x, len(skel), cfg.model.residual)
-        gt_rot = torch.from_numpy(ctx["crot"]).float()
+        gt_rot = b["crot"].to(dev).float()
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
-        m = torch.from_numpy(between)
+        m = torch.from_numpy(between).to(dev)
         q_pred = roma.rotmat_to_unitquat(mats)
         _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
-        gt_pos = torch.from_numpy(gpos).float()
-        l_rot = (mats - gt_mats).abs()[:, m].mean()
-        l_pos = ((ppos - gt_pos).abs() * pos_w)[:, m].mean() / POS_SCALE
-        l_root = (proot - torch.from_numpy(ctx["croot"]).float()).abs()[:, m].mean() / POS_SCALE
-        moving = torch.from_numpy(between[1:] | between[:-1])
-        l_vel = ((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs()[
+        gt_pos = b["gpos"].to(dev).float()
+        fw = b["frame_weight"].to(dev)[None, :, None]
+        fv = torch.maximum(fw[:, 1:], fw[:, :-1])[..., None]
+        l_rot = ((mats - gt_mats).abs() * fw[..., None, None])[:, m].mean()
+        l_pos = ((ppos - gt_pos).abs() * pos_w * fw[..., None])[:, m].mean() / POS_SCALE
+        l_root = ((proot - b["croot"].to(dev).float()).abs() * fw)[:, m].mean() / POS_SCALE
+        moving = torch.from_numpy(between[1:] | between[:-1]).to(dev)
+        l_vel = (((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs() * fv)[
             :, moving
         ].mean() / POS_SCALE
-        l_con = torch.nn.functional.binary_cross_entropy_with_logits(
-            clog[:, m], torch.from_numpy(contacts)[:, m]
-        )
+        l_con = torch.nn.functional.binary_cross_entropy_with_logits(clog[:, m], b["contacts"].to(dev)[:, m])
         l_br = batch_regularisation(model.res_layers())
         loss = (
             cfg.w_rot * l_rot
@@ -200,13 +274,13 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             + cfg.w_contact * l_con
             + cfg.w_br * l_br
         )
-        l_adv = torch.zeros(())
+        l_adv = torch.zeros((), device=dev)
         if adversarial:
             if disc is None:
-                disc, d_opt = make_discriminator(cfg)
+                disc, d_opt = make_discriminator(cfg, dev)
                 save(out_dir / "generator_supervised.pt")
             # Keys re-inserted before D sees the fake (§3.3); D sees root-relative positions.
-            kmask = torch.zeros(L, dtype=torch.bool)
+            kmask = torch.zeros(L, dtype=torch.bool, device=dev)
             kmask[keys] = True
             fake = rel_positions(torch.where(kmask[None, :, None, None], gt_pos, ppos))
             real = rel_positions(gt_pos)
