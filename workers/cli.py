@@ -16,7 +16,12 @@ _FILL_OPTS = dict(
         None, "--keys", help="Key frames to use, e.g. '1001,1012,1030' (default: the shot's keys)."
     ),
     range_=typer.Option(None, "--range", help="Frame range to fill, e.g. 1001-1048."),
-    model=typer.Option("default", "--model", help="In-betweener: default, interp, or a model folder."),
+    model=typer.Option(
+        "default",
+        "--model",
+        help="default (a stored rig model when one fits the character, else the human model), interp, "
+        "or a model name/folder (a rig model is then used for every character that fits it).",
+    ),
     out_dir=typer.Option(None, "--out-dir", help="Folder for the layers (default: beside each shot)."),
     fmt=typer.Option("usda", "--format", help="Layer format: usda or usdc."),
     mapping=typer.Option(None, "--mapping", help="Joint mapping file (default: built in)."),
@@ -55,6 +60,11 @@ def _report(states) -> int:
                 line += f", take {i} render {rend.get('mp4') or rend}"
             if r.get("render_note"):
                 line += f" ({r['render_note']})"
+            models = r.get("models") or {}
+            if len(models) > 1:
+                line += ", models " + "; ".join(f"{a}: {m}" for a, m in models.items())
+            elif r.get("model"):
+                line += f", model {r['model']}"
             typer.echo(line)
         else:
             failed += 1

@@ -57,7 +57,10 @@ def register(app: typer.Typer) -> None:
         takes: int = typer.Option(1, "--takes", min=1, help="Takes (variations)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the first take."),
         model: str = typer.Option(
-            "default", "--model", help="In-betweener: default, interp, or a model folder."
+            "default",
+            "--model",
+            help="default (a stored rig model when one fits the character, else the human model), "
+            "interp, or a model name/folder.",
         ),
         out: Path = typer.Option(
             None, "--out", "--out-dir", help="Folder for the layers (default: beside the shot)."
