@@ -68,13 +68,24 @@ def _model(name: str):
     process (a forked worker loads its own: onnxruntime sessions must not cross a fork)."""
     from pipeline.infer.api import load_inbetweener
 
+    folder = rig_folder(name)
     key = (os.getpid(), name)
+    if folder:
+        from pipeline.rig.store import read_rig_json
+
+        # A rig model retrained in place (a new hash) is reloaded, not served stale.
+        key = (os.getpid(), folder, read_rig_json(folder).hash)
     if key not in _MODELS:
         try:
-            folder = rig_folder(name)
             _MODELS[key] = _load_rig(folder) if folder else load_inbetweener(name)
         except FileNotFoundError as e:
             raise TweenError(f"model {name!r}: {e}") from None
+        except (OSError, ValueError, RuntimeError) as e:
+            if not folder:
+                raise
+            raise TweenError(
+                f"{folder}: cannot load the rig model: {str(e).splitlines()[0] if str(e) else type(e).__name__}"
+            ) from None
     return _MODELS[key]
 
 

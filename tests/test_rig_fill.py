@@ -258,6 +258,47 @@ def test_forced_rig_model_by_folder_and_human_shot_unaffected(tmp_path, models):
     assert res["model"] == fill._model("default").name and FakeRig.calls[-1][0] == "creature-v2"
 
 
+def test_skeleton_space_agrees_with_the_rig_source(tmp_path):
+    """The fill reads a character's up axis and unit exactly as training read the clip."""
+    from pipeline.rig.source import load_rig_source
+    from pipeline.usd.read import read_shot
+    from pipeline.usd.rigmap import skeleton_space
+
+    z = creature_shot(tmp_path / "z.usda", T=5, up_axis="Z")  # Z-up stage, SkelRoot rotated +90° about X
+    for path, skel in ((z, None), (ELEPHANT, "/SoC_ElephantWithMonochord/Object/Elefant/_skel")):
+        shot = read_shot(path)
+        c = [c for c in shot.characters if skel is None or c.skel_path == skel][0]
+        src = load_rig_source(path, skel).skeleton
+        assert skeleton_space(c, shot.up_axis, shot.meters_per_unit) == (src.up_axis, src.meters_per_unit)
+    assert skeleton_space(read_shot(z).characters[0], "Z", 0.01) == ("Y", pytest.approx(0.01))
+
+
+def test_retrained_model_is_reloaded_and_a_broken_one_is_one_line(tmp_path, models, monkeypatch):
+    shot = creature_shot(tmp_path / "cr050.usda", T=21)
+    rig_from_shot(models / "creature", shot)
+    a = fill._model(str(models / "creature"))
+    assert fill._model("creature") is a  # by name or folder: one model per process
+    meta = json.loads((models / "creature" / "rig.json").read_text())
+    meta["hash"] = "hash-v2"
+    (models / "creature" / "rig.json").write_text(json.dumps(meta))
+    b = fill._model("creature")
+    assert b is not a and b.model_hash == "hash-v2"
+
+    def broken(folder):
+        raise RuntimeError("[ONNXRuntimeError] : 7 : INVALID_PROTOBUF : Load model failed\nmore")
+
+    monkeypatch.setattr(fill, "_load_rig", broken)
+    meta["hash"] = "hash-v3"
+    (models / "creature" / "rig.json").write_text(json.dumps(meta))
+    with pytest.raises(TweenError) as ei:
+        fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    assert (
+        str(ei.value)
+        == f"{(models / 'creature').resolve()}: cannot load the rig model: [ONNXRuntimeError] : 7 : INVALID_PROTOBUF : Load model failed"
+    )
+    assert not (tmp_path / "o").exists()
+
+
 def test_rigmap_up_axis_and_units_round_trip():
     from pipeline.motion.rotations import quat_apply
     from pipeline.rig.store import RigModelInfo
