@@ -93,3 +93,25 @@ def _guess_licence(source: Path) -> str:
     if "bandai" in s:
         return "CC BY-NC 4.0"
     return "unknown (set --licence)"
+
+
+def main() -> None:
+    """``python -m pipeline.rig.cli`` — these commands alone, for hosts without the farm,
+    renderer or usd-core (e.g. a GPU box training from an .npz)."""
+    import sys
+
+    from pipeline.errors import TweenError
+
+    app = typer.Typer(
+        name="tween-rig", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False
+    )
+    register(app)
+    try:
+        app()
+    except TweenError as e:
+        print(f"tween: error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

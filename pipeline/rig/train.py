@@ -104,8 +104,7 @@ class TrainConfig:
 
 def prepare_motion(cfg: TrainConfig) -> Motion:
     """The training clip: read, cut to ``frames`` and resampled to the training rate."""
-    from pipeline.rig.source import load_rig_source
-    from pipeline.usd.convert import resample
+    from pipeline.rig.source import load_rig_source, resample
 
     motion = load_rig_source(cfg.source, cfg.skeleton, cfg.frames)
     fps = cfg.fps or (30.0 if motion.fps > 30.5 else motion.fps)
@@ -300,6 +299,7 @@ class Trainer:
         if not path.exists():
             return None
         state = torch.load(path, map_location=self.device, weights_only=False)
+        state["stamp"]["schedule"].pop("ckpt_every", None)  # how often to save is not part of the run
         if state["stamp"] != self.stamp:
             diff = [k for k in self.stamp if state["stamp"].get(k) != self.stamp[k]]
             raise TrainError(
