@@ -131,3 +131,48 @@ def test_train_rig_job_arguments_and_progress_parsing():
     )
     assert parse_progress(text) == {"levels": "3-4/5", "iteration": 3, "iterations": 30, "fraction": 0.44}
     assert parse_progress("loading clip\n") is None
+
+
+def test_train_rig_task_reports_progress_and_stops_the_trainer_at_the_soft_limit(tmp_path, monkeypatch):
+    """The task body with a stand-in trainer: progress goes to the task meta; at the soft
+    time limit (raised in the task as billiard does) the trainer's process group is stopped
+    and the job fails with the resume hint."""
+    import signal
+    import sys
+
+    from celery.exceptions import SoftTimeLimitExceeded
+
+    import workers.rig_tasks as rt
+    from workers.errors import JobError
+
+    pidfile = tmp_path / "pid"
+    script = (
+        "import os, sys, time\n"
+        f"open({str(pidfile)!r}, 'w').write(str(os.getpid()))\n"
+        "for i in range(1, 31):\n"
+        "    sys.stderr.write(f'\\rlevels 1-2/4: {100 * i // 30:3d}%|##| {i}/30 [00:00<00:00]')\n"
+        "    sys.stderr.flush(); time.sleep(0.02)\n"
+        "time.sleep(60)\n"
+    )
+    monkeypatch.setattr(rt, "command", lambda *a: [sys.executable, "-c", script])
+    monkeypatch.setattr(rt, "check_paths", lambda *a: None)
+    updates = []
+    monkeypatch.setattr(rt.train_rig, "update_state", lambda state, meta: updates.append((state, meta)))
+
+    def soft_limit(*_):
+        raise SoftTimeLimitExceeded()
+
+    old = signal.signal(signal.SIGALRM, soft_limit)
+    signal.alarm(3)
+    try:
+        with pytest.raises(JobError) as ei:
+            rt.train_rig.run(str(tmp_path / "clip.usda"), str(tmp_path / "m"), {"schedule": "tiny"})
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert "stopped at its time limit" in str(ei.value) and f"{tmp_path / 'm'}/checkpoints" in str(ei.value)
+    assert updates and all(s == "PROGRESS" for s, _ in updates)
+    assert updates[-1][1]["iteration"] == 30 and updates[-1][1]["fraction"] == 0.5
+    pid = int(pidfile.read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)  # the trainer is gone

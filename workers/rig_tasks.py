@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -57,6 +58,10 @@ def train_args(source: str, out: str, options: dict) -> list[str]:
     return args
 
 
+def command(source: str, out: str, options: dict) -> list[str]:
+    return [sys.executable, "-m", "pipeline.cli", *train_args(source, out, options)]
+
+
 def parse_progress(text: str) -> dict | None:
     """The last progress-bar state in ``text`` (stderr of the trainer), or None."""
     found = None
@@ -83,7 +88,7 @@ def train_rig(self, source: str, out: str, options: dict) -> dict:
     """Trains (and exports) a per-rig model from ``source`` into ``out``."""
     s = rig_app.conf.tween
     check_paths(source, out, s.shot_roots)
-    cmd = [sys.executable, "-m", "pipeline.cli", *train_args(source, out, options)]
+    cmd = command(source, out, options)
     env = dict(os.environ)
     threads = str(options.get("threads") or 1)
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads)
@@ -100,18 +105,22 @@ def train_rig(self, source: str, out: str, options: dict) -> dict:
             start_new_session=True,
         )
         try:
-            t_last = 0.0
+            t_last, pending, fd = 0.0, None, proc.stderr.fileno()
             while True:
-                chunk = proc.stderr.read1(65536)
-                if not chunk:
-                    break
-                tail = (tail + chunk.decode(errors="replace"))[-20000:]
-                p = parse_progress(tail[-4000:])
+                # Wake at least twice a second, so the last state before a long step is reported.
+                if select.select([fd], [], [], 0.5)[0]:
+                    chunk = os.read(fd, 65536)
+                    if not chunk:
+                        break
+                    tail = (tail + chunk.decode(errors="replace"))[-20000:]
+                    p = parse_progress(tail[-4000:])
+                    if p and p != last:
+                        pending = p
                 now = time.monotonic()
-                if p and p != last and now - t_last >= 0.2:
-                    last, t_last = p, now
+                if pending and now - t_last >= 0.2:
+                    last, pending, t_last = pending, None, now
                     updates += 1
-                    self.update_state(state=PROGRESS, meta={"source": source, "out": out, **p})
+                    self.update_state(state=PROGRESS, meta={"source": source, "out": out, **last})
             proc.wait()
         except SoftTimeLimitExceeded:
             _stop(proc)
