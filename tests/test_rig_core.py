@@ -187,6 +187,16 @@ def test_fill_keys_exact_and_seeds(tiny_model):
     c = inb.fill(m, keys, seed=2)
     assert np.array_equal(a.rotations, b.rotations) and np.array_equal(a.root_positions, b.root_positions)
     assert np.abs(a.rotations - c.rotations).max() > 1e-4
+    # Only the key frames are read: garbage elsewhere changes nothing.
+    junk = Motion(m.skeleton, m.rotations.copy(), m.root_positions.copy(), m.fps)
+    off = np.setdiff1d(np.arange(len(m)), keys)
+    junk.rotations[off] = np.nan
+    junk.root_positions[off] = 1e6
+    d = inb.fill(junk, keys, seed=1)
+    assert np.array_equal(a.rotations, d.rotations) and np.array_equal(a.root_positions, d.root_positions)
+    for short in ([0, 1, 2, 5, 12], [3, 7]):  # adjacent keys, tiny gaps, a span below MIN_FRAMES
+        e = inb.fill(m, np.array(short), seed=0)
+        assert np.array_equal(e.rotations[short], m.rotations[short]) and np.isfinite(e.rotations).all()
     assert np.isfinite(a.rotations).all() and np.allclose(np.linalg.norm(a.rotations, axis=-1), 1, atol=1e-4)
 
 

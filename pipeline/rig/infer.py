@@ -31,6 +31,8 @@ from pipeline.motion.rotations import quat_continuity
 from pipeline.motion.skeleton import Skeleton
 from pipeline.rig.represent import RigSpec, encode, from_yup, resample_linear, to_yup
 
+MIN_FRAMES = 8  # spans shorter than this are interpolated (every level needs > 2 frames)
+
 
 class RigModelError(TweenError):
     """A rig model folder is missing or unreadable: one line naming the folder."""
@@ -187,6 +189,8 @@ class RigInbetweener:
             raise ValueError(f"keys {keys[0]}..{keys[-1]} outside the motion's {len(motion)} frames")
         a, b = int(keys[0]), int(keys[-1])
         n = b - a + 1
+        if n < MIN_FRAMES:  # too short for the convolutions' reflect padding: nothing to generate
+            return interpolate_keys(motion, keys)
         kl = keys - a
         sk = motion.skeleton
         spec = replace(self.spec, skeleton=sk)
@@ -244,9 +248,9 @@ class RigInbetweener:
         """A new motion of ``n_frames`` frames: noise at the coarsest level only (as the
         official code samples), starting at the training clip's first root position."""
         n = int(n_frames)
+        if n < MIN_FRAMES:
+            raise ValueError(f"synthesize needs at least {MIN_FRAMES} frames")
         lens = self.lengths(n)
-        if n < 3:
-            raise ValueError("synthesize needs at least 3 frames")
         rng = np.random.default_rng(seed)
         q = None
         for i, L in enumerate(lens):
