@@ -124,6 +124,26 @@ def test_representation_round_trip_and_z_up():
     assert np.abs(fy - fz).max() < 1e-4
 
 
+def test_pyramid_lengths_follow_the_official_rule():
+    from pipeline.rig.represent import pyramid_lengths
+
+    assert pyramid_lengths(600, 1 / 5) == [120, 160, 213, 284, 378, 504, 600]
+    assert pyramid_lengths(371, 1 / 5) == [74, 98, 130, 173, 230, 306, 371]
+    assert pyramid_lengths(140, 1 / 5) == [28, 37, 49, 65, 86, 114, 140]
+    assert pyramid_lengths(632, 1 / 30)[:3] == [21, 28, 37] and len(pyramid_lengths(632, 1 / 30)) == 13
+
+
+def test_up_axis_seen_from_skeleton_space():
+    from pipeline.rig.source import _up_in_skeleton
+
+    rx90 = np.eye(4)
+    rx90[1:3, 1:3] = [[0, -1], [1, 0]]  # skeleton Y → world Z
+    ry180 = np.diag([-1.0, 1, -1, 1])  # the elephant's root prim: a turn about Y
+    assert _up_in_skeleton("Y", np.eye(4)) == "Y" and _up_in_skeleton("Z", np.eye(4)) == "Z"
+    assert _up_in_skeleton("Z", rx90) == "Y" and _up_in_skeleton("Y", ry180) == "Y"
+    assert _up_in_skeleton("Y", np.diag([1.0, -1, -1, 1])) == ""  # upside down: refused
+
+
 def test_shapes_through_the_pyramid(tiny_model):
     torch = pytest.importorskip("torch")
     tr, meta, _ = tiny_model

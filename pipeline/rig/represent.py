@@ -192,6 +192,4 @@ def pyramid_lengths(T: int, ratio: float, factor: float = 4.0 / 3.0, min_len: in
         nxt = int(lens[-1] * factor)
         lens.append(nxt if nxt > lens[-1] else lens[-1] + 1)
     lens[-1] = T
-    if len(lens) > 1 and lens[-2] >= T:
-        lens.pop(-2)
     return lens
