@@ -36,13 +36,19 @@ def rigfarm(tmp_path_factory):
         TWEEN_FILL_SOFT_TIME_LIMIT=8,
     )
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
-    from workers.app import app, configure, rig_app
+    from celery import Celery
+
+    from workers.app import configure
     from workers.settings import load_settings
 
-    old = app.conf.tween, rig_app.conf.tween
+    # Fresh client apps: Celery caches an app's result backend and broker pool, so the
+    # module-level apps may still point at another test module's Redis key prefix.
     s = load_settings({**os.environ, **env})
-    configure(app, s)
-    configure(rig_app, s, rig=True)
+    app = configure(Celery("tween-test-client"), s)
+    rig_app = configure(Celery("tween-test-rig-client"), s, rig=True)
+    mp = pytest.MonkeyPatch()
+    mp.setattr("workers.jobs.app", app)
+    mp.setattr("workers.jobs.rig_app", rig_app)
     pool = WorkerPool(env, logs)
     rig_log = logs / "rig-worker.log"
     name = f"rig-{uuid.uuid4().hex[:6]}"
@@ -69,8 +75,7 @@ def rigfarm(tmp_path_factory):
                 os.killpg(rig.pid, 9)
                 rig.wait()
         pool.stop_all()
-        configure(app, old[0])
-        configure(rig_app, old[1], rig=True)
+        mp.undo()
         server.cleanup()
 
 
