@@ -39,6 +39,9 @@ def register(app: typer.Typer) -> None:
         licence: str = typer.Option(
             None, help="The clip's licence, for the model card (default: guessed from the path)."
         ),
+        credit: str = typer.Option(
+            None, help="Attribution for the model card (default: known assets' credit)."
+        ),
         name: str = typer.Option(None, help="Model name (default: the --out folder's name)."),
         checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
         no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
@@ -61,6 +64,7 @@ def register(app: typer.Typer) -> None:
             threads=threads,
             device=device,
             licence=licence or _guess_licence(source),
+            credit=credit or _guess_credit(source),
             name=name or out.resolve().name,
             checkpoints=str(checkpoints) if checkpoints else None,
         )
@@ -84,6 +88,19 @@ def register(app: typer.Typer) -> None:
         motion = load_rig_source(source, skeleton, parse_frames(frames))
         save_npz(motion, out)
         typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
+
+
+def _guess_credit(source: Path) -> str | None:
+    s = str(source).lower()
+    if "elephantwithmonochord" in s:
+        return (
+            '"Songs of Cultures – Vietnamese Elephant with Monochord" by A.MUSE – Interactive Design '
+            "Studio (https://amuse.vision), USDZ version by Felix Herbst / prefrontal cortex, "
+            "CC BY-SA 4.0 (http://creativecommons.org/licenses/by-sa/4.0/)"
+        )
+    if "bandai" in s:
+        return "Bandai Namco Research Motion Dataset (Kobayashi et al. 2023), CC BY-NC 4.0"
+    return None
 
 
 def _guess_licence(source: Path) -> str:

@@ -116,6 +116,7 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
             "train_fps": float(spec.fps),
         },
         "licence": cfg.licence,
+        "credit": cfg.credit,
         "files": {"levels": files},
         "levels": [
             {"file": f, "train_length": int(n), "noise_amplitude": float(a)}
@@ -180,12 +181,14 @@ def write_card(out: str | Path, meta: dict) -> None:
     credit = ""
     if "BY-SA" in lic:
         credit = (
-            "\n**Licence: CC BY-SA 4.0.** The model is trained on (and so derived from) the clip "
-            "above; share it and anything made from it under the same licence and credit the "
-            "asset's authors.\n"
+            "**Licence: CC BY-SA 4.0.** The model is trained on (and so derived from) the clip "
+            "above; share it and anything made from it under the same licence, with the credit "
+            "above."
         )
     elif "BY-NC" in lic:
-        credit = "\n**Licence: CC BY-NC 4.0 — non-commercial use only.**\n"
+        credit = "**Licence: CC BY-NC 4.0 — non-commercial use only.**"
+    if meta.get("credit"):
+        credit = f"Credit: {meta['credit']}.\n\n{credit}"
     metrics = meta.get("metrics") or {}
     mtext = metrics.get("markdown") or "Not measured yet (see `scripts/rig_eval_elephant.py`)."
     text = f"""# {meta["name"]}: a per-rig GANimator
@@ -198,11 +201,13 @@ this rig and synthesizes new motion; inference is onnxruntime + numpy.
 
 - Clip: `{s["path"]}` — `{s["clip"]}`, skeleton `{s.get("skeleton") or "(the one with most joints)"}`,
   frames {s["frames"] or "all"}, trained at {s["train_fps"]:g} fps ({s["train_frames"]} frames).
-- Licence of the clip: {lic}.{credit}
+- Licence of the clip: {lic}.
 - Joints ({len(sk["names"])}, as in the source, up axis {sk["up_axis"]}, metersPerUnit
   {sk["meters_per_unit"]:g}): {", ".join(sk["names"])}.
 - Contact joints (labels): {", ".join(meta["contact_joints"]) or "none"}; foot IK on:
   {", ".join(meta["ik_joints"]) or "none"}.
+
+{credit}
 
 ## Training
 

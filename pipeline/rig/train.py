@@ -83,6 +83,7 @@ class TrainConfig:
     threads: int = 1
     device: str = "cpu"
     licence: str = "unknown"
+    credit: str | None = None  # attribution line for the model card
     name: str | None = None
     checkpoints: str | None = None  # default: OUT/checkpoints
     extra: dict = field(default_factory=dict)
