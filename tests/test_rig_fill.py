@@ -439,3 +439,41 @@ def test_tiny_rig_model_synthesises_and_scores(tiny_root):
     pnn = metrics.global_diversity(q, src)
     assert 0.0 <= cov <= 1.0 and np.isfinite(pnn.value) and pnn.value > 0
     assert metrics.coverage(src, src) == 1.0 and metrics.global_diversity(src, src).value == 0.0
+
+
+def test_shipped_elephant_model_fills_the_elephant(tmp_path, monkeypatch):
+    """The repository's models/elephant is picked for the elephant with no --model; the
+    Vibrator (2 joints) is skipped with the train hint; keys stay the authored values."""
+    from pxr import Usd
+
+    from pipeline.rig.store import read_rig_json
+
+    monkeypatch.delenv("TWEEN_MODELS", raising=False)
+    fill._MODELS.clear()
+    shipped = Path(fill.__file__).resolve().parents[1] / "models" / "elephant"
+    info = read_rig_json(shipped)
+    anim = "/SoC_ElephantWithMonochord/Object/Elefant/_anim"
+    before = tree_hashes(ELEPHANT.parent)
+    opts = FillOptions(keys="1-121x30", range="1-121", takes=2, out_dir=str(tmp_path / "o"), fmt="usdc")
+    res = fill_shot(str(ELEPHANT), opts)
+    assert res["models"] == {anim: info.name} and res["model_hash"] == info.hash
+    assert tree_hashes(ELEPHANT.parent) == before
+    src_stage = Usd.Stage.Open(str(ELEPHANT))
+    src = src_stage.GetPrimAtPath(anim).GetAttribute("rotations")
+    authored = [
+        t for t in src.GetTimeSamples() if abs(t - round(t)) < 1e-3 and round(t) in (1, 31, 61, 91, 121)
+    ]
+    assert len(authored) == 5
+    for take in range(2):
+        stage = Usd.Stage.Open(res["review"])
+        stage.GetPrimAtPath("/SoC_ElephantWithMonochord").GetVariantSet("tweenTake").SetVariantSelection(
+            f"take{take}"
+        )
+        filled = stage.GetPrimAtPath(anim + "_tween")
+        assert filled.GetAttribute("tween:model").Get() == info.name
+        got = filled.GetAttribute("rotations")
+        for t in authored:
+            assert np.array_equal(np.array(src.Get(t)), np.array(got.Get(t))), (take, t)
+        mid = np.array([got.Get(float(t)) for t in range(2, 121)])
+        assert np.isfinite(mid).all()
+    fill._MODELS.clear()
