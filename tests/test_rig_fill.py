@@ -477,3 +477,31 @@ def test_shipped_elephant_model_fills_the_elephant(tmp_path, monkeypatch):
         mid = np.array([got.Get(float(t)) for t in range(2, 121)])
         assert np.isfinite(mid).all()
     fill._MODELS.clear()
+
+
+def test_tween_fill_cli_through_the_embedded_farm_picks_the_rig_model(tmp_path, tiny_root):
+    """`tween fill` (embedded farm: a real worker process) says which model it used."""
+    import os
+    import subprocess
+    import sys
+
+    shot = creature_shot(tmp_path / "cr300.usda", T=31, keys_every=10)
+    env = {**os.environ, "TWEEN_MODELS": str(tiny_root), "TWEEN_CACHE": str(tmp_path / "cache"),
+           "TWEEN_FARM_CONFIG": os.devnull}  # fmt: skip
+    env.pop("TWEEN_BROKER_URL", None)
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "fill",
+        str(shot),
+        "--out-dir",
+        str(tmp_path / "o"),
+        "--no-progress",
+    ]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == (
+        f"{shot}: layer {tmp_path / 'o' / 'cr300.tween.v001.usda'}, review {tmp_path / 'o' / 'cr300.review.v001.usda'}, "
+        "model creature"
+    )
