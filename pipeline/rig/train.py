@@ -312,9 +312,10 @@ class Trainer:
             d.load_state_dict(s)
         self.group_done, self.iteration = state["group_done"], state["iteration"]
         self.log, self.wall = state["log"], state["wall"]
-        torch.set_rng_state(state["rng"])
+        # map_location moved every tensor to the device; RNG states must be CPU byte tensors.
+        torch.set_rng_state(state["rng"].cpu())
         if state["cuda_rng"] is not None:
-            torch.cuda.set_rng_state_all(state["cuda_rng"])
+            torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda_rng"]])
         return state
 
     # -- training ------------------------------------------------------------------------
