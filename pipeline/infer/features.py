@@ -27,8 +27,12 @@ def n_input_channels(n_joints: int) -> int:
     return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS + NOISE_CHANNELS
 
 
-def n_output_channels(n_joints: int) -> int:
-    return n_joints * 6 + 3 + 4  # rotation residual, root residual, four foot contacts
+def n_output_channels(n_joints: int, rotation: str = "6d") -> int:
+    """Rotation residual (6D, or a bounded Euler-angle delta), root residual, four foot contacts."""
+    return n_joints * (6 if rotation == "6d" else 3) + 3 + 4
+
+
+EULER_ORDER = "ZXY"  # the Bandai files' own channel order (intrinsic)
 
 
 def key_neighbours(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -11,9 +11,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import LEGS, bandai_skeleton
-from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, invert_transform, path_inputs
+from pipeline.infer.features import (
+    EULER_ORDER,
+    NOISE_CHANNELS,
+    ROOT_SCALE,
+    build_features,
+    invert_transform,
+    path_inputs,
+)
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix, slerp_pairs
@@ -89,11 +97,18 @@ class OnnxInbetweener:
         o = out.transpose(0, 2, 1)
         f = feats.transpose(0, 2, 1)
         J6 = J * 6
+        euler = gcfg.get("rotation", "6d") == "euler"
+        R = J * 3 if euler else J6
         base = f[..., : J6 + 3] if gcfg.get("residual", True) else np.zeros_like(f[..., : J6 + 3])
-        mats = sixd_to_matrix((base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
+        if euler:
+            ang = np.pi * np.tanh(o[..., :R].reshape(-1, 3).astype(np.float64))
+            delta = Rotation.from_euler(EULER_ORDER, ang).as_matrix().reshape(B, -1, J, 3, 3)
+            mats = sixd_to_matrix(base[..., :J6].reshape(B, -1, J, 6).astype(np.float64)) @ delta
+        else:
+            mats = sixd_to_matrix((base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
         q = matrix_to_quat(mats)
-        croot = (base[..., J6:] + o[..., J6 : J6 + 3]).astype(np.float64) * ROOT_SCALE
-        contacts = _sigmoid(o[..., J6 + 3 : J6 + 7])
+        croot = (base[..., J6:] + o[..., R : R + 3]).astype(np.float64) * ROOT_SCALE
+        contacts = _sigmoid(o[..., R + 3 : R + 7])
         if self.root_mode == "path" and "path" in self.meta["files"]:
             vel = self.session("path").run(None, {"local_positions": path_inputs(q, croot, skel)})[0]
             vel = vel.transpose(0, 2, 1).astype(np.float64) * ROOT_SCALE

@@ -27,6 +27,7 @@ class GeneratorConfig:
     bottleneck_dilations: tuple[int, ...] = (1, 2)
     residual: bool = True  # predict the correction to interpolation (Δ-interpolator) or the raw pose
     tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
+    rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     extra: dict = field(default_factory=dict)
 
     @property
@@ -48,7 +49,7 @@ class Generator(nn.Module):
     def __init__(self, cfg: GeneratorConfig):
         super().__init__()
         self.cfg = cfg
-        cin, cout = n_input_channels(cfg.n_joints), n_output_channels(cfg.n_joints)
+        cin, cout = n_input_channels(cfg.n_joints), n_output_channels(cfg.n_joints, cfg.rotation)
         self.inp = ResLayer(cin, cfg.width, 3, sigma=1.0)
         n = len(cfg.levels)
         chans = [cfg.width, *cfg.levels]

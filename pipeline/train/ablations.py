@@ -20,6 +20,7 @@ VARIANTS = {
     "no_tta": {"model": {"tta": False}},
     "no_curriculum": {"gap_start": 90},
     "no_velocity_loss": {"w_vel": 0.0},
+    "euler": {"model": {"rotation": "euler"}},  # range-constrained Euler delta instead of 6D
 }
 
 

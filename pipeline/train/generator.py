@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
-from pipeline.infer.features import NOISE_CHANNELS, ROOT_SCALE, build_features, key_neighbours
+from pipeline.infer.features import EULER_ORDER, NOISE_CHANNELS, ROOT_SCALE, build_features, key_neighbours
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
@@ -72,16 +72,28 @@ def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
     return torch.stack([b1, b2, torch.cross(b1, b2, dim=-1)], dim=-1)
 
 
-def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int, residual: bool = True):
+def decode(
+    out: torch.Tensor, feats: torch.Tensor, n_joints: int, residual: bool = True, rotation: str = "6d"
+):
     """Network output + baseline channels -> (rotation matrices, root (cm), contact logits)."""
+    import roma
+
     B, _, N = out.shape
     J6 = n_joints * 6
+    R = n_joints * (6 if rotation == "6d" else 3)
     o = out.transpose(1, 2)
     f = feats.transpose(1, 2)
     base = f[..., : J6 + 3] if residual else torch.zeros_like(f[..., : J6 + 3])
-    d6 = (base[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6)
-    root = (base[..., J6:] + o[..., J6 : J6 + 3]) * ROOT_SCALE
-    return sixd_to_matrix_t(d6), root, o[..., J6 + 3 : J6 + 7]
+    if rotation == "6d":
+        mats = sixd_to_matrix_t((base[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6))
+    else:
+        # Range-constrained Euler angles (the paper's alternative), as a delta on the baseline.
+        delta = roma.euler_to_rotmat(
+            EULER_ORDER, torch.pi * torch.tanh(o[..., :R].reshape(B, N, n_joints, 3))
+        )
+        mats = sixd_to_matrix_t(base[..., :J6].reshape(B, N, n_joints, 6)) @ delta
+    root = (base[..., J6:] + o[..., R : R + 3]) * ROOT_SCALE
+    return mats, root, o[..., R + 3 : R + 7]
 
 
 def make_discriminator(cfg: TrainConfig, dev=None):
@@ -248,7 +260,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         between = b["between"].numpy()
         x = b["feats"].to(dev)
         out = model(x)
-        mats, proot, clog = decode(out, x, len(skel), cfg.model.residual)
+        mats, proot, clog = decode(out, x, len(skel), cfg.model.residual, cfg.model.rotation)
         gt_rot = b["crot"].to(dev).float()
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
         m = torch.from_numpy(between).to(dev)
