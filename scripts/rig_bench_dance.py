@@ -69,10 +69,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("bench_results") / "rig_dance.json")
     a = ap.parse_args(argv)
 
+    from pipeline.motion.clip import resample
     from pipeline.rig import metrics
     from pipeline.rig.infer import RigInbetweener
     from pipeline.rig.source import load_rig_source, parse_frames
-    from pipeline.usd.convert import resample
 
     inb = RigInbetweener(a.model)
     clip_path = a.clip or _dance_clip()

@@ -26,10 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.infer.interp import interpolate_keys
+from pipeline.motion.clip import resample
 from pipeline.rig.export import write_card
 from pipeline.rig.infer import RigInbetweener
 from pipeline.rig.represent import contact_labels, yup_positions
-from pipeline.rig.source import load_rig_source, resample
+from pipeline.rig.source import load_rig_source
 
 SHOT = Path("../shared/data/usd_assets/ElephantWithMonochord/SoC-ElephantWithMonochord.usdc")
 

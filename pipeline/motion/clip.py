@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from pipeline.motion import fk as _fk
-from pipeline.motion.rotations import quat_continuity, quat_normalize
+from pipeline.motion.rotations import quat_continuity, quat_normalize, slerp_pairs
 from pipeline.motion.skeleton import Skeleton
 
 
@@ -52,3 +52,18 @@ class Motion:
         return replace(
             self, rotations=self.rotations[start:stop], root_positions=self.root_positions[start:stop]
         )
+
+
+def resample(motion: Motion, fps: float) -> Motion:
+    """The motion at another frame rate (SLERP / LERP between source frames)."""
+    if fps == motion.fps:
+        return motion
+    T = len(motion)
+    n = int(np.floor((T - 1) * fps / motion.fps + 1e-9)) + 1
+    u = np.arange(n) * motion.fps / fps
+    i0 = np.minimum(np.floor(u).astype(int), T - 1)
+    i1 = np.minimum(i0 + 1, T - 1)
+    w = u - i0
+    rot = slerp_pairs(motion.rotations[i0], motion.rotations[i1], w[:, None]).astype(np.float32)
+    pos = (1 - w[:, None]) * motion.root_positions[i0] + w[:, None] * motion.root_positions[i1]
+    return Motion(motion.skeleton, rot, pos, fps, motion.name)

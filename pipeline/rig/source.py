@@ -136,27 +136,6 @@ def load_rig_source(
     return _slice(path, motion, frames)
 
 
-def resample(motion: Motion, fps: float) -> Motion:
-    """The motion at another frame rate (SLERP / LERP between source frames).
-
-    The same sampling (bit for bit) as ``pipeline.usd.convert.resample``, here so that
-    training reads clips on hosts without usd-core.
-    """
-    from pipeline.motion.rotations import slerp_pairs
-
-    if fps == motion.fps:
-        return motion
-    T = len(motion)
-    n = int(np.floor((T - 1) * fps / motion.fps + 1e-9)) + 1
-    u = np.arange(n) * motion.fps / fps
-    i0 = np.minimum(np.floor(u).astype(int), T - 1)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = u - i0
-    rot = slerp_pairs(motion.rotations[i0], motion.rotations[i1], w[:, None]).astype(np.float32)
-    pos = (1 - w[:, None]) * motion.root_positions[i0] + w[:, None] * motion.root_positions[i1]
-    return Motion(motion.skeleton, rot, pos, fps, motion.name)
-
-
 def save_npz(motion: Motion, path: str | Path) -> None:
     """The clip as a self-contained ``.npz`` (hosts without usd-core or the data folder)."""
     s = motion.skeleton

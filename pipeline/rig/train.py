@@ -105,7 +105,8 @@ class TrainConfig:
 
 def prepare_motion(cfg: TrainConfig) -> Motion:
     """The training clip: read, cut to ``frames`` and resampled to the training rate."""
-    from pipeline.rig.source import load_rig_source, resample
+    from pipeline.motion.clip import resample
+    from pipeline.rig.source import load_rig_source
 
     motion = load_rig_source(cfg.source, cfg.skeleton, cfg.frames)
     fps = cfg.fps or (30.0 if motion.fps > 30.5 else motion.fps)

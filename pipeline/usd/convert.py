@@ -13,26 +13,9 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401
-from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul, slerp
+from pipeline.motion.clip import Motion, resample
+from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
 from pipeline.usd.mapping import MODEL_JOINTS, MappingError, map_joints
-
-
-def resample(motion: Motion, fps: float) -> Motion:
-    """The motion at another frame rate (SLERP / LERP between source frames)."""
-    if fps == motion.fps:
-        return motion
-    T = len(motion)
-    n = int(np.floor((T - 1) * fps / motion.fps + 1e-9)) + 1
-    u = np.arange(n) * motion.fps / fps
-    i0 = np.minimum(np.floor(u).astype(int), T - 1)
-    i1 = np.minimum(i0 + 1, T - 1)
-    w = u - i0
-    rot = np.empty((n,) + motion.rotations.shape[1:], np.float32)
-    for k in range(n):  # per-frame weight; rotations.slerp broadcasts one weight list over all pairs
-        rot[k] = slerp(motion.rotations[i0[k]], motion.rotations[i1[k]], [w[k]])[0]
-    pos = (1 - w[:, None]) * motion.root_positions[i0] + w[:, None] * motion.root_positions[i1]
-    return Motion(motion.skeleton, rot, pos, fps, motion.name)
 
 
 def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
