@@ -203,6 +203,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     )
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
+    disc, d_opt = None, None
     if cfg.init and not ckpt.exists():
         model.load_state_dict(torch.load(cfg.init, weights_only=False, map_location=dev)["model"])
         print(f"initialised from {cfg.init}", file=sys.stderr)
@@ -212,6 +213,10 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         step, elapsed = state["step"], state["elapsed"]
+        if "disc" in state:
+            disc, d_opt = make_discriminator(cfg, dev)
+            disc.load_state_dict(state["disc"])
+            d_opt.load_state_dict(state["d_opt"])
         print(f"resumed {ckpt} at step {step}", file=sys.stderr)
     pos_w = torch.ones(len(skel), 3)
     if cfg.pos_zscore:
@@ -224,14 +229,6 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     pos_w = pos_w.to(dev)
     log = (out_dir / "train_log.jsonl").open("a")
     t_start, t_ckpt = time.time() - elapsed, time.time()
-
-    disc, d_opt = None, None
-    if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False, map_location=dev)
-        if "disc" in state:
-            disc, d_opt = make_discriminator(cfg, dev)
-            disc.load_state_dict(state["disc"])
-            d_opt.load_state_dict(state["d_opt"])
 
     def save(path=ckpt):
         state = {
