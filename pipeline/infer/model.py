@@ -40,6 +40,17 @@ def find_model(name: str) -> Path | None:
     return cand if (cand / "model.json").exists() else None
 
 
+def ort_session(path: str | Path):
+    """An onnxruntime CPU session with the farm's thread policy: ``TWEEN_ORT_THREADS`` intra-op
+    threads (default 1, as workers already run one fill per core), one inter-op thread."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(os.environ.get("TWEEN_ORT_THREADS", "1"))
+    opts.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
 def take_latent(seed: int) -> np.ndarray:
     """The take's latent: zeros for seed 0 (the model's most likely motion), N(0, 1) otherwise."""
     if seed == 0:
@@ -72,14 +83,7 @@ class OnnxInbetweener:
 
     def session(self, which: str):
         if which not in self._sessions:
-            import onnxruntime as ort
-
-            opts = ort.SessionOptions()
-            opts.intra_op_num_threads = int(os.environ.get("TWEEN_ORT_THREADS", "1"))
-            opts.inter_op_num_threads = 1
-            self._sessions[which] = ort.InferenceSession(
-                str(self.folder / self.meta["files"][which]), opts, providers=["CPUExecutionProvider"]
-            )
+            self._sessions[which] = ort_session(self.folder / self.meta["files"][which])
         return self._sessions[which]
 
     def raw(self, rot, root, keys, noise=None):

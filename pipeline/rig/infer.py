@@ -17,7 +17,6 @@ No torch here. Filling (see docs/rig.md):
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -114,14 +113,9 @@ class RigInbetweener:
     # -- the networks ------------------------------------------------------------------
     def _session(self, i: int):
         if i not in self._sessions:
-            import onnxruntime as ort
+            from pipeline.infer.model import ort_session
 
-            opts = ort.SessionOptions()
-            opts.intra_op_num_threads = int(os.environ.get("TWEEN_ORT_THREADS", "1"))
-            opts.inter_op_num_threads = 1
-            self._sessions[i] = ort.InferenceSession(
-                str(self.folder / self.files[i]), opts, providers=["CPUExecutionProvider"]
-            )
+            self._sessions[i] = ort_session(self.folder / self.files[i])
         return self._sessions[i]
 
     def level(self, i: int, up: np.ndarray, z: np.ndarray) -> np.ndarray:
