@@ -21,6 +21,7 @@ variants = {
     "model (shipped: generator root, foot IK)": inbetweener_method(OnnxInbetweener(model)),
     "model without foot IK": inbetweener_method(OnnxInbetweener(model, feet=False)),
     "model, root from path predictor": inbetweener_method(OnnxInbetweener(model, root="path")),
+    "model, mirror-averaged": inbetweener_method(OnnxInbetweener(model, mirror=True)),
 }
 if len(sys.argv) > 2:
     variants["model before LSGAN refinement"] = inbetweener_method(OnnxInbetweener(sys.argv[2]))

@@ -16,6 +16,9 @@ def register(app: typer.Typer) -> None:
         long_gaps: bool = typer.Option(
             False, "--long-gaps", help="Keys 2/5/10 s apart on long takes instead."
         ),
+        mirrored: bool = typer.Option(
+            False, "--mirrored", help="Left/right mirror images of the eval windows (robustness check)."
+        ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
@@ -41,6 +44,6 @@ def register(app: typer.Typer) -> None:
             typer.echo(md)
             return
 
-        res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out)
+        res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored)
         typer.echo(res["markdown"])
         typer.echo(f"written: {res['json']}", err=True)

@@ -47,3 +47,16 @@ def skeleton_from_json(path: str | Path) -> Skeleton:
 def bandai_skeleton() -> Skeleton:
     """The 21-joint skeleton every Bandai clip shares (root rest height 93 cm)."""
     return skeleton_from_json(_JSON)
+
+
+@lru_cache(maxsize=1)
+def bandai_mirror():
+    """The Bandai skeleton's left/right mirror (reflection across the world XY plane).
+
+    Its per-joint reflections were derived once by ``pipeline.motion.mirror.derive_mirror``
+    from the train split and are stored with the skeleton; a test re-derives them.
+    """
+    from pipeline.motion.mirror import Mirror, find_pairs
+
+    d = json.loads(_JSON.read_text())["mirror"]
+    return Mirror(find_pairs(bandai_skeleton().names), np.array(d["signs"], np.float64), int(d["axis"]))

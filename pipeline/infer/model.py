@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.data.skeletons import LEGS, bandai_skeleton
+from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
 from pipeline.infer.features import (
     EULER_ORDER,
     NOISE_CHANNELS,
@@ -24,7 +24,7 @@ from pipeline.infer.features import (
 )
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import matrix_to_quat, sixd_to_matrix, slerp_pairs
+from pipeline.motion.rotations import matrix_to_quat, quat_normalize, sixd_to_matrix, slerp_pairs
 
 
 def models_root() -> Path:
@@ -66,7 +66,12 @@ class OnnxInbetweener:
     """Fills shots with the exported networks; ``root`` is "generator" or "path"."""
 
     def __init__(
-        self, folder: str | Path, root: str | None = None, feet: bool = True, hierarchical: bool = True
+        self,
+        folder: str | Path,
+        root: str | None = None,
+        feet: bool = True,
+        hierarchical: bool = True,
+        mirror: bool | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -77,6 +82,8 @@ class OnnxInbetweener:
         self.root_mode = root or self.meta.get("root", "generator")
         self.feet = feet
         self.hierarchical = hierarchical
+        # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
+        self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
@@ -87,7 +94,31 @@ class OnnxInbetweener:
         return self._sessions[which]
 
     def raw(self, rot, root, keys, noise=None):
-        """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed."""
+        """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed.
+
+        With ``mirror`` the batch runs beside its mirror image and the two answers, the second
+        mirrored back, are averaged: the model's left/right biases cancel.
+        """
+        if not self.mirror:
+            return self._raw(rot, root, keys, noise)
+        m, parents, B = bandai_mirror(), self.skeleton.parents, len(rot)
+        both = self._raw(
+            np.concatenate([rot, m.rotations(rot, parents)]),
+            np.concatenate([root, m.root(root)]),
+            keys,
+            None if noise is None else np.concatenate([noise, noise]),
+        )
+        q, r, c = both
+        q2 = m.rotations(q[B:], parents)
+        q2 = np.where((q2 * q[:B]).sum(-1, keepdims=True) < 0, -q2, q2)
+        feet = [self.skeleton.index(n) for n in FOOT_JOINTS]
+        return (
+            quat_normalize(q[:B] + q2),
+            0.5 * (r[:B] + m.root(r[B:])),
+            0.5 * (c[:B] + m.contacts(c[B:], feet)),
+        )
+
+    def _raw(self, rot, root, keys, noise=None):
         skel = self.skeleton
         B, N, J = rot.shape[:3]
         mult = int(self.meta["multiple"])

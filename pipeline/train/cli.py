@@ -35,6 +35,7 @@ def register(app: typer.Typer) -> None:
         data_pack: Path = typer.Option(
             None, help="Train split packed by `python -m pipeline.data.pack` (hosts without ../shared)."
         ),
+        mirror: float = typer.Option(0.0, help="Share of windows mirrored left/right (augmentation)."),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.train.generator import TrainConfig
@@ -59,6 +60,7 @@ def register(app: typer.Typer) -> None:
                 lengths=tuple(int(x) for x in lengths.split(",")),
                 workers=workers,
                 data_pack=str(data_pack) if data_pack else None,
+                mirror=mirror,
                 **common,
             ),
             out,

@@ -19,7 +19,7 @@ import torch
 from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
-from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
+from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.infer.features import EULER_ORDER, NOISE_CHANNELS, ROOT_SCALE, build_features, key_neighbours
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
@@ -60,6 +60,7 @@ class TrainConfig:
     gap_weighting: float = (
         0.0  # frames weighted by gap length ** −this (0: every frame alike; 1: every gap alike)
     )
+    mirror: float = 0.0  # share of windows replaced by their left/right mirror image (augmentation)
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -115,6 +116,12 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
     L = int(rng.choice(cfg.lengths))
     rot, root = sample_batch(clips, rng, cfg.batch, L)
+    if cfg.mirror > 0:
+        # Its own stream, so a mirrored run trains on the same windows and keys as a plain one.
+        flip = np.random.default_rng([cfg.seed, step, 1]).random(cfg.batch) < cfg.mirror
+        m = bandai_mirror()
+        rot[flip] = m.rotations(rot[flip], skel.parents).astype(rot.dtype)
+        root[flip] = m.root(root[flip]).astype(root.dtype)
     keys = sample_keys(rng, L, max_gap)
     adversarial = cfg.adv_start is not None and step >= cfg.adv_start
     noise = None
