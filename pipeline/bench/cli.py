@@ -19,6 +19,9 @@ def register(app: typer.Typer) -> None:
         mirrored: bool = typer.Option(
             False, "--mirrored", help="Left/right mirror images of the eval windows (robustness check)."
         ),
+        posture: float = typer.Option(
+            0.0, help="Per-joint posture offsets up to this many degrees (robustness check)."
+        ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
@@ -44,6 +47,6 @@ def register(app: typer.Typer) -> None:
             typer.echo(md)
             return
 
-        res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored)
+        res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored, posture)
         typer.echo(res["markdown"])
         typer.echo(f"written: {res['json']}", err=True)

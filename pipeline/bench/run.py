@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.bench import metrics
 from pipeline.bench.methods import Method, resolve
 from pipeline.bench.protocol import (
@@ -21,16 +23,20 @@ from pipeline.bench.protocol import (
 )
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
+from pipeline.motion.augment import posture_offsets
 
 METRICS = ("L2Q", "L2P", "NPSS", "MPJPE", "skate")
 
 
-def test_windows(limit: int | None = None, mirrored: bool = False):
+def test_windows(limit: int | None = None, mirrored: bool = False, posture: float = 0.0):
     """The normalised eval windows (``limit`` clips only, for quick checks).
 
     ``mirrored``: each window's left/right mirror image instead, a robustness check outside
     the protocol (the actors' handedness and gait asymmetries are reversed; the mirror keeps
     the window centred and facing +X at frame 9, so the protocol's normalisation still holds).
+    ``posture``: every window's joints get constant offsets of up to this many degrees (fixed
+    seed), as a rig set up differently from the actors' would carry them; the windows are
+    normalised again afterwards. Also outside the protocol.
     """
     clips = load_split("eval", limit=limit)
     rots, roots = cut_windows(clips, TEST_WINDOW, TEST_STRIDE)
@@ -39,6 +45,9 @@ def test_windows(limit: int | None = None, mirrored: bool = False):
         m = bandai_mirror()
         rots = m.rotations(rots, bandai_skeleton().parents).astype(rots.dtype)
         roots = m.root(roots).astype(roots.dtype)
+    if posture > 0:
+        rots = posture_offsets(rots, np.random.default_rng(0), posture, 1.0)
+        rots, roots = normalize_windows(rots, roots)
     return rots, roots
 
 
@@ -93,10 +102,12 @@ def markdown(results: dict, n_windows: int, transitions=TRANSITIONS) -> str:
     return "\n".join(lines)
 
 
-def run_bench(methods: list[str], limit: int | None, out_dir: Path, mirrored: bool = False) -> dict:
+def run_bench(
+    methods: list[str], limit: int | None, out_dir: Path, mirrored: bool = False, posture: float = 0.0
+) -> dict:
     print("loading train statistics and eval windows…", file=sys.stderr)
     mean, std = position_stats(load_split("train"))
-    rots, roots = test_windows(limit, mirrored)
+    rots, roots = test_windows(limit, mirrored, posture)
     results = {}
     for name in methods:
         print(f"evaluating {name} on {len(rots)} windows…", file=sys.stderr)
@@ -107,10 +118,13 @@ def run_bench(methods: list[str], limit: int | None, out_dir: Path, mirrored: bo
         "windows": int(len(rots)),
         "eval_clips_limit": limit,
         "mirrored": mirrored,
+        "posture_offsets_deg": posture,
         "results": {m: {str(t): v for t, v in r.items()} for m, r in results.items()},
     }
     (out_dir / "bench.json").write_text(json.dumps(payload, indent=1))
     md = markdown(results, len(rots))
+    if posture:
+        md = f"Posture offsets: up to {posture:g}° per joint (not the protocol).\n" + md
     if mirrored:
         md = "Mirrored: the left/right mirror image of every window (not the protocol).\n" + md
     (out_dir / "bench.md").write_text(md)

@@ -72,6 +72,7 @@ class OnnxInbetweener:
         feet: bool = True,
         hierarchical: bool = True,
         mirror: bool | None = None,
+        pad: str | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -84,6 +85,9 @@ class OnnxInbetweener:
         self.hierarchical = hierarchical
         # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
+        self.pad = pad or self.meta.get("pad", "end")
+        if self.pad not in ("end", "hold-key", "front"):
+            raise ValueError(f"{self.folder}: unknown pad layout {self.pad!r}")
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
@@ -119,13 +123,39 @@ class OnnxInbetweener:
         )
 
     def _raw(self, rot, root, keys, noise=None):
+        N = rot.shape[1]
+        keys = np.asarray(keys, np.int64)
+        if self.pad != "end":
+            # Only the keyed span goes in, as in training (first key first, last key last);
+            # frames outside it are held by post-processing anyway.
+            k0, k1 = int(keys[0]), int(keys[-1])
+            q, r, c = self._network(rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise)
+            edge = np.r_[np.zeros(k0, np.int64), np.arange(k1 - k0 + 1), np.full(N - k1 - 1, k1 - k0)]
+            return q[:, edge], r[:, edge], c[:, edge]
+        return self._network(rot, root, keys, noise)
+
+    def _network(self, rot, root, keys, noise=None):
+        """The generator (+ path predictor) on one window, padded to the network's multiple.
+
+        Pad layouts (``pad``): "end" holds the last frame after it as in-betweens (the layout
+        of models up to v4's card); "hold-key" holds it too but makes the padded window's last
+        frame a key, as every training window ends on a key; "front" repeats the first key
+        before the window as keys.
+        """
         skel = self.skeleton
         B, N, J = rot.shape[:3]
         mult = int(self.meta["multiple"])
         pad = (-N) % mult
-        if pad:  # frames after the last key are held anyway; pad by repeating the last frame
+        front = pad if self.pad == "front" else 0
+        if front:
+            rot = np.concatenate([np.repeat(rot[:, :1], pad, 1), rot], 1)
+            root = np.concatenate([np.repeat(root[:, :1], pad, 1), root], 1)
+            keys = np.r_[np.arange(pad), keys + pad]
+        elif pad:
             rot = np.concatenate([rot, np.repeat(rot[:, -1:], pad, 1)], 1)
             root = np.concatenate([root, np.repeat(root[:, -1:], pad, 1)], 1)
+            if self.pad == "hold-key":
+                keys = np.r_[keys, N + pad - 1]
         gcfg = self.meta.get("generator", {})
         feats, ctx = build_features(rot, root, keys, skel, noise, tta=gcfg.get("tta", True))
         out = self.session("generator").run(None, {"features": feats})[0]
@@ -150,7 +180,7 @@ class OnnxInbetweener:
             keys_a = np.asarray(keys)
             croot = integrate_path(vel, ctx["croot"][:, keys_a], keys_a, croot.shape[1])
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
-        return q[:, :N], wroot[:, :N], contacts[:, :N]
+        return q[:, front : front + N], wroot[:, front : front + N], contacts[:, front : front + N]
 
     def fill_batch(self, rot, root, keys, noise=None):
         keys = np.unique(np.asarray(keys, np.int64))

@@ -149,12 +149,15 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
 def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
-    Key frames get weight 0 and the weight rises over ``ramp`` frames away from them.
+    Key frames get weight 0 and the weight rises over ``ramp`` frames away from them; frames
+    before the first key and after the last are held, so they get no IK either.
     """
     N = len(rot)
     _, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
     dist_key = np.min(np.abs(np.arange(N)[:, None] - np.asarray(keys)[None]), axis=1)
     key_fade = np.clip(dist_key / ramp, 0, 1)
+    key_fade[: keys[0]] = 0.0
+    key_fade[keys[-1] + 1 :] = 0.0
     out = rot.copy()
     for li, leg in enumerate(legs):
         ankle = leg[2]

@@ -36,6 +36,9 @@ def register(app: typer.Typer) -> None:
             None, help="Train split packed by `python -m pipeline.data.pack` (hosts without ../shared)."
         ),
         mirror: float = typer.Option(0.0, help="Share of windows mirrored left/right (augmentation)."),
+        posture: float = typer.Option(
+            0.0, help="Largest per-joint posture offset, degrees, on half the windows (augmentation)."
+        ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.train.generator import TrainConfig
@@ -61,6 +64,7 @@ def register(app: typer.Typer) -> None:
                 workers=workers,
                 data_pack=str(data_pack) if data_pack else None,
                 mirror=mirror,
+                posture=posture,
                 **common,
             ),
             out,

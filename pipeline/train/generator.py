@@ -24,6 +24,7 @@ from pipeline.infer.features import EULER_ORDER, NOISE_CHANNELS, ROOT_SCALE, bui
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
+from pipeline.motion.augment import posture_offsets
 from pipeline.motion.fk import fk
 from pipeline.train.batches import foot_contacts, sample_batch, sample_keys
 
@@ -61,6 +62,8 @@ class TrainConfig:
         0.0  # frames weighted by gap length ** −this (0: every frame alike; 1: every gap alike)
     )
     mirror: float = 0.0  # share of windows replaced by their left/right mirror image (augmentation)
+    posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
+    posture_prob: float = 0.5  # share of windows given posture offsets
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -122,6 +125,8 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         m = bandai_mirror()
         rot[flip] = m.rotations(rot[flip], skel.parents).astype(rot.dtype)
         root[flip] = m.root(root[flip]).astype(root.dtype)
+    if cfg.posture > 0:
+        rot = posture_offsets(rot, np.random.default_rng([cfg.seed, step, 2]), cfg.posture, cfg.posture_prob)
     keys = sample_keys(rng, L, max_gap)
     adversarial = cfg.adv_start is not None and step >= cfg.adv_start
     noise = None

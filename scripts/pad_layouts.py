@@ -1,0 +1,74 @@
+"""Choose the generator's pad layout on data that is neither train nor eval: the CMU takes.
+
+python scripts/pad_layouts.py MODEL_DIR [--eval]
+
+The network takes windows a multiple of 32 frames long, so a shot is padded. The layouts of
+``OnnxInbetweener(pad=...)`` are compared on the protocol's task (10 context frames, a
+target after 5/15/30/45 frames) cut from the CMU takes mapped onto the model skeleton
+(65-frame windows every 40 frames, normalised as in PROTOCOL.md). ``--eval`` adds the same
+rows on the eval split, for the record only: the choice is made on CMU.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.bench.methods import inbetweener_method, interpolation
+from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, position_stats, window_starts
+from pipeline.bench.run import evaluate, test_windows
+from pipeline.data.cache import load_split
+from pipeline.data.split import shared_data_dir
+from pipeline.infer.model import OnnxInbetweener
+
+LAYOUTS = ("end", "hold-key", "front")
+
+
+def cmu_windows(cache=Path("runs/cmu_windows.npz")):
+    if cache.exists():
+        d = np.load(cache)
+        return d["rots"], d["roots"]
+    from pipeline.bench.long_gaps import cmu_on_model_skeleton
+
+    rots, roots = [], []
+    for f in sorted((shared_data_dir() / "cmu_iclone").glob("*.bvh.gz")):
+        m = cmu_on_model_skeleton(f)
+        for s in window_starts(len(m.rotations), TEST_WINDOW, TEST_STRIDE):
+            rots.append(m.rotations[s : s + TEST_WINDOW])
+            roots.append(m.root_positions[s : s + TEST_WINDOW])
+    rots, roots = normalize_windows(np.stack(rots).astype(np.float32), np.stack(roots).astype(np.float32))
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(cache, rots=rots, roots=roots)
+    return rots, roots
+
+
+def train_windows(every: int = 4):
+    """Protocol windows cut from every ``every``-th train clip (seen in training: the layouts are
+    a question of input format, not of what the model memorised)."""
+    clips = load_split("train")
+    rots, roots = [], []
+    for c in range(0, len(clips), every):
+        r, p = clips.clip(c)
+        for i in window_starts(len(r), TEST_WINDOW, TEST_STRIDE):
+            rots.append(r[i : i + TEST_WINDOW])
+            roots.append(p[i : i + TEST_WINDOW])
+    return normalize_windows(np.stack(rots), np.stack(roots))
+
+
+def main(model: str, with_eval: bool) -> None:
+    mean, std = position_stats(load_split("train"))
+    sets = {"train (every 4th clip)": train_windows(), "cmu": cmu_windows()}
+    if with_eval:
+        sets["eval"] = test_windows(None)
+    for name, (rots, roots) in sets.items():
+        base = evaluate(interpolation, rots, roots, mean, std)
+        print(f"\n{name}: {len(rots)} windows; L2P ÷ interp at 5 / 15 / 30 / 45 (skate cm/frame)")
+        for layout in LAYOUTS:
+            r = evaluate(inbetweener_method(OnnxInbetweener(model, pad=layout)), rots, roots, mean, std)
+            ratio = " / ".join(f"{r[t]['L2P'] / base[t]['L2P']:.3f}" for t in r)
+            skate = " / ".join(f"{r[t]['skate']:.3f}" for t in r)
+            print(f"| {layout} | {ratio} | {skate} |", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], "--eval" in sys.argv)

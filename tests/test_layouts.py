@@ -1,0 +1,71 @@
+"""Pad layouts of the shipped generator and posture-offset augmentation."""
+
+import numpy as np
+import pytest
+
+from pipeline.infer.model import OnnxInbetweener
+from pipeline.motion.augment import posture_offsets
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.rotations import quat_inv, quat_mul
+
+
+@pytest.fixture(scope="module")
+def clip(bandai_clip):
+    m = read_bvh(bandai_clip).continuous()
+    return m.rotations[None, :100].astype(np.float32), m.root_positions[None, :100].astype(np.float32)
+
+
+@pytest.mark.parametrize("layout", ["end", "hold-key", "front"])
+def test_every_layout_keeps_keys_and_holds_outside_them(clip, layout):
+    rot, root = clip
+    keys = np.array([5, 6, 7, 20, 41, 70])  # 66 keyed frames: padded in every layout
+    q, r = OnnxInbetweener("models/default", pad=layout).fill_batch(rot, root, keys)
+    assert np.array_equal(q[0, keys], rot[0, keys]) and np.array_equal(r[0, keys], root[0, keys])
+    assert (q[0, :5] == rot[0, 5]).all() and (r[0, 71:] == root[0, 70]).all()
+    assert np.isfinite(q).all() and np.isfinite(r).all()
+
+
+def test_layouts_agree_when_nothing_is_padded(clip):
+    rot, root = clip
+    keys = np.array([0, 1, 2, 30, 50, 63])  # 64 frames from the first key to the last: no pad
+    out = [
+        OnnxInbetweener("models/default", pad=p).fill_batch(rot[:, :64], root[:, :64], keys)
+        for p in ("end", "hold-key", "front")
+    ]
+    for q, r in out[1:]:
+        assert np.array_equal(q, out[0][0]) and np.array_equal(r, out[0][1])
+
+
+def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
+    rot, root = clip
+    model = OnnxInbetweener("models/default", pad="hold-key")
+    seen = {}
+    real = model.session("generator").run
+
+    class Spy:
+        def run(self, names, feeds):
+            seen["feats"] = feeds["features"]
+            return real(names, feeds)
+
+    monkeypatch.setitem(model._sessions, "generator", Spy())
+    model.raw(rot[:, :40], root[:, :40], np.array([0, 10, 39]))
+    is_key = seen["feats"][0, 2 * (21 * 6 + 3) + 1]  # the key-flag channel
+    assert len(is_key) == 64 and np.flatnonzero(is_key).tolist() == [0, 10, 39, 63]
+
+
+def test_unknown_layout_is_refused():
+    with pytest.raises(ValueError, match="pad layout"):
+        OnnxInbetweener("models/default", pad="middle")
+
+
+def test_posture_offsets_are_constant_per_joint_and_bounded(clip):
+    rot = np.repeat(clip[0][:, :30], 6, axis=0)
+    out = posture_offsets(rot, np.random.default_rng(1), 30.0, 0.5)
+    off = quat_mul(quat_inv(rot.astype(np.float64)), out.astype(np.float64))  # rot⁻¹ · out
+    off = np.where(off[..., 3:] < 0, -off, off)
+    assert np.abs(off - off[:, :1]).max() < 1e-4  # the same offset on every frame
+    angle = np.degrees(2 * np.arccos(np.clip(off[..., 3], -1, 1)))
+    assert angle.max() <= 30.0 + 1e-3
+    touched = angle.max(axis=(1, 2)) > 1e-3
+    assert 0 < touched.sum() < 6  # about half the windows
+    assert np.allclose(posture_offsets(rot, np.random.default_rng(1), 30.0, 0.0), rot, atol=1e-6)
