@@ -69,3 +69,18 @@ def test_posture_offsets_are_constant_per_joint_and_bounded(clip):
     touched = angle.max(axis=(1, 2)) > 1e-3
     assert 0 < touched.sum() < 6  # about half the windows
     assert np.allclose(posture_offsets(rot, np.random.default_rng(1), 30.0, 0.0), rot, atol=1e-6)
+
+
+def test_inference_settings_are_part_of_the_model_hash(tmp_path):
+    pytest.importorskip("torch")
+    from pipeline.train.export import model_hash
+
+    (tmp_path / "g.onnx").write_bytes(b"weights")
+    meta = {"files": {"generator": "g.onnx"}, "root": "generator"}
+    legacy = model_hash(tmp_path, meta)
+    assert model_hash(tmp_path, {**meta, "pad": "hold-key"}) not in (
+        legacy,
+        model_hash(tmp_path, {**meta, "pad": "end"}),
+    )
+    (tmp_path / "g.onnx").write_bytes(b"other weights")
+    assert model_hash(tmp_path, meta) != legacy

@@ -147,15 +147,16 @@ class OnnxInbetweener:
         mult = int(self.meta["multiple"])
         pad = (-N) % mult
         front = pad if self.pad == "front" else 0
+        back = pad - front
         if front:
-            rot = np.concatenate([np.repeat(rot[:, :1], pad, 1), rot], 1)
-            root = np.concatenate([np.repeat(root[:, :1], pad, 1), root], 1)
-            keys = np.r_[np.arange(pad), keys + pad]
-        elif pad:
-            rot = np.concatenate([rot, np.repeat(rot[:, -1:], pad, 1)], 1)
-            root = np.concatenate([root, np.repeat(root[:, -1:], pad, 1)], 1)
-            if self.pad == "hold-key":
-                keys = np.r_[keys, N + pad - 1]
+            rot = np.concatenate([np.repeat(rot[:, :1], front, 1), rot], 1)
+            root = np.concatenate([np.repeat(root[:, :1], front, 1), root], 1)
+            keys = np.r_[np.arange(front), keys + front]
+        if back:
+            rot = np.concatenate([rot, np.repeat(rot[:, -1:], back, 1)], 1)
+            root = np.concatenate([root, np.repeat(root[:, -1:], back, 1)], 1)
+            if self.pad != "end":
+                keys = np.r_[keys, front + N + back - 1]
         gcfg = self.meta.get("generator", {})
         feats, ctx = build_features(rot, root, keys, skel, noise, tta=gcfg.get("tta", True))
         out = self.session("generator").run(None, {"features": feats})[0]

@@ -77,11 +77,14 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., help="Model folder to write (ONNX files + model.json)."),
         name: str = typer.Option(None, help="Model name (default: the folder name)."),
         root: str = typer.Option("generator", help="Root path source at inference: generator or path."),
+        pad: str = typer.Option(
+            "hold-key", help="Pad layout at inference: hold-key (the last padded frame a key), end, front."
+        ),
     ):
         """Export both networks to ONNX and check onnxruntime against torch."""
         from pipeline.train.export import export as do_export
         from pipeline.train.export import verify
 
-        meta = do_export(run, out, name or out.name, {"root": root})
+        meta = do_export(run, out, name or out.name, {"root": root, "pad": pad})
         err = verify(run, out)
         typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")

@@ -110,13 +110,26 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     if "path" in files:
         torch.save({k: pstate[k] for k in keep if k in pstate}, out_dir / "torch" / "path.pt")
     meta["files"] = files
+    meta["pad"] = "hold-key"  # every training window ends on a key; see OnnxInbetweener._network
     meta.update(extra or {})
-    h = hashlib.sha256()
-    for f in sorted(files.values()):
-        h.update(sha256(out_dir / f).encode())
-    meta["hash"] = h.hexdigest()[:16]
+    meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
     return meta
+
+
+INFERENCE_KEYS = ("root", "pad", "mirror_average")  # settings that change what a fill gives
+
+
+def model_hash(out_dir: Path, meta: dict) -> str:
+    """The networks' bytes plus the inference settings: a setting changed is a new model to
+    the farm's take digests."""
+    h = hashlib.sha256()
+    for f in sorted(meta["files"].values()):
+        h.update(sha256(out_dir / f).encode())
+    settings = {k: meta[k] for k in INFERENCE_KEYS if k in meta and k != "root"}
+    if settings:  # models exported before these settings keep their hash
+        h.update(json.dumps(settings, sort_keys=True).encode())
+    return h.hexdigest()[:16]
 
 
 def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
