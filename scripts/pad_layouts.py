@@ -1,45 +1,27 @@
-"""Choose the generator's pad layout on data that is neither train nor eval: the CMU takes.
+"""Choose the generator's pad layout without the eval split.
 
 python scripts/pad_layouts.py MODEL_DIR [--eval]
 
 The network takes windows a multiple of 32 frames long, so a shot is padded. The layouts of
 ``OnnxInbetweener(pad=...)`` are compared on the protocol's task (10 context frames, a
-target after 5/15/30/45 frames) cut from the CMU takes mapped onto the model skeleton
-(65-frame windows every 40 frames, normalised as in PROTOCOL.md). ``--eval`` adds the same
-rows on the eval split, for the record only: the choice is made on CMU.
+target after 5/15/30/45 frames) on windows cut as PROTOCOL.md cuts them from every 4th
+train clip and from the CMU takes mapped onto the model skeleton (``pipeline.bench.heldout``).
+``--eval`` adds the same rows on the eval split, for the record only: the choice is made on
+the train windows (the CMU rows show whether it carries over to another source).
 """
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.heldout import cmu_windows
 from pipeline.bench.methods import inbetweener_method, interpolation
 from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, position_stats, window_starts
 from pipeline.bench.run import evaluate, test_windows
 from pipeline.data.cache import load_split
-from pipeline.data.split import shared_data_dir
 from pipeline.infer.model import OnnxInbetweener
 
 LAYOUTS = ("end", "hold-key", "front")
-
-
-def cmu_windows(cache=Path("runs/cmu_windows.npz")):
-    if cache.exists():
-        d = np.load(cache)
-        return d["rots"], d["roots"]
-    from pipeline.bench.long_gaps import cmu_on_model_skeleton
-
-    rots, roots = [], []
-    for f in sorted((shared_data_dir() / "cmu_iclone").glob("*.bvh.gz")):
-        m = cmu_on_model_skeleton(f)
-        for s in window_starts(len(m.rotations), TEST_WINDOW, TEST_STRIDE):
-            rots.append(m.rotations[s : s + TEST_WINDOW])
-            roots.append(m.root_positions[s : s + TEST_WINDOW])
-    rots, roots = normalize_windows(np.stack(rots).astype(np.float32), np.stack(roots).astype(np.float32))
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(cache, rots=rots, roots=roots)
-    return rots, roots
 
 
 def train_windows(every: int = 4):

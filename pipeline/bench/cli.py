@@ -22,6 +22,9 @@ def register(app: typer.Typer) -> None:
         posture: float = typer.Option(
             0.0, help="Per-joint posture offsets up to this many degrees (robustness check)."
         ),
+        source: str = typer.Option(
+            "eval", help="eval (the protocol), or cmu: the CMU takes retargeted (held-out source)."
+        ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
@@ -47,6 +50,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(md)
             return
 
-        res = run_bench([m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored, posture)
+        res = run_bench(
+            [m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored, posture, source
+        )
         typer.echo(res["markdown"])
         typer.echo(f"written: {res['json']}", err=True)

@@ -28,19 +28,28 @@ from pipeline.motion.augment import posture_offsets
 METRICS = ("L2Q", "L2P", "NPSS", "MPJPE", "skate")
 
 
-def test_windows(limit: int | None = None, mirrored: bool = False, posture: float = 0.0):
+def test_windows(
+    limit: int | None = None, mirrored: bool = False, posture: float = 0.0, source: str = "eval"
+):
     """The normalised eval windows (``limit`` clips only, for quick checks).
 
     ``mirrored``: each window's left/right mirror image instead, a robustness check outside
     the protocol (the actors' handedness and gait asymmetries are reversed; the mirror keeps
     the window centred and facing +X at frame 9, so the protocol's normalisation still holds).
+    ``source="cmu"``: windows of the CMU takes instead (``pipeline.bench.heldout``).
     ``posture``: every window's joints get constant offsets of up to this many degrees (fixed
     seed), as a rig set up differently from the actors' would carry them; the windows are
     normalised again afterwards. Also outside the protocol.
     """
-    clips = load_split("eval", limit=limit)
-    rots, roots = cut_windows(clips, TEST_WINDOW, TEST_STRIDE)
-    rots, roots = normalize_windows(rots, roots)
+    if source == "cmu":
+        from pipeline.bench.heldout import cmu_windows
+
+        rots, roots = cmu_windows()
+    elif source == "eval":
+        clips = load_split("eval", limit=limit)
+        rots, roots = normalize_windows(*cut_windows(clips, TEST_WINDOW, TEST_STRIDE))
+    else:
+        raise ValueError(f"unknown window source {source!r} (eval or cmu)")
     if mirrored:
         m = bandai_mirror()
         rots = m.rotations(rots, bandai_skeleton().parents).astype(rots.dtype)
@@ -103,11 +112,16 @@ def markdown(results: dict, n_windows: int, transitions=TRANSITIONS) -> str:
 
 
 def run_bench(
-    methods: list[str], limit: int | None, out_dir: Path, mirrored: bool = False, posture: float = 0.0
+    methods: list[str],
+    limit: int | None,
+    out_dir: Path,
+    mirrored: bool = False,
+    posture: float = 0.0,
+    source: str = "eval",
 ) -> dict:
     print("loading train statistics and eval windows…", file=sys.stderr)
     mean, std = position_stats(load_split("train"))
-    rots, roots = test_windows(limit, mirrored, posture)
+    rots, roots = test_windows(limit, mirrored, posture, source)
     results = {}
     for name in methods:
         print(f"evaluating {name} on {len(rots)} windows…", file=sys.stderr)
@@ -119,10 +133,13 @@ def run_bench(
         "eval_clips_limit": limit,
         "mirrored": mirrored,
         "posture_offsets_deg": posture,
+        "source": source,
         "results": {m: {str(t): v for t, v in r.items()} for m, r in results.items()},
     }
     (out_dir / "bench.json").write_text(json.dumps(payload, indent=1))
     md = markdown(results, len(rots))
+    if source != "eval":
+        md = f"Source: {source} windows (not the protocol's eval split).\n" + md
     if posture:
         md = f"Posture offsets: up to {posture:g}° per joint (not the protocol).\n" + md
     if mirrored:
