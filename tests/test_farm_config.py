@@ -176,3 +176,28 @@ def test_train_rig_task_reports_progress_and_stops_the_trainer_at_the_soft_limit
     pid = int(pidfile.read_text())
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)  # the trainer is gone
+
+
+def test_state_reports_the_stage_that_failed_while_it_is_being_written(monkeypatch):
+    """A failure is written to the failing stage, then to every later one; a poll that reads
+    the early stage before that write and a later one after it must still name the cause."""
+    from celery import states
+
+    from workers import jobs
+    from workers.app import SUBMITTED
+
+    job = "job1"
+    err = jobs.app.backend.prepare_exception(PathRefused("/x.usda: outside the shot roots"))
+    reads = {f"{job}.validate": 0}
+
+    def meta(tid):
+        if tid == job:
+            return {"status": SUBMITTED, "result": {"shot": "/x.usda", "takes": 1}}
+        if tid == f"{job}.validate":
+            reads[tid] += 1  # the worker writes FAILURE here between the first and second read
+            return {"status": states.STARTED if reads[tid] == 1 else states.FAILURE, "result": err}
+        return {"status": states.FAILURE, "result": err}
+
+    monkeypatch.setattr(jobs, "_meta", meta)
+    js = jobs.state(job)
+    assert js.state == "FAILURE" and js.stage == "validate" and "outside the shot roots" in js.error

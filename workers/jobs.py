@@ -143,8 +143,17 @@ def state(job_id: str) -> JobState:
     js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
     js.total, js.state = len(stages), "QUEUED"
     failures = []
+    # Stages are read one by one while the worker writes them: a failure marks every later
+    # stage too, so a later stage can read FAILURE while an earlier one still read STARTED.
+    # Read the stages after the first failure last, then the earlier ones again.
+    metas = {tid: _meta(tid) for _, tid in stages}
+    first_failed = next(
+        (i for i, (_, tid) in enumerate(stages) if metas[tid].get("status") == cstates.FAILURE), None
+    )
+    if first_failed:
+        metas.update({tid: _meta(tid) for _, tid in stages[:first_failed]})
     for name, tid in stages:
-        m = _meta(tid)
+        m = metas[tid]
         st = m.get("status", cstates.PENDING)
         js.stages[name] = st
         if st == cstates.SUCCESS:
