@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from types import SimpleNamespace
 
 import pytest
 
@@ -187,8 +188,12 @@ def test_state_reports_the_stage_that_failed_while_it_is_being_written(monkeypat
     from workers.app import SUBMITTED
 
     job = "job1"
-    err = jobs.app.backend.prepare_exception(PathRefused("/x.usda: outside the shot roots"))
+    err = {"exc_message": "/x.usda: outside the shot roots"}
     reads = {f"{job}.validate": 0}
+    # A stand-in backend: touching the real app's backend here would bind it to this test's
+    # settings for the rest of the session (the farm tests configure their own broker).
+    backend = SimpleNamespace(exception_to_python=lambda r: PathRefused(r["exc_message"]))
+    monkeypatch.setattr(jobs, "app", SimpleNamespace(backend=backend))
 
     def meta(tid):
         if tid == job:
