@@ -12,11 +12,9 @@ the train windows (the CMU rows show whether it carries over to another source).
 
 import sys
 
-import numpy as np
-
 from pipeline.bench.heldout import cmu_windows
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, position_stats, window_starts
+from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, position_stats, windows_of
 from pipeline.bench.run import evaluate, test_windows
 from pipeline.data.cache import load_split
 from pipeline.infer.model import OnnxInbetweener
@@ -28,13 +26,8 @@ def train_windows(every: int = 4):
     """Protocol windows cut from every ``every``-th train clip (seen in training: the layouts are
     a question of input format, not of what the model memorised)."""
     clips = load_split("train")
-    rots, roots = [], []
-    for c in range(0, len(clips), every):
-        r, p = clips.clip(c)
-        for i in window_starts(len(r), TEST_WINDOW, TEST_STRIDE):
-            rots.append(r[i : i + TEST_WINDOW])
-            roots.append(p[i : i + TEST_WINDOW])
-    return normalize_windows(np.stack(rots), np.stack(roots))
+    picked = (clips.clip(c) for c in range(0, len(clips), every))
+    return normalize_windows(*windows_of(picked, TEST_WINDOW, TEST_STRIDE))
 
 
 def main(model: str, with_eval: bool) -> None:

@@ -143,9 +143,9 @@ def state(job_id: str) -> JobState:
     js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
     js.total, js.state = len(stages), "QUEUED"
     failures = []
-    # Stages are read one by one while the worker writes them: a failure marks every later
-    # stage too, so a later stage can read FAILURE while an earlier one still read STARTED.
-    # Read the stages after the first failure last, then the earlier ones again.
+    # Stages are read one by one while the worker writes them: a failure is written to the
+    # failing stage, then to every later one, so a later stage can read FAILURE while an
+    # earlier one still read STARTED. The stages before the first failed one are read again.
     metas = {tid: _meta(tid) for _, tid in stages}
     first_failed = next(
         (i for i, (_, tid) in enumerate(stages) if metas[tid].get("status") == cstates.FAILURE), None

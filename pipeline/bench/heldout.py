@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, window_starts
+from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 from pipeline.data.cache import cache_dir
 from pipeline.data.split import shared_data_dir
 
@@ -30,14 +30,14 @@ def cmu_windows() -> tuple[np.ndarray, np.ndarray]:
         return d["rots"], d["roots"]
     from pipeline.bench.long_gaps import cmu_on_model_skeleton
 
-    rots, roots = [], []
-    for i, f in enumerate(files):
-        print(f"retargeting CMU take {i + 1}/{len(files)}: {f.name}", file=sys.stderr)
-        m = cmu_on_model_skeleton(f)
-        for s in window_starts(len(m.rotations), TEST_WINDOW, TEST_STRIDE):
-            rots.append(m.rotations[s : s + TEST_WINDOW])
-            roots.append(m.root_positions[s : s + TEST_WINDOW])
-    rots, roots = normalize_windows(np.stack(rots).astype(np.float32), np.stack(roots).astype(np.float32))
+    def takes():
+        for i, f in enumerate(files):
+            print(f"retargeting CMU take {i + 1}/{len(files)}: {f.name}", file=sys.stderr)
+            m = cmu_on_model_skeleton(f)
+            yield m.rotations, m.root_positions
+
+    rots, roots = windows_of(takes(), TEST_WINDOW, TEST_STRIDE)
+    rots, roots = normalize_windows(rots.astype(np.float32), roots.astype(np.float32))
     tmp = cache.with_suffix(".tmp.npz")
     np.savez(tmp, rots=rots, roots=roots)
     tmp.replace(cache)

@@ -21,15 +21,19 @@ def window_starts(n_frames: int, length: int, stride: int) -> range:
     return range(0, max(n_frames - length, 0), stride)
 
 
-def cut_windows(clips: ClipSet, length: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
-    """All windows of all clips: rotations (N, L, J, 4), roots (N, L, 3)."""
+def windows_of(clips, length: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """All windows of an iterable of (rotations, roots) clips: (N, L, J, 4), (N, L, 3)."""
     rots, roots = [], []
-    for c in range(len(clips)):
-        r, p = clips.clip(c)
+    for r, p in clips:
         for i in window_starts(len(r), length, stride):
             rots.append(r[i : i + length])
             roots.append(p[i : i + length])
     return np.stack(rots), np.stack(roots)
+
+
+def cut_windows(clips: ClipSet, length: int, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """All windows of all clips: rotations (N, L, J, 4), roots (N, L, 3)."""
+    return windows_of((clips.clip(c) for c in range(len(clips))), length, stride)
 
 
 def facing(positions: np.ndarray, skeleton=None) -> np.ndarray:

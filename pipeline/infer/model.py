@@ -106,13 +106,12 @@ class OnnxInbetweener:
         if not self.mirror:
             return self._raw(rot, root, keys, noise)
         m, parents, B = bandai_mirror(), self.skeleton.parents, len(rot)
-        both = self._raw(
+        q, r, c = self._raw(
             np.concatenate([rot, m.rotations(rot, parents)]),
             np.concatenate([root, m.root(root)]),
             keys,
             None if noise is None else np.concatenate([noise, noise]),
         )
-        q, r, c = both
         q2 = m.rotations(q[B:], parents)
         q2 = np.where((q2 * q[:B]).sum(-1, keepdims=True) < 0, -q2, q2)
         feet = [self.skeleton.index(n) for n in FOOT_JOINTS]

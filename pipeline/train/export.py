@@ -117,7 +117,9 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     return meta
 
 
-INFERENCE_KEYS = ("root", "pad", "mirror_average")  # settings that change what a fill gives
+# Inference settings in model.json that change what a fill gives. ``root`` changes it too
+# but was never hashed; it stays out so that earlier models keep their hashes.
+HASHED_SETTINGS = ("pad", "mirror_average")
 
 
 def model_hash(out_dir: Path, meta: dict) -> str:
@@ -126,7 +128,7 @@ def model_hash(out_dir: Path, meta: dict) -> str:
     h = hashlib.sha256()
     for f in sorted(meta["files"].values()):
         h.update(sha256(out_dir / f).encode())
-    settings = {k: meta[k] for k in INFERENCE_KEYS if k in meta and k != "root"}
+    settings = {k: meta[k] for k in HASHED_SETTINGS if k in meta}
     if settings:  # models exported before these settings keep their hash
         h.update(json.dumps(settings, sort_keys=True).encode())
     return h.hexdigest()[:16]
