@@ -1,9 +1,10 @@
 """Choose the generator's pad layout without the eval split.
 
-python scripts/pad_layouts.py MODEL_DIR [--eval]
+python scripts/pad_layouts.py MODEL_DIR [--cmu] [--eval]
 
 The network takes windows a multiple of 32 frames long, so a shot is padded. The layouts of
-``OnnxInbetweener(pad=...)`` are compared on the protocol's task (10 context frames, a
+``OnnxInbetweener(pad=...)``, and the padded window's length (``pad_tail`` frames at least
+after the last key, ``min_window`` frames at least), are compared on the protocol's task (10 context frames, a
 target after 5/15/30/45 frames) on windows cut as PROTOCOL.md cuts them from every 4th
 train clip and from the CMU takes mapped onto the model skeleton (``pipeline.bench.heldout``).
 ``--eval`` adds the same rows on the eval split, for the record only: the choice is made on
@@ -19,7 +20,17 @@ from pipeline.bench.run import evaluate, test_windows
 from pipeline.data.cache import load_split
 from pipeline.infer.model import OnnxInbetweener
 
-LAYOUTS = ("end", "hold-key", "front")
+# (layout, pad_tail, min_window): the next multiple of 32 first, then longer windows.
+LAYOUTS = (
+    ("end", 0, 0),
+    ("hold-key", 0, 0),
+    ("front", 0, 0),
+    ("front", 0, 64),
+    ("hold-key", 0, 64),
+    ("hold-key", 0, 96),
+    ("hold-key", 16, 64),
+    ("hold-key", 24, 64),
+)
 
 
 def train_windows(every: int = 4):
@@ -32,17 +43,20 @@ def train_windows(every: int = 4):
 
 def main(model: str, with_eval: bool) -> None:
     mean, std = position_stats(load_split("train"))
-    sets = {"train (every 4th clip)": train_windows(), "cmu": cmu_windows()}
+    sets = {"train (every 4th clip)": train_windows()}
+    if "--cmu" in sys.argv:
+        sets["cmu"] = cmu_windows()
     if with_eval:
         sets["eval"] = test_windows(None)
     for name, (rots, roots) in sets.items():
         base = evaluate(interpolation, rots, roots, mean, std)
         print(f"\n{name}: {len(rots)} windows; L2P ÷ interp at 5 / 15 / 30 / 45 (skate cm/frame)")
-        for layout in LAYOUTS:
-            r = evaluate(inbetweener_method(OnnxInbetweener(model, pad=layout)), rots, roots, mean, std)
+        for layout, tail, least in LAYOUTS:
+            inb = OnnxInbetweener(model, pad=layout, pad_tail=tail, min_window=least)
+            r = evaluate(inbetweener_method(inb), rots, roots, mean, std)
             ratio = " / ".join(f"{r[t]['L2P'] / base[t]['L2P']:.3f}" for t in r)
             skate = " / ".join(f"{r[t]['skate']:.3f}" for t in r)
-            print(f"| {layout} | {ratio} | {skate} |", flush=True)
+            print(f"| {layout}, tail {tail}, window ≥ {least} | {ratio} | {skate} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -29,16 +29,17 @@ def test_layouts_agree_when_nothing_is_padded(clip):
     rot, root = clip
     keys = np.array([0, 1, 2, 30, 50, 63])  # 64 frames from the first key to the last: no pad
     out = [
-        OnnxInbetweener("models/default", pad=p).fill_batch(rot[:, :64], root[:, :64], keys)
+        OnnxInbetweener("models/default", pad=p, pad_tail=0, min_window=0).fill_batch(
+            rot[:, :64], root[:, :64], keys
+        )
         for p in ("end", "hold-key", "front")
     ]
     for q, r in out[1:]:
         assert np.array_equal(q, out[0][0]) and np.array_equal(r, out[0][1])
 
 
-def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
-    rot, root = clip
-    model = OnnxInbetweener("models/default", pad="hold-key")
+def _spy_features(model, monkeypatch) -> dict:
+    """Record the features the generator session is run on."""
     seen = {}
     real = model.session("generator").run
 
@@ -48,9 +49,34 @@ def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
             return real(names, feeds)
 
     monkeypatch.setitem(model._sessions, "generator", Spy())
+    return seen
+
+
+KEY_FLAG = 2 * (21 * 6 + 3) + 1  # the key-flag channel of the features
+
+
+def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
+    rot, root = clip
+    model = OnnxInbetweener("models/default", pad="hold-key")
+    seen = _spy_features(model, monkeypatch)
     model.raw(rot[:, :40], root[:, :40], np.array([0, 10, 39]))
-    is_key = seen["feats"][0, 2 * (21 * 6 + 3) + 1]  # the key-flag channel
+    is_key = seen["feats"][0, KEY_FLAG]
     assert len(is_key) == 64 and np.flatnonzero(is_key).tolist() == [0, 10, 39, 63]
+
+
+@pytest.mark.parametrize(
+    ("span", "tail", "min_window", "padded"),
+    [(26, 0, 0, 32), (26, 16, 64, 64), (56, 16, 64, 96), (56, 0, 64, 64), (80, 16, 64, 96), (81, 16, 0, 128)],
+)
+def test_padded_window_length(clip, monkeypatch, span, tail, min_window, padded):
+    rot, root = clip
+    model = OnnxInbetweener("models/default", pad="hold-key", pad_tail=tail, min_window=min_window)
+    seen = _spy_features(model, monkeypatch)
+    keys = np.array([0, 1, 2, 9, span - 1])
+    q, r, _ = model.raw(rot[:, :span], root[:, :span], keys)
+    is_key = seen["feats"][0, KEY_FLAG]
+    assert len(is_key) == padded and np.flatnonzero(is_key).tolist() == [*keys, padded - 1]
+    assert q.shape[1] == span and r.shape[1] == span
 
 
 def test_unknown_layout_is_refused():

@@ -45,6 +45,25 @@ def test_key_neighbours_and_dense_format_on_hand_made_keys():
     assert np.allclose(feats[0, :J6, 8], feats[0, J6 + 3 : 2 * J6 + 3, 8], atol=1e-5)
 
 
+def test_scheduled_target_noise_fades_near_keys():
+    from pipeline.infer.features import NOISE_CHANNELS
+
+    keys = np.array([0, 3, 60, 99])
+    rot, root = random_motion(2, 100)
+    noise = RNG.normal(size=(2, NOISE_CHANNELS))
+    flat, _ = build_features(rot, root, keys, SKEL, noise)
+    sched, _ = build_features(rot, root, keys, SKEL, noise, noise_schedule=True)
+    assert np.allclose(flat[:, -NOISE_CHANNELS:], noise[:, :, None])  # constant over time
+    lat = sched[:, -NOISE_CHANNELS:]
+    dist = np.array([min(abs(t - k) for k in keys) for t in range(100)])
+    assert np.allclose(lat[..., dist <= 5], 0.0)  # no variation where the keys are near
+    assert np.allclose(lat[..., dist >= 30], noise[:, :, None], atol=1e-6)
+    mid = lat[0, 0, (dist > 5) & (dist < 30)] / noise[0, 0]
+    assert ((mid > 0) & (mid < 1)).all()
+    # Only the latent channels change.
+    assert np.array_equal(flat[:, :-NOISE_CHANNELS], sched[:, :-NOISE_CHANNELS])
+
+
 def test_canonical_frame_puts_first_key_at_origin_facing_x():
     m = read_bvh(__import__("pipeline.data.split", fromlist=["x"]).list_clips("eval")[1]).continuous()
     assert len(m) > 41
@@ -131,6 +150,31 @@ def test_lock_feet_reduces_slide_and_keeps_keys(bandai_clip):
     slide = lambda p: np.linalg.norm(np.diff(p[8:22, ankle][:, [0, 2]], axis=0), axis=-1).mean()  # noqa: E731
     assert slide(after) < 0.5 * slide(before)
     assert np.array_equal(out[keys], rot[keys])
+
+
+def test_anchored_feet_stay_where_the_key_planted_them(bandai_clip):
+    m = read_bvh(bandai_clip)
+    rot, root = m.rotations[:12].copy(), m.root_positions[:12].copy()
+    root[:, 0] += np.linspace(0, 6, 12)  # a 5-frame gap whose feet slide: shorter than the fade
+    legs = [tuple(SKEL.index(n) for n in leg) for leg in LEGS]
+    contacts = np.zeros((12, 2))
+    contacts[2:9] = 1.0  # one contact per leg, holding key 4 (and reaching past key 8)
+    keys = np.array([0, 1, 2, 3, 4, 10])
+    ankle = legs[0][2]
+    _, before = fk(rot, root, SKEL.parents, SKEL.offsets)
+    plain = lock_feet(rot, root, SKEL, contacts, keys, legs)
+    out = lock_feet(rot, root, SKEL, contacts, keys, legs, anchor=True)
+    _, after = fk(out, root, SKEL.parents, SKEL.offsets)
+    _, after_plain = fk(plain, root, SKEL.parents, SKEL.offsets)
+    drift = lambda p: np.linalg.norm(p[5:9, ankle, [0, 2]] - p[4, ankle, [0, 2]], axis=-1)  # noqa: E731
+    assert drift(after)[0] < 0.05  # full weight right after the key (then the contact's ramp out)
+    held = lambda p: drift(p)[:3].mean()  # noqa: E731  (frame 8 is the contact's last)
+    assert held(after) < 0.5 * held(after_plain) and held(after) < 0.5 * held(before)
+    assert np.array_equal(out[keys], rot[keys])
+    assert np.array_equal(out[11:], rot[11:])  # held frames after the last key: untouched
+    _, gp_before = fk(rot, root, SKEL.parents, SKEL.offsets)
+    bone = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
+    assert np.abs(bone(after) - bone(gp_before)).max() < 1e-4
 
 
 def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip):

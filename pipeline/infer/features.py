@@ -95,12 +95,22 @@ def interpolate(rot, root, keys):
     return out, ipos, prev, nxt
 
 
-def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True):
+def noise_scale(d: np.ndarray) -> np.ndarray:
+    """Scheduled target noise (RMIB's λ_target): 0 within 5 frames of a key, 1 from 30 on.
+
+    RMIB schedules by the time to the one target; here ``d`` is the distance to the nearest
+    key, so a take's variation also fades in after a key instead of leaving it with a jump.
+    """
+    return np.clip((np.asarray(d, np.float64) - 5.0) / 25.0, 0.0, 1.0)
+
+
+def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True, noise_schedule: bool = False):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
     ``rot`` (B, N, J, 4), ``root`` (B, N, 3) hold real values at ``keys`` (sorted, shared by
     the batch); other frames are ignored. ``noise`` (B, NOISE_CHANNELS) is the take's
-    latent, constant over time (zeros when None).
+    latent, constant over time (zeros when None), or with ``noise_schedule`` scaled per
+    frame by :func:`noise_scale`, so that every take arrives at the keys the same way.
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
@@ -116,6 +126,9 @@ def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True):
     )
     if not tta:
         tta_ch = np.zeros_like(tta_ch)
+    latent = np.zeros((B, 1, NOISE_CHANNELS)) if noise is None else np.asarray(noise)[:, None, :]
+    if noise_schedule:
+        latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
     feats = np.concatenate(
         [
@@ -124,10 +137,7 @@ def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True):
             quat_to_6d(crot[:, nearest]).reshape(B, N, J * 6),
             croot[:, nearest] / ROOT_SCALE,
             np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
-            np.broadcast_to(
-                np.zeros((B, 1, NOISE_CHANNELS)) if noise is None else np.asarray(noise)[:, None, :],
-                (B, N, NOISE_CHANNELS),
-            ),
+            np.broadcast_to(latent, (B, N, NOISE_CHANNELS)),
         ],
         axis=-1,
     )

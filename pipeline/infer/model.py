@@ -73,6 +73,9 @@ class OnnxInbetweener:
         hierarchical: bool = True,
         mirror: bool | None = None,
         pad: str | None = None,
+        pad_tail: int | None = None,
+        min_window: int | None = None,
+        feet_anchor: bool | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -82,12 +85,18 @@ class OnnxInbetweener:
         self.skeleton = bandai_skeleton()
         self.root_mode = root or self.meta.get("root", "generator")
         self.feet = feet
+        # Contacts that hold a key lock at the key's ankle position (post.lock_feet).
+        self.feet_anchor = bool(self.meta.get("feet_anchor", False) if feet_anchor is None else feet_anchor)
         self.hierarchical = hierarchical
         # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
         self.pad = pad or self.meta.get("pad", "end")
         if self.pad not in ("end", "hold-key", "front"):
             raise ValueError(f"{self.folder}: unknown pad layout {self.pad!r}")
+        # Padded window: at least ``min_window`` frames, with at least ``pad_tail`` held frames
+        # after the last key (0 and 0, the layout before v5.1, pad to the next multiple only).
+        self.pad_tail = int(self.meta.get("pad_tail", 0) if pad_tail is None else pad_tail)
+        self.min_window = int(self.meta.get("min_window", 0) if min_window is None else min_window)
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
@@ -144,7 +153,7 @@ class OnnxInbetweener:
         skel = self.skeleton
         B, N, J = rot.shape[:3]
         mult = int(self.meta["multiple"])
-        pad = (-N) % mult
+        pad = -(-max(N + self.pad_tail, self.min_window) // mult) * mult - N
         front = pad if self.pad == "front" else 0
         back = pad - front
         if front:
@@ -157,7 +166,15 @@ class OnnxInbetweener:
             if self.pad != "end":
                 keys = np.r_[keys, front + N + back - 1]
         gcfg = self.meta.get("generator", {})
-        feats, ctx = build_features(rot, root, keys, skel, noise, tta=gcfg.get("tta", True))
+        feats, ctx = build_features(
+            rot,
+            root,
+            keys,
+            skel,
+            noise,
+            tta=gcfg.get("tta", True),
+            noise_schedule=gcfg.get("noise_schedule", False),
+        )
         out = self.session("generator").run(None, {"features": feats})[0]
         o = out.transpose(0, 2, 1)
         f = feats.transpose(0, 2, 1)
@@ -191,7 +208,15 @@ class OnnxInbetweener:
         if self.feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
             for b in range(len(q)):
-                q[b] = lock_feet(q[b], r[b], self.skeleton, contacts[b][:, [0, 2]], keys, self.legs)
+                q[b] = lock_feet(
+                    q[b],
+                    r[b],
+                    self.skeleton,
+                    contacts[b][:, [0, 2]],
+                    keys,
+                    self.legs,
+                    anchor=self.feet_anchor,
+                )
         return q, r
 
     def _insert_keys(self, rot, root, keys, noise):

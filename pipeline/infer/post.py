@@ -146,32 +146,50 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
     return rot
 
 
-def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4):
+def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
-    Key frames get weight 0 and the weight rises over ``ramp`` frames away from them; frames
-    before the first key and after the last are held, so they get no IK either.
+    A contact is locked at its mean ankle position. Key frames get weight 0 and the weight
+    rises over ``ramp`` frames away from them; frames before the first key and after the last
+    are held, so they get no IK either. With ``anchor``, a contact that holds a key is locked
+    at that key's own ankle position (between two such keys, their line) at full weight up to
+    the key: the foot the animator planted stays planted, even in gaps shorter than the ramp.
     """
     N = len(rot)
+    keys = np.asarray(keys)
     _, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
-    dist_key = np.min(np.abs(np.arange(N)[:, None] - np.asarray(keys)[None]), axis=1)
+    dist_key = np.min(np.abs(np.arange(N)[:, None] - keys[None]), axis=1)
     key_fade = np.clip(dist_key / ramp, 0, 1)
-    key_fade[: keys[0]] = 0.0
-    key_fade[keys[-1] + 1 :] = 0.0
+    outside = np.zeros(N, bool)
+    outside[: keys[0]] = True
+    outside[keys[-1] + 1 :] = True
     out = rot.copy()
     for li, leg in enumerate(legs):
         ankle = leg[2]
         weight = np.zeros(N)
+        fade = key_fade.copy()
         targets = gp[:, ankle].copy()
         for s0, s1 in contact_segments(contacts[:, li] > 0.5):
             if s1 - s0 < 2:
                 continue
-            lock = gp[s0:s1, ankle].mean(0)
-            targets[s0:s1, 0] = lock[0]
-            targets[s0:s1, 2] = lock[2]
-            ramp_in = np.clip((np.arange(s0, s1) - s0 + 1) / ramp, 0, 1)
-            ramp_out = np.clip((s1 - np.arange(s0, s1)) / ramp, 0, 1)
+            frames = np.arange(s0, s1)
+            held = keys[(keys >= s0) & (keys < s1)] if anchor else keys[:0]
+            ramp_in = np.clip((frames - s0 + 1) / ramp, 0, 1)
+            ramp_out = np.clip((s1 - frames) / ramp, 0, 1)
+            if len(held):
+                for axis in (0, 2):
+                    targets[s0:s1, axis] = np.interp(frames, held, gp[held, ankle, axis])
+                # The key's own position is the target there: no fade needed toward the key.
+                fade[s0:s1] = 1.0
+                ramp_in[frames >= held[0]] = 1.0
+                ramp_out[frames <= held[-1]] = 1.0
+            else:
+                lock = gp[s0:s1, ankle].mean(0)
+                targets[s0:s1, 0] = lock[0]
+                targets[s0:s1, 2] = lock[2]
             weight[s0:s1] = _smoothstep(np.minimum(ramp_in, ramp_out))
-        weight *= _smoothstep(key_fade)
+        fade[keys] = 0.0
+        fade[outside] = 0.0
+        weight *= _smoothstep(fade)
         out = two_bone_ik(out, root, skeleton, leg, targets, weight)
     return out.astype(np.float32)

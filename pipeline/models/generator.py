@@ -27,6 +27,7 @@ class GeneratorConfig:
     bottleneck_dilations: tuple[int, ...] = (1, 2)
     residual: bool = True  # predict the correction to interpolation (Δ-interpolator) or the raw pose
     tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
+    noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     extra: dict = field(default_factory=dict)
 

@@ -39,8 +39,12 @@ def register(app: typer.Typer) -> None:
         posture: float = typer.Option(
             0.0, help="Largest per-joint posture offset, degrees, on half the windows (augmentation)."
         ),
+        target_noise: bool = typer.Option(
+            False, help="Scheduled target noise: the take latent fades to 0 within 5 frames of a key."
+        ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
+        from pipeline.models.generator import GeneratorConfig
         from pipeline.train.generator import TrainConfig
         from pipeline.train.generator import train as train_generator
         from pipeline.train.path import PathTrainConfig, train_path
@@ -65,6 +69,7 @@ def register(app: typer.Typer) -> None:
                 data_pack=str(data_pack) if data_pack else None,
                 mirror=mirror,
                 posture=posture,
+                model=GeneratorConfig(noise_schedule=target_noise),
                 **common,
             ),
             out,
@@ -80,11 +85,14 @@ def register(app: typer.Typer) -> None:
         pad: str = typer.Option(
             "hold-key", help="Pad layout at inference: hold-key (the last padded frame a key), end, front."
         ),
+        pad_tail: int = typer.Option(16, help="Frames held after the last key at least, when padding."),
+        min_window: int = typer.Option(64, help="Shortest padded window, frames."),
     ):
         """Export both networks to ONNX and check onnxruntime against torch."""
         from pipeline.train.export import export as do_export
         from pipeline.train.export import verify
 
-        meta = do_export(run, out, name or out.name, {"root": root, "pad": pad})
+        settings = {"root": root, "pad": pad, "pad_tail": pad_tail, "min_window": min_window}
+        meta = do_export(run, out, name or out.name, settings)
         err = verify(run, out)
         typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")

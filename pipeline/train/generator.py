@@ -132,7 +132,9 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     noise = None
     if adversarial or rng.random() < cfg.noise_prob:
         noise = rng.normal(size=(cfg.batch, NOISE_CHANNELS))
-    feats, ctx = build_features(rot, root, keys, skel, noise, tta=cfg.model.tta)
+    feats, ctx = build_features(
+        rot, root, keys, skel, noise, tta=cfg.model.tta, noise_schedule=cfg.model.noise_schedule
+    )
     _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
     between = np.zeros(L, bool)
     between[keys[0] : keys[-1] + 1] = True
