@@ -177,7 +177,8 @@ def test_anchored_feet_stay_where_the_key_planted_them(bandai_clip):
     assert np.abs(bone(after) - bone(gp_before)).max() < 1e-4
 
 
-def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip):
+@pytest.mark.parametrize("key_mask", [False, True])
+def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key_mask):
     from dataclasses import asdict
 
     from pipeline.infer.model import OnnxInbetweener
@@ -186,7 +187,7 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip):
     from pipeline.train.export import export, verify
 
     torch.manual_seed(0)
-    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64))
+    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask)
     g = Generator(gcfg)
     torch.nn.init.normal_(g.out.weight, std=0.01)  # not the zero start: a real residual
     pcfg = PathConfig(channels=(16, 24))
@@ -210,6 +211,14 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip):
         assert np.array_equal(out.rotations[keys], m.rotations[keys])
         assert np.array_equal(out.root_positions[keys], m.root_positions[keys])
         assert len(out) == 70 and np.isfinite(out.rotations).all()
+    if key_mask:  # partial keys: the root only at frame 20, and the mask reaches the network
+        jk = np.ones((len(keys), 22), bool)
+        jk[3, :21] = False
+        inb = OnnxInbetweener(tmp_path / "model")
+        out = inb.fill(m, keys, joint_keys=jk)
+        assert np.array_equal(out.root_positions[20], m.root_positions[20])
+        assert not np.array_equal(out.rotations[20], m.rotations[20])
+        assert not np.array_equal(out.rotations, inb.fill(m, keys).rotations)
 
 
 def test_tiny_training_run_loss_falls(tmp_path):

@@ -6,6 +6,11 @@ key's pose plus the distance to it), a key flag, and time-to-arrival sinusoids (
 distances to the previous and next key. Windows are first put in a canonical frame: the
 first key's root at the origin (X/Z) and facing +X, so the network never sees absolute
 position or heading.
+
+Partial keys (some joints only, or the root only) come as a per-key mask ``joint_keys``
+(K, J + 1: the joints, then the root). The baseline and the dense key copy of each joint
+then use that joint's own keys, and models built with ``key_mask`` also get the mask as
+J + 1 per-frame channels (1 where that joint is keyed). The first and last keys are full.
 """
 
 from __future__ import annotations
@@ -23,8 +28,20 @@ ROOT_SCALE = 100.0  # cm -> m, so root channels are of order one
 NOISE_CHANNELS = 8  # a per-take latent: zeros for the deterministic take, N(0, 1) from the seed otherwise
 
 
-def n_input_channels(n_joints: int) -> int:
-    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS + NOISE_CHANNELS
+def n_input_channels(n_joints: int, key_mask: bool = False) -> int:
+    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS + NOISE_CHANNELS + (n_joints + 1 if key_mask else 0)
+
+
+def check_joint_keys(joint_keys, n_keys: int, n_joints: int) -> np.ndarray:
+    """The per-key mask (K, J + 1) as bool, or ValueError saying what is wrong with it."""
+    m = np.asarray(joint_keys, bool)
+    if m.shape != (n_keys, n_joints + 1):
+        raise ValueError(f"joint key mask has shape {m.shape}, expected ({n_keys}, {n_joints + 1})")
+    if not (m[0].all() and m[-1].all()):
+        raise ValueError("the first and last keys must key every joint and the root (full poses)")
+    if not m.any(axis=1).all():
+        raise ValueError("a key in the joint key mask keys nothing")
+    return m
 
 
 def n_output_channels(n_joints: int, rotation: str = "6d") -> int:
@@ -84,15 +101,36 @@ def tta_embedding(d: np.ndarray) -> np.ndarray:
     return np.concatenate([np.sin(a), np.cos(a)], axis=-1)
 
 
-def interpolate(rot, root, keys):
-    """Interpolation baseline over a whole window (B, N, J, 4) given sorted key indices."""
-    B, N = rot.shape[:2]
-    prev, nxt = key_neighbours(N, keys)
-    span = np.maximum(nxt - prev, 1)
-    w = np.where(nxt > prev, (np.arange(N) - prev) / span, 0.0)
-    out = slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])  # one weight per frame
-    ipos = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
-    return out, ipos, prev, nxt
+def interpolate(rot, root, keys, joint_keys=None):
+    """Interpolation baseline over a whole window (B, N, J, 4) given sorted key indices.
+
+    With ``joint_keys`` (K, J + 1) each joint (and the root) interpolates between its own keys.
+    Also returns, per frame, the nearest key frame of every joint (N, J + 1).
+    """
+    B, N, J = rot.shape[:3]
+    keys = np.asarray(keys, np.int64)
+    if joint_keys is None:
+        joint_keys = np.ones((len(keys), J + 1), bool)
+    out = np.empty((B, N, J, 4))
+    ipos = np.empty((B, N, 3))
+    nearest = np.empty((N, J + 1), np.int64)
+    idx = np.arange(N)
+    # Joints sharing a key set (usually all of them) are interpolated together.
+    patterns, which = np.unique(joint_keys.T, axis=0, return_inverse=True)
+    for p, pattern in enumerate(patterns):
+        cols = np.flatnonzero(which.ravel() == p)
+        kj = keys[pattern]
+        prev, nxt = key_neighbours(N, kj)
+        w = np.where(nxt > prev, (idx - prev) / np.maximum(nxt - prev, 1), 0.0)
+        nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
+        joints = cols[cols < J]
+        if len(joints):
+            out[:, :, joints] = slerp_pairs(
+                rot[:, prev][:, :, joints], rot[:, nxt][:, :, joints], w[None, :, None]
+            )
+        if J in cols:
+            ipos[:] = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
+    return out, ipos, nearest
 
 
 def noise_scale(d: np.ndarray) -> np.ndarray:
@@ -104,21 +142,35 @@ def noise_scale(d: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(d, np.float64) - 5.0) / 25.0, 0.0, 1.0)
 
 
-def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True, noise_schedule: bool = False):
+def build_features(
+    rot,
+    root,
+    keys,
+    skeleton,
+    noise=None,
+    tta: bool = True,
+    noise_schedule: bool = False,
+    joint_keys=None,
+    key_mask: bool = False,
+):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
     ``rot`` (B, N, J, 4), ``root`` (B, N, 3) hold real values at ``keys`` (sorted, shared by
     the batch); other frames are ignored. ``noise`` (B, NOISE_CHANNELS) is the take's
     latent, constant over time (zeros when None), or with ``noise_schedule`` scaled per
     frame by :func:`noise_scale`, so that every take arrives at the keys the same way.
+    ``joint_keys`` (K, J + 1) marks partial keys (module docstring); ``key_mask`` adds its
+    channels.
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
+    if joint_keys is not None:
+        joint_keys = check_joint_keys(joint_keys, len(keys), J)
     q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
     crot, croot = apply_transform(rot, root, q, off)
-    irot, iroot, prev, nxt = interpolate(crot, croot, keys)
+    irot, iroot, nearest = interpolate(crot, croot, keys, joint_keys)
+    prev, nxt = key_neighbours(N, keys)
     idx = np.arange(N)
-    nearest = np.where(idx - prev <= nxt - idx, prev, nxt)
     dist = np.minimum(np.abs(idx - prev), np.abs(nxt - idx)).astype(np.float64)
     is_key = np.isin(idx, keys).astype(np.float64)
     tta_ch = np.concatenate(
@@ -134,15 +186,25 @@ def build_features(rot, root, keys, skeleton, noise=None, tta: bool = True, nois
         [
             quat_to_6d(irot).reshape(B, N, J * 6),
             iroot / ROOT_SCALE,
-            quat_to_6d(crot[:, nearest]).reshape(B, N, J * 6),
-            croot[:, nearest] / ROOT_SCALE,
+            quat_to_6d(np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)).reshape(B, N, J * 6),
+            croot[:, nearest[:, J]] / ROOT_SCALE,
             np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
             np.broadcast_to(latent, (B, N, NOISE_CHANNELS)),
+            np.broadcast_to(key_mask_channels(N, keys, joint_keys, J), (B, N, J + 1))[
+                ..., : (J + 1) * key_mask
+            ],
         ],
         axis=-1,
     )
     ctx = {"q": q, "off": off, "irot": irot, "iroot": iroot, "crot": crot, "croot": croot}
     return np.ascontiguousarray(feats.transpose(0, 2, 1), np.float32), ctx
+
+
+def key_mask_channels(n: int, keys, joint_keys, n_joints: int) -> np.ndarray:
+    """(N, J + 1): 1 where a joint (last: the root) is keyed at that frame."""
+    m = np.zeros((n, n_joints + 1))
+    m[np.asarray(keys, np.int64)] = 1.0 if joint_keys is None else joint_keys
+    return m
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:

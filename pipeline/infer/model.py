@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
 from pipeline.infer.features import (
     EULER_ORDER,
+    check_joint_keys,
     NOISE_CHANNELS,
     ROOT_SCALE,
     build_features,
@@ -76,6 +77,7 @@ class OnnxInbetweener:
         pad_tail: int | None = None,
         min_window: int | None = None,
         feet_anchor: bool | None = None,
+        feet_bridge: int | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -87,6 +89,8 @@ class OnnxInbetweener:
         self.feet = feet
         # Contacts that hold a key lock at the key's ankle position (post.lock_feet).
         self.feet_anchor = bool(self.meta.get("feet_anchor", False) if feet_anchor is None else feet_anchor)
+        # Short gaps planted at both keys stay planted (post.bridge_contacts); 0: off.
+        self.feet_bridge = int(self.meta.get("feet_bridge", 0) if feet_bridge is None else feet_bridge)
         self.hierarchical = hierarchical
         # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
@@ -106,20 +110,21 @@ class OnnxInbetweener:
             self._sessions[which] = ort_session(self.folder / self.meta["files"][which])
         return self._sessions[which]
 
-    def raw(self, rot, root, keys, noise=None):
+    def raw(self, rot, root, keys, noise=None, joint_keys=None):
         """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed.
 
         With ``mirror`` the batch runs beside its mirror image and the two answers, the second
         mirrored back, are averaged: the model's left/right biases cancel.
         """
         if not self.mirror:
-            return self._raw(rot, root, keys, noise)
+            return self._raw(rot, root, keys, noise, joint_keys)
         m, parents, B = bandai_mirror(), self.skeleton.parents, len(rot)
         q, r, c = self._raw(
             np.concatenate([rot, m.rotations(rot, parents)]),
             np.concatenate([root, m.root(root)]),
             keys,
             None if noise is None else np.concatenate([noise, noise]),
+            None if joint_keys is None else joint_keys[:, np.r_[m.pairs, len(parents)]],
         )
         q2 = m.rotations(q[B:], parents)
         q2 = np.where((q2 * q[:B]).sum(-1, keepdims=True) < 0, -q2, q2)
@@ -130,19 +135,19 @@ class OnnxInbetweener:
             0.5 * (c[:B] + m.contacts(c[B:], feet)),
         )
 
-    def _raw(self, rot, root, keys, noise=None):
+    def _raw(self, rot, root, keys, noise=None, joint_keys=None):
         N = rot.shape[1]
         keys = np.asarray(keys, np.int64)
         if self.pad != "end":
             # Only the keyed span goes in, as in training (first key first, last key last);
             # frames outside it are held by post-processing anyway.
             k0, k1 = int(keys[0]), int(keys[-1])
-            q, r, c = self._network(rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise)
+            q, r, c = self._network(rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise, joint_keys)
             edge = np.r_[np.zeros(k0, np.int64), np.arange(k1 - k0 + 1), np.full(N - k1 - 1, k1 - k0)]
             return q[:, edge], r[:, edge], c[:, edge]
-        return self._network(rot, root, keys, noise)
+        return self._network(rot, root, keys, noise, joint_keys)
 
-    def _network(self, rot, root, keys, noise=None):
+    def _network(self, rot, root, keys, noise=None, joint_keys=None):
         """The generator (+ path predictor) on one window, padded to the network's multiple.
 
         Pad layouts (``pad``): "end" holds the last frame after it as in-betweens (the layout
@@ -156,15 +161,20 @@ class OnnxInbetweener:
         pad = -(-max(N + self.pad_tail, self.min_window) // mult) * mult - N
         front = pad if self.pad == "front" else 0
         back = pad - front
+        full = np.ones((1, J + 1), bool)
+        if joint_keys is None:
+            joint_keys = np.repeat(full, len(keys), 0)
         if front:
             rot = np.concatenate([np.repeat(rot[:, :1], front, 1), rot], 1)
             root = np.concatenate([np.repeat(root[:, :1], front, 1), root], 1)
             keys = np.r_[np.arange(front), keys + front]
+            joint_keys = np.concatenate([np.repeat(full, front, 0), joint_keys])
         if back:
             rot = np.concatenate([rot, np.repeat(rot[:, -1:], back, 1)], 1)
             root = np.concatenate([root, np.repeat(root[:, -1:], back, 1)], 1)
             if self.pad != "end":
                 keys = np.r_[keys, front + N + back - 1]
+                joint_keys = np.concatenate([joint_keys, full])
         gcfg = self.meta.get("generator", {})
         feats, ctx = build_features(
             rot,
@@ -174,6 +184,8 @@ class OnnxInbetweener:
             noise,
             tta=gcfg.get("tta", True),
             noise_schedule=gcfg.get("noise_schedule", False),
+            joint_keys=joint_keys,
+            key_mask=gcfg.get("key_mask", False),
         )
         out = self.session("generator").run(None, {"features": feats})[0]
         o = out.transpose(0, 2, 1)
@@ -195,16 +207,27 @@ class OnnxInbetweener:
             vel = self.session("path").run(None, {"local_positions": path_inputs(q, croot, skel)})[0]
             vel = vel.transpose(0, 2, 1).astype(np.float64) * ROOT_SCALE
             keys_a = np.asarray(keys)
+            # The path passes through the keys that key the root.
+            keys_a = keys_a[joint_keys[:, J]]
             croot = integrate_path(vel, ctx["croot"][:, keys_a], keys_a, croot.shape[1])
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
         return q[:, front : front + N], wroot[:, front : front + N], contacts[:, front : front + N]
 
-    def fill_batch(self, rot, root, keys, noise=None):
-        keys = np.unique(np.asarray(keys, np.int64))
+    def fill_batch(self, rot, root, keys, noise=None, joint_keys=None):
+        """Fill a batch sharing its keys; ``joint_keys`` (K, J + 1) marks partial keys (the
+        joints, then the root, keyed at each key; the first and last keys full)."""
+        keys = np.asarray(keys, np.int64)
+        if joint_keys is not None:
+            if len(np.unique(keys)) != len(keys) or (np.diff(keys) < 0).any():
+                raise ValueError("with a joint key mask, keys must be sorted and unique")
+            joint_keys = check_joint_keys(joint_keys, len(keys), rot.shape[2])
+            if joint_keys.all():
+                joint_keys = None
+        keys = np.unique(keys)
         if self.hierarchical and np.diff(keys).max() > self.max_gap:
-            rot, root, keys = self._insert_keys(rot, root, keys, noise)
-        q, r, contacts = self.raw(rot, root, keys, noise)
-        q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys)
+            rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys)
+        q, r, contacts = self.raw(rot, root, keys, noise, joint_keys)
+        q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys, joint_keys)
         if self.feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
             for b in range(len(q)):
@@ -216,10 +239,11 @@ class OnnxInbetweener:
                     keys,
                     self.legs,
                     anchor=self.feet_anchor,
+                    bridge=self.feet_bridge,
                 )
         return q, r
 
-    def _insert_keys(self, rot, root, keys, noise):
+    def _insert_keys(self, rot, root, keys, noise, joint_keys=None):
         """Hierarchical key insertion for gaps longer than the model was trained on.
 
         A coarse pass fills the shot at 1/f of the frame rate (every gap then fits), and
@@ -227,9 +251,11 @@ class OnnxInbetweener:
         the fine pass then fills between all keys. The animator's keys stay exact.
         """
         f = int(np.ceil(np.diff(keys).max() / (0.66 * self.max_gap)))
-        ck = np.round(keys / f).astype(np.int64)
+        # The coarse pass takes the full keys only (partial ones may share a coarse frame).
+        full = np.ones(len(keys), bool) if joint_keys is None else joint_keys.all(axis=1)
+        ck = np.round(keys[full] / f).astype(np.int64)
         keep = np.r_[True, np.diff(ck) > 0]
-        ck, fk_ = ck[keep], keys[keep]
+        ck, fk_ = ck[keep], keys[full][keep]
         nc = int(ck[-1]) + 1
         c_rot = np.repeat(rot[:, :1], nc, 1).copy()
         c_root = np.repeat(root[:, :1], nc, 1).copy()
@@ -250,17 +276,24 @@ class OnnxInbetweener:
         rot, root = rot.copy(), root.copy()
         rot[:, new] = slerp_pairs(q[:, i0], q[:, i1], w[None, :, None])
         root[:, new] = (1 - w)[None, :, None] * r[:, i0] + w[None, :, None] * r[:, i1]
-        return rot, root, np.union1d(keys, new)
+        merged = np.union1d(keys, new)
+        if joint_keys is not None:  # inserted keys are full poses; the animator's keep their mask
+            mask = np.ones((len(merged), joint_keys.shape[1]), bool)
+            mask[np.searchsorted(merged, keys)] = joint_keys
+            joint_keys = mask
+        return rot, root, merged, joint_keys
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None) -> Motion:
         if len(self.skeleton) != len(motion.skeleton):
             raise ValueError(
                 f"{self.name}: motion has {len(motion.skeleton)} joints, model {len(self.skeleton)}"
             )
-        keys = np.unique(np.asarray(keys, np.int64))
+        keys = np.asarray(keys, np.int64)
+        if joint_keys is None:
+            keys = np.unique(keys)
         if len(keys) < 2:
             raise ValueError("in-betweening needs at least two keys")
         q, r = self.fill_batch(
-            motion.rotations[None], motion.root_positions[None], keys, take_latent(seed)[None]
+            motion.rotations[None], motion.root_positions[None], keys, take_latent(seed)[None], joint_keys
         )
         return replace(motion, rotations=q[0], root_positions=r[0])

@@ -35,15 +35,18 @@ def key_weights(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     return np.searchsorted(keys, prev), np.searchsorted(keys, nxt), _smoothstep(s)
 
 
-def match_keys(rot, root, key_rot, key_root, keys):
+def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     """Make frames ``keys`` equal the given key values; spread the corrections smoothly.
 
     ``rot`` (B, N, J, 4), ``root`` (B, N, 3); ``key_rot`` (B, K, J, 4), ``key_root`` (B, K, 3).
-    Frames before the first key and after the last hold those keys.
+    Frames before the first key and after the last hold those keys. With ``joint_keys``
+    (K, J + 1; the first and last keys full) each joint and the root match only the keys that
+    key them, and their corrections spread between those.
     """
     B, N, J = rot.shape[:3]
     keys = np.asarray(keys)
     K = len(keys)
+    mask = np.ones((K, J + 1), bool) if joint_keys is None else np.asarray(joint_keys, bool)
     pred_k = rot[:, keys].astype(np.float64)
     kr = key_rot.astype(np.float64)
     # Residual rotation r with r · pred = key, as a rotation vector (world-from-local side).
@@ -52,22 +55,36 @@ def match_keys(rot, root, key_rot, key_root, keys):
     delta = quat_mul(kr, inv).reshape(-1, 4)
     rv = Rotation.from_quat(delta).as_rotvec().reshape(B, K, J, 3)
     dr = key_root.astype(np.float64) - root[:, keys]
-    ip, inx, s = key_weights(N, keys)
-    w = s[None, :, None, None]
-    corr = (1 - w) * rv[:, ip] + w * rv[:, inx]  # (B, N, J, 3)
+    corr = np.empty((B, N, J, 3))
+    out_root = np.asarray(root, np.float64).copy()
+    patterns, which = np.unique(mask.T, axis=0, return_inverse=True)
+    for p, pattern in enumerate(patterns):
+        cols = np.flatnonzero(which.ravel() == p)
+        at = np.flatnonzero(pattern)  # which of the keys key these columns
+        ip, inx, s = key_weights(N, keys[at])
+        ip, inx = at[ip], at[inx]
+        joints = cols[cols < J]
+        w = s[None, :, None, None]
+        corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
+        if J in cols:
+            out_root = out_root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
     out_rot = quat_mul(
         Rotation.from_rotvec(corr.reshape(-1, 3)).as_quat().reshape(B, N, J, 4), rot.astype(np.float64)
     )
-    out_root = root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
-    # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
-    out_rot[:, keys] = key_rot
-    out_root[:, keys] = key_root
+
+    def put_keys(out_rot):
+        # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
+        for i, k in enumerate(keys):
+            out_rot[:, k, mask[i, :J]] = key_rot[:, i, mask[i, :J]]
+
+    put_keys(out_rot)
+    out_root[:, keys[mask[:, J]]] = key_root[:, mask[:, J]]
     out_rot[:, : keys[0]] = key_rot[:, :1]
     out_root[:, : keys[0]] = key_root[:, :1]
     out_rot[:, keys[-1] + 1 :] = key_rot[:, -1:]
     out_root[:, keys[-1] + 1 :] = key_root[:, -1:]
     out_rot = quat_continuity(out_rot, axis=1)
-    out_rot[:, keys] = key_rot  # continuity may have flipped a key's sign; keep its value
+    put_keys(out_rot)  # continuity may have flipped a key's sign; keep its value
     return out_rot.astype(np.float32), out_root.astype(np.float32)
 
 
@@ -146,7 +163,21 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
     return rot
 
 
-def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False):
+def bridge_contacts(contacts, ankle_xz, keys, max_gap: int, max_move: float):
+    """Contacts (N,) of one foot, with each short gap (at most ``max_gap`` frames) whose two keys
+    are both in contact, the ankle within ``max_move`` cm of where it was, set in contact
+    throughout: a foot planted at both ends of a short transition stays planted."""
+    out = contacts.copy()
+    for a, b in zip(keys[:-1], keys[1:], strict=True):
+        if b - a <= max_gap and out[a] and out[b]:
+            if np.linalg.norm(ankle_xz[b] - ankle_xz[a]) <= max_move:
+                out[a : b + 1] = True
+    return out
+
+
+def lock_feet(
+    rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False, bridge: int = 0
+):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
     A contact is locked at its mean ankle position. Key frames get weight 0 and the weight
@@ -154,6 +185,8 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
     are held, so they get no IK either. With ``anchor``, a contact that holds a key is locked
     at that key's own ankle position (between two such keys, their line) at full weight up to
     the key: the foot the animator planted stays planted, even in gaps shorter than the ramp.
+    ``bridge`` > 0 also fills the contacts of short gaps planted at both keys
+    (:func:`bridge_contacts`, 2 cm).
     """
     N = len(rot)
     keys = np.asarray(keys)
@@ -169,7 +202,10 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
         weight = np.zeros(N)
         fade = key_fade.copy()
         targets = gp[:, ankle].copy()
-        for s0, s1 in contact_segments(contacts[:, li] > 0.5):
+        flags = contacts[:, li] > 0.5
+        if bridge:
+            flags = bridge_contacts(flags, gp[:, ankle][:, [0, 2]], keys, bridge, 2.0)
+        for s0, s1 in contact_segments(flags):
             if s1 - s0 < 2:
                 continue
             frames = np.arange(s0, s1)

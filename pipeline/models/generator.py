@@ -28,6 +28,7 @@ class GeneratorConfig:
     residual: bool = True  # predict the correction to interpolation (Δ-interpolator) or the raw pose
     tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
     noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
+    key_mask: bool = False  # per-joint key-mask channels in the input (partial keys)
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     extra: dict = field(default_factory=dict)
 
@@ -50,7 +51,10 @@ class Generator(nn.Module):
     def __init__(self, cfg: GeneratorConfig):
         super().__init__()
         self.cfg = cfg
-        cin, cout = n_input_channels(cfg.n_joints), n_output_channels(cfg.n_joints, cfg.rotation)
+        cin, cout = (
+            n_input_channels(cfg.n_joints, cfg.key_mask),
+            n_output_channels(cfg.n_joints, cfg.rotation),
+        )
         self.inp = ResLayer(cin, cfg.width, 3, sigma=1.0)
         n = len(cfg.levels)
         chans = [cfg.width, *cfg.levels]

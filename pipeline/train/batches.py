@@ -5,7 +5,8 @@ over the first ``curriculum`` fraction of training):
 - "context": 10 context keys, one target after a gap (the benchmark's task), then sparse
   keys to the end of the window;
 - "sparse": keys every 1..max_gap frames (an animator's blocking).
-Gaps are drawn log-uniformly in [1, max_gap].
+Gaps are drawn log-uniformly in [1, max_gap]. Some keys can be made partial
+(:func:`sample_joint_keys`): the root only, the rotations only, or some joints only.
 """
 
 from __future__ import annotations
@@ -25,6 +26,24 @@ def sample_keys(rng: np.random.Generator, n: int, max_gap: int) -> np.ndarray:
         gap = int(np.round(np.exp(rng.uniform(0.0, np.log(max_gap + 0.5)))))
         keys.append(min(keys[-1] + max(gap, 1), n - 1))
     return np.array(keys, np.int64)
+
+
+def sample_joint_keys(rng: np.random.Generator, n_keys: int, n_joints: int, share: float = 0.5) -> np.ndarray:
+    """(K, J + 1) mask: each key but the first and last is partial with probability ``share``,
+    keying the root only, the rotations only (no root), or a random half of joints and root."""
+    m = np.ones((n_keys, n_joints + 1), bool)
+    for k in range(1, n_keys - 1):
+        if rng.random() >= share:
+            continue
+        kind = rng.integers(3)
+        if kind == 0:
+            m[k, :n_joints] = False
+        elif kind == 1:
+            m[k, n_joints] = False
+        else:
+            m[k] = rng.random(n_joints + 1) < 0.5
+            m[k, rng.integers(n_joints + 1)] = True
+    return m
 
 
 def sample_batch(clips: ClipSet, rng: np.random.Generator, batch: int, length: int):

@@ -42,6 +42,10 @@ def register(app: typer.Typer) -> None:
         target_noise: bool = typer.Option(
             False, help="Scheduled target noise: the take latent fades to 0 within 5 frames of a key."
         ),
+        partial: float = typer.Option(0.0, help="Share of batches with partial keys (some joints only)."),
+        key_mask: bool = typer.Option(
+            False, help="Per-joint key-mask input channels (partial keys); --init weights are widened."
+        ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.models.generator import GeneratorConfig
@@ -69,7 +73,8 @@ def register(app: typer.Typer) -> None:
                 data_pack=str(data_pack) if data_pack else None,
                 mirror=mirror,
                 posture=posture,
-                model=GeneratorConfig(noise_schedule=target_noise),
+                partial=partial,
+                model=GeneratorConfig(noise_schedule=target_noise, key_mask=key_mask),
                 **common,
             ),
             out,

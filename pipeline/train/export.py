@@ -121,7 +121,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
 
 # Inference settings in model.json that change what a fill gives. ``root`` changes it too
 # but was never hashed; it stays out so that earlier models keep their hashes.
-HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor")
+HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_bridge")
 
 
 def model_hash(out_dir: Path, meta: dict) -> str:
@@ -157,7 +157,9 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
         n = (len(m) // gcfg.multiple) * gcfg.multiple
         keys = np.arange(0, n, 8)
         keys[-1] = n - 1
-        feats, ctx = build_features(m.rotations[None, :n], m.root_positions[None, :n], keys, skel)
+        feats, ctx = build_features(
+            m.rotations[None, :n], m.root_positions[None, :n], keys, skel, key_mask=gcfg.key_mask
+        )
         inputs.append(feats)
     except FileNotFoundError:
         ctx = None

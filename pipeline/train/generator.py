@@ -26,7 +26,7 @@ from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.fk import fk
-from pipeline.train.batches import foot_contacts, sample_batch, sample_keys
+from pipeline.train.batches import foot_contacts, sample_batch, sample_joint_keys, sample_keys
 
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
 
@@ -64,6 +64,7 @@ class TrainConfig:
     mirror: float = 0.0  # share of windows replaced by their left/right mirror image (augmentation)
     posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
     posture_prob: float = 0.5  # share of windows given posture offsets
+    partial: float = 0.0  # share of batches with partial keys (needs model.key_mask)
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -132,13 +133,29 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     noise = None
     if adversarial or rng.random() < cfg.noise_prob:
         noise = rng.normal(size=(cfg.batch, NOISE_CHANNELS))
+    joint_keys = None
+    if cfg.partial > 0:
+        # Its own stream, so that the windows and keys stay those of a run without partial keys.
+        prng = np.random.default_rng([cfg.seed, step, 3])
+        if prng.random() < cfg.partial:
+            joint_keys = sample_joint_keys(prng, len(keys), len(skel))
     feats, ctx = build_features(
-        rot, root, keys, skel, noise, tta=cfg.model.tta, noise_schedule=cfg.model.noise_schedule
+        rot,
+        root,
+        keys,
+        skel,
+        noise,
+        tta=cfg.model.tta,
+        noise_schedule=cfg.model.noise_schedule,
+        joint_keys=joint_keys,
+        key_mask=cfg.model.key_mask,
     )
     _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
     between = np.zeros(L, bool)
     between[keys[0] : keys[-1] + 1] = True
-    between[keys] = False
+    # Frames of full keys are given; a partial key's other joints are still to predict.
+    full = keys if joint_keys is None else keys[joint_keys.all(axis=1)]
+    between[full] = False
     if not between.any():
         return None
     # Long gaps hold most frames and the largest errors; weighting by gap length ** −α stops
@@ -155,7 +172,7 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         "contacts": t(foot_contacts(gpos, feet)),
         "between": t(between),
         "frame_weight": t(fw.astype(np.float32)),
-        "keys": t(keys),
+        "keys": t(full),
         "max_gap": max_gap,
         "L": L,
     }
@@ -193,6 +210,18 @@ def batches_from(cfg: TrainConfig, clips, skel, feet, first: int):
     return iter(loader)
 
 
+def widen_input(state: dict, model: Generator) -> dict:
+    """Weights of a model with fewer input channels (one without key-mask channels) fitted to
+    ``model``: the new channels' weights start at zero, so the wider model starts as the old."""
+    name = "inp.conv.weight"
+    have, want = state[name], model.state_dict()[name]
+    if have.shape != want.shape:
+        grown = torch.zeros_like(want)
+        grown[:, : have.shape[1]] = have
+        state = {**state, name: grown}
+    return state
+
+
 def train(cfg: TrainConfig, out_dir: Path) -> Path:
     import roma
 
@@ -219,7 +248,9 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     step, elapsed = 0, 0.0
     disc, d_opt = None, None
     if cfg.init and not ckpt.exists():
-        model.load_state_dict(torch.load(cfg.init, weights_only=False, map_location=dev)["model"])
+        model.load_state_dict(
+            widen_input(torch.load(cfg.init, weights_only=False, map_location=dev)["model"], model)
+        )
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
         state = torch.load(ckpt, weights_only=False, map_location=dev)

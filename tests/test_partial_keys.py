@@ -1,0 +1,167 @@
+"""Partial keys: some joints (or the root only) keyed at a frame, masked per joint."""
+
+import numpy as np
+import pytest
+
+from pipeline.data.skeletons import bandai_skeleton
+from pipeline.infer.features import (
+    NOISE_CHANNELS,
+    build_features,
+    check_joint_keys,
+    n_input_channels,
+)
+from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.post import match_keys
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.rotations import slerp_pairs
+from pipeline.train.batches import sample_joint_keys
+
+SKEL = bandai_skeleton()
+J = len(SKEL)
+J6 = J * 6
+
+
+@pytest.fixture(scope="module")
+def clip(bandai_clip):
+    m = read_bvh(bandai_clip).continuous()
+    return m.rotations[None, :90].astype(np.float32), m.root_positions[None, :90].astype(np.float32)
+
+
+def _mask(n_keys, partial: dict[int, list[int]]):
+    """Full keys except rows ``partial[row]``, which key only those columns (J = the root)."""
+    m = np.ones((n_keys, J + 1), bool)
+    for row, cols in partial.items():
+        m[row] = False
+        m[row, cols] = True
+    return m
+
+
+def test_each_joint_interpolates_between_its_own_keys(clip):
+    rot, root = clip
+    keys = np.array([0, 10, 20])
+    mask = _mask(3, {1: [J]})  # frame 10 keys the root only
+    feats, ctx = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=mask, key_mask=True)
+    assert feats.shape == (1, n_input_channels(J, key_mask=True), 21)
+    crot = ctx["crot"]
+    # Rotations at frame 10: halfway between keys 0 and 20, not the values stored at frame 10.
+    want = slerp_pairs(crot[:, 0], crot[:, 20], np.full((1, J), 0.5))
+    assert np.allclose(ctx["irot"][:, 10], want, atol=1e-6)
+    assert not np.allclose(ctx["irot"][:, 10], crot[:, 10], atol=1e-3)
+    # The root passes through its key at frame 10.
+    assert np.allclose(ctx["iroot"][:, 10], ctx["croot"][:, 10])
+    # Mask channels: 1 where a joint is keyed, the key flag on any key.
+    m = feats[0, -(J + 1) :]
+    assert m[:, 0].all() and m[:, 20].all() and m[:, 5].sum() == 0
+    assert m[:J, 10].sum() == 0 and m[J, 10] == 1
+    assert feats[0, 2 * (J6 + 3) + 1, 10] == 1  # frame 10 is a key frame for the schedule
+    # Full masks give exactly the features of plain keys.
+    plain, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
+    full, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=np.ones((3, J + 1), bool))
+    assert np.array_equal(plain, full)
+    assert plain.shape[1] == n_input_channels(J) and plain.shape[1] == feats.shape[1] - (J + 1)
+
+
+def test_joint_key_masks_are_checked():
+    with pytest.raises(ValueError, match="first and last"):
+        check_joint_keys(_mask(3, {2: [0, 1]}), 3, J)
+    with pytest.raises(ValueError, match="shape"):
+        check_joint_keys(np.ones((3, J), bool), 3, J)
+    with pytest.raises(ValueError, match="keys nothing"):
+        check_joint_keys(_mask(3, {1: []}), 3, J)
+
+
+def test_match_keys_pins_only_the_keyed_joints():
+    rng = np.random.default_rng(0)
+    B, N = 2, 30
+    rot = rng.normal(size=(B, N, J, 4))
+    rot /= np.linalg.norm(rot, axis=-1, keepdims=True)
+    root = rng.normal(size=(B, N, 3)) * 20
+    keys = np.array([0, 12, 29])
+    key_rot = rng.normal(size=(B, 3, J, 4))
+    key_rot /= np.linalg.norm(key_rot, axis=-1, keepdims=True)
+    key_root = rng.normal(size=(B, 3, 3)) * 20
+    mask = _mask(3, {1: [2, 5, J]})  # frame 12 keys joints 2 and 5 and the root
+    q, r = match_keys(rot, root, key_rot.astype(np.float32), key_root.astype(np.float32), keys, mask)
+    assert np.array_equal(q[:, [0, 29]], key_rot[:, [0, 2]].astype(np.float32))
+    assert np.array_equal(q[:, 12, [2, 5]], key_rot[:, 1, [2, 5]].astype(np.float32))
+    assert np.array_equal(r[:, 12], key_root[:, 1].astype(np.float32))
+    # Joint 3 is free at frame 12: neither the stored key value nor anything pinned there.
+    assert not np.allclose(np.abs((q[:, 12, 3] * key_rot[:, 1, 3]).sum(-1)), 1.0, atol=1e-3)
+
+
+def test_fill_ignores_the_values_of_unkeyed_joints(clip):
+    rot, root = clip
+    keys = np.array([0, 1, 2, 30, 60, 89])
+    mask = _mask(len(keys), {3: [J], 4: list(range(12))})  # root-only key; a key on 12 joints
+    model = OnnxInbetweener("models/default")
+    outs = []
+    for seed in (1, 2):  # different garbage where nothing is keyed
+        r, p = rot.copy(), root.copy()
+        g = np.random.default_rng(seed)
+        r[0, 30] = np.roll(r[0, 30], seed, axis=0)
+        r[0, 60, 12:] = np.roll(r[0, 60, 12:], seed, axis=0)
+        p[0, 60] += g.normal(size=3) * 50
+        outs.append(model.fill_batch(r, p, keys, joint_keys=mask))
+    (q1, p1), (q2, p2) = outs
+    assert np.array_equal(q1, q2) and np.array_equal(p1, p2)
+    assert np.array_equal(p1[0, 30], root[0, 30])  # the root key holds
+    assert np.array_equal(q1[0, 60, :12], rot[0, 60, :12])  # the keyed joints hold
+    assert np.array_equal(q1[0, keys[[0, 1, 2, 5]]], rot[0, keys[[0, 1, 2, 5]]])
+    assert np.isfinite(q1).all() and np.isfinite(p1).all()
+
+
+def test_sampled_masks_keep_first_and_last_keys_full():
+    rng = np.random.default_rng(3)
+    seen = set()
+    for _ in range(50):
+        m = sample_joint_keys(rng, 6, J, share=0.8)
+        check_joint_keys(m, 6, J)
+        seen.update(tuple(row) for row in m[1:-1] if not row.all())
+    assert len(seen) > 3  # several kinds of partial keys
+
+
+def test_widened_input_starts_as_the_old_model():
+    torch = pytest.importorskip("torch")
+    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.train.generator import widen_input
+
+    torch.manual_seed(0)
+    cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
+    old = Generator(cfg).eval()
+    torch.nn.init.normal_(old.out.weight, std=0.01)
+    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_mask=True)).eval()
+    new.load_state_dict(widen_input(old.state_dict(), new))
+    x = torch.randn(2, n_input_channels(J), 32)
+    m = (torch.rand(2, J + 1, 32) < 0.3).float()
+    with torch.no_grad():
+        assert torch.equal(old(x), new(torch.cat([x, m], 1)))
+
+
+def test_partial_keys_do_not_touch_the_noise_channels(clip):
+    rot, root = clip
+    keys = np.array([0, 10, 20])
+    noise = np.ones((1, NOISE_CHANNELS))
+    a, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, noise, joint_keys=_mask(3, {1: [0]}))
+    assert np.allclose(a[0, -NOISE_CHANNELS:], 1.0)
+
+
+def test_tiny_run_with_partial_keys_and_mask_channels_learns(tmp_path):
+    pytest.importorskip("torch")
+    import json
+
+    from pipeline.models.generator import GeneratorConfig
+    from pipeline.train.generator import TrainConfig, train
+
+    cfg = TrainConfig(
+        steps=60,
+        batch=8,
+        lengths=(64,),
+        lr=3e-3,
+        limit_clips=40,
+        partial=1.0,
+        model=GeneratorConfig(width=48, levels=(48, 64, 64), key_mask=True),
+        checkpoint_minutes=100,
+    )
+    train(cfg, tmp_path)
+    log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
+    assert log[-1]["pos"] < log[0]["pos"] and log[-1]["loss"] < log[0]["loss"]
