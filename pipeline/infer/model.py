@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
 from pipeline.infer.features import (
     EULER_ORDER,
-    check_joint_keys,
     NOISE_CHANNELS,
     ROOT_SCALE,
     build_features,
+    check_joint_keys,
     invert_transform,
     path_inputs,
 )
