@@ -77,7 +77,6 @@ class OnnxInbetweener:
         pad_tail: int | None = None,
         min_window: int | None = None,
         feet_anchor: bool | None = None,
-        feet_bridge: int | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -89,8 +88,6 @@ class OnnxInbetweener:
         self.feet = feet
         # Contacts that hold a key lock at the key's ankle position (post.lock_feet).
         self.feet_anchor = bool(self.meta.get("feet_anchor", False) if feet_anchor is None else feet_anchor)
-        # Short gaps planted at both keys stay planted (post.bridge_contacts); 0: off.
-        self.feet_bridge = int(self.meta.get("feet_bridge", 0) if feet_bridge is None else feet_bridge)
         self.hierarchical = hierarchical
         # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
@@ -226,7 +223,13 @@ class OnnxInbetweener:
         keys = np.unique(keys)
         if self.hierarchical and np.diff(keys).max() > self.max_gap:
             rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys)
-        q, r, contacts = self.raw(rot, root, keys, noise, joint_keys)
+        if joint_keys is None or self.meta.get("generator", {}).get("key_mask", False):
+            q, r, contacts = self.raw(rot, root, keys, noise, joint_keys)
+        else:
+            # A network without key-mask channels would take a partial key for a full pose:
+            # it fills from the full keys, and the partial keys are matched afterwards.
+            full = joint_keys.all(axis=1)
+            q, r, contacts = self.raw(rot, root, keys[full], noise)
         q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys, joint_keys)
         if self.feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
@@ -239,7 +242,6 @@ class OnnxInbetweener:
                     keys,
                     self.legs,
                     anchor=self.feet_anchor,
-                    bridge=self.feet_bridge,
                 )
         return q, r
 

@@ -163,21 +163,7 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
     return rot
 
 
-def bridge_contacts(contacts, ankle_xz, keys, max_gap: int, max_move: float):
-    """Contacts (N,) of one foot, with each short gap (at most ``max_gap`` frames) whose two keys
-    are both in contact, the ankle within ``max_move`` cm of where it was, set in contact
-    throughout: a foot planted at both ends of a short transition stays planted."""
-    out = contacts.copy()
-    for a, b in zip(keys[:-1], keys[1:], strict=True):
-        if b - a <= max_gap and out[a] and out[b]:
-            if np.linalg.norm(ankle_xz[b] - ankle_xz[a]) <= max_move:
-                out[a : b + 1] = True
-    return out
-
-
-def lock_feet(
-    rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False, bridge: int = 0
-):
+def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
     A contact is locked at its mean ankle position. Key frames get weight 0 and the weight
@@ -185,8 +171,6 @@ def lock_feet(
     are held, so they get no IK either. With ``anchor``, a contact that holds a key is locked
     at that key's own ankle position (between two such keys, their line) at full weight up to
     the key: the foot the animator planted stays planted, even in gaps shorter than the ramp.
-    ``bridge`` > 0 also fills the contacts of short gaps planted at both keys
-    (:func:`bridge_contacts`, 2 cm).
     """
     N = len(rot)
     keys = np.asarray(keys)
@@ -202,10 +186,7 @@ def lock_feet(
         weight = np.zeros(N)
         fade = key_fade.copy()
         targets = gp[:, ankle].copy()
-        flags = contacts[:, li] > 0.5
-        if bridge:
-            flags = bridge_contacts(flags, gp[:, ankle][:, [0, 2]], keys, bridge, 2.0)
-        for s0, s1 in contact_segments(flags):
+        for s0, s1 in contact_segments(contacts[:, li] > 0.5):
             if s1 - s0 < 2:
                 continue
             frames = np.arange(s0, s1)
