@@ -92,12 +92,21 @@ def register(app: typer.Typer) -> None:
         ),
         pad_tail: int = typer.Option(16, help="Frames held after the last key at least, when padding."),
         min_window: int = typer.Option(64, help="Shortest padded window, frames."),
+        feet_anchor: bool = typer.Option(
+            True, help="Lock contacts that hold a key at the key's foot position."
+        ),
     ):
         """Export both networks to ONNX and check onnxruntime against torch."""
         from pipeline.train.export import export as do_export
         from pipeline.train.export import verify
 
-        settings = {"root": root, "pad": pad, "pad_tail": pad_tail, "min_window": min_window}
+        settings = {
+            "root": root,
+            "pad": pad,
+            "pad_tail": pad_tail,
+            "min_window": min_window,
+            "feet_anchor": feet_anchor,
+        }
         meta = do_export(run, out, name or out.name, settings)
         err = verify(run, out)
         typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")
