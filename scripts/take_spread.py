@@ -9,10 +9,11 @@ import sys
 
 import numpy as np
 
+from pipeline.data.split import shared_data_dir
 from pipeline.infer.model import OnnxInbetweener
 from pipeline.motion.bvh import read_bvh
 
-m = read_bvh("/work/shared/data/bandai_namco/dataset-2/dataset-2_walk_active_002.bvh.gz").continuous()
+m = read_bvh(shared_data_dir() / "bandai_namco/dataset-2/dataset-2_walk_active_002.bvh.gz").continuous()
 keys = np.r_[np.arange(0, len(m), 30), len(m) - 1]
 keys = np.unique(keys)
 for folder in sys.argv[1:]:

@@ -165,3 +165,44 @@ def test_tiny_run_with_partial_keys_and_mask_channels_learns(tmp_path):
     train(cfg, tmp_path)
     log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
     assert log[-1]["pos"] < log[0]["pos"] and log[-1]["loss"] < log[0]["loss"]
+
+
+def test_usd_rotations_and_translations_sampled_apart_are_partial_keys(tmp_path):
+    """Translations keyed where rotations are not (and the other way round): each is kept
+    where authored, and the fill supplies the other channel there (not USD's interpolation)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pxr import Usd
+    from usd_fixtures import ANIM, FILLED, bandai_shot, samples
+
+    from pipeline.fill import FillOptions, fill_shot
+
+    shot = bandai_shot(tmp_path / "apart.usda", frames=61, keys_every=5)
+    stage = Usd.Stage.Open(str(shot))
+    anim = stage.GetPrimAtPath(ANIM)
+    rot_only = [1011.0, 1031.0, 1051.0]
+    trans_only = [1006.0, 1026.0, 1046.0]
+    for t in anim.GetAttribute("rotations").GetTimeSamples():
+        if t in trans_only or t not in (1001.0, 1061.0, *rot_only):
+            anim.GetAttribute("rotations").ClearAtTime(t)
+    for t in anim.GetAttribute("translations").GetTimeSamples():
+        if t in rot_only or t not in (1001.0, 1061.0, *trans_only):
+            anim.GetAttribute("translations").ClearAtTime(t)
+    stage.GetRootLayer().Save()
+    src_rot, src_tr = samples(stage, ANIM), samples(stage, ANIM, "translations")
+    usd_rot = {t: np.array(anim.GetAttribute("rotations").Get(t)) for t in trans_only}
+    usd_tr = {t: np.array(anim.GetAttribute("translations").Get(t)) for t in rot_only}
+
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "out")))
+    review = Usd.Stage.Open(res["review"])
+    rot, tr = samples(review, FILLED), samples(review, FILLED, "translations")
+    for t in rot_only:
+        assert np.array_equal(rot[t], src_rot[t])  # the authored rotations
+        assert not np.allclose(tr[t][0], usd_tr[t][0], atol=1e-3)  # the fill's root
+    for t in trans_only:
+        assert np.array_equal(tr[t], src_tr[t])  # the authored translations
+        assert not np.allclose(rot[t], usd_rot[t], atol=1e-4)  # the fill's pose
+    for t in (1001.0, 1061.0):
+        assert np.array_equal(rot[t], src_rot[t]) and np.array_equal(tr[t], src_tr[t])

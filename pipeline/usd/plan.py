@@ -28,6 +28,7 @@ class CharPlan:
     fill_range: tuple[float, float]
     model: str | None = None  # a rig model folder; None = the job's human model
     fps: float = 30.0  # the frame rate of this character's model
+    authored_keys: bool = False  # keys are the animation's own samples (not --keys / tween:keyTimes)
 
 
 #: ``make_plan(rig=...)``: look for a stored rig model first (the default), or never.
@@ -154,7 +155,8 @@ def make_plan(
             raise ShotError(
                 path, f"range {fr[0]:g}-{fr[1]:g} is outside the stage range {shot.start:g}-{shot.end:g}"
             )
-        chars.append(CharPlan(c, rt, k, fr, folder, float(fps)))
+        authored = not keys and c.key_override is None
+        chars.append(CharPlan(c, rt, k, fr, folder, float(fps), authored_keys=authored))
     if not chars:
         prim, why = refused[0]
         raise ShotError(path, f"rig refused: {why}", prim)

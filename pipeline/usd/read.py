@@ -41,6 +41,8 @@ class Character:
     key_override: np.ndarray | None = None  # tween:keyTimes on the animation
     blend_shapes: bool = False
     extra: dict = field(default_factory=dict)
+    rot_times: np.ndarray | None = None  # authored samples of rotations alone
+    trans_times: np.ndarray | None = None  # authored samples of translations alone
 
 
 @dataclass
@@ -143,9 +145,9 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         raise ShotError(
             shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
         )
-    times = sorted(
-        set(anim.GetRotationsAttr().GetTimeSamples()) | set(anim.GetTranslationsAttr().GetTimeSamples())
-    )
+    rot_times = anim.GetRotationsAttr().GetTimeSamples()
+    trans_times = anim.GetTranslationsAttr().GetTimeSamples()
+    times = sorted(set(rot_times) | set(trans_times))
     override = None
     kt = anim_prim.GetAttribute("tween:keyTimes")
     if kt and kt.HasAuthoredValue():
@@ -170,6 +172,8 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         sample_times=np.array(times, np.float64),
         key_override=override,
         blend_shapes=bool(bs and bs.HasAuthoredValue()),
+        rot_times=np.array(rot_times, np.float64),
+        trans_times=np.array(trans_times, np.float64),
     )
 
 

@@ -48,6 +48,27 @@ def frames_in(lo: float, hi: float) -> np.ndarray:
     return np.arange(np.ceil(lo - TIME_EPS), np.floor(hi + TIME_EPS) + 1, dtype=np.float64)
 
 
+def key_channels(cp: CharPlan, n_joints: int) -> np.ndarray | None:
+    """The partial keys of an animation whose rotations and translations are sampled at
+    different times: (K, J + 1) for the model skeleton (the joints' rotations, then the root
+    position), or None when every key is a full pose. Only for the animation's own samples
+    (keys given with --keys or tween:keyTimes are full poses, as asked); the first and last
+    keys stay full, their missing channel taken at USD's interpolated value."""
+    c, k = cp.char, cp.keys
+    if not cp.authored_keys or c.rot_times is None or c.trans_times is None:
+        return None
+
+    def at(times):  # an attribute with no samples holds one value: keyed everywhere
+        if len(times) == 0:
+            return np.ones(len(k), bool)
+        return np.abs(k[:, None] - times[None]).min(axis=1) < TIME_EPS
+
+    rot, trans = at(c.rot_times), at(c.trans_times)
+    mask = np.concatenate([np.repeat(rot[:, None], n_joints, 1), trans[:, None]], axis=1)
+    mask[[0, -1]] = True
+    return None if mask.all() else mask
+
+
 def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.ndarray]:
     """Times and animation-ordered rotations/translations/scales for the fill layer."""
     shot, c = plan.shot, cp.char
@@ -60,7 +81,12 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.nda
     near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
     motion = Motion(inb.skeleton, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
-    filled = inb.fill(motion, m, seed=seed)
+    # Partial keys go to models that take them (the human model); others get full keys.
+    mask = key_channels(cp, len(inb.skeleton)) if hasattr(inb, "fill_batch") else None
+    if mask is None:
+        filled = inb.fill(motion, m, seed=seed)
+    else:
+        filled = inb.fill(motion, m, seed=seed, joint_keys=mask)
 
     lo, hi = cp.fill_range
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
@@ -80,8 +106,13 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.nda
     pos = {float(t): i for i, t in enumerate(inside)}
     for j, t in enumerate(k):
         i = pos.get(float(t))
-        if i is not None:
-            rot[i], tr[i], sc_o[i] = rot_k[j], tr_k[j], sc_k[j]
+        if i is None:
+            continue
+        sc_o[i] = sc_k[j]
+        if mask is None or mask[j, 0]:
+            rot[i] = rot_k[j]
+        if mask is None or mask[j, -1]:  # a partial key's other channel is the fill's
+            tr[i] = tr_k[j]
 
     # Outside the range every frame (and authored sample) keeps what the shot has: the
     # filled animation replaces the original's samples entirely, so they are copied.
