@@ -205,7 +205,7 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
                 targets[s0:s1, 0] = lock[0]
                 targets[s0:s1, 2] = lock[2]
             weight[s0:s1] = _smoothstep(np.minimum(ramp_in, ramp_out))
-        fade[keys] = 0.0
+        fade[keys[(keys >= 0) & (keys < N)]] = 0.0  # callers may pass keys outside the clip
         fade[outside] = 0.0
         weight *= _smoothstep(fade)
         out = two_bone_ik(out, root, skeleton, leg, targets, weight)
