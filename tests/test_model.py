@@ -221,7 +221,8 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
         assert not np.array_equal(out.rotations, inb.fill(m, keys).rotations)
 
 
-def test_tiny_training_run_loss_falls(tmp_path):
+@pytest.mark.parametrize("partial", [0.0, 1.0])  # 1.0: partial keys, key-mask channels
+def test_tiny_training_run_loss_falls(tmp_path, partial):
     from pipeline.models.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig, train
 
@@ -231,7 +232,8 @@ def test_tiny_training_run_loss_falls(tmp_path):
         lengths=(64,),
         lr=3e-3,
         limit_clips=40,
-        model=GeneratorConfig(width=48, levels=(48, 64, 64)),
+        partial=partial,
+        model=GeneratorConfig(width=48, levels=(48, 64, 64), key_mask=partial > 0),
         checkpoint_minutes=100,
     )
     train(cfg, tmp_path)

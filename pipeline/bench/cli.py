@@ -54,37 +54,15 @@ def register(app: typer.Typer) -> None:
             return
 
         if partial_keys:
-            import json
-
-            from pipeline.bench import partial
+            from pipeline.bench.partial import run_partial_bench
             from pipeline.bench.protocol import position_stats
             from pipeline.bench.run import test_windows
             from pipeline.data.cache import load_split
-            from pipeline.infer.api import load_inbetweener
 
             mean, std = position_stats(load_split("train"))
             rots, roots = test_windows(limit, mirrored, posture, source)
-            res = {}
-            for m in [m.strip() for m in methods.split(",") if m.strip()]:
-                if m == "zero":
-                    continue
-                typer.echo(f"partial keys: {m} on {len(rots)} windows…", err=True)
-                if m == "interp":
-                    fill = partial.fill_interp
-                else:
-                    inb = load_inbetweener("default" if m == "model" else m)
-                    fill = lambda r, p, k, jk, inb=inb: inb.fill_batch(r, p, k, None, jk)  # noqa: E731
-                res[m] = partial.evaluate_partial(fill, rots, roots, mean, std)
-            out.mkdir(parents=True, exist_ok=True)
-            payload = {
-                m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in res.items()
-            }
-            (out / "partial_keys.json").write_text(
-                json.dumps({"windows": len(rots), "results": payload}, indent=1)
-            )
-            md = partial.markdown(res)
-            (out / "partial_keys.md").write_text(md)
-            typer.echo(md)
+            names = [m.strip() for m in methods.split(",") if m.strip()]
+            typer.echo(run_partial_bench(names, rots, roots, mean, std, out))
             return
 
         res = run_bench(

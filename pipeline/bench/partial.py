@@ -14,6 +14,10 @@ mid key at all shows what the partial key adds.
 
 from __future__ import annotations
 
+import json
+import sys
+from pathlib import Path
+
 import numpy as np
 
 from pipeline.bench import metrics
@@ -97,3 +101,31 @@ def markdown(results: dict) -> str:
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def method_fill(name: str):
+    """``fill(rot, root, keys, mask)`` for a method name: interp, model, or a model folder."""
+    if name == "interp":
+        return fill_interp
+    from pipeline.infer.api import load_inbetweener
+
+    inb = load_inbetweener("default" if name == "model" else name)
+    return lambda rot, root, keys, mask: inb.fill_batch(rot, root, keys, None, mask)
+
+
+def run_partial_bench(methods: list[str], rots, roots, mean, std, out_dir: Path) -> str:
+    """Every method on the partial-key task; writes partial_keys.json and .md, returns the Markdown."""
+    res = {}
+    for m in methods:
+        if m == "zero":
+            continue
+        print(f"partial keys: {m} on {len(rots)} windows…", file=sys.stderr)
+        res[m] = evaluate_partial(method_fill(m), rots, roots, mean, std)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    payload = {m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in res.items()}
+    (out_dir / "partial_keys.json").write_text(
+        json.dumps({"windows": len(rots), "results": payload}, indent=1)
+    )
+    md = markdown(res)
+    (out_dir / "partial_keys.md").write_text(md)
+    return md

@@ -115,12 +115,8 @@ def interpolate(rot, root, keys, joint_keys=None):
     ipos = np.empty((B, N, 3))
     nearest = np.empty((N, J + 1), np.int64)
     idx = np.arange(N)
-    # Joints sharing a key set (usually all of them) are interpolated together.
-    patterns, which = np.unique(joint_keys.T, axis=0, return_inverse=True)
-    for p, pattern in enumerate(patterns):
-        cols = np.flatnonzero(which.ravel() == p)
-        kj = keys[pattern]
-        prev, nxt = key_neighbours(N, kj)
+    for at, cols in key_groups(joint_keys):
+        prev, nxt = key_neighbours(N, keys[at])
         w = np.where(nxt > prev, (idx - prev) / np.maximum(nxt - prev, 1), 0.0)
         nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
         joints = cols[cols < J]
@@ -131,6 +127,25 @@ def interpolate(rot, root, keys, joint_keys=None):
         if J in cols:
             ipos[:] = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
     return out, ipos, nearest
+
+
+def key_groups(joint_keys: np.ndarray):
+    """(keys, columns) for each distinct key set of a (K, J + 1) mask: the indices into the
+    keys that key those columns. Columns sharing a key set (usually all of them) are handled
+    together."""
+    patterns, which = np.unique(joint_keys.T, axis=0, return_inverse=True)
+    for p, pattern in enumerate(patterns):
+        yield np.flatnonzero(pattern), np.flatnonzero(which.ravel() == p)
+
+
+def feature_options(generator: dict) -> dict:
+    """The :func:`build_features` switches a generator config (``model.json``'s "generator",
+    or ``asdict(GeneratorConfig)``) was trained with."""
+    return {
+        "tta": generator.get("tta", True),
+        "noise_schedule": generator.get("noise_schedule", False),
+        "key_mask": generator.get("key_mask", False),
+    }
 
 
 def noise_scale(d: np.ndarray) -> np.ndarray:

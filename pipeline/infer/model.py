@@ -20,6 +20,7 @@ from pipeline.infer.features import (
     ROOT_SCALE,
     build_features,
     check_joint_keys,
+    feature_options,
     invert_transform,
     path_inputs,
 )
@@ -174,15 +175,7 @@ class OnnxInbetweener:
                 joint_keys = np.concatenate([joint_keys, full])
         gcfg = self.meta.get("generator", {})
         feats, ctx = build_features(
-            rot,
-            root,
-            keys,
-            skel,
-            noise,
-            tta=gcfg.get("tta", True),
-            noise_schedule=gcfg.get("noise_schedule", False),
-            joint_keys=joint_keys,
-            key_mask=gcfg.get("key_mask", False),
+            rot, root, keys, skel, noise, joint_keys=joint_keys, **feature_options(gcfg)
         )
         out = self.session("generator").run(None, {"features": feats})[0]
         o = out.transpose(0, 2, 1)
@@ -215,7 +208,7 @@ class OnnxInbetweener:
         joints, then the root, keyed at each key; the first and last keys full)."""
         keys = np.asarray(keys, np.int64)
         if joint_keys is not None:
-            if len(np.unique(keys)) != len(keys) or (np.diff(keys) < 0).any():
+            if (np.diff(keys) <= 0).any():
                 raise ValueError("with a joint key mask, keys must be sorted and unique")
             joint_keys = check_joint_keys(joint_keys, len(keys), rot.shape[2])
             if joint_keys.all():

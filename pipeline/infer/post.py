@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.infer.features import key_groups
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_continuity, quat_mul
 
@@ -57,10 +58,7 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     dr = key_root.astype(np.float64) - root[:, keys]
     corr = np.empty((B, N, J, 3))
     out_root = np.asarray(root, np.float64).copy()
-    patterns, which = np.unique(mask.T, axis=0, return_inverse=True)
-    for p, pattern in enumerate(patterns):
-        cols = np.flatnonzero(which.ravel() == p)
-        at = np.flatnonzero(pattern)  # which of the keys key these columns
+    for at, cols in key_groups(mask):
         ip, inx, s = key_weights(N, keys[at])
         ip, inx = at[ip], at[inx]
         joints = cols[cols < J]

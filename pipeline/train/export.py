@@ -142,7 +142,7 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     import onnxruntime as ort
 
     from pipeline.data.skeletons import bandai_skeleton
-    from pipeline.infer.features import build_features, path_inputs
+    from pipeline.infer.features import build_features, feature_options, path_inputs
     from pipeline.motion.bvh import read_bvh
 
     meta = json.loads((model_dir / "model.json").read_text())
@@ -158,7 +158,7 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
         keys = np.arange(0, n, 8)
         keys[-1] = n - 1
         feats, ctx = build_features(
-            m.rotations[None, :n], m.root_positions[None, :n], keys, skel, key_mask=gcfg.key_mask
+            m.rotations[None, :n], m.root_positions[None, :n], keys, skel, **feature_options(asdict(gcfg))
         )
         inputs.append(feats)
     except FileNotFoundError:

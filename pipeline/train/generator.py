@@ -20,7 +20,14 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
-from pipeline.infer.features import EULER_ORDER, NOISE_CHANNELS, ROOT_SCALE, build_features, key_neighbours
+from pipeline.infer.features import (
+    EULER_ORDER,
+    NOISE_CHANNELS,
+    ROOT_SCALE,
+    build_features,
+    feature_options,
+    key_neighbours,
+)
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
@@ -140,15 +147,7 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         if prng.random() < cfg.partial:
             joint_keys = sample_joint_keys(prng, len(keys), len(skel))
     feats, ctx = build_features(
-        rot,
-        root,
-        keys,
-        skel,
-        noise,
-        tta=cfg.model.tta,
-        noise_schedule=cfg.model.noise_schedule,
-        joint_keys=joint_keys,
-        key_mask=cfg.model.key_mask,
+        rot, root, keys, skel, noise, joint_keys=joint_keys, **feature_options(asdict(cfg.model))
     )
     _, gpos = fk(ctx["crot"], ctx["croot"], skel.parents, skel.offsets)
     between = np.zeros(L, bool)
