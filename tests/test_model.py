@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.features import build_features, key_neighbours, n_input_channels, n_output_channels
@@ -175,6 +175,59 @@ def test_anchored_feet_stay_where_the_key_planted_them(bandai_clip):
     _, gp_before = fk(rot, root, SKEL.parents, SKEL.offsets)
     bone = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
     assert np.abs(bone(after) - bone(gp_before)).max() < 1e-4
+
+
+def test_two_bone_ik_turns_the_foot_to_a_given_orientation(bandai_clip):
+    m = read_bvh(bandai_clip)
+    rot, root = m.rotations[:20], m.root_positions[:20]
+    leg = tuple(SKEL.index(n) for n in LEGS[0])
+    gq, pos = fk(rot, root, SKEL.parents, SKEL.offsets)
+    target = pos[:, leg[2]] + np.array([2.0, 1.0, -1.0])
+    orient = np.repeat(gq[5:6, leg[2]], 20, axis=0)  # frame 5's foot orientation everywhere
+    weight = np.r_[np.ones(10), np.zeros(10)]
+    out = two_bone_ik(rot, root, SKEL, leg, target, weight, orient)
+    gq_new, new = fk(out, root, SKEL.parents, SKEL.offsets)
+    turned = Rotation.from_quat(gq_new[:10, leg[2]]).inv() * Rotation.from_quat(orient[:10])
+    assert np.degrees(turned.magnitude()).max() < 0.1
+    np.testing.assert_allclose(new[:10, leg[2]], target[:10], atol=1e-2)
+    np.testing.assert_allclose(out[10:], rot[10:])  # weight 0: untouched
+    bones = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(bones(new), bones(pos), atol=1e-3)
+
+
+def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
+    m = read_bvh(bandai_clip)
+    rot, root = m.rotations[:30].copy(), m.root_positions[:30].copy()
+    root[:, 0] += np.linspace(0, 10, 30)
+    legs = [tuple(SKEL.index(n) for n in leg) for leg in LEGS]
+    ankle, toe = legs[0][2], legs[0][3]
+    # The foot pitches through 40 degrees while in contact: the ankle lock alone lets the toes slide.
+    pitch = Rotation.from_euler("x", np.linspace(0, 40, 30)[:, None], degrees=True)
+    rot[:, ankle] = (Rotation.from_quat(rot[:, ankle]) * pitch).as_quat()
+    contacts = np.ones((30, 2))
+    keys = np.array([0, 29])
+    plain = lock_feet(rot, root, SKEL, contacts, keys, legs)
+    held = lock_feet(rot, root, SKEL, contacts, keys, legs, orient=True)
+
+    def slide(r):
+        toes = fk(r, root, SKEL.parents, SKEL.offsets)[1][8:22, toe]
+        return np.linalg.norm(np.diff(toes[:, [0, 2]], axis=0), axis=-1).mean()
+
+    assert slide(held) < 0.3 * slide(plain)
+    assert np.array_equal(held[keys], rot[keys])
+    _, before = fk(rot, root, SKEL.parents, SKEL.offsets)
+    _, after = fk(held, root, SKEL.parents, SKEL.offsets)
+    bone = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
+    assert np.abs(bone(after) - bone(before)).max() < 1e-4
+    # Anchored: between two keys holding the contact, the foot turns evenly from one key's
+    # orientation to the other's, and both keys stay exact.
+    anchored = lock_feet(rot, root, SKEL, contacts, keys, legs, anchor=True, orient=True)
+    assert np.array_equal(anchored[keys], rot[keys])
+    gq_a, _ = fk(anchored, root, SKEL.parents, SKEL.offsets)
+    gq_0, _ = fk(rot, root, SKEL.parents, SKEL.offsets)
+    at_keys = Slerp([0, 29], Rotation.from_quat(gq_0[[0, 29], ankle]))(np.arange(8, 22))
+    off = at_keys.inv() * Rotation.from_quat(gq_a[8:22, ankle])
+    assert np.degrees(off.magnitude()).max() < 0.1
 
 
 @pytest.mark.parametrize("key_mask", [False, True])

@@ -78,6 +78,7 @@ class OnnxInbetweener:
         pad_tail: int | None = None,
         min_window: int | None = None,
         feet_anchor: bool | None = None,
+        feet_orient: bool | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -89,6 +90,8 @@ class OnnxInbetweener:
         self.feet = feet
         # Contacts that hold a key lock at the key's ankle position (post.lock_feet).
         self.feet_anchor = bool(self.meta.get("feet_anchor", False) if feet_anchor is None else feet_anchor)
+        # Locked feet also hold their orientation, so the toes do not slide (post.lock_feet).
+        self.feet_orient = bool(self.meta.get("feet_orient", False) if feet_orient is None else feet_orient)
         self.hierarchical = hierarchical
         # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
@@ -235,6 +238,7 @@ class OnnxInbetweener:
                     keys,
                     self.legs,
                     anchor=self.feet_anchor,
+                    orient=self.feet_orient,
                 )
         return q, r
 

@@ -14,7 +14,7 @@ All in numpy (scipy rotations), on motions of the model skeleton:
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.infer.features import key_groups
 from pipeline.motion.fk import fk
@@ -120,11 +120,12 @@ def _rot_between(u, v):
     return Rotation.from_rotvec(axis * ang)
 
 
-def two_bone_ik(rot, root, skeleton, leg, targets, weight):
+def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
     """Move the ankle of ``leg`` = (hip, knee, ankle, toe) toward ``targets`` (N, 3) by ``weight`` (N,).
 
-    Changes the local rotations of hip, knee and ankle only (the ankle keeps its world
-    orientation), so bone lengths never change. ``rot`` (N, J, 4) local, ``root`` (N, 3).
+    Changes the local rotations of hip, knee and ankle only, so bone lengths never change.
+    The ankle keeps its world orientation, or with ``orient`` (N, 4 world quaternions) turns
+    toward it by the same weight. ``rot`` (N, J, 4) local, ``root`` (N, 3).
     """
     hip, knee, ankle, _ = leg
     sel = weight > 1e-4
@@ -153,6 +154,10 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
     g_hip = r_hip * Rotation.from_quat(gq[:, hip])
     g_knee = r_hip * r_knee * Rotation.from_quat(gq[:, knee])
     g_ankle = Rotation.from_quat(gq[:, ankle])
+    if orient is not None:
+        # Per-frame slerp from the network's foot orientation to the held one.
+        delta = (g_ankle.inv() * Rotation.from_quat(orient[sel])).as_rotvec()
+        g_ankle = g_ankle * Rotation.from_rotvec(delta * weight[sel, None])
     parent = skeleton.parents[hip]
     g_parent = Rotation.from_quat(gq[:, parent])
     rot[sel, hip] = (g_parent.inv() * g_hip).as_quat()
@@ -161,7 +166,9 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight):
     return rot
 
 
-def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False):
+def lock_feet(
+    rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False, orient: bool = False
+):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
     A contact is locked at its mean ankle position. Key frames get weight 0 and the weight
@@ -169,10 +176,12 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
     are held, so they get no IK either. With ``anchor``, a contact that holds a key is locked
     at that key's own ankle position (between two such keys, their line) at full weight up to
     the key: the foot the animator planted stays planted, even in gaps shorter than the ramp.
+    With ``orient`` the foot's world orientation is held too (the key's, slerped between two
+    such keys, else the contact's mean), so the toes stay put while the ankle is locked.
     """
     N = len(rot)
     keys = np.asarray(keys)
-    _, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
+    gq, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
     dist_key = np.min(np.abs(np.arange(N)[:, None] - keys[None]), axis=1)
     key_fade = np.clip(dist_key / ramp, 0, 1)
     outside = np.zeros(N, bool)
@@ -184,6 +193,7 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
         weight = np.zeros(N)
         fade = key_fade.copy()
         targets = gp[:, ankle].copy()
+        turn = gq[:, ankle].copy() if orient else None
         for s0, s1 in contact_segments(contacts[:, li] > 0.5):
             if s1 - s0 < 2:
                 continue
@@ -198,13 +208,21 @@ def lock_feet(rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: 
                 fade[s0:s1] = 1.0
                 ramp_in[frames >= held[0]] = 1.0
                 ramp_out[frames <= held[-1]] = 1.0
+                if orient:
+                    key_rot = Rotation.from_quat(gq[held, ankle])
+                    inside = np.clip(frames, held[0], held[-1])
+                    turn[s0:s1] = (
+                        Slerp(held, key_rot)(inside) if len(held) > 1 else key_rot[np.zeros_like(frames)]
+                    ).as_quat()
             else:
                 lock = gp[s0:s1, ankle].mean(0)
                 targets[s0:s1, 0] = lock[0]
                 targets[s0:s1, 2] = lock[2]
+                if orient:
+                    turn[s0:s1] = Rotation.from_quat(gq[s0:s1, ankle]).mean().as_quat()
             weight[s0:s1] = _smoothstep(np.minimum(ramp_in, ramp_out))
         fade[keys[(keys >= 0) & (keys < N)]] = 0.0  # callers may pass keys outside the clip
         fade[outside] = 0.0
         weight *= _smoothstep(fade)
-        out = two_bone_ik(out, root, skeleton, leg, targets, weight)
+        out = two_bone_ik(out, root, skeleton, leg, targets, weight, turn)
     return out.astype(np.float32)

@@ -95,6 +95,9 @@ def register(app: typer.Typer) -> None:
         feet_anchor: bool = typer.Option(
             True, help="Lock contacts that hold a key at the key's foot position."
         ),
+        feet_orient: bool = typer.Option(
+            True, help="Locked feet hold their orientation too (toes stay put)."
+        ),
     ):
         """Export both networks to ONNX and check onnxruntime against torch."""
         from pipeline.train.export import export as do_export
@@ -106,6 +109,7 @@ def register(app: typer.Typer) -> None:
             "pad_tail": pad_tail,
             "min_window": min_window,
             "feet_anchor": feet_anchor,
+            "feet_orient": feet_orient,
         }
         meta = do_export(run, out, name or out.name, settings)
         err = verify(run, out)

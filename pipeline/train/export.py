@@ -112,7 +112,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     meta["files"] = files
     # Padded like training windows (64–128 frames, ending on a key, motion after a target);
     # see OnnxInbetweener._network and scripts/pad_layouts.py for how these were chosen.
-    meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True)
+    meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
@@ -121,7 +121,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
 
 # Inference settings in model.json that change what a fill gives. ``root`` changes it too
 # but was never hashed; it stays out so that earlier models keep their hashes.
-HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor")
+HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_orient")
 
 
 def model_hash(out_dir: Path, meta: dict) -> str:

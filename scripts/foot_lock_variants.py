@@ -1,0 +1,64 @@
+"""Choose the foot lock's settings without the eval split.
+
+python scripts/foot_lock_variants.py MODEL_DIR
+
+Compares ``OnnxInbetweener(feet_anchor=..., feet_orient=...)`` on the protocol's task on
+windows cut from every 4th train clip (``scripts/pad_layouts.py``): L2P and foot skate ÷
+interpolation, and foot skate per foot joint at 5 frames, where the bar is tightest.
+"""
+
+import sys
+
+import numpy as np
+
+from pipeline.bench.methods import inbetweener_method, interpolation
+from pipeline.bench.protocol import CONTEXT, global_positions, position_stats
+from pipeline.bench.run import evaluate
+from pipeline.data.cache import load_split
+from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
+from pipeline.infer.model import OnnxInbetweener
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+from pad_layouts import train_windows  # noqa: E402
+
+VARIANTS = (
+    ("none", None),
+    ("anchored (v5.1)", (True, False)),
+    ("anchored, orientation held (v5.2)", (True, True)),
+)
+
+
+def skate_per_joint(method, rots, roots, T: int = 5) -> list[float]:
+    """Foot skate (cm/frame) on the true contact frames of each foot joint."""
+    feet = [bandai_skeleton().index(n) for n in FOOT_JOINTS]
+    tgt = CONTEXT + T
+    p_rot, p_root = method(rots[:, :CONTEXT], roots[:, :CONTEXT], rots[:, tgt], roots[:, tgt], T)
+    _, truth = global_positions(rots[:, CONTEXT - 1 : tgt], roots[:, CONTEXT - 1 : tgt])
+    rot = np.concatenate([rots[:, CONTEXT - 1 : CONTEXT], p_rot], 1)
+    root = np.concatenate([roots[:, CONTEXT - 1 : CONTEXT], p_root], 1)
+    _, pred = global_positions(rot, root)
+    contact = np.square(np.diff(truth[:, :, feet], axis=1)).sum(-1) < 0.02
+    slide = np.linalg.norm(np.diff(pred[:, :, feet], axis=1)[..., [0, 2]], axis=-1)
+    return [float(slide[..., j][contact[..., j]].mean()) for j in range(len(feet))]
+
+
+def main(model: str) -> None:
+    rots, roots = train_windows()
+    mean, std = position_stats(load_split("train"))
+    base = evaluate(interpolation, rots, roots, mean, std)
+    print(f"{len(rots)} train windows; ÷ interp at 5 / 15 / 30 / 45; skate per joint at 5 {FOOT_JOINTS}")
+    for name, setting in VARIANTS:
+        if setting is None:
+            inb = OnnxInbetweener(model, feet=False)
+        else:
+            inb = OnnxInbetweener(model, feet_anchor=setting[0], feet_orient=setting[1])
+        method = inbetweener_method(inb)
+        r = evaluate(method, rots, roots, mean, std)
+        l2p = " / ".join(f"{r[t]['L2P'] / base[t]['L2P']:.3f}" for t in r)
+        skate = " / ".join(f"{r[t]['skate'] / base[t]['skate']:.3f}" for t in r)
+        joints = " / ".join(f"{v:.3f}" for v in skate_per_joint(method, rots, roots))
+        print(f"| {name} | {l2p} | {skate} | {joints} |", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
