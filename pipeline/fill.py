@@ -38,6 +38,8 @@ class FillOptions:
     fmt: str = "usda"  # or "usdc"
     mapping: str | None = None  # JSON joint-mapping override file
     review_layer: str | None = None  # root layer to add the fill to instead of a new review layer
+    dna: str | None = None  # motion DNA: a reference take (USD or BVH) whose poses the fill should hold
+    dna_poses: int = 4  # representative poses taken from it
 
 
 _MODELS: dict[tuple[int, str], object] = {}
@@ -106,6 +108,30 @@ def _plan(shot: str, opts: FillOptions, human):
     return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig)
 
 
+def dna_motion(opts: FillOptions, fps: float):
+    """The job's motion DNA: ``dna_poses`` representative poses of the reference take, or None."""
+    if not opts.dna:
+        return None
+    from dataclasses import replace
+
+    from pipeline.infer.dna import MAX_POSES, representative_frames
+    from pipeline.usd.reference import reference_take
+
+    if not 1 <= opts.dna_poses <= MAX_POSES:
+        raise TweenError(f"dna_poses must be 1 to {MAX_POSES}, not {opts.dna_poses}")
+    take = reference_take(opts.dna, fps)
+    idx = representative_frames(take.rotations, opts.dna_poses)
+    return replace(take, rotations=take.rotations[idx], root_positions=take.root_positions[idx])
+
+
+def _check_dna(opts: FillOptions, inbs: list) -> None:
+    for inb in inbs:
+        if opts.dna and not getattr(inb, "has_dna", False):
+            raise TweenError(
+                f"{opts.dna}: model {inb.name} takes no motion DNA (drop --dna or pick a DNA model)"
+            )
+
+
 def _char_model(cp, human):
     return _model(cp.model) if cp.model else human
 
@@ -132,6 +158,10 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
             "kind": "rig" if cp.model else "human",
             **({"folder": cp.model} if cp.model else {}),
         }
+    _check_dna(opts, [_char_model(cp, human) for cp in plan.chars])
+    dna = dna_motion(opts, float(human.fps) if human is not None else 30.0)
+    if dna is not None:
+        summary["dna"] = {"file": opts.dna, "poses": len(dna)}
     summary.update(
         model=_joined(m["name"] for m in models.values()),
         model_hash=_joined(m["hash"] for m in models.values()),
@@ -151,7 +181,11 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
         h.update(Path(path).read_bytes())
     if opts.mapping:
         h.update(Path(opts.mapping).read_bytes())
+    if opts.dna:
+        h.update(Path(opts.dna).read_bytes())
     d = {k: v for k, v in asdict(opts).items() if k in ("keys", "range", "seed", "model", "mapping")}
+    if opts.dna:  # takes without a DNA keep the digests they had
+        d.update(dna=opts.dna, dna_poses=opts.dna_poses)
     h.update(json.dumps([os.path.realpath(shot), d, take, model_hash], sort_keys=True).encode())
     return h.hexdigest()[:16]
 
@@ -163,6 +197,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     human = _human(opts)
     plan = _plan(shot, opts, human)
     inbs = [_char_model(cp, human) for cp in plan.chars]
+    _check_dna(opts, inbs)
     try:
         digest = _digest(shot, plan.shot.stage, opts, take, [m.model_hash for m in inbs])
     except OSError as e:
@@ -172,8 +207,9 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         return str(out)
     arrays: dict[str, np.ndarray] = {}
     chars = []
+    dna = dna_motion(opts, float(inbs[0].fps)) if opts.dna else None
     for i, (cp, inb) in enumerate(zip(plan.chars, inbs, strict=True)):
-        data = fill_character(plan, cp, inb, seed=opts.seed + take)
+        data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna)
         for k, v in data.items():
             arrays[f"c{i}_{k}"] = v
         c = cp.char
@@ -183,6 +219,8 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
             "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
             "chars": chars}  # fmt: skip
+    if dna is not None:
+        meta["dna"] = {"file": os.path.realpath(opts.dna), "poses": len(dna)}
     arrays["meta"] = np.array(json.dumps(meta))
     Path(work_dir).mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=work_dir, prefix=f".{out.name}.", suffix=".tmp")
@@ -228,6 +266,8 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
             raise ShotError(shot, "take files disagree on the shot's characters")
     stage = open_stage(shot)
     meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
+    if "dna" in takes[0]:
+        meta["dna"] = takes[0]["dna"]
     return write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
 
 

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -230,8 +231,8 @@ def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
     assert np.degrees(off.magnitude()).max() < 0.1
 
 
-@pytest.mark.parametrize("key_mask", [False, True])
-def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key_mask):
+@pytest.mark.parametrize("key_mask, dna", [(False, 0), (True, 0), (False, 16)])
+def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key_mask, dna):
     from dataclasses import asdict
 
     from pipeline.infer.model import OnnxInbetweener
@@ -240,9 +241,11 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
     from pipeline.train.export import export, verify
 
     torch.manual_seed(0)
-    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask)
+    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask, dna=dna)
     g = Generator(gcfg)
     torch.nn.init.normal_(g.out.weight, std=0.01)  # not the zero start: a real residual
+    if dna:
+        torch.nn.init.normal_(g.dna.proj.weight, std=0.5)  # nor the DNA's
     pcfg = PathConfig(channels=(16, 24))
     run = tmp_path / "run"
     run.mkdir()
@@ -272,10 +275,25 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
         assert np.array_equal(out.root_positions[20], m.root_positions[20])
         assert not np.array_equal(out.rotations[20], m.rotations[20])
         assert not np.array_equal(out.rotations, inb.fill(m, keys).rotations)
+    inb = OnnxInbetweener(tmp_path / "model")
+    ref = read_bvh(bandai_clip).continuous()
+    poses = ref.slice(200, 300)
+    poses = replace(poses, rotations=poses.rotations[::30], root_positions=poses.root_positions[::30])
+    if dna:  # a DNA changes the in-betweens, never the keys; the same DNA, the same fill
+        plain, steered = inb.fill(m, keys), inb.fill(m, keys, dna=poses)
+        assert np.array_equal(steered.rotations[keys], m.rotations[keys])
+        assert not np.allclose(steered.rotations, plain.rotations, atol=1e-4)
+        assert np.array_equal(steered.rotations, inb.fill(m, keys, dna=poses).rotations)
+        mirrored = OnnxInbetweener(tmp_path / "model", mirror=True).fill(m, keys, dna=poses)
+        assert np.array_equal(mirrored.rotations[keys], m.rotations[keys])
+        assert np.isfinite(mirrored.rotations).all()
+    else:
+        with pytest.raises(ValueError, match="motion-DNA"):
+            inb.fill(m, keys, dna=poses)
 
 
-@pytest.mark.parametrize("partial", [0.0, 1.0])  # 1.0: partial keys, key-mask channels
-def test_tiny_training_run_loss_falls(tmp_path, partial):
+@pytest.mark.parametrize("partial, dna", [(0.0, 0), (1.0, 0), (0.0, 16)])  # partial: key-mask channels
+def test_tiny_training_run_loss_falls(tmp_path, partial, dna):
     from pipeline.models.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig, train
 
@@ -286,12 +304,14 @@ def test_tiny_training_run_loss_falls(tmp_path, partial):
         lr=3e-3,
         limit_clips=40,
         partial=partial,
-        model=GeneratorConfig(width=48, levels=(48, 64, 64), key_mask=partial > 0),
+        model=GeneratorConfig(width=48, levels=(48, 64, 64), key_mask=partial > 0, dna=dna),
         checkpoint_minutes=100,
     )
     train(cfg, tmp_path)
     log = [json.loads(line) for line in (tmp_path / "train_log.jsonl").read_text().splitlines()]
     assert log[-1]["pos"] < log[0]["pos"] and log[-1]["loss"] < log[0]["loss"]
+    if dna:  # the DNA term is on: some windows have poses to place
+        assert all(np.isfinite(r["dna"]) for r in log) and max(r["dna"] for r in log) > 0
     assert (tmp_path / "generator.pt").exists()
 
 

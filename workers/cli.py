@@ -25,10 +25,14 @@ _FILL_OPTS = dict(
     out_dir=typer.Option(None, "--out-dir", help="Folder for the layers (default: beside each shot)."),
     fmt=typer.Option("usda", "--format", help="Layer format: usda or usdc."),
     mapping=typer.Option(None, "--mapping", help="Joint mapping file (default: built in)."),
+    dna=typer.Option(
+        None, "--dna", help="Motion DNA: a reference take (USD or BVH) whose poses steer the fill."
+    ),
+    dna_poses=typer.Option(4, "--dna-poses", min=1, max=8, help="Representative poses taken from --dna."),
 )
 
 
-def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping) -> dict:
+def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna=None, dna_poses=4) -> dict:
     from workers.jobs import make_opts
 
     return make_opts(
@@ -40,6 +44,8 @@ def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping) -> dict:
         out_dir=out_dir,
         fmt=fmt,
         mapping=mapping,
+        dna=dna,
+        dna_poses=dna_poses,
     )
 
 
@@ -84,6 +90,8 @@ def register(app: typer.Typer) -> None:
         out_dir: Path = _FILL_OPTS["out_dir"],
         fmt: str = _FILL_OPTS["fmt"],
         mapping: Path = _FILL_OPTS["mapping"],
+        dna: Path = _FILL_OPTS["dna"],
+        dna_poses: int = _FILL_OPTS["dna_poses"],
         render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
         concurrency: int = typer.Option(2, "-c", "--concurrency", help="Embedded worker processes."),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars on stderr."),
@@ -97,7 +105,7 @@ def register(app: typer.Typer) -> None:
         from workers.app import app as celery_app
 
         s = celery_app.conf.tween
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping)
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
         paths = [str(p) for p in shots]
         for p in paths:
             if not os.path.isfile(p):
@@ -110,8 +118,9 @@ def register(app: typer.Typer) -> None:
 
         roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
         roots += [opts[k] for k in ("out_dir",) if opts.get(k)]
-        if opts.get("mapping"):
-            roots.append(os.path.dirname(opts["mapping"]))
+        for key in ("mapping", "dna"):
+            if opts.get(key):
+                roots.append(os.path.dirname(opts[key]))
         with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
             ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
             code = _report(jobs.wait(ids, progress=progress, alive=w.alive))
@@ -128,6 +137,8 @@ def register(app: typer.Typer) -> None:
         out_dir: Path = _FILL_OPTS["out_dir"],
         fmt: str = _FILL_OPTS["fmt"],
         mapping: Path = _FILL_OPTS["mapping"],
+        dna: Path = _FILL_OPTS["dna"],
+        dna_poses: int = _FILL_OPTS["dna_poses"],
         render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
     ):
         """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
@@ -137,7 +148,7 @@ def register(app: typer.Typer) -> None:
         if celery_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
             raise typer.Exit(2)
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping)
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
         for job_id in jobs.submit([str(p) for p in shots], opts, render=render):
             typer.echo(job_id)
 

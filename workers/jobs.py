@@ -79,7 +79,7 @@ def make_opts(**kw) -> dict:
     from pipeline.fill import FillOptions
 
     opts = asdict(FillOptions(**{k: v for k, v in kw.items() if v is not None}))
-    for key in ("out_dir", "mapping", "review_layer"):
+    for key in ("out_dir", "mapping", "review_layer", "dna"):
         if opts.get(key):
             opts[key] = os.path.abspath(opts[key])
     return opts

@@ -9,7 +9,6 @@ must keep moving: 50–150 %), the largest bone-length change, and the MPJPE.
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -26,22 +25,9 @@ MIN_SECONDS = 10.0
 
 def cmu_on_model_skeleton(path: Path, fps: float = 30.0) -> Motion:
     """A CMU/iClone take retargeted onto the model skeleton via a converted USD shot."""
-    from pipeline.usd.convert import write_shot
-    from pipeline.usd.mapping import map_joints
-    from pipeline.usd.read import anim_values, read_shot
-    from pipeline.usd.retarget import Retarget
-    from pipeline.usd.solve import to_skeleton_order
+    from pipeline.usd.reference import reference_take
 
-    m = read_bvh(path)
-    with tempfile.TemporaryDirectory() as tmp:
-        shot = read_shot(write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps))
-        c = shot.characters[0]
-        rt = Retarget(c, map_joints(c.joints, c.parents), shot.up_axis, shot.meters_per_unit)
-        times = np.arange(shot.start, shot.end + 1)
-        rot_a, tr_a, _ = anim_values(shot.stage, c, times)
-        rot, tr = to_skeleton_order(c, rot_a, tr_a)
-        q, root = rt.to_model(rot, tr)
-    return Motion(bandai_skeleton(), q, root, fps, m.name).continuous()
+    return reference_take(path, fps)
 
 
 def long_takes(limit: int | None = None) -> list[tuple[str, Motion]]:

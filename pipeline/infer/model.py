@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
+from pipeline.infer.dna import dna_poses, n_dna_channels
 from pipeline.infer.features import (
     EULER_ORDER,
     NOISE_CHANNELS,
@@ -111,14 +112,14 @@ class OnnxInbetweener:
             self._sessions[which] = ort_session(self.folder / self.meta["files"][which])
         return self._sessions[which]
 
-    def raw(self, rot, root, keys, noise=None, joint_keys=None):
+    def raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed.
 
         With ``mirror`` the batch runs beside its mirror image and the two answers, the second
         mirrored back, are averaged: the model's left/right biases cancel.
         """
         if not self.mirror:
-            return self._raw(rot, root, keys, noise, joint_keys)
+            return self._raw(rot, root, keys, noise, joint_keys, dna)
         m, parents, B = bandai_mirror(), self.skeleton.parents, len(rot)
         q, r, c = self._raw(
             np.concatenate([rot, m.rotations(rot, parents)]),
@@ -126,6 +127,7 @@ class OnnxInbetweener:
             keys,
             None if noise is None else np.concatenate([noise, noise]),
             None if joint_keys is None else joint_keys[:, np.r_[m.pairs, len(parents)]],
+            None if dna is None else self._mirrored_dna(dna, B),
         )
         q2 = m.rotations(q[B:], parents)
         q2 = np.where((q2 * q[:B]).sum(-1, keepdims=True) < 0, -q2, q2)
@@ -136,19 +138,44 @@ class OnnxInbetweener:
             0.5 * (c[:B] + m.contacts(c[B:], feet)),
         )
 
-    def _raw(self, rot, root, keys, noise=None, joint_keys=None):
+    def _mirrored_dna(self, dna, batch: int) -> np.ndarray:
+        """(2B, R, J, 4): the batch's DNA, then its mirror image for the mirrored half."""
+        d = np.asarray(dna)
+        d = np.broadcast_to(d, (batch, *d.shape)) if d.ndim == 3 else d
+        return np.concatenate([d, bandai_mirror().rotations(d, self.skeleton.parents)])
+
+    def _raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         N = rot.shape[1]
         keys = np.asarray(keys, np.int64)
         if self.pad != "end":
             # Only the keyed span goes in, as in training (first key first, last key last);
             # frames outside it are held by post-processing anyway.
             k0, k1 = int(keys[0]), int(keys[-1])
-            q, r, c = self._network(rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise, joint_keys)
+            q, r, c = self._network(
+                rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise, joint_keys, dna
+            )
             edge = np.r_[np.zeros(k0, np.int64), np.arange(k1 - k0 + 1), np.full(N - k1 - 1, k1 - k0)]
             return q[:, edge], r[:, edge], c[:, edge]
-        return self._network(rot, root, keys, noise, joint_keys)
+        return self._network(rot, root, keys, noise, joint_keys, dna)
 
-    def _network(self, rot, root, keys, noise=None, joint_keys=None):
+    def dna_inputs(self, batch: int, dna) -> dict:
+        """The generator's DNA inputs: (B, C, R) poses and a (B, 1) weight (0: no DNA).
+        ``dna``: None, or the DNA poses' local rotations, (R, J, 4) for the whole batch or
+        (B, R, J, 4) per window (the root position does not matter: poses are root-relative)."""
+        C = n_dna_channels(len(self.skeleton))
+        if dna is None:
+            return {
+                "dna": np.zeros((batch, C, 1), np.float32),
+                "dna_weight": np.zeros((batch, 1), np.float32),
+            }
+        dna = np.asarray(dna)
+        if dna.ndim == 3:
+            dna = np.repeat(dna[None], batch, 0)
+        zero = np.zeros((dna.shape[1], 3))
+        poses = np.stack([dna_poses(d, zero, self.skeleton) for d in dna])
+        return {"dna": poses, "dna_weight": np.ones((batch, 1), np.float32)}
+
+    def _network(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """The generator (+ path predictor) on one window, padded to the network's multiple.
 
         Pad layouts (``pad``): "end" holds the last frame after it as in-betweens (the layout
@@ -180,7 +207,10 @@ class OnnxInbetweener:
         feats, ctx = build_features(
             rot, root, keys, skel, noise, joint_keys=joint_keys, **feature_options(gcfg)
         )
-        out = self.session("generator").run(None, {"features": feats})[0]
+        inputs = {"features": feats}
+        if gcfg.get("dna"):
+            inputs.update(self.dna_inputs(len(feats), dna))
+        out = self.session("generator").run(None, inputs)[0]
         o = out.transpose(0, 2, 1)
         f = feats.transpose(0, 2, 1)
         J6 = J * 6
@@ -206,9 +236,17 @@ class OnnxInbetweener:
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
         return q[:, front : front + N], wroot[:, front : front + N], contacts[:, front : front + N]
 
-    def fill_batch(self, rot, root, keys, noise=None, joint_keys=None):
+    @property
+    def has_dna(self) -> bool:
+        """Whether the generator takes a motion DNA (``fill(..., dna=...)``)."""
+        return bool(self.meta.get("generator", {}).get("dna", 0))
+
+    def fill_batch(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """Fill a batch sharing its keys; ``joint_keys`` (K, J + 1) marks partial keys (the
-        joints, then the root, keyed at each key; the first and last keys full)."""
+        joints, then the root, keyed at each key; the first and last keys full); ``dna`` the
+        local rotations of motion-DNA poses, (R, J, 4) or (B, R, J, 4)."""
+        if dna is not None and not self.has_dna:
+            raise ValueError(f"{self.name}: this model has no motion-DNA encoder")
         keys = np.asarray(keys, np.int64)
         if joint_keys is not None:
             if (np.diff(keys) <= 0).any():
@@ -218,14 +256,14 @@ class OnnxInbetweener:
                 joint_keys = None
         keys = np.unique(keys)
         if self.hierarchical and np.diff(keys).max() > self.max_gap:
-            rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys)
+            rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys, dna)
         if joint_keys is None or self.meta.get("generator", {}).get("key_mask", False):
-            q, r, contacts = self.raw(rot, root, keys, noise, joint_keys)
+            q, r, contacts = self.raw(rot, root, keys, noise, joint_keys, dna)
         else:
             # A network without key-mask channels would take a partial key for a full pose:
             # it fills from the full keys, and the partial keys are matched afterwards.
             full = joint_keys.all(axis=1)
-            q, r, contacts = self.raw(rot, root, keys[full], noise)
+            q, r, contacts = self.raw(rot, root, keys[full], noise, None, dna)
         q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys, joint_keys)
         if self.feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
@@ -242,7 +280,7 @@ class OnnxInbetweener:
                 )
         return q, r
 
-    def _insert_keys(self, rot, root, keys, noise, joint_keys=None):
+    def _insert_keys(self, rot, root, keys, noise, joint_keys=None, dna=None):
         """Hierarchical key insertion for gaps longer than the model was trained on.
 
         A coarse pass fills the shot at 1/f of the frame rate (every gap then fits), and
@@ -259,7 +297,7 @@ class OnnxInbetweener:
         c_rot = np.repeat(rot[:, :1], nc, 1).copy()
         c_root = np.repeat(root[:, :1], nc, 1).copy()
         c_rot[:, ck], c_root[:, ck] = rot[:, fk_], root[:, fk_]
-        q, r, _ = self.raw(c_rot, c_root, ck, noise)
+        q, r, _ = self.raw(c_rot, c_root, ck, noise, None, dna)
         q, r = match_keys(q, r, c_rot[:, ck], c_root[:, ck], ck)
         new = []
         for a, b in zip(keys[:-1], keys[1:], strict=True):
@@ -282,7 +320,9 @@ class OnnxInbetweener:
             joint_keys = mask
         return rot, root, merged, joint_keys
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None) -> Motion:
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion:
+        """Fill ``motion`` between ``keys`` (take ``seed``); ``dna``: a Motion of representative
+        poses (see :func:`pipeline.infer.dna.representative_frames`) the fill should contain."""
         if len(self.skeleton) != len(motion.skeleton):
             raise ValueError(
                 f"{self.name}: motion has {len(motion.skeleton)} joints, model {len(self.skeleton)}"
@@ -293,6 +333,11 @@ class OnnxInbetweener:
         if len(keys) < 2:
             raise ValueError("in-betweening needs at least two keys")
         q, r = self.fill_batch(
-            motion.rotations[None], motion.root_positions[None], keys, take_latent(seed)[None], joint_keys
+            motion.rotations[None],
+            motion.root_positions[None],
+            keys,
+            take_latent(seed)[None],
+            joint_keys,
+            None if dna is None else dna.rotations,
         )
         return replace(motion, rotations=q[0], root_positions=r[0])

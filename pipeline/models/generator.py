@@ -15,7 +15,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from pipeline.infer.dna import n_dna_channels
 from pipeline.infer.features import n_input_channels, n_output_channels
+from pipeline.models.dna import DnaEncoder
 from pipeline.models.layers import ResLayer
 
 
@@ -30,6 +32,7 @@ class GeneratorConfig:
     noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
     key_mask: bool = False  # per-joint key-mask channels in the input (partial keys)
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
+    dna: int = 0  # width of the motion-DNA encoder (0: none); its vector joins the bottleneck
     extra: dict = field(default_factory=dict)
 
     @property
@@ -72,6 +75,7 @@ class Generator(nn.Module):
         self.refine = nn.ModuleList(
             ResLayer(chans[i], chans[i], 3, sigma=1.0 / (3 + 1.5 * (n - i))) for i in reversed(range(n))
         )
+        self.dna = DnaEncoder(n_dna_channels(cfg.n_joints), cfg.dna, chans[-1]) if cfg.dna else None
         self.out = nn.Conv1d(cfg.width, cout, 3, padding=1)
         if cfg.residual:
             nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
@@ -80,12 +84,18 @@ class Generator(nn.Module):
     def res_layers(self) -> list[ResLayer]:
         return [m for m in self.modules() if isinstance(m, ResLayer)]
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, dna: torch.Tensor | None = None, dna_weight: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """(B, C, N) features -> (B, C_out, N); with a DNA encoder also (B, C_dna, R) poses and a
+        (B, 1) weight per window (0: no DNA)."""
         h = self.inp(x)
         skips = []
         for layer in self.down:
             skips.append(h)
             h = layer(h)
+        if self.dna is not None and dna is not None:
+            h = h + self.dna(dna, dna_weight)
         for layer in self.mid:
             h = layer(h)
         for up, ref in zip(self.up, self.refine, strict=True):

@@ -46,15 +46,21 @@ def sample_joint_keys(rng: np.random.Generator, n_keys: int, n_joints: int, shar
     return m
 
 
-def sample_batch(clips: ClipSet, rng: np.random.Generator, batch: int, length: int):
-    """(rot (B, L, J, 4), root (B, L, 3)) windows from clips at least ``length`` long."""
+def sample_batch(
+    clips: ClipSet, rng: np.random.Generator, batch: int, length: int, where: list | None = None
+):
+    """(rot (B, L, J, 4), root (B, L, 3)) windows from clips at least ``length`` long; each
+    window's (clip, first frame in the clip) is appended to ``where`` when given."""
     ok = np.flatnonzero(clips.lengths >= length)
     pick = rng.choice(ok, size=batch)
     rots, roots = [], []
     for c in pick:
-        s = clips.starts[c] + rng.integers(0, clips.lengths[c] - length + 1)
+        off = int(rng.integers(0, clips.lengths[c] - length + 1))
+        s = clips.starts[c] + off
         rots.append(clips.rotations[s : s + length])
         roots.append(clips.roots[s : s + length])
+        if where is not None:
+            where.append((int(c), off))
     return np.stack(rots), np.stack(roots)
 
 

@@ -46,6 +46,15 @@ def register(app: typer.Typer) -> None:
         key_mask: bool = typer.Option(
             False, help="Per-joint key-mask input channels (partial keys); --init weights are widened."
         ),
+        dna: int = typer.Option(
+            0, help="Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero."
+        ),
+        dna_prob: float = typer.Option(0.5, help="Share of windows given a motion DNA."),
+        w_dna: float = typer.Option(0.5, help="Weight of the DNA loss (eq. 11)."),
+        dna_from: float = typer.Option(
+            0.0, help="Share of DNAs from the rest of the window's clip (else from its gap)."
+        ),
+        new_lr: float = typer.Option(10.0, help="Learning-rate factor of modules new to --init (DNA)."),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.models.generator import GeneratorConfig
@@ -74,7 +83,11 @@ def register(app: typer.Typer) -> None:
                 mirror=mirror,
                 posture=posture,
                 partial=partial,
-                model=GeneratorConfig(noise_schedule=target_noise, key_mask=key_mask),
+                dna_prob=dna_prob,
+                dna_from=dna_from,
+                w_dna=w_dna,
+                new_lr=new_lr,
+                model=GeneratorConfig(noise_schedule=target_noise, key_mask=key_mask, dna=dna),
                 **common,
             ),
             out,

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import torch
 
+from pipeline.infer.dna import n_dna_channels
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.path import PathConfig, PathPredictor
 
@@ -56,13 +57,19 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     gen, gcfg, gstate = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
     files = {}
     x = torch.randn(1, gen.inp.conv.in_channels, 2 * gcfg.multiple)
+    args, names = (x,), ["features"]
+    axes = {"features": {0: "batch", 2: "frames"}, "residual": {0: "batch", 2: "frames"}}
+    if gcfg.dna:  # motion-DNA poses (any number) and a per-window weight (0: none)
+        args = (x, torch.randn(1, n_dna_channels(gcfg.n_joints), 3), torch.ones(1, 1))
+        names += ["dna", "dna_weight"]
+        axes.update(dna={0: "batch", 2: "poses"}, dna_weight={0: "batch"})
     torch.onnx.export(
         gen,
-        (x,),
+        args,
         str(out_dir / "generator.onnx"),
-        input_names=["features"],
+        input_names=names,
         output_names=["residual"],
-        dynamic_axes={"features": {0: "batch", 2: "frames"}, "residual": {0: "batch", 2: "frames"}},
+        dynamic_axes=axes,
         opset_version=17,
         dynamo=False,
     )
@@ -169,8 +176,12 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     )
     with torch.no_grad():
         for x in inputs:
-            a = sess.run(None, {"features": x})[0]
-            b = gen(torch.from_numpy(x)).numpy()
+            feeds = {"features": x}
+            if gcfg.dna:  # a random DNA of 5 poses, on for the first window only
+                feeds["dna"] = rng.normal(size=(len(x), n_dna_channels(gcfg.n_joints), 5)).astype(np.float32)
+                feeds["dna_weight"] = (np.arange(len(x))[:, None] == 0).astype(np.float32)
+            a = sess.run(None, feeds)[0]
+            b = gen(*(torch.from_numpy(v) for v in feeds.values())).numpy()
             worst = max(worst, float(np.abs(a - b).max()))
         if "path" in meta["files"]:
             path, _, _ = _load(PathPredictor, PathConfig, run_dir / "path.pt")

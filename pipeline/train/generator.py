@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_folder, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
+from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.features import (
     EULER_ORDER,
     NOISE_CHANNELS,
@@ -72,6 +73,11 @@ class TrainConfig:
     posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
     posture_prob: float = 0.5  # share of windows given posture offsets
     partial: float = 0.0  # share of batches with partial keys (needs model.key_mask)
+    dna_prob: float = 0.5  # share of windows given a motion DNA (needs model.dna)
+    dna_max: int = 4  # poses per DNA: 1 … this
+    w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
+    dna_from: float = 0.0  # share of DNAs taken from the rest of the window's clip (else its gap)
+    new_lr: float = 10.0  # learning-rate factor of modules new to an --init checkpoint (the DNA encoder)
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -126,7 +132,8 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     frac = min(step / max(cfg.curriculum * cfg.steps, 1), 1.0)
     max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
     L = int(rng.choice(cfg.lengths))
-    rot, root = sample_batch(clips, rng, cfg.batch, L)
+    where: list = []
+    rot, root = sample_batch(clips, rng, cfg.batch, L, where)
     if cfg.mirror > 0:
         # Its own stream, so a mirrored run trains on the same windows and keys as a plain one.
         flip = np.random.default_rng([cfg.seed, step, 1]).random(cfg.batch) < cfg.mirror
@@ -163,7 +170,11 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     fw = np.maximum(nxt - prev, 1).astype(np.float64) ** -cfg.gap_weighting
     fw = fw / fw[between].mean()
     t = torch.from_numpy
+    extra = {}
+    if cfg.model.dna:
+        extra = {k: t(v) for k, v in sample_dna(cfg, ctx, between, skel, step, clips, where).items()}
     return {
+        **extra,
         "feats": t(feats),
         "crot": t(ctx["crot"].astype(np.float32)),
         "croot": t(ctx["croot"].astype(np.float32)),
@@ -175,6 +186,60 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         "max_gap": max_gap,
         "L": L,
     }
+
+
+def sample_dna(cfg: TrainConfig, ctx: dict, between: np.ndarray, skel, step: int, clips, where) -> dict:
+    """A DNA per window: 1 … ``dna_max`` representative poses, on a ``dna_prob`` share of
+    windows. They come from the window's own in-between frames (picked among a random half of
+    them, so the choice varies) or, on a ``dna_from`` share, from the rest of its clip, at
+    least 15 frames from the window: the same motion, poses the keys alone do not give away."""
+    rng = np.random.default_rng([cfg.seed, step, 4])
+    inner = np.flatnonzero(between)
+    L = len(between)
+    R = int(rng.integers(1, cfg.dna_max + 1))
+    poses = []
+    for b in range(len(ctx["crot"])):
+        c, off = where[b]
+        rot, _ = clips.clip(c)
+        rest = np.r_[np.arange(0, max(off - 15, 0)), np.arange(off + L + 15, len(rot))]
+        if rng.random() < cfg.dna_from and len(rest) >= R:
+            idx = np.resize(representative_frames(rot, R, spacing=5, frames=rest), R)
+            poses.append(dna_poses(rot[idx], np.zeros((R, 3)), skel))
+            continue
+        some = np.sort(rng.choice(inner, size=max(1, len(inner) // 2), replace=False))
+        idx = representative_frames(ctx["crot"][b], R, spacing=5, frames=some)
+        idx = np.resize(idx, R)  # fewer far-enough frames than R: repeat
+        poses.append(dna_poses(ctx["crot"][b, idx], ctx["croot"][b, idx], skel))
+    on = (rng.random((len(poses), 1)) < cfg.dna_prob).astype(np.float32)
+    return {"dna": np.stack(poses), "dna_weight": on}
+
+
+def facing_poses(pos: torch.Tensor, skel) -> torch.Tensor:
+    """(B, L, J, 3) -> (B, L, J − 1, 3) root-relative positions turned to face +X, in metres
+    (the torch twin of ``pipeline.infer.dna.dna_poses``)."""
+    across = pos[..., skel.index("UpperLeg_L"), :] - pos[..., skel.index("UpperLeg_R"), :]
+    fx, fz = -across[..., 2:3], across[..., 0:1]  # across × up, (B, L, 1)
+    norm = torch.sqrt(fx**2 + fz**2).clamp_min(1e-6)
+    c, s = fx / norm, fz / norm
+    rel = pos[..., 1:, :] - pos[..., :1, :]
+    x, y, z = rel[..., 0], rel[..., 1], rel[..., 2]
+    return torch.stack([c * x + s * z, y, c * z - s * x], -1) / POSE_SCALE
+
+
+def dna_loss(
+    ppos: torch.Tensor, dna: torch.Tensor, on: torch.Tensor, between: torch.Tensor, skel
+) -> torch.Tensor:
+    """Eq. 11: each DNA pose's distance (mean per joint, decimetres) to its nearest in-between
+    frame, averaged over the poses of the windows that have a DNA."""
+    if not bool(on.any()):
+        return torch.zeros((), device=ppos.device)
+    B, C, R = dna.shape
+    pred = facing_poses(ppos[:, between], skel)  # (B, T, J − 1, 3)
+    want = dna.reshape(B, -1, 3, R).permute(0, 3, 1, 2)  # (B, R, J − 1, 3)
+    d = torch.linalg.norm(pred[:, None] - want[:, :, None], dim=-1).mean(-1) * 10.0  # (B, R, T)
+    nearest = d.min(dim=2).values.mean(dim=1)
+    w = on[:, 0]
+    return (nearest * w).sum() / w.sum()
 
 
 class _Steps(torch.utils.data.Dataset):
@@ -239,17 +304,24 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     else:
         clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
     model = Generator(cfg.model).to(dev)
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    # Modules an --init checkpoint lacks start from scratch beside trained weights: Adam moves
+    # every weight by about the learning rate a step, so they get a larger one to catch up.
+    new = list(model.dna.parameters()) if (model.dna is not None and cfg.init) else []
+    old = [p for p in model.parameters() if all(p is not q for q in new)]
+    groups = [{"params": old, "lr": cfg.lr}] + ([{"params": new, "lr": cfg.lr * cfg.new_lr}] if new else [])
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=cfg.lr, total_steps=cfg.steps, pct_start=max(0.05, 3 / cfg.steps)
+        opt,
+        max_lr=[g["lr"] for g in groups],
+        total_steps=cfg.steps,
+        pct_start=max(0.05, 3 / cfg.steps),
     )
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
     disc, d_opt = None, None
     if cfg.init and not ckpt.exists():
-        model.load_state_dict(
-            widen_input(torch.load(cfg.init, weights_only=False, map_location=dev)["model"], model)
-        )
+        init = widen_input(torch.load(cfg.init, weights_only=False, map_location=dev)["model"], model)
+        model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
         state = torch.load(ckpt, weights_only=False, map_location=dev)
@@ -300,7 +372,8 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         adversarial = cfg.adv_start is not None and step >= cfg.adv_start
         between = b["between"].numpy()
         x = b["feats"].to(dev)
-        out = model(x)
+        dna, dna_on = (b["dna"].to(dev), b["dna_weight"].to(dev)) if "dna" in b else (None, None)
+        out = model(x, dna, dna_on)
         mats, proot, clog = decode(out, x, len(skel), cfg.model.residual, cfg.model.rotation)
         gt_rot = b["crot"].to(dev).float()
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
@@ -319,6 +392,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         ].mean() / POS_SCALE
         l_con = torch.nn.functional.binary_cross_entropy_with_logits(clog[:, m], b["contacts"].to(dev)[:, m])
         l_br = batch_regularisation(model.res_layers())
+        l_dna = dna_loss(ppos, dna, dna_on, m, skel) if dna is not None else torch.zeros((), device=dev)
         loss = (
             cfg.w_rot * l_rot
             + cfg.w_pos * l_pos
@@ -326,6 +400,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             + cfg.w_vel * l_vel
             + cfg.w_contact * l_con
             + cfg.w_br * l_br
+            + cfg.w_dna * l_dna
         )
         l_adv = torch.zeros((), device=dev)
         if adversarial:
@@ -362,6 +437,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
                 "contact": l_con.item(),
                 "br": l_br.item(),
                 "adv": l_adv.item(),
+                "dna": l_dna.item(),
                 "max_gap": max_gap,
                 "t": time.time() - t_start,
             }

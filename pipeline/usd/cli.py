@@ -71,6 +71,10 @@ def register(app: typer.Typer) -> None:
             None, "--review-layer", help="Add the fill to this root layer instead."
         ),
         job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
+        dna: Path = typer.Option(
+            None, "--dna", help="Motion DNA: a reference take (USD or BVH) whose poses steer the fill."
+        ),
+        dna_poses: int = typer.Option(4, "--dna-poses", min=1, max=8, help="Poses taken from --dna."),
     ):
         """Fill a shot in this process and print the result as JSON."""
         from pipeline.fill import FillOptions, fill_shot
@@ -85,6 +89,8 @@ def register(app: typer.Typer) -> None:
             fmt=fmt,
             mapping=str(mapping) if mapping else None,
             review_layer=str(review_layer) if review_layer else None,
+            dna=str(dna) if dna else None,
+            dna_poses=dna_poses,
         )
         result = fill_shot(str(shot), opts, job_id=job_id)
         print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)

@@ -69,8 +69,9 @@ def key_channels(cp: CharPlan, n_joints: int) -> np.ndarray | None:
     return None if mask.all() else mask
 
 
-def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.ndarray]:
-    """Times and animation-ordered rotations/translations/scales for the fill layer."""
+def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[str, np.ndarray]:
+    """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
+    Motion of representative poses for a model that takes a motion DNA."""
     shot, c = plan.shot, cp.char
     k = cp.keys
     rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
@@ -83,10 +84,11 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int) -> dict[str, np.nda
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
     # Partial keys go to models that take them (the human model); others get full keys.
     mask = key_channels(cp, len(inb.skeleton)) if hasattr(inb, "fill_batch") else None
+    extra = {} if dna is None else {"dna": dna}
     if mask is None:
-        filled = inb.fill(motion, m, seed=seed)
+        filled = inb.fill(motion, m, seed=seed, **extra)
     else:
-        filled = inb.fill(motion, m, seed=seed, joint_keys=mask)
+        filled = inb.fill(motion, m, seed=seed, joint_keys=mask, **extra)
 
     lo, hi = cp.fill_range
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))

@@ -220,6 +220,7 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
                     "review": review.name,
                     "shot": str(shot),
                     "createdAt": meta["created_at"],
+                    **({"dna": meta["dna"]} if "dna" in meta else {}),
                 }  # fmt: skip
             }
             author_fill_layer(layer, stage, takes, meta)
