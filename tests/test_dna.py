@@ -131,3 +131,46 @@ def test_fill_with_a_dna_steers_the_take_and_is_recorded(tiny_dna_model, bandai_
     with pytest.raises(TweenError, match="takes no motion DNA"):
         fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "c"), dna=str(bandai_clip)))
     assert not (tmp_path / "c").exists() or not any((tmp_path / "c").iterdir())
+
+
+def test_frozen_dna_training_leaves_every_other_weight_as_it_was(tmp_path):
+    torch = pytest.importorskip("torch")
+    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.train.generator import TrainConfig, train
+
+    small = dict(width=48, levels=(48, 64, 64))
+    torch.manual_seed(1)
+    base = Generator(GeneratorConfig(**small)).state_dict()
+    torch.save({"model": base}, tmp_path / "init.pt")
+    cfg = TrainConfig(steps=12, batch=8, lengths=(64,), lr=3e-3, limit_clips=40, init=str(tmp_path / "init.pt"),
+                      freeze=True, dna_prob=1.0, dna_from=0.5, model=GeneratorConfig(**small, dna=16),
+                      checkpoint_minutes=100)  # fmt: skip
+    train(cfg, tmp_path / "run")
+    out = torch.load(tmp_path / "run" / "generator.pt", weights_only=False)["model"]
+    for k, v in base.items():
+        assert torch.equal(out[k], v), k
+    assert out["dna.proj.weight"].abs().max() > 0  # the DNA map left its zero start
+
+
+def test_shipped_dna_model_steers_toward_its_dna_and_keeps_keys(bandai_clip):
+    from dataclasses import replace
+
+    from pipeline.infer.api import load_inbetweener
+
+    inb = load_inbetweener("dna")
+    assert inb.has_dna and inb.name.startswith("tween-bandai-dna")
+    m = read_bvh(bandai_clip).continuous()
+    shot = m.slice(0, 61)
+    keys = np.array([0, 30, 60])
+    ref = m.slice(61, len(m)) if len(m) > 100 else m
+    idx = representative_frames(ref.rotations, 4)
+    dna = replace(ref, rotations=ref.rotations[idx], root_positions=ref.root_positions[idx])
+    plain, steered = inb.fill(shot, keys), inb.fill(shot, keys, dna=dna)
+    assert np.array_equal(steered.rotations[keys], shot.rotations[keys])
+    want = dna_poses(dna.rotations, dna.root_positions, SKEL).T.reshape(len(idx), -1, 3)
+
+    def nearest(motion):  # eq. 11: each DNA pose to its nearest in-between frame (m, mean per joint)
+        got = dna_poses(motion.rotations, motion.root_positions, SKEL).T.reshape(len(motion), -1, 3)
+        return np.linalg.norm(got[None] - want[:, None], axis=-1).mean(-1).min(axis=1).mean()
+
+    assert nearest(steered) < nearest(plain)

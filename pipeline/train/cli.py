@@ -55,6 +55,9 @@ def register(app: typer.Typer) -> None:
             0.0, help="Share of DNAs from the rest of the window's clip (else from its gap)."
         ),
         new_lr: float = typer.Option(10.0, help="Learning-rate factor of modules new to --init (DNA)."),
+        freeze: bool = typer.Option(
+            False, help="Train only modules new to --init (DNA); the rest stays exactly as it was."
+        ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.models.generator import GeneratorConfig
@@ -87,6 +90,7 @@ def register(app: typer.Typer) -> None:
                 dna_from=dna_from,
                 w_dna=w_dna,
                 new_lr=new_lr,
+                freeze=freeze,
                 model=GeneratorConfig(noise_schedule=target_noise, key_mask=key_mask, dna=dna),
                 **common,
             ),

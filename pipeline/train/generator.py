@@ -78,6 +78,7 @@ class TrainConfig:
     w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
     dna_from: float = 0.0  # share of DNAs taken from the rest of the window's clip (else its gap)
     new_lr: float = 10.0  # learning-rate factor of modules new to an --init checkpoint (the DNA encoder)
+    freeze: bool = False  # train only the modules new to --init: the rest stays bit for bit as it was
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -308,7 +309,13 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     # every weight by about the learning rate a step, so they get a larger one to catch up.
     new = list(model.dna.parameters()) if (model.dna is not None and cfg.init) else []
     old = [p for p in model.parameters() if all(p is not q for q in new)]
-    groups = [{"params": old, "lr": cfg.lr}] + ([{"params": new, "lr": cfg.lr * cfg.new_lr}] if new else [])
+    if cfg.freeze:
+        if not new:
+            raise ValueError("freeze trains only modules new to --init: give --init and a new module (--dna)")
+        for p in old:
+            p.requires_grad_(False)
+    groups = [] if cfg.freeze else [{"params": old, "lr": cfg.lr}]
+    groups += [{"params": new, "lr": cfg.lr * cfg.new_lr}] if new else []
     opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(
         opt,
