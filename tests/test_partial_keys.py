@@ -49,10 +49,10 @@ def test_each_joint_interpolates_between_its_own_keys(clip):
     assert not np.allclose(ctx["irot"][:, 10], crot[:, 10], atol=1e-3)
     # The root passes through its key at frame 10.
     assert np.allclose(ctx["iroot"][:, 10], ctx["croot"][:, 10])
-    # Mask channels: 1 where a joint is keyed, the key flag on any key.
+    # Mask channels: 1 where a key frame leaves a joint unkeyed; full keys and in-betweens 0.
     m = feats[0, -(J + 1) :]
-    assert m[:, 0].all() and m[:, 20].all() and m[:, 5].sum() == 0
-    assert m[:J, 10].sum() == 0 and m[J, 10] == 1
+    assert m[:, 0].sum() == 0 and m[:, 20].sum() == 0 and m[:, 5].sum() == 0
+    assert m[:J, 10].all() and m[J, 10] == 0
     assert feats[0, 2 * (J6 + 3) + 1, 10] == 1  # frame 10 is a key frame for the schedule
     # Full masks give exactly the features of plain keys.
     plain, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
@@ -120,21 +120,23 @@ def test_sampled_masks_keep_first_and_last_keys_full():
     assert len(seen) > 3  # several kinds of partial keys
 
 
-def test_widened_input_starts_as_the_old_model():
+def test_key_mask_model_starts_as_its_init_and_full_keys_never_reach_the_mask():
     torch = pytest.importorskip("torch")
     from pipeline.models.generator import Generator, GeneratorConfig
-    from pipeline.train.generator import widen_input
 
     torch.manual_seed(0)
     cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
     old = Generator(cfg).eval()
     torch.nn.init.normal_(old.out.weight, std=0.01)
     new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_mask=True)).eval()
-    new.load_state_dict(widen_input(old.state_dict(), new))
+    new.load_state_dict({**new.state_dict(), **old.state_dict()})  # as `tween train --init`
     x = torch.randn(2, n_input_channels(J), 32)
     m = (torch.rand(2, J + 1, 32) < 0.3).float()
     with torch.no_grad():
-        assert torch.equal(old(x), new(torch.cat([x, m], 1)))
+        assert torch.equal(old(x), new(torch.cat([x, m], 1)))  # the mask map starts at zero
+        torch.nn.init.normal_(new.mask_in.weight, std=0.5)
+        assert not torch.equal(old(x), new(torch.cat([x, m], 1)))
+        assert torch.equal(old(x), new(torch.cat([x, torch.zeros_like(m)], 1)))  # full keys
 
 
 def test_partial_keys_do_not_touch_the_noise_channels(clip):

@@ -216,9 +216,11 @@ def build_features(
 
 
 def key_mask_channels(n: int, keys, joint_keys, n_joints: int) -> np.ndarray:
-    """(N, J + 1): 1 where a joint (last: the root) is keyed at that frame."""
+    """(N, J + 1): 1 where a key frame leaves a joint (last: the root) unkeyed. Full keys give
+    zeros, so a network's mask input changes nothing when every key is a full pose."""
     m = np.zeros((n, n_joints + 1))
-    m[np.asarray(keys, np.int64)] = 1.0 if joint_keys is None else joint_keys
+    if joint_keys is not None:
+        m[np.asarray(keys, np.int64)] = ~np.asarray(joint_keys, bool)
     return m
 
 

@@ -58,7 +58,13 @@ class Generator(nn.Module):
             n_input_channels(cfg.n_joints, cfg.key_mask),
             n_output_channels(cfg.n_joints, cfg.rotation),
         )
-        self.inp = ResLayer(cin, cfg.width, 3, sigma=1.0)
+        # Key-mask channels (the last J + 1 inputs) go through their own convolution, zero at
+        # the start and without bias: with full keys they are zero and add nothing.
+        self.n_mask = cfg.n_joints + 1 if cfg.key_mask else 0
+        self.inp = ResLayer(cin - self.n_mask, cfg.width, 3, sigma=1.0)
+        self.mask_in = nn.Conv1d(self.n_mask, cfg.width, 3, padding=1, bias=False) if cfg.key_mask else None
+        if self.mask_in is not None:
+            nn.init.zeros_(self.mask_in.weight)
         n = len(cfg.levels)
         chans = [cfg.width, *cfg.levels]
         self.down = nn.ModuleList(
@@ -89,7 +95,10 @@ class Generator(nn.Module):
     ) -> torch.Tensor:
         """(B, C, N) features -> (B, C_out, N); with a DNA encoder also (B, C_dna, R) poses and a
         (B, 1) weight per window (0: no DNA)."""
-        h = self.inp(x)
+        if self.mask_in is None:
+            h = self.inp(x)
+        else:
+            h = self.inp(x[:, : -self.n_mask]) + self.mask_in(x[:, -self.n_mask :])
         skips = []
         for layer in self.down:
             skips.append(h)

@@ -44,7 +44,7 @@ def register(app: typer.Typer) -> None:
         ),
         partial: float = typer.Option(0.0, help="Share of batches with partial keys (some joints only)."),
         key_mask: bool = typer.Option(
-            False, help="Per-joint key-mask input channels (partial keys); --init weights are widened."
+            False, help="Per-joint key-mask input (partial keys), its own zero-start convolution."
         ),
         dna: int = typer.Option(
             0, help="Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero."

@@ -77,7 +77,7 @@ class TrainConfig:
     dna_max: int = 4  # poses per DNA: 1 … this
     w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
     dna_from: float = 0.0  # share of DNAs taken from the rest of the window's clip (else its gap)
-    new_lr: float = 10.0  # learning-rate factor of modules new to an --init checkpoint (the DNA encoder)
+    new_lr: float = 10.0  # learning-rate factor of modules new to an --init checkpoint (DNA, key mask)
     freeze: bool = False  # train only the modules new to --init: the rest stays bit for bit as it was
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
@@ -275,18 +275,6 @@ def batches_from(cfg: TrainConfig, clips, skel, feet, first: int):
     return iter(loader)
 
 
-def widen_input(state: dict, model: Generator) -> dict:
-    """Weights of a model with fewer input channels (one without key-mask channels) fitted to
-    ``model``: the new channels' weights start at zero, so the wider model starts as the old."""
-    name = "inp.conv.weight"
-    have, want = state[name], model.state_dict()[name]
-    if have.shape != want.shape:
-        grown = torch.zeros_like(want)
-        grown[:, : have.shape[1]] = have
-        state = {**state, name: grown}
-    return state
-
-
 def train(cfg: TrainConfig, out_dir: Path) -> Path:
     import roma
 
@@ -307,11 +295,12 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     model = Generator(cfg.model).to(dev)
     # Modules an --init checkpoint lacks start from scratch beside trained weights: Adam moves
     # every weight by about the learning rate a step, so they get a larger one to catch up.
-    new = list(model.dna.parameters()) if (model.dna is not None and cfg.init) else []
+    added = [m for m in (model.dna, model.mask_in) if m is not None]
+    new = [p for m in added for p in m.parameters()] if cfg.init else []
     old = [p for p in model.parameters() if all(p is not q for q in new)]
     if cfg.freeze:
         if not new:
-            raise ValueError("freeze trains only modules new to --init: give --init and a new module (--dna)")
+            raise ValueError("freeze trains only modules new to --init: give --init and --dna or --key-mask")
         for p in old:
             p.requires_grad_(False)
     groups = [] if cfg.freeze else [{"params": old, "lr": cfg.lr}]
@@ -327,7 +316,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     step, elapsed = 0, 0.0
     disc, d_opt = None, None
     if cfg.init and not ckpt.exists():
-        init = widen_input(torch.load(cfg.init, weights_only=False, map_location=dev)["model"], model)
+        init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"]
         model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
