@@ -125,8 +125,10 @@ def dna_motion(opts: FillOptions, fps: float):
 
 
 def _check_dna(opts: FillOptions, inbs: list) -> None:
+    if not opts.dna:
+        return
     for inb in inbs:
-        if opts.dna and not getattr(inb, "has_dna", False):
+        if not getattr(inb, "has_dna", False):
             raise TweenError(
                 f"{opts.dna}: model {inb.name} takes no motion DNA (drop --dna or pick a DNA model)"
             )
@@ -150,16 +152,16 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     summary = plan.summary()
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     models = {}
-    for cp in plan.chars:
-        inb = _char_model(cp, human)
+    inbs = [_char_model(cp, human) for cp in plan.chars]
+    for cp, inb in zip(plan.chars, inbs, strict=True):
         models[cp.char.anim_path] = {
             "name": inb.name,
             "hash": inb.model_hash,
             "kind": "rig" if cp.model else "human",
             **({"folder": cp.model} if cp.model else {}),
         }
-    _check_dna(opts, [_char_model(cp, human) for cp in plan.chars])
-    dna = dna_motion(opts, float(human.fps) if human is not None else 30.0)
+    _check_dna(opts, inbs)
+    dna = dna_motion(opts, float(inbs[0].fps))
     if dna is not None:
         summary["dna"] = {"file": opts.dna, "poses": len(dna)}
     summary.update(
@@ -207,7 +209,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         return str(out)
     arrays: dict[str, np.ndarray] = {}
     chars = []
-    dna = dna_motion(opts, float(inbs[0].fps)) if opts.dna else None
+    dna = dna_motion(opts, float(inbs[0].fps))
     for i, (cp, inb) in enumerate(zip(plan.chars, inbs, strict=True)):
         data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna)
         for k, v in data.items():

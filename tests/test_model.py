@@ -20,6 +20,11 @@ SKEL = bandai_skeleton()
 RNG = np.random.default_rng(0)
 
 
+def bone_lengths(p):
+    """(N, J − 1) bone lengths of (N, J, 3) joint positions."""
+    return np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)
+
+
 def random_motion(B, N, J=21, seed=0):
     rot = Rotation.random(B * N * J, random_state=seed).as_quat().reshape(B, N, J, 4).astype(np.float32)
     root = RNG.normal(scale=30, size=(B, N, 3)).astype(np.float32)
@@ -130,8 +135,7 @@ def test_two_bone_ik_keeps_bone_lengths_and_reaches_target(bandai_clip):
     out = two_bone_ik(rot, root, SKEL, leg, target, np.ones(20))
     _, new = fk(out, root, SKEL.parents, SKEL.offsets)
     np.testing.assert_allclose(new[:, leg[2]], target, atol=1e-2)
-    bones = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
-    np.testing.assert_allclose(bones(new), bones(pos), atol=1e-3)
+    np.testing.assert_allclose(bone_lengths(new), bone_lengths(pos), atol=1e-3)
     # The other leg and the upper body did not move.
     other = [SKEL.index(n) for n in LEGS[1]] + [SKEL.index("Head")]
     np.testing.assert_allclose(new[:, other], pos[:, other], atol=1e-4)
@@ -174,8 +178,7 @@ def test_anchored_feet_stay_where_the_key_planted_them(bandai_clip):
     assert np.array_equal(out[keys], rot[keys])
     assert np.array_equal(out[11:], rot[11:])  # held frames after the last key: untouched
     _, gp_before = fk(rot, root, SKEL.parents, SKEL.offsets)
-    bone = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
-    assert np.abs(bone(after) - bone(gp_before)).max() < 1e-4
+    assert np.abs(bone_lengths(after) - bone_lengths(gp_before)).max() < 1e-4
 
 
 def test_two_bone_ik_turns_the_foot_to_a_given_orientation(bandai_clip):
@@ -192,8 +195,7 @@ def test_two_bone_ik_turns_the_foot_to_a_given_orientation(bandai_clip):
     assert np.degrees(turned.magnitude()).max() < 0.1
     np.testing.assert_allclose(new[:10, leg[2]], target[:10], atol=1e-2)
     np.testing.assert_allclose(out[10:], rot[10:])  # weight 0: untouched
-    bones = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
-    np.testing.assert_allclose(bones(new), bones(pos), atol=1e-3)
+    np.testing.assert_allclose(bone_lengths(new), bone_lengths(pos), atol=1e-3)
 
 
 def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
@@ -218,8 +220,7 @@ def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
     assert np.array_equal(held[keys], rot[keys])
     _, before = fk(rot, root, SKEL.parents, SKEL.offsets)
     _, after = fk(held, root, SKEL.parents, SKEL.offsets)
-    bone = lambda p: np.linalg.norm(p[:, 1:] - p[:, SKEL.parents[1:]], axis=-1)  # noqa: E731
-    assert np.abs(bone(after) - bone(before)).max() < 1e-4
+    assert np.abs(bone_lengths(after) - bone_lengths(before)).max() < 1e-4
     # Anchored: between two keys holding the contact, the foot turns evenly from one key's
     # orientation to the other's, and both keys stay exact.
     anchored = lock_feet(rot, root, SKEL, contacts, keys, legs, anchor=True, orient=True)

@@ -60,6 +60,7 @@ class Generator(nn.Module):
         )
         # Key-mask channels (the last J + 1 inputs) go through their own convolution, zero at
         # the start and without bias: with full keys they are zero and add nothing.
+        self.in_channels = cin  # the features' width, mask channels included
         self.n_mask = cfg.n_joints + 1 if cfg.key_mask else 0
         self.inp = ResLayer(cin - self.n_mask, cfg.width, 3, sigma=1.0)
         self.mask_in = nn.Conv1d(self.n_mask, cfg.width, 3, padding=1, bias=False) if cfg.key_mask else None

@@ -54,9 +54,11 @@ def register(app: typer.Typer) -> None:
         dna_from: float = typer.Option(
             0.0, help="Share of DNAs from the rest of the window's clip (else from its gap)."
         ),
-        new_lr: float = typer.Option(10.0, help="Learning-rate factor of modules new to --init (DNA)."),
+        new_lr: float = typer.Option(
+            10.0, help="Learning-rate factor of modules new to --init (DNA, key mask)."
+        ),
         freeze: bool = typer.Option(
-            False, help="Train only modules new to --init (DNA); the rest stays exactly as it was."
+            False, help="Train only modules new to --init (DNA, key mask); the rest stays as it was."
         ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""

@@ -10,7 +10,6 @@ from pathlib import Path
 import torch
 
 from pipeline.infer.dna import n_dna_channels
-from pipeline.infer.features import n_input_channels
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.path import PathConfig, PathPredictor
 
@@ -57,7 +56,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     out_dir.mkdir(parents=True, exist_ok=True)
     gen, gcfg, gstate = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
     files = {}
-    x = torch.randn(1, n_input_channels(gcfg.n_joints, gcfg.key_mask), 2 * gcfg.multiple)
+    x = torch.randn(1, gen.in_channels, 2 * gcfg.multiple)
     args, names = (x,), ["features"]
     axes = {"features": {0: "batch", 2: "frames"}, "residual": {0: "batch", 2: "frames"}}
     if gcfg.dna:  # motion-DNA poses (any number) and a per-window weight (0: none)
@@ -87,9 +86,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         "train_steps": gstate["step"],
         "train_seconds": round(gstate["elapsed"], 1),
         "parameters": {"generator": sum(p.numel() for p in gen.parameters())},
-        "flops_per_frame": {
-            "generator": 2 * macs_per_frame(gen, n_input_channels(gcfg.n_joints, gcfg.key_mask))
-        },
+        "flops_per_frame": {"generator": 2 * macs_per_frame(gen, gen.in_channels)},
     }
     if (run_dir / "path.pt").exists():
         path, pcfg, pstate = _load(PathPredictor, PathConfig, run_dir / "path.pt")
@@ -159,7 +156,7 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     gen, gcfg, _ = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
     rng = np.random.default_rng(seed)
     skel = bandai_skeleton()
-    inputs = [rng.normal(size=(2, n_input_channels(gcfg.n_joints, gcfg.key_mask), 96)).astype(np.float32)]
+    inputs = [rng.normal(size=(2, gen.in_channels, 96)).astype(np.float32)]
     try:
         from pipeline.data.split import list_clips
 
