@@ -6,6 +6,7 @@ import pytest
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import (
     NOISE_CHANNELS,
+    TTA_FREQS,
     build_features,
     check_joint_keys,
     n_input_channels,
@@ -60,6 +61,29 @@ def test_each_joint_interpolates_between_its_own_keys(clip):
     assert np.array_equal(plain, full)
     assert plain.shape[1] == n_input_channels(J) and plain.shape[1] == feats.shape[1] - (J + 1)
 
+
+
+def test_full_timing_counts_full_keys_only_and_keeps_the_partial_keys_joints(clip):
+    """With ``full_timing`` the schedule channels are those of the full keys alone, while the
+    partial key still reaches its joints' baseline and key copy, and the mask marks it."""
+    rot, root = clip
+    keys = np.array([0, 10, 20])
+    mask = _mask(3, {1: [J]})  # frame 10 keys the root only
+    timed, ctx = build_features(
+        rot[:, :21], root[:, :21], keys, SKEL, joint_keys=mask, key_mask=True, full_timing=True
+    )
+    plain, _ = build_features(rot[:, :21], root[:, :21], np.array([0, 20]), SKEL, key_mask=True)
+    sched = slice(2 * (J6 + 3), 2 * (J6 + 3) + 2 + 4 * TTA_FREQS)  # distance, key flag, time-to-arrival
+    assert np.array_equal(timed[0, sched], plain[0, sched])
+    assert timed[0, 2 * (J6 + 3) + 1, 10] == 0  # not a key frame for the schedule
+    assert np.allclose(ctx["iroot"][:, 10], ctx["croot"][:, 10])  # the root still passes its key
+    assert not np.array_equal(timed[0, J6 : J6 + 3], plain[0, J6 : J6 + 3])
+    assert timed[0, -(J + 1) :][:J, 10].all() and timed[0, -1, 10] == 0
+    # Without partial keys the switch changes nothing.
+    full = np.ones((3, J + 1), bool)
+    a, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=full, full_timing=True)
+    b, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
+    assert np.array_equal(a, b)
 
 def test_joint_key_masks_are_checked():
     with pytest.raises(ValueError, match="first and last"):

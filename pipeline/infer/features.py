@@ -10,7 +10,9 @@ position or heading.
 Partial keys (some joints only, or the root only) come as a per-key mask ``joint_keys``
 (K, J + 1: the joints, then the root). The baseline and the dense key copy of each joint
 then use that joint's own keys, and models built with ``key_mask`` also get the mask as
-J + 1 per-frame channels (1 where that joint is keyed). The first and last keys are full.
+J + 1 per-frame channels (1 where a key frame leaves that joint unkeyed). With ``full_timing``
+the key distance, key flag and time-to-arrival channels count full keys only. The first and
+last keys are full.
 """
 
 from __future__ import annotations
@@ -145,6 +147,7 @@ def feature_options(generator: dict) -> dict:
         "tta": generator.get("tta", True),
         "noise_schedule": generator.get("noise_schedule", False),
         "key_mask": generator.get("key_mask", False),
+        "full_timing": generator.get("full_timing", False),
     }
 
 
@@ -167,6 +170,7 @@ def build_features(
     noise_schedule: bool = False,
     joint_keys=None,
     key_mask: bool = False,
+    full_timing: bool = False,
 ):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
@@ -184,10 +188,14 @@ def build_features(
     q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
     crot, croot = apply_transform(rot, root, q, off)
     irot, iroot, nearest = interpolate(crot, croot, keys, joint_keys)
-    prev, nxt = key_neighbours(N, keys)
+    # With ``full_timing`` the distance, key flag and time-to-arrival channels count full keys
+    # only: a partial key then reaches the network through its joints' baseline, key copy and
+    # mask, and a network trained on full keys sees the timing it was trained on.
+    timed = keys if joint_keys is None or not full_timing else keys[joint_keys.all(axis=1)]
+    prev, nxt = key_neighbours(N, timed)
     idx = np.arange(N)
     dist = np.minimum(np.abs(idx - prev), np.abs(nxt - idx)).astype(np.float64)
-    is_key = np.isin(idx, keys).astype(np.float64)
+    is_key = np.isin(idx, timed).astype(np.float64)
     tta_ch = np.concatenate(
         [tta_embedding((idx - prev).astype(np.float64)), tta_embedding((nxt - idx).astype(np.float64))], -1
     )

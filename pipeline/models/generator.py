@@ -31,6 +31,7 @@ class GeneratorConfig:
     tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
     noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
     key_mask: bool = False  # per-joint key-mask channels in the input (partial keys)
+    full_timing: bool = False  # key distance / flag / time-to-arrival count full keys only
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     dna: int = 0  # width of the motion-DNA encoder (0: none); its vector joins the bottleneck
     extra: dict = field(default_factory=dict)

@@ -46,6 +46,11 @@ def register(app: typer.Typer) -> None:
         key_mask: bool = typer.Option(
             False, help="Per-joint key-mask input (partial keys), its own zero-start convolution."
         ),
+        full_timing: bool = typer.Option(
+            False,
+            help="Key distance, key flag and time-to-arrival inputs count full keys only (partial "
+            "keys reach the network through their joints and the key mask).",
+        ),
         dna: int = typer.Option(
             0, help="Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero."
         ),
@@ -93,7 +98,9 @@ def register(app: typer.Typer) -> None:
                 w_dna=w_dna,
                 new_lr=new_lr,
                 freeze=freeze,
-                model=GeneratorConfig(noise_schedule=target_noise, key_mask=key_mask, dna=dna),
+                model=GeneratorConfig(
+                    noise_schedule=target_noise, key_mask=key_mask, full_timing=full_timing, dna=dna
+                ),
                 **common,
             ),
             out,
