@@ -62,7 +62,6 @@ def test_each_joint_interpolates_between_its_own_keys(clip):
     assert plain.shape[1] == n_input_channels(J) and plain.shape[1] == feats.shape[1] - (J + 1)
 
 
-
 def test_full_timing_counts_full_keys_only_and_keeps_the_partial_keys_joints(clip):
     """With ``full_timing`` the schedule channels are those of the full keys alone, while the
     partial key still reaches its joints' baseline and key copy, and the mask marks it."""
@@ -84,6 +83,7 @@ def test_full_timing_counts_full_keys_only_and_keeps_the_partial_keys_joints(cli
     a, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=full, full_timing=True)
     b, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
     assert np.array_equal(a, b)
+
 
 def test_joint_key_masks_are_checked():
     with pytest.raises(ValueError, match="first and last"):
