@@ -242,7 +242,9 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
     from pipeline.train.export import export, verify
 
     torch.manual_seed(0)
-    gcfg = GeneratorConfig(width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask, dna=dna)
+    gcfg = GeneratorConfig(
+        width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask, full_timing=key_mask, dna=dna
+    )
     g = Generator(gcfg)
     torch.nn.init.normal_(g.out.weight, std=0.01)  # not the zero start: a real residual
     if dna:
@@ -260,6 +262,7 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
     )
     meta = export(run, tmp_path / "model", "tiny")
     assert set(meta["files"]) == {"generator", "path"}
+    assert meta["generator"]["full_timing"] == key_mask  # the farm builds the inputs it trained on
     assert verify(run, tmp_path / "model") < 1e-4
     m = read_bvh(bandai_clip).continuous().slice(0, 70)
     keys = np.array([0, 1, 2, 20, 45, 69])
@@ -305,7 +308,9 @@ def test_tiny_training_run_loss_falls(tmp_path, partial, dna):
         lr=3e-3,
         limit_clips=40,
         partial=partial,
-        model=GeneratorConfig(width=48, levels=(48, 64, 64), key_mask=partial > 0, dna=dna),
+        model=GeneratorConfig(
+            width=48, levels=(48, 64, 64), key_mask=partial > 0, full_timing=partial > 0, dna=dna
+        ),
         checkpoint_minutes=100,
     )
     train(cfg, tmp_path)
