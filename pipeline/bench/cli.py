@@ -32,25 +32,11 @@ def register(app: typer.Typer) -> None:
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
 
+        names = [m.strip() for m in methods.split(",") if m.strip()]
         if long_gaps:
-            import json
+            from pipeline.bench.long_gaps import run_long_gap_bench
 
-            from pipeline.bench import long_gaps as lg
-            from pipeline.infer.api import load_inbetweener
-
-            takes = lg.long_takes(limit)
-            res = {}
-            for m in [m.strip() for m in methods.split(",") if m.strip()]:
-                name = {"model": "default", "zero": None}.get(m, m)
-                if name is None:
-                    continue
-                typer.echo(f"long gaps: {m} on {len(takes)} takes…", err=True)
-                res[m] = lg.evaluate_long_gaps(load_inbetweener(name), takes)
-            out.mkdir(parents=True, exist_ok=True)
-            (out / "long_gaps.json").write_text(json.dumps(res, indent=1))
-            md = lg.markdown(res)
-            (out / "long_gaps.md").write_text(md)
-            typer.echo(md)
+            typer.echo(run_long_gap_bench(names, limit, out))
             return
 
         if partial_keys:
@@ -61,12 +47,9 @@ def register(app: typer.Typer) -> None:
 
             mean, std = position_stats(load_split("train"))
             rots, roots = test_windows(limit, mirrored, posture, source)
-            names = [m.strip() for m in methods.split(",") if m.strip()]
             typer.echo(run_partial_bench(names, rots, roots, mean, std, out))
             return
 
-        res = run_bench(
-            [m.strip() for m in methods.split(",") if m.strip()], limit, out, mirrored, posture, source
-        )
+        res = run_bench(names, limit, out, mirrored, posture, source)
         typer.echo(res["markdown"])
         typer.echo(f"written: {res['json']}", err=True)

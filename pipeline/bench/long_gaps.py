@@ -8,6 +8,7 @@ must keep moving: 50–150 %), the largest bone-length change, and the MPJPE.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -107,3 +108,23 @@ def markdown(results: dict) -> str:
                 f"| {v['max_bone_length_change_cm']:.1e} | {v['mpjpe_cm']:.1f} |"
             )
     return "\n".join(lines)
+
+
+def run_long_gap_bench(methods: list[str], limit: int | None, out_dir: Path) -> str:
+    """Every method (zero is skipped: it does not move) on the long takes; writes
+    long_gaps.json and .md under ``out_dir``, returns the Markdown."""
+    from pipeline.infer.api import load_inbetweener
+
+    takes = long_takes(limit)
+    res = {}
+    for m in methods:
+        name = {"model": "default", "zero": None}.get(m, m)
+        if name is None:
+            continue
+        print(f"long gaps: {m} on {len(takes)} takes…", file=sys.stderr)
+        res[m] = evaluate_long_gaps(load_inbetweener(name), takes)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "long_gaps.json").write_text(json.dumps(res, indent=1))
+    md = markdown(res)
+    (out_dir / "long_gaps.md").write_text(md)
+    return md

@@ -1,0 +1,62 @@
+"""Choose a partial-key model without the eval split.
+
+python scripts/partial_choice.py MODEL_DIR [MODEL_DIR ...] [--every K] [--json OUT]
+
+Each model is measured on protocol windows cut from every K-th train clip (default 8; see
+``pad_layouts.train_windows``): the protocol's task with full keys (L2P and foot skate ÷
+interpolation at 5 / 15 / 30 / 45 frames) and the partial-key task of ``tween bench
+--partial-keys`` (one root-only, legs or upper-body key halfway through the transition; L2P
+at 15 / 30 / 45). A model without key-mask channels fills from the full keys and matches the
+partial ones afterwards, so its rows are the fallback a key-mask model has to beat.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+from pad_layouts import train_windows
+
+from pipeline.bench.methods import inbetweener_method, interpolation
+from pipeline.bench.partial import evaluate_partial, fill_interp, markdown
+from pipeline.bench.protocol import position_stats
+from pipeline.bench.run import evaluate
+from pipeline.data.cache import load_split
+from pipeline.infer.model import OnnxInbetweener
+
+
+def main(models: list[str], every: int, out: str | None) -> None:
+    mean, std = position_stats(load_split("train"))
+    rots, roots = train_windows(every)
+    print(f"{len(rots)} windows from every {every}th train clip", file=sys.stderr)
+    base = evaluate(interpolation, rots, roots, mean, std)
+    full, partial = {}, {"interp": evaluate_partial(fill_interp, rots, roots, mean, std)}
+    print("| model | L2P ÷ interp, full keys | skate ÷ interp |\n|---|---|---|")
+    for path in models:
+        inb = OnnxInbetweener(path)
+        r = evaluate(inbetweener_method(inb), rots, roots, mean, std)
+        full[inb.name] = {
+            str(t): {"L2P": r[t]["L2P"] / base[t]["L2P"], "skate": r[t]["skate"] / base[t]["skate"]}
+            for t in r
+        }
+        ratio = " / ".join(f"{v['L2P']:.3f}" for v in full[inb.name].values())
+        skate = " / ".join(f"{v['skate']:.3f}" for v in full[inb.name].values())
+        print(f"| {inb.name} | {ratio} | {skate} |", flush=True)
+        fill = lambda rot, root, keys, mask, inb=inb: inb.fill_batch(rot, root, keys, None, mask)  # noqa: E731
+        partial[inb.name] = evaluate_partial(fill, rots, roots, mean, std)
+    print()
+    print(markdown(partial))
+    if out:
+        payload = {
+            m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in partial.items()
+        }
+        Path(out).write_text(
+            json.dumps({"windows": len(rots), "full_keys": full, "partial": payload}, indent=1)
+        )
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    every = int(args[args.index("--every") + 1]) if "--every" in args else 8
+    out = args[args.index("--json") + 1] if "--json" in args else None
+    skip = {i for f in ("--every", "--json") if f in args for i in (args.index(f), args.index(f) + 1)}
+    main([a for i, a in enumerate(args) if i not in skip], every, out)
