@@ -210,3 +210,105 @@ def test_usd_rotations_and_translations_sampled_apart_are_partial_keys(tmp_path)
         assert not np.allclose(rot[t], usd_rot[t], atol=1e-4)  # the fill's pose
     for t in (1001.0, 1061.0):
         assert np.array_equal(rot[t], src_rot[t]) and np.array_equal(tr[t], src_tr[t])
+
+
+def _shot_with_keyed_joints(tmp_path, keyed: dict[float, list[str]]):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pxr import Sdf, Usd, Vt
+    from usd_fixtures import ANIM, bandai_shot
+
+    shot = bandai_shot(tmp_path / "keyed.usda", frames=61, keys_every=10)
+    stage = Usd.Stage.Open(str(shot))
+    anim = stage.GetPrimAtPath(ANIM)
+    tokens = list(anim.GetAttribute("joints").Get())
+    attr = anim.CreateAttribute("tween:keyedJoints", Sdf.ValueTypeNames.TokenArray)
+    for t, names in keyed.items():
+        attr.Set(Vt.TokenArray([x for x in tokens if x.rsplit("/", 1)[-1] in names]), t)
+    stage.GetRootLayer().Save()
+    return shot, tokens
+
+
+def test_usd_keyed_joints_make_per_joint_partial_keys(tmp_path):
+    """tween:keyedJoints at a key names the joints it keys: they keep their authored
+    rotations there, the other joints are filled, and the mask reaches the model as such."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pxr import Usd
+    from usd_fixtures import ANIM, FILLED, samples
+
+    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.usd.plan import make_plan
+    from pipeline.usd.solve import key_channels
+
+    legs = [n for n in SKEL.names if "Leg" in n or "Foot" in n or "Toes" in n]
+    shot, tokens = _shot_with_keyed_joints(tmp_path, {1031.0: ["Hips", *legs], 1041.0: []})
+    before = shot.read_bytes()
+    cp = make_plan(str(shot), None, None, None, 30.0).chars[0]
+    mask = key_channels(cp)
+    k = list(cp.keys)
+    row, empty = mask[k.index(1031.0)], mask[k.index(1041.0)]
+    keyed = {SKEL.names[j] for j in np.flatnonzero(row[:J])}
+    assert keyed == {"Hips", *legs} and row[J]  # the root position: translations are sampled
+    assert not empty[:J].any() and empty[J]  # no joint: a root-only key
+    assert mask[[0, 1, 2, -1]].all()
+
+    src = samples(Usd.Stage.Open(str(shot)), ANIM)
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "out")))
+    rot = samples(Usd.Stage.Open(res["review"]), FILLED)
+    anim_names = [t.rsplit("/", 1)[-1] for t in tokens]
+    leg_cols = [anim_names.index(n) for n in legs]
+    arm = anim_names.index("LowerArm_L")
+    assert np.array_equal(rot[1031.0][leg_cols], src[1031.0][leg_cols])  # keyed: authored, bitwise
+    assert not np.allclose(rot[1031.0][arm], src[1031.0][arm], atol=1e-4)  # unkeyed: filled
+    assert np.array_equal(rot[1021.0], src[1021.0])  # full keys stay full
+    assert shot.read_bytes() == before
+
+
+def test_usd_keyed_joints_naming_an_unknown_joint_is_refused(tmp_path):
+    from pxr import Usd
+
+    from pipeline.errors import ShotError
+    from pipeline.usd.read import read_shot
+
+    shot, _ = _shot_with_keyed_joints(tmp_path, {1031.0: ["Hips"]})
+    stage = Usd.Stage.Open(str(shot))
+    attr = stage.GetPrimAtPath("/World/Character/Skel/Anim").GetAttribute("tween:keyedJoints")
+    attr.Set(["Hips/Tail"], 1031.0)
+    stage.GetRootLayer().Save()
+    with pytest.raises(ShotError, match=r"keyed\.usda.*tween:keyedJoints at time 1031 names 'Hips/Tail'"):
+        read_shot(shot)
+
+
+def test_retarget_keys_a_model_joint_only_when_every_rig_joint_it_reads_is_keyed(tmp_path):
+    """On a rig unlike the model's (CMU, 100 joints), a model joint's rotation comes from a
+    chain of rig joints: leaving any of them unkeyed leaves that model joint unkeyed."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from usd_fixtures import cmu_shot
+
+    from pipeline.usd.plan import make_plan
+    from pipeline.usd.retarget import MODEL_JOINTS
+
+    cp = make_plan(str(cmu_shot(tmp_path / "cmu.usda")), None, None, None, 30.0).chars[0]
+    rt, parents = cp.retarget, cp.char.parents
+    n = len(parents)
+    full = rt.model_channels(np.ones((1, n), bool), np.ones(1, bool))
+    assert full.all()
+    arm = rt.roles["LowerArm_L"]
+    rows = np.ones((3, n), bool)
+    rows[0, arm] = False  # one rig joint
+    rows[1, parents[rt.roles["Hips"]] if parents[rt.roles["Hips"]] >= 0 else rt.roles["Hips"]] = False
+    rows[2] = False  # no rotation at all, translations keyed
+    got = rt.model_channels(rows, np.array([True, True, True]))
+    unkeyed0 = {MODEL_JOINTS[j] for j in np.flatnonzero(~got[0, :-1])}
+    assert unkeyed0 == {"LowerArm_L"} and got[0, -1]
+    assert not got[1, MODEL_JOINTS.index("Hips")]
+    assert not got[2, :-1].any()
+    assert rt.model_channels(np.ones((1, n), bool), np.zeros(1, bool))[0, -1] == 0

@@ -43,6 +43,7 @@ class Character:
     extra: dict = field(default_factory=dict)
     rot_times: np.ndarray | None = None  # authored samples of rotations alone
     trans_times: np.ndarray | None = None  # authored samples of translations alone
+    keyed_joints: dict[float, tuple[str, ...]] | None = None  # tween:keyedJoints samples
 
 
 @dataclass
@@ -152,6 +153,7 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     kt = anim_prim.GetAttribute("tween:keyTimes")
     if kt and kt.HasAuthoredValue():
         override = np.array(kt.Get(), np.float64)
+    keyed = _keyed_joints(anim_prim, anim_joints, shot_path, anim_path)
     start = stage.GetStartTimeCode()
     xf = UsdGeom.Xformable(skel.GetPrim()).ComputeLocalToWorldTransform(start)
     bs = anim.GetBlendShapeWeightsAttr()
@@ -174,7 +176,27 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         blend_shapes=bool(bs and bs.HasAuthoredValue()),
         rot_times=np.array(rot_times, np.float64),
         trans_times=np.array(trans_times, np.float64),
+        keyed_joints=keyed,
     )
+
+
+def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
+    """{time: animation joints keyed there} from tween:keyedJoints, or None when not authored."""
+    attr = anim_prim.GetAttribute("tween:keyedJoints")
+    if not attr or not attr.GetNumTimeSamples():
+        return None
+    known, out = set(anim_joints), {}
+    for t in attr.GetTimeSamples():
+        tokens = tuple(str(x) for x in (attr.Get(t) or []))
+        bad = [x for x in tokens if x not in known]
+        if bad:
+            raise ShotError(
+                shot_path,
+                f"tween:keyedJoints at time {t:g} names {bad[0]!r}, not a joint of the animation",
+                anim_path,
+            )
+        out[float(t)] = tokens
+    return out
 
 
 def read_shot(path: str | Path) -> Shot:

@@ -229,6 +229,40 @@ class Retarget:
         root = p_src[:, self.roles["Hips"]] * self.ratio
         return local.astype(np.float32), root.astype(np.float32)
 
+    def model_channels(self, rot_keyed: np.ndarray, trans_keyed: np.ndarray) -> np.ndarray:
+        """Which model channels partial keys determine: (K, J_rig) rig joints whose rotation
+        is keyed and (K,) keyed translations → (K, 22): model joints, then the root position.
+
+        A model joint's local rotation is keyed when every rig rotation it is computed from
+        is: those of the rig joints below its model parent's rig joint down to its own (from
+        the rig's root for the model root). The root position takes the translations and
+        the rotations above the hips. Model joints no rig joint maps to follow their parent.
+        """
+        parents = self.char.parents
+
+        def chain(i: int, stop: int) -> list[int]:  # rig joints from i up to, not including, stop
+            out = []
+            while i >= 0 and i != stop:
+                out.append(i)
+                i = parents[i]
+            return out
+
+        J = len(MODEL_JOINTS)
+        out = np.ones((len(rot_keyed), J + 1), bool)
+        for j, m in enumerate(MODEL_JOINTS):
+            par = self.model_parents[j]
+            if m not in self.roles:
+                out[:, j] = out[:, par] if par >= 0 else True
+                continue
+            up = par
+            while up >= 0 and MODEL_JOINTS[up] not in self.roles:
+                up = self.model_parents[up]
+            stop = self.roles[MODEL_JOINTS[up]] if up >= 0 else -1
+            out[:, j] = rot_keyed[:, chain(self.roles[m], stop)].all(axis=1)
+        hips = self.roles["Hips"]
+        out[:, J] = trans_keyed & rot_keyed[:, chain(parents[hips], -1)].all(axis=1)
+        return out
+
     # -- model -> shot rig -------------------------------------------------------------
     def from_model(
         self, local: np.ndarray, root: np.ndarray, rot_orig: np.ndarray, trans_orig: np.ndarray

@@ -48,12 +48,15 @@ def frames_in(lo: float, hi: float) -> np.ndarray:
     return np.arange(np.ceil(lo - TIME_EPS), np.floor(hi + TIME_EPS) + 1, dtype=np.float64)
 
 
-def key_channels(cp: CharPlan, n_joints: int) -> np.ndarray | None:
-    """The partial keys of an animation whose rotations and translations are sampled at
-    different times: (K, J + 1) for the model skeleton (the joints' rotations, then the root
-    position), or None when every key is a full pose. Only for the animation's own samples
-    (keys given with --keys or tween:keyTimes are full poses, as asked); the first and last
-    keys stay full, their missing channel taken at USD's interpolated value."""
+def rig_key_channels(cp: CharPlan) -> tuple[np.ndarray, np.ndarray] | None:
+    """The animation's partial keys on its own rig: (K, J_rig) keyed joint rotations and (K,)
+    keyed translations, or None when every key is a full pose.
+
+    A key is partial where rotations and translations are sampled at different times, or
+    where ``tween:keyedJoints`` names the joints whose rotations it keys (joints the
+    animation lacks hold their rest: keyed). Only for the animation's own samples (keys
+    given with --keys or tween:keyTimes are full poses, as asked); the first and last keys
+    stay full, their missing channels taken at USD's interpolated value."""
     c, k = cp.char, cp.keys
     if not cp.authored_keys or c.rot_times is None or c.trans_times is None:
         return None
@@ -64,8 +67,22 @@ def key_channels(cp: CharPlan, n_joints: int) -> np.ndarray | None:
         return np.abs(k[:, None] - times[None]).min(axis=1) < TIME_EPS
 
     rot, trans = at(c.rot_times), at(c.trans_times)
-    mask = np.concatenate([np.repeat(rot[:, None], n_joints, 1), trans[:, None]], axis=1)
-    mask[[0, -1]] = True
+    rig = np.repeat(rot[:, None], len(c.joints), 1)
+    for t, tokens in (c.keyed_joints or {}).items():
+        for i in np.flatnonzero((np.abs(k - t) < TIME_EPS) & rot):
+            rig[i, c.anim_index] = np.isin(c.anim_joints, tokens)
+    rig[[0, -1]], trans[[0, -1]] = True, True
+    return None if rig.all() and trans.all() else (rig, trans)
+
+
+def key_channels(cp: CharPlan, rig_keys=None) -> np.ndarray | None:
+    """The partial keys for the model skeleton: (K, J + 1), the joints' rotations, then the
+    root position (the retargeter says which model channels the keyed rig channels
+    determine), or None when every key is a full pose for the model."""
+    rig_keys = rig_key_channels(cp) if rig_keys is None else rig_keys
+    if rig_keys is None:
+        return None
+    mask = cp.retarget.model_channels(*rig_keys)
     return None if mask.all() else mask
 
 
@@ -83,7 +100,8 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     motion = Motion(inb.skeleton, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
     # Partial keys go to models that take them (the human model); others get full keys.
-    mask = key_channels(cp, len(inb.skeleton)) if hasattr(inb, "fill_batch") else None
+    rig_keys = rig_key_channels(cp) if hasattr(inb, "fill_batch") else None
+    mask = None if rig_keys is None else key_channels(cp, rig_keys)
     extra = {} if dna is None else {"dna": dna}
     if mask is None:
         filled = inb.fill(motion, m, seed=seed, **extra)
@@ -111,9 +129,10 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
         if i is None:
             continue
         sc_o[i] = sc_k[j]
-        if mask is None or mask[j, 0]:
-            rot[i] = rot_k[j]
-        if mask is None or mask[j, -1]:  # a partial key's other channel is the fill's
+        # A partial key's unkeyed channels are the fill's.
+        keyed = slice(None) if rig_keys is None else rig_keys[0][j, c.anim_index]
+        rot[i, keyed] = rot_k[j, keyed]
+        if rig_keys is None or rig_keys[1][j]:
             tr[i] = tr_k[j]
 
     # Outside the range every frame (and authored sample) keeps what the shot has: the
