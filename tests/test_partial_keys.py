@@ -312,3 +312,42 @@ def test_retarget_keys_a_model_joint_only_when_every_rig_joint_it_reads_is_keyed
     assert not got[1, MODEL_JOINTS.index("Hips")]
     assert not got[2, :-1].any()
     assert rt.model_channels(np.ones((1, n), bool), np.zeros(1, bool))[0, -1] == 0
+
+
+def test_training_matches_partial_keys_as_the_farm_does():
+    """keymatch.match_partial_keys (torch, in the losses) gives post.match_keys' output where
+    full keys need no correction, hits the keyed channels, and has finite gradients when a
+    keyed channel is already exact."""
+    torch = pytest.importorskip("torch")
+    from pipeline.train.keymatch import match_partial_keys, partial_match_weights
+
+    rng = np.random.default_rng(0)
+    N, keys = 40, np.array([0, 10, 20, 39])
+    jk = _mask(4, {1: [J], 2: [0, 1, 2, 3, 4]})
+    q = rng.normal(size=(2, N, J, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    r = rng.normal(size=(2, N, 3))
+    kq, kr = q[:, keys].copy(), r[:, keys].copy()
+    kq[:, 2, :5] = rng.normal(size=(2, 5, 4))
+    kq /= np.linalg.norm(kq, axis=-1, keepdims=True)
+    kr[:, 1] += rng.normal(size=(2, 3))
+    w = partial_match_weights(N, keys, jk)
+    tq, tr = match_partial_keys(
+        *(torch.tensor(a) for a in (q, r, kq, kr, keys)), torch.tensor(w, dtype=torch.float64)
+    )
+    mq, mr = match_keys(q, r, kq, kr, keys, jk)
+    assert np.allclose(np.abs((tq.numpy() * mq).sum(-1)), 1.0, atol=1e-6)
+    assert np.allclose(tr.numpy(), mr, atol=1e-6)
+    assert np.allclose(tr.numpy()[:, 10], kr[:, 1])
+    # Already exact: the correction is zero and its gradient finite.
+    qt = torch.tensor(q, requires_grad=True)
+    out, _ = match_partial_keys(
+        qt,
+        torch.tensor(r),
+        torch.tensor(q[:, keys]),
+        torch.tensor(r[:, keys]),
+        torch.tensor(keys),
+        torch.tensor(w, dtype=torch.float64),
+    )
+    out.sum().backward()
+    assert torch.isfinite(qt.grad).all() and torch.allclose(out, qt.detach())

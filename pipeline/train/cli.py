@@ -51,6 +51,9 @@ def register(app: typer.Typer) -> None:
             help="Key distance, key flag and time-to-arrival inputs count full keys only (partial "
             "keys reach the network through their joints and the key mask).",
         ),
+        match_partial: bool = typer.Option(
+            True, help="Losses on the output with partial keys matched, as the farm matches them."
+        ),
         dna: int = typer.Option(
             0, help="Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero."
         ),
@@ -93,6 +96,7 @@ def register(app: typer.Typer) -> None:
                 mirror=mirror,
                 posture=posture,
                 partial=partial,
+                match_partial=match_partial,
                 dna_prob=dna_prob,
                 dna_from=dna_from,
                 w_dna=w_dna,

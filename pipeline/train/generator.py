@@ -35,6 +35,7 @@ from pipeline.models.layers import batch_regularisation
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.fk import fk
 from pipeline.train.batches import foot_contacts, sample_batch, sample_joint_keys, sample_keys
+from pipeline.train.keymatch import match_partial_keys, partial_match_weights
 
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
 
@@ -73,6 +74,7 @@ class TrainConfig:
     posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
     posture_prob: float = 0.5  # share of windows given posture offsets
     partial: float = 0.0  # share of batches with partial keys (needs model.key_mask)
+    match_partial: bool = True  # losses on the output with partial keys matched (keymatch.py)
     dna_prob: float = 0.5  # share of windows given a motion DNA (needs model.dna)
     dna_max: int = 4  # poses per DNA: 1 … this
     w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
@@ -174,6 +176,9 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     extra = {}
     if cfg.model.dna:
         extra = {k: t(v) for k, v in sample_dna(cfg, ctx, between, skel, step, clips, where).items()}
+    if joint_keys is not None and cfg.match_partial:
+        extra["match_w"] = t(partial_match_weights(L, keys, joint_keys))
+        extra["all_keys"] = t(keys)
     return {
         **extra,
         "feats": t(feats),
@@ -372,6 +377,17 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         out = model(x, dna, dna_on)
         mats, proot, clog = decode(out, x, len(skel), cfg.model.residual, cfg.model.rotation)
         gt_rot = b["crot"].to(dev).float()
+        if "match_w" in b:
+            ak = b["all_keys"].to(dev)
+            q_m, proot = match_partial_keys(
+                roma.rotmat_to_unitquat(mats),
+                proot,
+                gt_rot[:, ak],
+                b["croot"].to(dev).float()[:, ak],
+                ak,
+                b["match_w"].to(dev),
+            )
+            mats = roma.unitquat_to_rotmat(q_m)
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
         m = torch.from_numpy(between).to(dev)
         q_pred = roma.rotmat_to_unitquat(mats)
