@@ -243,13 +243,13 @@ def test_usd_keyed_joints_make_per_joint_partial_keys(tmp_path):
 
     from pipeline.fill import FillOptions, fill_shot
     from pipeline.usd.plan import make_plan
-    from pipeline.usd.solve import key_channels
+    from pipeline.usd.solve import key_channels, rig_key_channels
 
     legs = [n for n in SKEL.names if "Leg" in n or "Foot" in n or "Toes" in n]
     shot, tokens = _shot_with_keyed_joints(tmp_path, {1031.0: ["Hips", *legs], 1041.0: []})
     before = shot.read_bytes()
     cp = make_plan(str(shot), None, None, None, 30.0).chars[0]
-    mask = key_channels(cp)
+    mask = key_channels(cp, rig_key_channels(cp))
     k = list(cp.keys)
     row, empty = mask[k.index(1031.0)], mask[k.index(1041.0)]
     keyed = {SKEL.names[j] for j in np.flatnonzero(row[:J])}

@@ -377,20 +377,15 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         out = model(x, dna, dna_on)
         mats, proot, clog = decode(out, x, len(skel), cfg.model.residual, cfg.model.rotation)
         gt_rot = b["crot"].to(dev).float()
+        q_pred = roma.rotmat_to_unitquat(mats)
         if "match_w" in b:
             ak = b["all_keys"].to(dev)
-            q_m, proot = match_partial_keys(
-                roma.rotmat_to_unitquat(mats),
-                proot,
-                gt_rot[:, ak],
-                b["croot"].to(dev).float()[:, ak],
-                ak,
-                b["match_w"].to(dev),
+            q_pred, proot = match_partial_keys(
+                q_pred, proot, gt_rot[:, ak], b["croot"].to(dev).float()[:, ak], ak, b["match_w"].to(dev)
             )
-            mats = roma.unitquat_to_rotmat(q_m)
+            mats = roma.unitquat_to_rotmat(q_pred)
         gt_mats = roma.unitquat_to_rotmat(gt_rot)
         m = torch.from_numpy(between).to(dev)
-        q_pred = roma.rotmat_to_unitquat(mats)
         _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
         gt_pos = b["gpos"].to(dev).float()
         fw = b["frame_weight"].to(dev)[None, :, None]

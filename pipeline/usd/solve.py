@@ -75,11 +75,10 @@ def rig_key_channels(cp: CharPlan) -> tuple[np.ndarray, np.ndarray] | None:
     return None if rig.all() and trans.all() else (rig, trans)
 
 
-def key_channels(cp: CharPlan, rig_keys=None) -> np.ndarray | None:
-    """The partial keys for the model skeleton: (K, J + 1), the joints' rotations, then the
-    root position (the retargeter says which model channels the keyed rig channels
-    determine), or None when every key is a full pose for the model."""
-    rig_keys = rig_key_channels(cp) if rig_keys is None else rig_keys
+def key_channels(cp: CharPlan, rig_keys: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """``rig_keys`` (from :func:`rig_key_channels`) for the model skeleton: (K, J + 1), the
+    joints' rotations, then the root position (the retargeter says which model channels the
+    keyed rig channels determine), or None when every key is a full pose for the model."""
     if rig_keys is None:
         return None
     mask = cp.retarget.model_channels(*rig_keys)
@@ -101,7 +100,7 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
     # Partial keys go to models that take them (the human model); others get full keys.
     rig_keys = rig_key_channels(cp) if hasattr(inb, "fill_batch") else None
-    mask = None if rig_keys is None else key_channels(cp, rig_keys)
+    mask = key_channels(cp, rig_keys)
     extra = {} if dna is None else {"dna": dna}
     if mask is None:
         filled = inb.fill(motion, m, seed=seed, **extra)
