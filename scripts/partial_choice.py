@@ -10,6 +10,7 @@ at 15 / 30 / 45). A model without key-mask channels fills from the full keys and
 partial ones afterwards, so its rows are the fallback a key-mask model has to beat.
 """
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 from pad_layouts import train_windows
 
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.bench.partial import evaluate_partial, fill_interp, markdown
+from pipeline.bench.partial import evaluate_partial, fill_interp, json_ready, markdown, model_fill
 from pipeline.bench.protocol import position_stats
 from pipeline.bench.run import evaluate
 from pipeline.data.cache import load_split
@@ -41,22 +42,18 @@ def main(models: list[str], every: int, out: str | None) -> None:
         ratio = " / ".join(f"{v['L2P']:.3f}" for v in full[inb.name].values())
         skate = " / ".join(f"{v['skate']:.3f}" for v in full[inb.name].values())
         print(f"| {inb.name} | {ratio} | {skate} |", flush=True)
-        fill = lambda rot, root, keys, mask, inb=inb: inb.fill_batch(rot, root, keys, None, mask)  # noqa: E731
-        partial[inb.name] = evaluate_partial(fill, rots, roots, mean, std)
+        partial[inb.name] = evaluate_partial(model_fill(inb), rots, roots, mean, std)
     print()
     print(markdown(partial))
     if out:
-        payload = {
-            m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in partial.items()
-        }
-        Path(out).write_text(
-            json.dumps({"windows": len(rots), "full_keys": full, "partial": payload}, indent=1)
-        )
+        payload = {"windows": len(rots), "full_keys": full, "partial": json_ready(partial)}
+        Path(out).write_text(json.dumps(payload, indent=1))
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    every = int(args[args.index("--every") + 1]) if "--every" in args else 8
-    out = args[args.index("--json") + 1] if "--json" in args else None
-    skip = {i for f in ("--every", "--json") if f in args for i in (args.index(f), args.index(f) + 1)}
-    main([a for i, a in enumerate(args) if i not in skip], every, out)
+    ap = argparse.ArgumentParser(description="Partial-key models compared on train windows.")
+    ap.add_argument("models", nargs="+", help="model folders")
+    ap.add_argument("--every", type=int, default=8, help="every K-th train clip")
+    ap.add_argument("--json", help="also write the results here")
+    a = ap.parse_args()
+    main(a.models, a.every, a.json)

@@ -109,8 +109,17 @@ def method_fill(name: str):
         return fill_interp
     from pipeline.infer.api import load_inbetweener
 
-    inb = load_inbetweener("default" if name == "model" else name)
+    return model_fill(load_inbetweener("default" if name == "model" else name))
+
+
+def model_fill(inb):
+    """``fill(rot, root, keys, mask)`` of an in-betweener, the mask as its ``joint_keys``."""
     return lambda rot, root, keys, mask: inb.fill_batch(rot, root, keys, None, mask)
+
+
+def json_ready(results: dict) -> dict:
+    """{method: {kind: {T: metrics}}} with the transition lengths as JSON keys."""
+    return {m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in results.items()}
 
 
 def run_partial_bench(methods: list[str], rots, roots, mean, std, out_dir: Path) -> str:
@@ -122,9 +131,8 @@ def run_partial_bench(methods: list[str], rots, roots, mean, std, out_dir: Path)
         print(f"partial keys: {m} on {len(rots)} windows…", file=sys.stderr)
         res[m] = evaluate_partial(method_fill(m), rots, roots, mean, std)
     out_dir.mkdir(parents=True, exist_ok=True)
-    payload = {m: {k: {str(t): v for t, v in r.items()} for k, r in d.items()} for m, d in res.items()}
     (out_dir / "partial_keys.json").write_text(
-        json.dumps({"windows": len(rots), "results": payload}, indent=1)
+        json.dumps({"windows": len(rots), "results": json_ready(res)}, indent=1)
     )
     md = markdown(res)
     (out_dir / "partial_keys.md").write_text(md)
