@@ -232,8 +232,10 @@ def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
     assert np.degrees(off.magnitude()).max() < 0.1
 
 
-@pytest.mark.parametrize("key_mask, dna", [(False, 0), (True, 0), (False, 16)])
-def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key_mask, dna):
+@pytest.mark.parametrize(
+    "key_mask, dna, adapter", [(False, 0, False), (True, 0, False), (False, 16, False), (False, 0, True)]
+)
+def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key_mask, dna, adapter):
     from dataclasses import asdict
 
     from pipeline.infer.model import OnnxInbetweener
@@ -243,10 +245,17 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
 
     torch.manual_seed(0)
     gcfg = GeneratorConfig(
-        width=32, levels=(32, 48, 64, 64, 64), key_mask=key_mask, full_timing=key_mask, dna=dna
+        width=32,
+        levels=(32, 48, 64, 64, 64),
+        key_mask=key_mask,
+        full_timing=key_mask,
+        dna=dna,
+        key_adapter=adapter,
     )
     g = Generator(gcfg)
     torch.nn.init.normal_(g.out.weight, std=0.01)  # not the zero start: a real residual
+    if adapter:
+        torch.nn.init.normal_(g.adapter[2].weight, std=0.1)
     if dna:
         torch.nn.init.normal_(g.dna.proj.weight, std=0.5)  # nor the DNA's
     pcfg = PathConfig(channels=(16, 24))
@@ -271,7 +280,8 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
         assert np.array_equal(out.rotations[keys], m.rotations[keys])
         assert np.array_equal(out.root_positions[keys], m.root_positions[keys])
         assert len(out) == 70 and np.isfinite(out.rotations).all()
-    if key_mask:  # partial keys: the root only at frame 20, and the mask reaches the network
+    assert meta["generator"]["key_adapter"] == adapter
+    if key_mask or adapter:  # partial keys: the root only at frame 20, and they reach the network
         jk = np.ones((len(keys), 22), bool)
         jk[3, :21] = False
         inb = OnnxInbetweener(tmp_path / "model")
@@ -296,8 +306,10 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
             inb.fill(m, keys, dna=poses)
 
 
-@pytest.mark.parametrize("partial, dna", [(0.0, 0), (1.0, 0), (0.0, 16)])  # partial: key-mask channels
-def test_tiny_training_run_loss_falls(tmp_path, partial, dna):
+@pytest.mark.parametrize(  # partial: key-mask channels, or the adapter with inserted partial keys
+    "partial, dna, adapter", [(0.0, 0, False), (1.0, 0, False), (0.0, 16, False), (1.0, 0, True)]
+)
+def test_tiny_training_run_loss_falls(tmp_path, partial, dna, adapter):
     from pipeline.models.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig, train
 
@@ -308,8 +320,14 @@ def test_tiny_training_run_loss_falls(tmp_path, partial, dna):
         lr=3e-3,
         limit_clips=40,
         partial=partial,
+        partial_layout="insert" if adapter else "convert",
         model=GeneratorConfig(
-            width=48, levels=(48, 64, 64), key_mask=partial > 0, full_timing=partial > 0, dna=dna
+            width=48,
+            levels=(48, 64, 64),
+            key_mask=partial > 0 and not adapter,
+            full_timing=partial > 0 and not adapter,
+            key_adapter=adapter,
+            dna=dna,
         ),
         checkpoint_minutes=100,
     )

@@ -9,13 +9,14 @@ from pipeline.infer.features import (
     TTA_FREQS,
     build_features,
     check_joint_keys,
+    n_adapter_channels,
     n_input_channels,
 )
 from pipeline.infer.model import OnnxInbetweener
 from pipeline.infer.post import match_keys
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.rotations import slerp_pairs
-from pipeline.train.batches import sample_joint_keys
+from pipeline.train.batches import insert_partial_keys, sample_joint_keys
 
 SKEL = bandai_skeleton()
 J = len(SKEL)
@@ -83,6 +84,67 @@ def test_full_timing_counts_full_keys_only_and_keeps_the_partial_keys_joints(cli
     a, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=full, full_timing=True)
     b, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
     assert np.array_equal(a, b)
+
+
+def test_adapter_input_is_the_full_keys_input_plus_a_side_input(clip):
+    """``key_adapter``: the main channels are those of the full keys alone, bit for bit; the side
+    channels carry the partial key's keyed offsets from that baseline, and are zero without one."""
+    rot, root = clip
+    r, t = rot[:, :41], root[:, :41]
+    keys = np.array([0, 16, 40])
+    mask = _mask(3, {1: [0, J]})  # frame 16 keys the hips' rotation and the root
+    feats, ctx = build_features(r, t, keys, SKEL, joint_keys=mask, key_adapter=True)
+    plain, pctx = build_features(r, t, np.array([0, 40]), SKEL)
+    assert feats.shape == (1, n_input_channels(J, key_adapter=True), 41)
+    n = plain.shape[1]
+    assert np.array_equal(feats[:, :n], plain) and np.array_equal(ctx["irot"], pctx["irot"])
+    side = feats[0, n:]
+    assert side.shape[0] == n_adapter_channels(J)
+    assert np.abs(side[6:J6, 16]).max() == 0  # unkeyed joints: no offset
+    assert np.abs(side[:6, 16]).max() > 1e-3 and np.abs(side[J6 : J6 + 3, 16]).max() > 1e-3
+    want = (ctx["croot"][0, 16] - ctx["iroot"][0, 16]) / 100.0
+    assert np.allclose(side[J6 : J6 + 3, 30], want, atol=1e-6)  # carried to every frame
+    assert side[J6 + 3, 16] == 1 and side[J6 + 3 + J, 16] == 1 and side[J6 + 4 : J6 + 3 + J, 16].sum() == 0
+    near = side[-2:]  # before / after the key: 1 at it, fading away
+    assert near[0, 16] == 1 and near[1, 16] == 1 and near[1, 10] == 0 and 0 < near[0, 10] < 1
+    # Full keys: every side channel is zero and the main ones are the plain features.
+    full, _ = build_features(r, t, keys, SKEL, joint_keys=np.ones((3, J + 1), bool), key_adapter=True)
+    three, _ = build_features(r, t, keys, SKEL)
+    assert np.array_equal(full[:, :n], three) and not full[:, n:].any()
+
+
+def test_adapter_model_starts_as_its_init_and_full_keys_never_reach_the_adapter():
+    torch = pytest.importorskip("torch")
+    from pipeline.models.generator import Generator, GeneratorConfig
+
+    torch.manual_seed(0)
+    cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
+    old = Generator(cfg).eval()
+    torch.nn.init.normal_(old.out.weight, std=0.01)
+    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_adapter=True)).eval()
+    new.load_state_dict({**new.state_dict(), **old.state_dict()})  # as `tween train --init`
+    x = torch.randn(2, n_input_channels(J), 32)
+    side = torch.randn(2, n_adapter_channels(J), 32)
+    with torch.no_grad():
+        assert torch.equal(old(x), new(torch.cat([x, side], 1)))  # the adapter starts at zero
+        for w in (new.adapter[0].weight, new.adapter[2].weight):
+            torch.nn.init.normal_(w, std=0.5)
+        assert not torch.equal(old(x), new(torch.cat([x, side], 1)))
+        assert torch.equal(old(x), new(torch.cat([x, torch.zeros_like(side)], 1)))  # full keys
+
+
+def test_inserted_partial_keys_fall_inside_the_long_gaps():
+    rng = np.random.default_rng(0)
+    keys = np.array([0, 1, 2, 5, 30, 31, 60])
+    for _ in range(50):
+        k, m = insert_partial_keys(rng, keys, J)
+        check_joint_keys(m, len(k), J)
+        assert (np.diff(k) > 0).all() and set(keys) <= set(k.tolist())
+        assert m[np.isin(k, keys)].all()  # the given keys stay full
+        added = k[~m.all(axis=1)]
+        assert len(added) <= 2 and all(7 <= a <= 28 or 33 <= a <= 58 for a in added)
+    same, m = insert_partial_keys(rng, np.array([0, 3, 6]), J)
+    assert np.array_equal(same, [0, 3, 6]) and m.all()  # no gap long enough
 
 
 def test_joint_key_masks_are_checked():

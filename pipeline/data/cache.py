@@ -90,7 +90,8 @@ def load_files(files: list[Path], split: str) -> ClipSet:
     lengths = np.array(lengths, np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     cs = ClipSet(names, starts, lengths, np.concatenate(rots), np.concatenate(roots), float(fps))
-    tmp = path.with_suffix(".tmp.npz")
+    # A per-process name: two jobs filling the same cache at once must not share a temporary.
+    tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(
         tmp,
         names=np.array(names),

@@ -13,6 +13,12 @@ then use that joint's own keys, and models built with ``key_mask`` also get the 
 J + 1 per-frame channels (1 where a key frame leaves that joint unkeyed). With ``full_timing``
 the key distance, key flag and time-to-arrival channels count full keys only. The first and
 last keys are full.
+
+Models built with ``key_adapter`` instead see partial keys as a side input: the main channels
+are exactly those of the full keys alone (what a network trained on full keys knows), and
+:func:`adapter_channels` add, per frame, the nearest partial key's offsets from that baseline
+(zero on unkeyed channels), its mask and how near it is. Without partial keys they are all
+zero, so the adapter can never change a fill from full keys.
 """
 
 from __future__ import annotations
@@ -30,8 +36,20 @@ ROOT_SCALE = 100.0  # cm -> m, so root channels are of order one
 NOISE_CHANNELS = 8  # a per-take latent: zeros for the deterministic take, N(0, 1) from the seed otherwise
 
 
-def n_input_channels(n_joints: int, key_mask: bool = False) -> int:
-    return 2 * (n_joints * 6 + 3) + 2 + 4 * TTA_FREQS + NOISE_CHANNELS + (n_joints + 1 if key_mask else 0)
+def n_adapter_channels(n_joints: int) -> int:
+    """Partial-key side input: 6D and root offsets, the key's mask, two nearness channels."""
+    return n_joints * 6 + 3 + n_joints + 1 + 2
+
+
+def n_input_channels(n_joints: int, key_mask: bool = False, key_adapter: bool = False) -> int:
+    return (
+        2 * (n_joints * 6 + 3)
+        + 2
+        + 4 * TTA_FREQS
+        + NOISE_CHANNELS
+        + (n_joints + 1 if key_mask else 0)
+        + (n_adapter_channels(n_joints) if key_adapter else 0)
+    )
 
 
 def check_joint_keys(joint_keys, n_keys: int, n_joints: int) -> np.ndarray:
@@ -148,6 +166,7 @@ def feature_options(generator: dict) -> dict:
         "noise_schedule": generator.get("noise_schedule", False),
         "key_mask": generator.get("key_mask", False),
         "full_timing": generator.get("full_timing", False),
+        "key_adapter": generator.get("key_adapter", False),
     }
 
 
@@ -171,6 +190,7 @@ def build_features(
     joint_keys=None,
     key_mask: bool = False,
     full_timing: bool = False,
+    key_adapter: bool = False,
 ):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
@@ -179,12 +199,17 @@ def build_features(
     latent, constant over time (zeros when None), or with ``noise_schedule`` scaled per
     frame by :func:`noise_scale`, so that every take arrives at the keys the same way.
     ``joint_keys`` (K, J + 1) marks partial keys (module docstring); ``key_mask`` adds its
-    channels.
+    channels, ``key_adapter`` the side input of :func:`adapter_channels`.
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
     if joint_keys is not None:
         joint_keys = check_joint_keys(joint_keys, len(keys), J)
+    if key_adapter:
+        full = np.ones(len(keys), bool) if joint_keys is None else joint_keys.all(axis=1)
+        feats, ctx = build_features(rot, root, keys[full], skeleton, noise, tta, noise_schedule)
+        side = adapter_channels(ctx, keys[~full], None if joint_keys is None else joint_keys[~full])
+        return np.ascontiguousarray(np.concatenate([feats, side], axis=1)), ctx
     q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
     crot, croot = apply_transform(rot, root, q, off)
     irot, iroot, nearest = interpolate(crot, croot, keys, joint_keys)
@@ -230,6 +255,35 @@ def key_mask_channels(n: int, keys, joint_keys, n_joints: int) -> np.ndarray:
     if joint_keys is not None:
         m[np.asarray(keys, np.int64)] = ~np.asarray(joint_keys, bool)
     return m
+
+
+ADAPTER_REACH = 15.0  # frames: nearness exp(-d / this) of the nearest partial key
+
+
+def adapter_channels(ctx: dict, keys: np.ndarray, joint_keys) -> np.ndarray:
+    """(B, C, N) side input of ``key_adapter`` models: for each frame, the nearest partial key
+    (``keys`` (P,), ``joint_keys`` (P, J + 1)): its keyed channels' offsets from the full-key
+    baseline at that key (6D and root, in the canonical frame; 0 where unkeyed), its mask, and
+    its nearness exp(-d / ADAPTER_REACH) split into before and after it. All zero when P = 0."""
+    crot, croot, irot, iroot = ctx["crot"], ctx["croot"], ctx["irot"], ctx["iroot"]
+    B, N, J = crot.shape[:3]
+    side = np.zeros((B, N, n_adapter_channels(J)), np.float32)
+    if len(keys) == 0:
+        return np.ascontiguousarray(side.transpose(0, 2, 1))
+    keys = np.asarray(keys, np.int64)
+    m = np.asarray(joint_keys, bool)
+    d6 = (quat_to_6d(crot[:, keys]) - quat_to_6d(irot[:, keys])) * m[None, :, :J, None]  # (B, P, J, 6)
+    droot = (croot[:, keys] - iroot[:, keys]) / ROOT_SCALE * m[None, :, J:]
+    idx = np.arange(N)
+    p = np.abs(idx[:, None] - keys[None]).argmin(axis=1)  # nearest partial key of each frame
+    d = idx - keys[p]
+    near = np.exp(-np.abs(d) / ADAPTER_REACH)
+    side[..., : J * 6] = d6.reshape(B, -1, J * 6)[:, p]
+    side[..., J * 6 : J * 6 + 3] = droot[:, p]
+    side[..., J * 6 + 3 : J * 7 + 4] = m[p]
+    side[..., -2] = near * (d <= 0)
+    side[..., -1] = near * (d >= 0)
+    return np.ascontiguousarray(side.transpose(0, 2, 1))
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:

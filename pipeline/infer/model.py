@@ -257,10 +257,11 @@ class OnnxInbetweener:
         keys = np.unique(keys)
         if self.hierarchical and np.diff(keys).max() > self.max_gap:
             rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys, dna)
-        if joint_keys is None or self.meta.get("generator", {}).get("key_mask", False):
+        gcfg = self.meta.get("generator", {})
+        if joint_keys is None or gcfg.get("key_mask", False) or gcfg.get("key_adapter", False):
             q, r, contacts = self.raw(rot, root, keys, noise, joint_keys, dna)
         else:
-            # A network without key-mask channels would take a partial key for a full pose:
+            # A network without partial-key inputs would take a partial key for a full pose:
             # it fills from the full keys, and the partial keys are matched afterwards.
             full = joint_keys.all(axis=1)
             q, r, contacts = self.raw(rot, root, keys[full], noise, None, dna)

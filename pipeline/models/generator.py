@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from pipeline.infer.dna import n_dna_channels
-from pipeline.infer.features import n_input_channels, n_output_channels
+from pipeline.infer.features import n_adapter_channels, n_input_channels, n_output_channels
 from pipeline.models.dna import DnaEncoder
 from pipeline.models.layers import ResLayer
 
@@ -32,6 +32,7 @@ class GeneratorConfig:
     noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
     key_mask: bool = False  # per-joint key-mask channels in the input (partial keys)
     full_timing: bool = False  # key distance / flag / time-to-arrival count full keys only
+    key_adapter: bool = False  # partial keys as a side input beside the full-key input (features.py)
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     dna: int = 0  # width of the motion-DNA encoder (0: none); its vector joins the bottleneck
     extra: dict = field(default_factory=dict)
@@ -56,17 +57,28 @@ class Generator(nn.Module):
         super().__init__()
         self.cfg = cfg
         cin, cout = (
-            n_input_channels(cfg.n_joints, cfg.key_mask),
+            n_input_channels(cfg.n_joints, cfg.key_mask, cfg.key_adapter),
             n_output_channels(cfg.n_joints, cfg.rotation),
         )
         # Key-mask channels (the last J + 1 inputs) go through their own convolution, zero at
         # the start and without bias: with full keys they are zero and add nothing.
         self.in_channels = cin  # the features' width, mask channels included
         self.n_mask = cfg.n_joints + 1 if cfg.key_mask else 0
-        self.inp = ResLayer(cin - self.n_mask, cfg.width, 3, sigma=1.0)
+        self.n_side = n_adapter_channels(cfg.n_joints) if cfg.key_adapter else 0
+        self.inp = ResLayer(cin - self.n_mask - self.n_side, cfg.width, 3, sigma=1.0)
         self.mask_in = nn.Conv1d(self.n_mask, cfg.width, 3, padding=1, bias=False) if cfg.key_mask else None
         if self.mask_in is not None:
             nn.init.zeros_(self.mask_in.weight)
+        # The partial-key adapter: two bias-free convolutions around a PReLU, the last one zero
+        # at the start. Zero in gives zero out, so fills from full keys never depend on it.
+        self.adapter = None
+        if cfg.key_adapter:
+            self.adapter = nn.Sequential(
+                nn.Conv1d(self.n_side, cfg.width, 3, padding=1, bias=False),
+                nn.PReLU(cfg.width),
+                nn.Conv1d(cfg.width, cfg.width, 3, padding=1, bias=False),
+            )
+            nn.init.zeros_(self.adapter[2].weight)
         n = len(cfg.levels)
         chans = [cfg.width, *cfg.levels]
         self.down = nn.ModuleList(
@@ -97,10 +109,12 @@ class Generator(nn.Module):
     ) -> torch.Tensor:
         """(B, C, N) features -> (B, C_out, N); with a DNA encoder also (B, C_dna, R) poses and a
         (B, 1) weight per window (0: no DNA)."""
-        if self.mask_in is None:
-            h = self.inp(x)
-        else:
-            h = self.inp(x[:, : -self.n_mask]) + self.mask_in(x[:, -self.n_mask :])
+        main = x.shape[1] - self.n_mask - self.n_side
+        h = self.inp(x[:, :main])
+        if self.mask_in is not None:
+            h = h + self.mask_in(x[:, main : main + self.n_mask])
+        if self.adapter is not None:
+            h = h + self.adapter(x[:, main + self.n_mask :])
         skips = []
         for layer in self.down:
             skips.append(h)

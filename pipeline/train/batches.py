@@ -6,7 +6,9 @@ over the first ``curriculum`` fraction of training):
   keys to the end of the window;
 - "sparse": keys every 1..max_gap frames (an animator's blocking).
 Gaps are drawn log-uniformly in [1, max_gap]. Some keys can be made partial
-(:func:`sample_joint_keys`): the root only, the rotations only, or some joints only.
+(:func:`sample_joint_keys`): the root only, the rotations only, or some joints only; or
+partial keys can be added inside the gaps of the full keys (:func:`insert_partial_keys`), as
+an animator adds a root or a leg key to blocked poses.
 """
 
 from __future__ import annotations
@@ -33,17 +35,44 @@ def sample_joint_keys(rng: np.random.Generator, n_keys: int, n_joints: int, shar
     keying the root only, the rotations only (no root), or a random half of joints and root."""
     m = np.ones((n_keys, n_joints + 1), bool)
     for k in range(1, n_keys - 1):
-        if rng.random() >= share:
-            continue
-        kind = rng.integers(3)
-        if kind == 0:
-            m[k, :n_joints] = False
-        elif kind == 1:
-            m[k, n_joints] = False
-        else:
-            m[k] = rng.random(n_joints + 1) < 0.5
-            m[k, rng.integers(n_joints + 1)] = True
+        if rng.random() < share:
+            m[k] = partial_pattern(rng, n_joints)
     return m
+
+
+def partial_pattern(rng: np.random.Generator, n_joints: int) -> np.ndarray:
+    """(J + 1,) what one partial key keys: the root only, the rotations only, or a random half
+    of joints and root (at least one)."""
+    m = np.ones(n_joints + 1, bool)
+    kind = rng.integers(3)
+    if kind == 0:
+        m[:n_joints] = False
+    elif kind == 1:
+        m[n_joints] = False
+    else:
+        m = rng.random(n_joints + 1) < 0.5
+        m[rng.integers(n_joints + 1)] = True
+    return m
+
+
+def insert_partial_keys(
+    rng: np.random.Generator, keys: np.ndarray, n_joints: int, min_gap: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
+    """(keys, (K', J + 1) mask): ``keys`` (all full) plus one partial key at a random frame
+    inside each gap of at least ``min_gap`` frames, at least 2 frames from either end. With no
+    such gap, the keys stay as they are (all full)."""
+    new, rows = [], []
+    for a, b in zip(keys[:-1], keys[1:], strict=True):
+        if b - a >= min_gap:
+            new.append(int(rng.integers(a + 2, b - 1)))
+            rows.append(partial_pattern(rng, n_joints))
+    mask = np.ones((len(keys) + len(new), n_joints + 1), bool)
+    if not new:
+        return keys, mask
+    merged = np.concatenate([keys, new])
+    order = np.argsort(merged, kind="stable")
+    mask[len(keys) :] = np.array(rows)
+    return merged[order], mask[order]
 
 
 def sample_batch(

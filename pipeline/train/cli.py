@@ -51,6 +51,14 @@ def register(app: typer.Typer) -> None:
             help="Key distance, key flag and time-to-arrival inputs count full keys only (partial "
             "keys reach the network through their joints and the key mask).",
         ),
+        key_adapter: bool = typer.Option(
+            False,
+            help="Partial keys as a side input through a zero-start adapter; the main input is that "
+            "of the full keys alone (with --freeze, fills from full keys stay bit for bit).",
+        ),
+        partial_layout: str = typer.Option(
+            "convert", help="Partial keys in training: 'convert' some keys, or 'insert' them in gaps."
+        ),
         match_partial: bool = typer.Option(
             True, help="Losses on the output with partial keys matched, as the farm matches them."
         ),
@@ -63,10 +71,10 @@ def register(app: typer.Typer) -> None:
             0.0, help="Share of DNAs from the rest of the window's clip (else from its gap)."
         ),
         new_lr: float = typer.Option(
-            10.0, help="Learning-rate factor of modules new to --init (DNA, key mask)."
+            10.0, help="Learning-rate factor of modules new to --init (DNA, key mask, adapter)."
         ),
         freeze: bool = typer.Option(
-            False, help="Train only modules new to --init (DNA, key mask); the rest stays as it was."
+            False, help="Train only modules new to --init (DNA, key mask, adapter); the rest stays as it was."
         ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
@@ -75,6 +83,8 @@ def register(app: typer.Typer) -> None:
         from pipeline.train.generator import train as train_generator
         from pipeline.train.path import PathTrainConfig, train_path
 
+        if partial_layout not in ("convert", "insert"):
+            raise typer.BadParameter("--partial-layout must be convert or insert")
         adv_start = None if adv_start < 0 or adv_start >= steps else adv_start
         common = dict(
             batch=batch, seed=seed, threads=threads, limit_clips=limit_clips, data=str(data) if data else None
@@ -96,6 +106,7 @@ def register(app: typer.Typer) -> None:
                 mirror=mirror,
                 posture=posture,
                 partial=partial,
+                partial_layout=partial_layout,
                 match_partial=match_partial,
                 dna_prob=dna_prob,
                 dna_from=dna_from,
@@ -103,7 +114,11 @@ def register(app: typer.Typer) -> None:
                 new_lr=new_lr,
                 freeze=freeze,
                 model=GeneratorConfig(
-                    noise_schedule=target_noise, key_mask=key_mask, full_timing=full_timing, dna=dna
+                    noise_schedule=target_noise,
+                    key_mask=key_mask,
+                    full_timing=full_timing,
+                    key_adapter=key_adapter,
+                    dna=dna,
                 ),
                 **common,
             ),

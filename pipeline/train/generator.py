@@ -34,7 +34,13 @@ from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.fk import fk
-from pipeline.train.batches import foot_contacts, sample_batch, sample_joint_keys, sample_keys
+from pipeline.train.batches import (
+    foot_contacts,
+    insert_partial_keys,
+    sample_batch,
+    sample_joint_keys,
+    sample_keys,
+)
 from pipeline.train.keymatch import match_partial_keys, partial_match_weights
 
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
@@ -73,7 +79,8 @@ class TrainConfig:
     mirror: float = 0.0  # share of windows replaced by their left/right mirror image (augmentation)
     posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
     posture_prob: float = 0.5  # share of windows given posture offsets
-    partial: float = 0.0  # share of batches with partial keys (needs model.key_mask)
+    partial: float = 0.0  # share of batches with partial keys (needs model.key_mask or key_adapter)
+    partial_layout: str = "convert"  # "convert" some keys to partial ones, or "insert" them in gaps
     match_partial: bool = True  # losses on the output with partial keys matched (keymatch.py)
     dna_prob: float = 0.5  # share of windows given a motion DNA (needs model.dna)
     dna_max: int = 4  # poses per DNA: 1 … this
@@ -155,7 +162,10 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         # Its own stream, so that the windows and keys stay those of a run without partial keys.
         prng = np.random.default_rng([cfg.seed, step, 3])
         if prng.random() < cfg.partial:
-            joint_keys = sample_joint_keys(prng, len(keys), len(skel))
+            if cfg.partial_layout == "insert":
+                keys, joint_keys = insert_partial_keys(prng, keys, len(skel))
+            else:
+                joint_keys = sample_joint_keys(prng, len(keys), len(skel))
     feats, ctx = build_features(
         rot, root, keys, skel, noise, joint_keys=joint_keys, **feature_options(asdict(cfg.model))
     )
@@ -300,12 +310,14 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     model = Generator(cfg.model).to(dev)
     # Modules an --init checkpoint lacks start from scratch beside trained weights: Adam moves
     # every weight by about the learning rate a step, so they get a larger one to catch up.
-    added = [m for m in (model.dna, model.mask_in) if m is not None]
+    added = [m for m in (model.dna, model.mask_in, model.adapter) if m is not None]
     new = [p for m in added for p in m.parameters()] if cfg.init else []
     old = [p for p in model.parameters() if all(p is not q for q in new)]
     if cfg.freeze:
         if not new:
-            raise ValueError("freeze trains only modules new to --init: give --init and --dna or --key-mask")
+            raise ValueError(
+                "freeze trains only modules new to --init: give --init and --dna, --key-mask or --key-adapter"
+            )
         for p in old:
             p.requires_grad_(False)
     groups = [] if cfg.freeze else [{"params": old, "lr": cfg.lr}]
