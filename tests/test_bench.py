@@ -35,3 +35,14 @@ def test_bench_cli_writes_json_and_table(tmp_path):
         assert r["interp"][t]["MPJPE"] <= r["zero"][t]["MPJPE"]
     assert r["zero"]["5"]["L2P"] < r["zero"]["45"]["L2P"]
     assert r["zero"]["5"]["skate"] == 0  # holding still never slides
+
+
+def test_bench_with_too_few_clips_for_a_window_is_a_one_line_error(tmp_path):
+    out = tmp_path / "bench"
+    cmd = [sys.executable, "-m", "pipeline.cli", "bench", "--methods", "interp", "--limit", "1"]
+    for extra in ([], ["--partial-keys"]):
+        res = subprocess.run([*cmd, *extra, "--out", str(out)], capture_output=True, text=True, timeout=300)
+        assert res.returncode == 2, res.stderr
+        error = [line for line in res.stderr.splitlines() if line.startswith("tween: error:")]
+        assert len(error) == 1 and "eval split: no 65-frame window" in error[0] and "--limit" in error[0]
+        assert "Traceback" not in res.stderr and not out.exists()

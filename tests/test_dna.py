@@ -150,6 +150,18 @@ def test_frozen_dna_training_leaves_every_other_weight_as_it_was(tmp_path):
     for k, v in base.items():
         assert torch.equal(out[k], v), k
     assert out["dna.proj.weight"].abs().max() > 0  # the DNA map left its zero start
+    # Continuing that model: the DNA encoder is trained now, so nothing is new and a frozen run
+    # has nothing to train; adding an adapter to it makes the adapter alone new.
+    again = dict(cfg.__dict__, init=str(tmp_path / "run" / "generator.pt"))
+    with pytest.raises(ValueError, match="lacks"):
+        train(TrainConfig(**again), tmp_path / "again")
+    more = TrainConfig(**dict(again, partial=1.0, partial_layout="insert",
+                              model=GeneratorConfig(**small, dna=16, key_adapter=True)))  # fmt: skip
+    train(more, tmp_path / "more")
+    got = torch.load(tmp_path / "more" / "generator.pt", weights_only=False)["model"]
+    for k, v in out.items():
+        assert torch.equal(got[k], v), k
+    assert got["adapter.2.weight"].abs().max() > 0
 
 
 def test_shipped_dna_model_steers_toward_its_dna_and_keeps_keys(bandai_clip):

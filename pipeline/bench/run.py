@@ -20,9 +20,11 @@ from pipeline.bench.protocol import (
     global_positions,
     normalize_windows,
     position_stats,
+    window_starts,
 )
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
+from pipeline.errors import TweenError
 from pipeline.motion.augment import posture_offsets
 
 METRICS = ("L2Q", "L2P", "NPSS", "MPJPE", "skate")
@@ -47,6 +49,11 @@ def test_windows(
         rots, roots = cmu_windows()
     elif source == "eval":
         clips = load_split("eval", limit=limit)
+        if not any(len(window_starts(n, TEST_WINDOW, TEST_STRIDE)) for n in clips.lengths):
+            raise TweenError(
+                f"eval split: no {TEST_WINDOW}-frame window in the first {len(clips)} clip(s) "
+                f"(a clip needs more than {TEST_WINDOW} frames); raise --limit"
+            )
         rots, roots = normalize_windows(*cut_windows(clips, TEST_WINDOW, TEST_STRIDE))
     else:
         raise ValueError(f"unknown window source {source!r} (eval or cmu)")

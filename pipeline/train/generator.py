@@ -308,15 +308,18 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     else:
         clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
     model = Generator(cfg.model).to(dev)
-    # Modules an --init checkpoint lacks start from scratch beside trained weights: Adam moves
-    # every weight by about the learning rate a step, so they get a larger one to catch up.
-    added = [m for m in (model.dna, model.mask_in, model.adapter) if m is not None]
-    new = [p for m in added for p in m.parameters()] if cfg.init else []
+    # Weights an --init checkpoint lacks (a DNA encoder, key mask or adapter added to it) start
+    # from scratch beside trained ones: Adam moves every weight by about the learning rate a
+    # step, so they get a larger one to catch up. Continuing a model that has them already
+    # treats them as trained.
+    init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"] if cfg.init else None
+    new = [p for n, p in model.named_parameters() if init is not None and n not in init]
     old = [p for p in model.parameters() if all(p is not q for q in new)]
     if cfg.freeze:
         if not new:
             raise ValueError(
-                "freeze trains only modules new to --init: give --init and --dna, --key-mask or --key-adapter"
+                "freeze trains only weights the --init checkpoint lacks, and it has them all: "
+                "give --dna, --key-mask or --key-adapter to a model without them"
             )
         for p in old:
             p.requires_grad_(False)
@@ -332,8 +335,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
     disc, d_opt = None, None
-    if cfg.init and not ckpt.exists():
-        init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"]
+    if init is not None and not ckpt.exists():
         model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
