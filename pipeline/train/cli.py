@@ -71,10 +71,10 @@ def register(app: typer.Typer) -> None:
             0.0, help="Share of DNAs from the rest of the window's clip (else from its gap)."
         ),
         new_lr: float = typer.Option(
-            10.0, help="Learning-rate factor of modules new to --init (DNA, key mask, adapter)."
+            10.0, help="Learning-rate factor of the weights the --init checkpoint lacks."
         ),
         freeze: bool = typer.Option(
-            False, help="Train only modules new to --init (DNA, key mask, adapter); the rest stays as it was."
+            False, help="Train only the add-on modules (DNA, key mask, adapter); the trunk stays as it was."
         ),
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""

@@ -86,8 +86,8 @@ class TrainConfig:
     dna_max: int = 4  # poses per DNA: 1 … this
     w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
     dna_from: float = 0.0  # share of DNAs taken from the rest of the window's clip (else its gap)
-    new_lr: float = 10.0  # learning-rate factor of modules new to an --init checkpoint (DNA, key mask)
-    freeze: bool = False  # train only the modules new to --init: the rest stays bit for bit as it was
+    new_lr: float = 10.0  # learning-rate factor of the weights an --init checkpoint lacks
+    freeze: bool = False  # train only the add-on modules (DNA, key mask, adapter); the trunk stays as it was
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
@@ -313,18 +313,27 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     # step, so they get a larger one to catch up. Continuing a model that has them already
     # treats them as trained.
     init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"] if cfg.init else None
-    new = [p for n, p in model.named_parameters() if init is not None and n not in init]
-    old = [p for p in model.parameters() if all(p is not q for q in new)]
+    fresh = {n for n, _ in model.named_parameters() if init is not None and n not in init}
+    trained = dict(model.named_parameters())
     if cfg.freeze:
-        if not new:
-            raise ValueError(
-                "freeze trains only weights the --init checkpoint lacks, and it has them all: "
-                "give --dna, --key-mask or --key-adapter to a model without them"
-            )
-        for p in old:
-            p.requires_grad_(False)
-    groups = [] if cfg.freeze else [{"params": old, "lr": cfg.lr}]
-    groups += [{"params": new, "lr": cfg.lr * cfg.new_lr}] if new else []
+        # Only the add-on modules train; the trunk stays bit for bit as --init left it.
+        addons = {
+            id(p) for m in (model.dna, model.mask_in, model.adapter) if m is not None for p in m.parameters()
+        }
+        if not addons:
+            raise ValueError("freeze trains only the add-on modules: give --dna, --key-mask or --key-adapter")
+        for n, p in list(trained.items()):
+            if id(p) not in addons:
+                p.requires_grad_(False)
+                del trained[n]
+    groups = [
+        {
+            "params": [p for n, p in trained.items() if (n in fresh) == is_new],
+            "lr": cfg.lr * (cfg.new_lr if is_new else 1.0),
+        }
+        for is_new in (False, True)
+    ]
+    groups = [g for g in groups if g["params"]]
     opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(
         opt,
