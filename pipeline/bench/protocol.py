@@ -52,16 +52,20 @@ def yaw_quat(angle: np.ndarray) -> np.ndarray:
     return np.stack([z, np.sin(half), z, np.cos(half)], axis=-1)
 
 
+def facing_turn(positions: np.ndarray, skeleton=None) -> np.ndarray:
+    """(..., 4) yaw quaternions turning poses (..., J, 3) to face +X (see :func:`facing`)."""
+    f = facing(positions, skeleton)
+    # Rotating (x, 0, z) by +a about Y gives angle atan2(-z', x'): a = atan2(z, x) brings it to +X.
+    return yaw_quat(np.arctan2(f[..., 2], f[..., 0]))
+
+
 def normalize_windows(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> tuple[np.ndarray, np.ndarray]:
     """Centre root X/Z on the window mean, then turn about Y to face +X at frame 9."""
     skel = skeleton or bandai_skeleton()
     roots = roots.astype(np.float64).copy()
     roots[..., [0, 2]] -= roots[..., [0, 2]].mean(axis=-2, keepdims=True)
     _, pos = fk(rots[:, FACING_FRAME], roots[:, FACING_FRAME], skel.parents, skel.offsets)
-    f = facing(pos, skel)
-    # Yaw that takes f to +X: rotating (x, 0, z) by +a about Y gives angle atan2(-z', x').
-    angle = np.arctan2(f[:, 2], f[:, 0])
-    q = yaw_quat(angle)[:, None]  # (N, 1, 4)
+    q = facing_turn(pos, skel)[:, None]  # (N, 1, 4)
     new_roots = quat_apply(q, roots)
     new_rots = rots.astype(np.float64).copy()
     new_rots[..., 0, :] = quat_mul(q, new_rots[..., 0, :])

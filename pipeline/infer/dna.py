@@ -24,11 +24,10 @@ def n_dna_channels(n_joints: int) -> int:
 
 def dna_poses(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
     """(R, J, 4) local rotations and (R, 3) roots -> (3 (J − 1), R) network input."""
-    from pipeline.bench.protocol import facing, yaw_quat
+    from pipeline.bench.protocol import facing_turn
 
     _, pos = fk(np.asarray(rot, np.float64), np.asarray(root, np.float64), skeleton.parents, skeleton.offsets)
-    f = facing(pos, skeleton)
-    q = yaw_quat(np.arctan2(f[:, 2], f[:, 0]))
+    q = facing_turn(pos, skeleton)
     rel = quat_apply(q[:, None], pos[:, 1:] - pos[:, :1])
     return (rel.reshape(len(rel), -1).T / POSE_SCALE).astype(np.float32)
 

@@ -87,11 +87,10 @@ def key_neighbours(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def canonical_transform(rot_key: np.ndarray, root_key: np.ndarray, skeleton) -> tuple[np.ndarray, np.ndarray]:
     """(yaw quaternion (B, 4), offset (B, 3)) taking the given key pose to origin, facing +X."""
-    from pipeline.bench.protocol import facing, yaw_quat
+    from pipeline.bench.protocol import facing_turn
 
     _, pos = fk(rot_key, root_key, skeleton.parents, skeleton.offsets)
-    f = facing(pos, skeleton)
-    q = yaw_quat(np.arctan2(f[:, 2], f[:, 0]))
+    q = facing_turn(pos, skeleton)
     off = np.asarray(root_key, np.float64).copy()
     off[:, 1] = 0.0
     return q, off
