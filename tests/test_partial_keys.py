@@ -413,3 +413,24 @@ def test_training_matches_partial_keys_as_the_farm_does():
     )
     out.sum().backward()
     assert torch.isfinite(qt.grad).all() and torch.allclose(out, qt.detach())
+
+
+def test_shipped_model_reads_partial_keys_through_its_adapter(clip):
+    """The default takes partial keys into the network (its adapter), not only by matching
+    afterwards: the fill differs from the full-keys fill matched to the partial key, stays close
+    to it (the adapter starts as that fallback and was trained from there), and keys hold."""
+    rot, root = clip
+    model = OnnxInbetweener("models/default")
+    assert model.meta["generator"]["key_adapter"]
+    model.feet = False  # compare the networks' output, before the foot lock
+    keys = np.array([0, 1, 2, 30, 60, 89])
+    mask = _mask(len(keys), {3: [J], 4: list(range(12))})
+    q, p = model.fill_batch(rot, root, keys, joint_keys=mask)
+    full = mask.all(axis=1)
+    fq, fp, _ = model.raw(rot, root, keys[full], None, None, None)
+    fq, fp = match_keys(fq, fp, rot[:, keys], root[:, keys], keys, mask)
+    assert np.array_equal(p[0, 30], root[0, 30]) and np.array_equal(q[0, 60, :12], rot[0, 60, :12])
+    moved = np.abs(p - fp).max()
+    assert 1e-3 < moved < 10.0, moved  # cm: the adapter's own contribution, small
+    turned = np.degrees(2 * np.arccos(np.clip(np.abs((q * fq).sum(-1)), 0, 1))).max()
+    assert 1e-3 < turned < 20.0, turned
