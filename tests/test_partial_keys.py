@@ -113,26 +113,6 @@ def test_adapter_input_is_the_full_keys_input_plus_a_side_input(clip):
     assert np.array_equal(full[:, :n], three) and not full[:, n:].any()
 
 
-def test_adapter_model_starts_as_its_init_and_full_keys_never_reach_the_adapter():
-    torch = pytest.importorskip("torch")
-    from pipeline.models.generator import Generator, GeneratorConfig
-
-    torch.manual_seed(0)
-    cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
-    old = Generator(cfg).eval()
-    torch.nn.init.normal_(old.out.weight, std=0.01)
-    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_adapter=True)).eval()
-    new.load_state_dict({**new.state_dict(), **old.state_dict()})  # as `tween train --init`
-    x = torch.randn(2, n_input_channels(J), 32)
-    side = torch.randn(2, n_adapter_channels(J), 32)
-    with torch.no_grad():
-        assert torch.equal(old(x), new(torch.cat([x, side], 1)))  # the adapter starts at zero
-        for w in (new.adapter[0].weight, new.adapter[2].weight):
-            torch.nn.init.normal_(w, std=0.5)
-        assert not torch.equal(old(x), new(torch.cat([x, side], 1)))
-        assert torch.equal(old(x), new(torch.cat([x, torch.zeros_like(side)], 1)))  # full keys
-
-
 def test_inserted_partial_keys_fall_inside_the_long_gaps():
     rng = np.random.default_rng(0)
     keys = np.array([0, 1, 2, 5, 30, 31, 60])
@@ -206,7 +186,10 @@ def test_sampled_masks_keep_first_and_last_keys_full():
     assert len(seen) > 3  # several kinds of partial keys
 
 
-def test_key_mask_model_starts_as_its_init_and_full_keys_never_reach_the_mask():
+@pytest.mark.parametrize("add_on", ["key_mask", "key_adapter"])
+def test_partial_key_input_starts_as_its_init_and_full_keys_never_reach_it(add_on):
+    """Key-mask channels or the adapter's side input, added to trained weights: zero at the
+    start, and once trained still nothing for full keys (their extra channels are zero)."""
     torch = pytest.importorskip("torch")
     from pipeline.models.generator import Generator, GeneratorConfig
 
@@ -214,15 +197,21 @@ def test_key_mask_model_starts_as_its_init_and_full_keys_never_reach_the_mask():
     cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
     old = Generator(cfg).eval()
     torch.nn.init.normal_(old.out.weight, std=0.01)
-    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_mask=True)).eval()
+    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), **{add_on: True})).eval()
     new.load_state_dict({**new.state_dict(), **old.state_dict()})  # as `tween train --init`
     x = torch.randn(2, n_input_channels(J), 32)
-    m = (torch.rand(2, J + 1, 32) < 0.3).float()
+    extra = (
+        (torch.rand(2, J + 1, 32) < 0.3).float()
+        if add_on == "key_mask"
+        else torch.randn(2, n_adapter_channels(J), 32)
+    )
+    module = new.mask_in if add_on == "key_mask" else new.adapter
     with torch.no_grad():
-        assert torch.equal(old(x), new(torch.cat([x, m], 1)))  # the mask map starts at zero
-        torch.nn.init.normal_(new.mask_in.weight, std=0.5)
-        assert not torch.equal(old(x), new(torch.cat([x, m], 1)))
-        assert torch.equal(old(x), new(torch.cat([x, torch.zeros_like(m)], 1)))  # full keys
+        assert torch.equal(old(x), new(torch.cat([x, extra], 1)))  # the new input starts at zero
+        for w in module.parameters():
+            torch.nn.init.normal_(w, std=0.5)
+        assert not torch.equal(old(x), new(torch.cat([x, extra], 1)))
+        assert torch.equal(old(x), new(torch.cat([x, torch.zeros_like(extra)], 1)))  # full keys
 
 
 def test_partial_keys_do_not_touch_the_noise_channels(clip):
