@@ -314,7 +314,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     # treats them as trained.
     init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"] if cfg.init else None
     fresh = {n for n, _ in model.named_parameters() if init is not None and n not in init}
-    trained = dict(model.named_parameters())
+    trainable = dict(model.named_parameters())
     if cfg.freeze:
         # Only the add-on modules train; the trunk stays bit for bit as --init left it.
         addons = {
@@ -322,13 +322,13 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         }
         if not addons:
             raise ValueError("freeze trains only the add-on modules: give --dna, --key-mask or --key-adapter")
-        for n, p in list(trained.items()):
+        for n, p in list(trainable.items()):
             if id(p) not in addons:
                 p.requires_grad_(False)
-                del trained[n]
+                del trainable[n]
     groups = [
         {
-            "params": [p for n, p in trained.items() if (n in fresh) == is_new],
+            "params": [p for n, p in trainable.items() if (n in fresh) == is_new],
             "lr": cfg.lr * (cfg.new_lr if is_new else 1.0),
         }
         for is_new in (False, True)
