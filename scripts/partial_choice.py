@@ -6,8 +6,8 @@ Each model is measured on protocol windows cut from every K-th train clip (defau
 ``pad_layouts.train_windows``): the protocol's task with full keys (L2P and foot skate ÷
 interpolation at 5 / 15 / 30 / 45 frames) and the partial-key task of ``tween bench
 --partial-keys`` (one root-only, legs or upper-body key halfway through the transition; L2P
-at 15 / 30 / 45). A model without key-mask channels fills from the full keys and matches the
-partial ones afterwards, so its rows are the fallback a key-mask model has to beat.
+at 15 / 30 / 45). A model without partial-key inputs (key mask or adapter) fills from the full
+keys and matches the partial ones afterwards, so its rows are the fallback to beat.
 """
 
 import argparse

@@ -17,6 +17,8 @@ import numpy as np
 
 from pipeline.data.cache import ClipSet
 
+PARTIAL_LAYOUTS = ("convert", "insert")  # sample_joint_keys, insert_partial_keys
+
 
 def sample_keys(rng: np.random.Generator, n: int, max_gap: int) -> np.ndarray:
     keys = [0]

@@ -79,12 +79,13 @@ def register(app: typer.Typer) -> None:
     ):
         """Train the path predictor, then the generator, on CPU. Deterministic for a seed."""
         from pipeline.models.generator import GeneratorConfig
+        from pipeline.train.batches import PARTIAL_LAYOUTS
         from pipeline.train.generator import TrainConfig
         from pipeline.train.generator import train as train_generator
         from pipeline.train.path import PathTrainConfig, train_path
 
-        if partial_layout not in ("convert", "insert"):
-            raise typer.BadParameter("--partial-layout must be convert or insert")
+        if partial_layout not in PARTIAL_LAYOUTS:
+            raise typer.BadParameter(f"--partial-layout must be one of {', '.join(PARTIAL_LAYOUTS)}")
         adv_start = None if adv_start < 0 or adv_start >= steps else adv_start
         common = dict(
             batch=batch, seed=seed, threads=threads, limit_clips=limit_clips, data=str(data) if data else None

@@ -35,6 +35,7 @@ from pipeline.models.layers import batch_regularisation
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.fk import fk
 from pipeline.train.batches import (
+    PARTIAL_LAYOUTS,
     foot_contacts,
     insert_partial_keys,
     sample_batch,
@@ -91,6 +92,10 @@ class TrainConfig:
     device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
     workers: int = 0  # processes making batches ahead (0: in the training process)
     model: GeneratorConfig = field(default_factory=GeneratorConfig)
+
+    def __post_init__(self):
+        if self.partial_layout not in PARTIAL_LAYOUTS:
+            raise ValueError(f"partial_layout {self.partial_layout!r}: expected one of {PARTIAL_LAYOUTS}")
 
 
 def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
@@ -326,14 +331,9 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             if id(p) not in addons:
                 p.requires_grad_(False)
                 del trainable[n]
-    groups = [
-        {
-            "params": [p for n, p in trainable.items() if (n in fresh) == is_new],
-            "lr": cfg.lr * (cfg.new_lr if is_new else 1.0),
-        }
-        for is_new in (False, True)
-    ]
-    groups = [g for g in groups if g["params"]]
+    old = [p for n, p in trainable.items() if n not in fresh]
+    new = [p for n, p in trainable.items() if n in fresh]
+    groups = [{"params": ps, "lr": lr} for ps, lr in ((old, cfg.lr), (new, cfg.lr * cfg.new_lr)) if ps]
     opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(
         opt,
