@@ -12,6 +12,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pipeline.infer.interp import interpolate_between
+from pipeline.infer.spline import spline_keys
 
 Method = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int], tuple[np.ndarray, np.ndarray]]
 
@@ -27,6 +28,21 @@ def interpolation(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
     """Root LERP and local-quaternion SLERP between the last context frame and the target."""
     rot, root = interpolate_between(ctx_rot[:, -1], tgt_rot, ctx_root[:, -1], tgt_root, T)
     return np.moveaxis(rot, 0, 1).astype(np.float32), np.moveaxis(root, 0, 1).astype(np.float32)
+
+
+def spline(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
+    """A clamped-tangent (PCHIP) cubic per channel through every context frame and the target.
+
+    What an animator's curves through those keys show in a DCC (``pipeline.infer.spline``).
+    """
+    n, c = ctx_rot.shape[:2]
+    rots = np.concatenate([ctx_rot, np.zeros((n, T, *ctx_rot.shape[2:]), ctx_rot.dtype), tgt_rot[:, None]], 1)
+    roots = np.concatenate([ctx_root, np.zeros((n, T, 3), ctx_root.dtype), tgt_root[:, None]], 1)
+    keys = np.r_[np.arange(c), c + T]
+    rot, root = spline_keys(np.moveaxis(rots, 1, 0), np.moveaxis(roots, 1, 0), keys)
+    rot = np.moveaxis(rot, 0, 1)[:, c : c + T]
+    root = np.moveaxis(root, 0, 1)[:, c : c + T]
+    return rot.astype(np.float32), root.astype(np.float32)
 
 
 def inbetweener_method(inbetweener, batch: int = 64) -> Method:
@@ -58,7 +74,7 @@ def inbetweener_method(inbetweener, batch: int = 64) -> Method:
     return run
 
 
-BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation}
+BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation, "spline": spline}
 
 
 def resolve(name: str) -> Method:

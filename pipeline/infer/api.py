@@ -30,7 +30,8 @@ class Inbetweener(Protocol):
 
 
 def load_inbetweener(name: str = "default") -> Inbetweener:
-    """``"interp"`` (SLERP/LERP baseline) or ``"default"`` / a model folder (shipped ONNX model).
+    """``"interp"`` (SLERP/LERP baseline), ``"spline"`` (clamped-tangent cubic through the keys)
+    or ``"default"`` / a model folder (shipped ONNX model).
 
     ``"default"`` falls back to interpolation only when no model is shipped.
     """
@@ -38,6 +39,10 @@ def load_inbetweener(name: str = "default") -> Inbetweener:
 
     if name in ("interp", "interpolation"):
         return InterpolationInbetweener()
+    if name == "spline":
+        from pipeline.infer.spline import SplineInbetweener
+
+        return SplineInbetweener()
     from pipeline.infer.model import OnnxInbetweener, find_model
 
     folder = find_model(name)

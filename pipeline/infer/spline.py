@@ -1,0 +1,155 @@
+"""The spline baseline: a cubic through the keys per channel, as a DCC's default tangents draw it.
+
+This is the animator's real alternative to a model: key the poses, let Maya or Blender run a
+curve through every channel, and look. Both default to tangents that are smooth through a key
+but never overshoot it: Maya's *Auto* tangents and Blender's *Auto Clamped* Bézier handles set
+each key's slope from its two neighbours and flatten it where the key is a local extremum, so
+the curve stays between neighbouring key values. Of scipy's cubics, the PCHIP (Fritsch–Carlson)
+Hermite cubic does the same: each key's slope is the weighted harmonic mean of the slopes to its
+neighbours (zero at an extremum), so every segment stays within its two keys' values and the
+curve is C1. A C2 ``CubicSpline`` is smoother but overshoots — it rings after a fast key
+sequence, which no default DCC tangent does — and Akima's slopes are not flattened at extrema.
+PCHIP reproduces straight lines exactly (with two keys it *is* the line), not cubics.
+
+One difference remains at the ends: Blender flattens the first and last key's auto handles
+(an ease in/out, with constant extrapolation); scipy's PCHIP gives them a one-sided three-point
+slope instead, which keeps two keys linear. ``ends="flat"`` gives Blender's ease at the ends.
+``method="cubic"`` gives a not-a-knot C2 spline, which reproduces cubic polynomials exactly.
+
+Channels: the root position's xyz, and each joint's local quaternion as four components made
+hemisphere-consistent from key to key (q_k · q_{k-1} ≥ 0), interpolated, then renormalised.
+Key frames are copied back bitwise; before the first key and after the last, keys are held.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline, CubicSpline, PchipInterpolator
+
+from pipeline.motion.clip import Motion
+from pipeline.motion.skeleton import Skeleton
+
+METHODS = ("pchip", "cubic")
+
+
+def _curve(x: np.ndarray, y: np.ndarray, method: str, ends: str):
+    """One scipy interpolant over all channels: ``y`` is (K, C) at key times ``x`` (K,)."""
+    if method == "cubic":
+        return CubicSpline(x, y, axis=0, bc_type="not-a-knot")
+    pchip = PchipInterpolator(x, y, axis=0)
+    if ends == "auto":
+        return pchip
+    slopes = pchip.derivative()(x)
+    slopes[[0, -1]] = 0.0
+    return CubicHermiteSpline(x, y, slopes, axis=0)
+
+
+def spline_keys(
+    rotations: np.ndarray,
+    root_positions: np.ndarray,
+    keys: np.ndarray,
+    method: str = "pchip",
+    ends: str = "auto",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every frame between the keys on the spline through them; outside the keys, held.
+
+    ``rotations`` (T, ..., 4) unit quaternions (any joint layout, e.g. (T, J, 4) or
+    (T, N, J, 4) for N clips sharing the key times), ``root_positions`` (T, ..., 3); only
+    the frames in ``keys`` (int indices, at least two distinct) are read. Returns arrays of
+    the same shapes and dtypes whose key frames equal the input bitwise. Between key k and
+    key k+1 the output quaternions carry key k's sign, as SLERP from key k does.
+    ``method``: ``"pchip"`` (DCC auto/clamped tangents) or ``"cubic"`` (not-a-knot C2);
+    ``ends``: ``"auto"`` (scipy's end slopes) or ``"flat"`` (ease in/out at the first and last
+    key, as Blender's auto-clamped handles; PCHIP only).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown spline method {method!r} (one of {', '.join(METHODS)})")
+    if ends not in ("auto", "flat"):
+        raise ValueError(f"unknown spline ends {ends!r} (auto or flat)")
+    rotations = np.asarray(rotations)
+    root_positions = np.asarray(root_positions)
+    T = rotations.shape[0]
+    if rotations.shape[-1] != 4 or root_positions.shape[0] != T or root_positions.shape[-1] != 3:
+        raise ValueError(f"rotations {rotations.shape} / root positions {root_positions.shape} do not match")
+    keys = np.unique(np.asarray(keys, np.int64))
+    if len(keys) < 2:
+        raise ValueError("a spline needs at least two keys")
+    if keys[0] < 0 or keys[-1] >= T:
+        raise ValueError(f"keys {keys[0]}..{keys[-1]} outside the motion's {T} frames")
+
+    q = rotations[keys].reshape(len(keys), -1, 4).astype(np.float64)  # (K, M, 4)
+    # Hemisphere-consistent keys: flip c_k = c_{k-1} · sign(q_k · q_{k-1}) (0 counts as +).
+    step = np.where((q[1:] * q[:-1]).sum(-1) < 0, -1.0, 1.0)
+    sign = np.concatenate([np.ones((1, q.shape[1])), np.cumprod(step, axis=0)])  # (K, M)
+    q *= sign[..., None]
+    p = root_positions[keys].reshape(len(keys), -1).astype(np.float64)  # (K, 3R)
+    m4 = q.shape[1] * 4
+    y = np.concatenate([q.reshape(len(keys), m4), p], axis=1)
+
+    frames = np.arange(keys[0], keys[-1] + 1)
+    v = _curve(keys.astype(np.float64), y, method, ends)(frames.astype(np.float64))  # (F, C)
+    rot_f = v[:, :m4].reshape(len(frames), -1, 4)
+    # The segment each frame lies in (a key frame counts in the segment it starts).
+    seg = np.clip(np.searchsorted(keys, frames, side="right") - 1, 0, len(keys) - 2)
+    norm = np.linalg.norm(rot_f, axis=-1, keepdims=True)
+    small = norm < 1e-6
+    if small.any():  # Components crossing zero together: the segment's normalised LERP instead.
+        w = ((frames - keys[seg]) / (keys[seg + 1] - keys[seg]))[:, None, None]
+        lerp = (1 - w) * q[seg] + w * q[seg + 1]
+        rot_f = np.where(small, lerp, rot_f)
+        norm = np.linalg.norm(rot_f, axis=-1, keepdims=True)
+    # Back to each segment's left key's sign, as the input carried it.
+    rot_f = rot_f / norm * sign[seg][..., None]
+
+    out_dtype_r = rotations.dtype if np.issubdtype(rotations.dtype, np.floating) else np.float64
+    out_dtype_p = root_positions.dtype if np.issubdtype(root_positions.dtype, np.floating) else np.float64
+    rot = np.empty(rotations.shape, out_dtype_r)
+    pos = np.empty(root_positions.shape, out_dtype_p)
+    rot[frames] = rot_f.reshape((len(frames), *rotations.shape[1:]))
+    pos[frames] = v[:, m4:].reshape((len(frames), *root_positions.shape[1:]))
+    rot[: keys[0]] = rotations[keys[0]]
+    pos[: keys[0]] = root_positions[keys[0]]
+    rot[keys[-1] + 1 :] = rotations[keys[-1]]
+    pos[keys[-1] + 1 :] = root_positions[keys[-1]]
+    rot[keys] = rotations[keys]
+    pos[keys] = root_positions[keys]
+    return rot, pos
+
+
+def spline_motion(motion: Motion, keys: np.ndarray, method: str = "pchip", ends: str = "auto") -> Motion:
+    """:func:`spline_keys` on a motion: same skeleton, frame rate and length."""
+    rot, pos = spline_keys(motion.rotations, motion.root_positions, keys, method, ends)
+    return replace(motion, rotations=rot, root_positions=pos)
+
+
+class SplineInbetweener:
+    """A clamped-tangent cubic through the keys per channel; on any skeleton, at any frame rate.
+
+    ``skeleton`` only names the rig the caller means (the Bandai skeleton by default); ``fill``
+    works on whatever skeleton the motion carries.
+    """
+
+    name = "spline"
+    model_hash = "none"
+    fps = 30.0
+
+    def __init__(self, skeleton: Skeleton | None = None, method: str = "pchip", ends: str = "auto"):
+        if skeleton is None:
+            from pipeline.data.skeletons import bandai_skeleton
+
+            skeleton = bandai_skeleton()
+        self.skeleton = skeleton
+        self.method = method
+        self.ends = ends
+
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+        return spline_motion(motion, keys, self.method, self.ends)
+
+    def fill_batch(self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray):
+        """(N, T, J, 4) / (N, T, 3) windows sharing ``keys``, in one spline call."""
+        rot, pos = spline_keys(
+            np.moveaxis(rotations, 1, 0), np.moveaxis(roots, 1, 0), keys, self.method, self.ends
+        )
+        return np.moveaxis(rot, 0, 1), np.moveaxis(pos, 0, 1)
