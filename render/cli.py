@@ -66,7 +66,7 @@ def review(
             shot, out_dir, take=t, size=(w, h), side_by_side=side_by_side, exr=exr, camera=camera, turns=turns,
             ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True,
         )  # fmt: skip
-        summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers")}
+        summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers", "timecodes")}
         summary["frame_count"] = len(result["frame_numbers"])
         summary["frames_dir"] = out_dir if result["frames"] else None
         summaries.append(summary)

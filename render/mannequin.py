@@ -38,14 +38,17 @@ _VERTS, _TRIS = _template()
 class Mannequin:
     """Capsules over joint positions (T, J, 3); sizes fixed from the first frame."""
 
-    def __init__(self, joints: np.ndarray, parents, names):
+    def __init__(self, joints: np.ndarray, parents, names, skip_from=()):
         self.joints = np.asarray(joints, np.float32)
         self.parents, self.names = np.asarray(parents), list(names)
-        self.tris, pts, _ = capsules(self.joints[:1], self.parents, self.names)
+        self.skip = frozenset(int(j) for j in skip_from)
+        self.tris, pts, _ = capsules(self.joints[:1], self.parents, self.names, skip_from=self.skip)
         self.n_points = pts.shape[1]
 
     def frame(self, i: int):
-        _, pts, nrm = capsules(self.joints[i : i + 1], self.parents, self.names, self.joints[0])
+        _, pts, nrm = capsules(
+            self.joints[i : i + 1], self.parents, self.names, self.joints[0], skip_from=self.skip
+        )
         return pts[0], nrm[0]
 
     def geometry(self):
@@ -54,19 +57,21 @@ class Mannequin:
         return Geometry(self.tris, self.n_points, len(self.joints), self.frame, smooth=True)
 
 
-def capsules(joints: np.ndarray, parents, names, sizing: np.ndarray | None = None):
+def capsules(joints: np.ndarray, parents, names, sizing: np.ndarray | None = None, skip_from=()):
     """Triangles, per-frame points (T, N, 3) and normals for joint positions (T, J, 3).
 
     Radii come from ``sizing`` (J, 3) joint positions (default: the first frame), so a
-    character keeps its proportions whatever pose a frame is in.
+    character keeps its proportions whatever pose a frame is in. Bones from the joints in
+    ``skip_from`` (a static root bone above the hips) are not drawn, nor counted in the height.
     """
     joints = np.asarray(joints, np.float32)
     parents = np.asarray(parents)
     ref = joints[0] if sizing is None else np.asarray(sizing, np.float32)
-    height = float(np.ptp(ref[:, 1])) or float(np.ptp(ref, axis=0).max()) or 1.0
+    body = [j for j in range(len(parents)) if j not in skip_from] if skip_from else slice(None)
+    height = float(np.ptp(ref[body, 1])) or float(np.ptp(ref[body], axis=0).max()) or 1.0
     starts, ends, radii = [], [], []
     for j, p in enumerate(parents):
-        if p < 0:
+        if p < 0 or p in skip_from:
             continue
         length = float(np.linalg.norm(ref[j] - ref[p]))
         if length < 1e-4 * height:

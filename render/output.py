@@ -93,13 +93,18 @@ class Movie:
     """H.264 yuv420p MP4 at the shot's frame rate; ``add(rgb)`` pipes one raw frame to libx264."""
 
     def __init__(
-        self, path: str, size: tuple[int, int], fps: float, comment: str = "", preset: str = "superfast"
+        self,
+        path: str,
+        size: tuple[int, int],
+        fps: float | Fraction,
+        comment: str = "",
+        preset: str = "superfast",
     ):
         import av
 
         self.path, self.tmp = path, f"{path}.tmp{os.getpid()}.mp4"
         w, h = size
-        self.rate = Fraction(fps).limit_denominator(1001)
+        self.rate = fps if isinstance(fps, Fraction) else Fraction(fps).limit_denominator(1001)
         try:
             self.box = av.open(self.tmp, mode="w", options={"movflags": "faststart"})
             self.stream = self.box.add_stream("libx264", rate=self.rate)

@@ -95,8 +95,9 @@ class BurnIn:
         if self.labels is not None:
             self.labels = _fixed(self.labels)
 
-    def apply(self, img: np.ndarray, frame: int, is_key: bool) -> None:
-        """Burns the text into ``img`` (h, w, 3) uint8 in place."""
+    def apply(self, img: np.ndarray, frame: int, is_key: bool, tc: str | None = None) -> None:
+        """Burns the text into ``img`` (h, w, 3) uint8 in place; ``tc`` is the frame's time code
+        (``scene.timecodes``; default: ``frame`` counted at the burn-in's fps)."""
         b, w = self.band, self.w
         _over(img[:b], self.top)
         _over(img[-b:], self.bottom)
@@ -105,7 +106,7 @@ class BurnIn:
             x = self.w // 2
             img[b:-b, x - 1 : x + 1] = 150  # the seam between the panels
         rgb = KEY_RGB if is_key else (1, 1, 1)
-        text = f"{frame:>6d}   {timecode(frame, self.fps)}"
+        text = f"{frame:>6d}   {tc if tc is not None else timecode(frame, self.fps)}"
         strip = _text_band(
             self.frame_w, b, [(self.frame_w - self.font // 2, b // 2, text, rgb, "right")], self.font, 0.0
         )

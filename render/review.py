@@ -50,7 +50,8 @@ def render_review(
 ) -> dict:
     """Renders every animated skeleton of ``stage_path`` into ``out_dir``.
 
-    Returns {"mp4", "contact_sheet", "frames": [...], "frame_numbers", "key_frames", "fps", "timings"}.
+    Returns {"mp4", "contact_sheet", "frames": [...], "frame_numbers", "timecodes", "key_frames",
+    "fps", "size", "take", "timings"}; ``fps`` is the playback rate (``scene.shot_timing``).
     Nothing is left in ``out_dir`` if rendering fails.
     """
     t0 = time.perf_counter()
@@ -89,8 +90,9 @@ def render_review(
         burn = BurnIn((w, h), shot.name, shot.facts, shot.fps, labels)
         covered = burn.band * (4 if side_by_side else 2)  # the bands (and panel labels) are symmetric-ish
         cam = Camera(lo, hi, (w / len(panels)) / h, T, camera, turns, safe=1.0 - covered / h)
+        rate = shot.timing.rate if shot.timing is not None else shot.fps
         movie = Movie(
-            str(tmp / f"{stem}.mp4"), (w, h), shot.fps, comment=f"{shot.name} {shot.take or ''} {shot.facts}"
+            str(tmp / f"{stem}.mp4"), (w, h), rate, comment=f"{shot.name} {shot.take or ''} {shot.facts}"
         )
         n_thumbs = min(CONTACT_FRAMES, T)
         thumb_at = set(np.linspace(0, T - 1, n_thumbs).round().astype(int).tolist())
@@ -102,10 +104,11 @@ def render_review(
             from tqdm import tqdm
 
             it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
+        tcs = shot.timecodes()
         for i in it:
             img = renderer.render(i, [cam] * len(panels), sets, colors, bool(is_key[i]), ghost_set)
             fno = int(shot.frames[i])
-            burn.apply(img[..., :3], fno, bool(is_key[i]))
+            burn.apply(img[..., :3], fno, bool(is_key[i]), tcs[i])
             movie.add(img)
             if write_frames:
                 name = f"{stem}.{fno:04d}.{ext}"
@@ -148,6 +151,7 @@ def render_review(
         "contact_sheet": str(out / f"{stem}_contact.png"),
         "frames": [str(out / f) for f in frames],
         "frame_numbers": [int(f) for f in shot.frames],
+        "timecodes": shot.timecodes(),
         "key_frames": [int(shot.frames[i]) for i in key_idx],
         "fps": shot.fps,
         "size": (w, h),

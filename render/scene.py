@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,118 @@ FACT_ATTRS = {
     "take": "tween:take",
     "seed": "tween:seed",
 }
+
+
+NEAR = 1e-4  # a rate or step this close to a whole number (or NTSC n*1000/1001) is that number
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How a shot's time codes become output frames.
+
+    ``tcps`` and ``fps`` are the stage's timeCodesPerSecond and framesPerSecond as authored
+    (fps falls back to tcps when only tcps is authored: Blender writes no framesPerSecond);
+    ``rate`` is the playback rate as a sensible fraction (30.0000304 -> 30, 29.97 -> 30000/1001);
+    ``step`` the time codes per output frame (snapped to a whole number, or 1/n, when within
+    ``NEAR`` of one, so a near-integer rate neither drops nor doubles frames).
+    """
+
+    tcps: float
+    fps: float
+    rate: Fraction
+    step: float
+
+
+def _snap_rate(fps: float) -> Fraction:
+    cands = [Fraction(round(fps)), Fraction(round(fps * 1.001) * 1000, 1001)]
+    best = min(cands, key=lambda c: abs(float(c) - fps))
+    if best > 0 and abs(float(best) - fps) <= NEAR * max(fps, 1.0):
+        return best
+    return Fraction(fps).limit_denominator(1001)
+
+
+def _snap_step(step: float) -> float:
+    if step >= 1:
+        return float(round(step)) if abs(step - round(step)) <= NEAR else step
+    k = round(1.0 / step)
+    return 1.0 / k if k and abs(1.0 / step - k) <= NEAR else step
+
+
+def shot_timing(stage) -> Timing:
+    """The stage's :class:`Timing`, from what is authored on the root/session layer.
+
+    ``stage.GetFramesPerSecond()`` answers 24 when nothing is authored, which would play a
+    30 time-codes-per-second Blender shot at 24 fps and skip every fifth time code.
+    """
+    pseudo = stage.GetPseudoRoot()
+    tcps = float(stage.GetTimeCodesPerSecond())  # USD itself falls back to fps, then 24
+    fps = float(stage.GetFramesPerSecond()) if pseudo.HasAuthoredMetadata("framesPerSecond") else tcps
+    if not fps > 0 or not tcps > 0:
+        fps = tcps = fps if fps > 0 else (tcps if tcps > 0 else 24.0)
+    return Timing(tcps, fps, _snap_rate(fps), _snap_step(tcps / fps))
+
+
+def frame_times(start: float, end: float, timing: Timing) -> tuple[np.ndarray, np.ndarray]:
+    """(time codes, frame numbers) of the output frames from ``start`` to ``end`` inclusive.
+
+    One frame every ``timing.step`` time codes; frame numbers are the (rounded) time codes when
+    a frame spans at least one time code, else consecutive numbers from the first.
+    """
+    step = timing.step
+    n = int(np.floor((end - start) / step + 1e-6)) + 1
+    times = start + step * np.arange(max(n, 1))
+    frames = np.round(times).astype(int) if step >= 1 else int(round(start)) + np.arange(len(times))
+    return times, frames
+
+
+def timecodes(times, timing: Timing) -> list[str]:
+    """Non-drop HH:MM:SS:FF of each time code: its time in seconds (t / tcps) counted in frames
+    at the playback rate, so time code 261 of a 30.0000304 tcps shot is 00:00:08:21."""
+    from render.overlays import timecode
+
+    rate = float(timing.rate)
+    counts = np.round(np.asarray(times, np.float64) / timing.tcps * rate).astype(int)
+    return [timecode(int(c), rate) for c in counts]
+
+
+_HIPS = re.compile(r"(^|[^a-z])(hips?|pelvis)([^a-z]|$)")
+STATIC_M = 1e-4  # a joint that moves less than this over the shot (in skeleton space) is static
+
+
+def body_joint(positions: np.ndarray, parents, names) -> int:
+    """The joint that carries the character through the shot (the hips): its ground path and
+    KEY ring are drawn.
+
+    1. A joint named hips/pelvis (``Hips``, ``mixamorig:Hips``, ``Bip01 Pelvis``) above at
+       least half of the skeleton (so ``Left_Hip`` never wins); the one above the most joints.
+    2. Otherwise, from the root above the most joints, down to the child above the most joints
+       while the joint stays still (``positions`` (T, J, 3) move less than ``STATIC_M``) and
+       something below it moves: a static root bone (Blender's armature root) is not followed.
+    A shot whose joint 0 is the hips keeps joint 0.
+    """
+    parents = np.asarray(parents)
+    J = len(parents)
+    desc = np.zeros(J, int)
+    for j in range(J - 1, -1, -1):  # UsdSkel orders parents before children
+        if 0 <= parents[j] < J:
+            desc[parents[j]] += desc[j] + 1
+    named = [j for j, n in enumerate(names) if _HIPS.search(str(n).lower()) and desc[j] * 2 >= J - 1]
+    if named:
+        return max(named, key=lambda j: (desc[j], -j))
+    pos = np.asarray(positions, np.float64)
+    moves = np.ptp(pos, axis=0).max(-1) > STATIC_M if len(pos) else np.zeros(J, bool)
+    below_moves = moves.copy()
+    for j in range(J - 1, -1, -1):
+        if 0 <= parents[j] < J and below_moves[j]:
+            below_moves[parents[j]] = True
+    roots = [j for j in range(J) if not 0 <= parents[j] < J]
+    j = max(roots, key=lambda r: (desc[r], -r)) if roots else 0
+    while not moves[j]:
+        kids = [k for k in range(J) if parents[k] == j and below_moves[k]]
+        if not kids:
+            break
+        j = max(kids, key=lambda k: (desc[k], -k))
+    return int(j)
 
 
 class Geometry:
@@ -58,6 +171,7 @@ class Character:
     _skel_query: object = field(repr=False)
     _skinning: list = field(repr=False)
     _world: np.ndarray = field(repr=False)  # stage -> metres Y up (4x4, row vectors)
+    body: int = 0  # the joint whose path is drawn on the ground (see body_joint)
 
 
 @dataclass
@@ -74,6 +188,11 @@ class Shot:
     stage: object = field(repr=False)
     props: list = field(default_factory=list, repr=False)  # unskinned meshes under animated SkelRoots
     world: np.ndarray = field(default_factory=lambda: np.eye(4), repr=False)
+    timing: Timing | None = None
+
+    def timecodes(self) -> list[str]:
+        """SMPTE time code of every output frame (at the shot's playback rate)."""
+        return timecodes(self.times, self.timing or Timing(self.fps, self.fps, Fraction(self.fps), 1.0))
 
     def is_key(self, tol: float | None = None) -> np.ndarray:
         """(T,) bool: frames within a small tolerance of a key (time codes may be non-integer)."""
@@ -173,8 +292,26 @@ def _character(stage, path, skel, query, skinning, world) -> Character | None:
     if not len(anim.GetJointTransformTimeSamples()) and not len(keys):
         return None  # bound to a static pose: nothing to review
     return Character(
-        str(skel.GetPath()), str(aprim.GetPath()), np.asarray(keys, np.float64), facts, query, skinning, world
+        str(skel.GetPath()),
+        str(aprim.GetPath()),
+        np.asarray(keys, np.float64),
+        facts,
+        query,
+        skinning,
+        world,
+        _body(query, anim.GetJointTransformTimeSamples()),
     )
+
+
+def _body(query, samples, n: int = 64) -> int:
+    """:func:`body_joint` from skeleton-space joint positions at up to ``n`` of the animation's
+    samples, over the whole shot (not just the frames rendered)."""
+    names = [str(j).split("/")[-1] for j in query.GetJointOrder()]
+    parents = np.asarray(query.GetTopology().GetParentIndices())
+    samples = list(samples) or [0.0]
+    pick = np.unique(np.linspace(0, len(samples) - 1, min(n, len(samples))).round().astype(int))
+    pos = np.stack([np.array(query.ComputeJointSkelTransforms(samples[i]))[:, 3, :3] for i in pick])
+    return body_joint(pos, parents, names)
 
 
 def open_shot(
@@ -235,8 +372,7 @@ def open_shot(
             stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"
         )
 
-    tcps = stage.GetTimeCodesPerSecond()
-    fps = stage.GetFramesPerSecond() or tcps
+    timing = shot_timing(stage)
     if stage.HasAuthoredTimeCodeRange():
         start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     else:
@@ -246,10 +382,7 @@ def open_shot(
         start, end = max(start, frame_range[0]), min(end, frame_range[1])
         if end < start:
             raise ShotError(stage_path, f"frame range {frame_range} is outside the shot")
-    step = tcps / fps
-    n = int(np.floor((end - start) / step + 1e-6)) + 1
-    times = start + step * np.arange(n)
-    frames = np.round(times).astype(int) if step >= 1 else np.round(start).astype(int) + np.arange(n)
+    times, frames = frame_times(start, end, timing)
 
     key_times = np.unique(np.concatenate([c.key_times for c in chars]))
     facts: dict = {}
@@ -262,7 +395,7 @@ def open_shot(
     return Shot(
         shot_name,
         str(stage_path),
-        float(fps),
+        float(timing.rate),
         times,
         frames,
         key_times,
@@ -272,6 +405,7 @@ def open_shot(
         stage,
         props,
         world,
+        timing,
     )
 
 
@@ -280,7 +414,8 @@ def _apply(points: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.ndarray]]:
-    """Geometry of every character at ``times`` (metres, Y up) and each one's root path (T, 3).
+    """Geometry of every character at ``times`` (metres, Y up) and each one's body path (T, 3):
+    the path of its :func:`body_joint` (the hips), not of joint 0.
 
     Joint positions are computed for every frame now (small); skinned points per frame on demand.
     """
@@ -297,7 +432,7 @@ def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.nda
         for i, t in enumerate(uniq):
             to_world = np.array(skel_prim.ComputeLocalToWorldTransform(t)) @ c._world
             joints[i] = _apply(np.array(q.ComputeJointSkelTransforms(t))[:, 3, :3], to_world)
-        roots.append(joints[inv, 0].astype(np.float32))
+        roots.append(joints[inv, c.body].astype(np.float32))
         if c._skinning:
             skin = _SkinCache(q, skel_prim, c._world)
             for sq in c._skinning:
@@ -310,7 +445,14 @@ def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.nda
         else:
             parents = np.asarray(q.GetTopology().GetParentIndices())
             names = [str(j).split("/")[-1] for j in q.GetJointOrder()]
-            geoms.append(mannequin.Mannequin(joints[inv].astype(np.float32), parents, names).geometry())
+            # No capsule from a static root bone to the hips (it would lie across the set).
+            above = set()
+            j = int(parents[c.body])
+            while j >= 0:
+                above.add(j)
+                j = int(parents[j])
+            man = mannequin.Mannequin(joints[inv].astype(np.float32), parents, names, skip_from=above)
+            geoms.append(man.geometry())
     for prim in shot.props:
         mesh, img = UsdGeom.Mesh(prim), UsdGeom.Imageable(prim)
         n = len(np.asarray(mesh.GetPointsAttr().Get(uniq[0]) or []))
