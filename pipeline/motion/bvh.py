@@ -11,12 +11,16 @@ The root's position channels need a per-source rule (``root_position``):
 - ``"add"``: the channels are added to the OFFSET (the CMU/iClone rig; read as a
   replacement its feet end up about 96 cm below the ground).
 
-Position channels below the root always replace the OFFSET (in Bandai they equal it).
+Position channels below the root replace the OFFSET with their first frame (in Bandai they
+equal it); any channel order, 3 or 6 channels per joint, is read. Files that are not UTF-8
+are read as Latin-1; joint names are kept as written (``pipeline.usd.convert`` makes USD
+names of them).
 """
 
 from __future__ import annotations
 
 import gzip
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,15 +51,25 @@ class BvhJoint:
 
 
 def _open_text(path: Path) -> list[str]:
+    """The file's lines. UTF-8 (with or without a BOM); a file that is not UTF-8 is read as
+    Latin-1, so joint names written by older tools keep their accented letters."""
     try:
+        if path.is_dir():
+            raise MotionFormatError(path, None, "is a folder, not a BVH file")
         if path.suffix == ".gz":
-            with gzip.open(path, "rt", encoding="utf-8", errors="replace") as f:
-                return f.read().splitlines()
-        return path.read_text(encoding="utf-8", errors="replace").splitlines()
+            with gzip.open(path, "rb") as f:
+                raw = f.read()
+        else:
+            raw = path.read_bytes()
     except FileNotFoundError:
         raise MotionFormatError(path, None, "file not found") from None
-    except (OSError, EOFError, gzip.BadGzipFile) as e:
-        raise MotionFormatError(path, None, f"cannot read: {e}") from None
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as e:
+        raise MotionFormatError(path, None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.splitlines()
 
 
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]:
@@ -130,6 +144,11 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]
             bad = [c for c in names if c not in _VALID_CHANNELS]
             if bad:
                 raise MotionFormatError(path, lineno, f"unknown channel {bad[0]!r}")
+            dup = next((c for k, c in enumerate(names) if c in names[:k]), None)
+            if dup:
+                raise MotionFormatError(path, lineno, f"channel {dup} listed twice")
+            if joints[stack[-1]].channels:
+                raise MotionFormatError(path, lineno, "a second CHANNELS line for the same joint")
             joints[stack[-1]].channels = names
         elif kw == "MOTION":
             if stack:
@@ -234,18 +253,15 @@ def read_bvh(
         ch = jt.channels
         block = data[:, col : col + len(ch)]
         col += len(ch)
-        pos_idx = [ch.index(a + "position") if a + "position" in ch else -1 for a in "XYZ"]
-        if min(pos_idx) >= 0:
-            p = block[:, pos_idx]
-            trans[:, j] = p + jt.offset if (j == 0 and rule == "add") else p
-        else:
-            trans[:, j] = jt.offset
+        trans[:, j] = jt.offset
+        for a, axis in enumerate("XYZ"):
+            if axis + "position" in ch:
+                p = block[:, ch.index(axis + "position")]
+                trans[:, j, a] = p + jt.offset[a] if (j == 0 and rule == "add") else p
         rot_ch = [c for c in ch if c.endswith("rotation")]
-        if len(rot_ch) == 3:
+        if rot_ch:  # one to three axes, composed in channel order
             order = "".join(c[0] for c in rot_ch)
             rots[:, j] = euler_to_quat(block[:, [ch.index(c) for c in rot_ch]], order)
-        elif rot_ch:
-            raise MotionFormatError(path, None, f"joint {jt.name!r} has {len(rot_ch)} rotation channels")
         else:
             rots[:, j] = (0, 0, 0, 1)
 
@@ -270,10 +286,21 @@ def read_bvh(
         parents = [max(p - 1, -1) for p in parents[1:]]
         parents[0] = -1
 
-    offsets = np.array([jt.offset for jt in joints], np.float32)
+    offsets = np.array([jt.offset for jt in joints], np.float64)
+    # Position channels below the root replace the OFFSET: their first frame is the bone
+    # (exporters that write 6 channels everywhere may leave OFFSET at zero). A joint's
+    # translation that changes over the clip is not kept: bones are rigid here. Values
+    # within 1e-4 of the OFFSET keep the OFFSET (Bandai writes the same numbers twice).
+    for j, jt in enumerate(joints):
+        if j and any(c.endswith("position") for c in jt.channels):
+            if np.abs(trans[0, j] - offsets[j]).max() > 1e-4:
+                offsets[j] = trans[0, j]
+    offsets = offsets.astype(np.float32)
     # The root's rest position: its first-frame height above the origin (its OFFSET may be
     # meaningless, as in Bandai); every other joint keeps its file OFFSET.
     offsets[0] = (0.0, trans[0, 0, 1], 0.0)
+    if not (np.isfinite(offsets).all() and np.isfinite(trans[:, 0].astype(np.float32)).all()):
+        raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
     end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
     skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
     name = path.name.removesuffix(".gz").removesuffix(".bvh")

@@ -3,11 +3,17 @@
 Authored through usd-core's UsdSkel/UsdGeom APIs. The rest and bind pose is the
 canonical T-pose of the rig (when its joints map onto the model skeleton) so the
 mannequin is modelled in a sensible pose and any tool can retarget from it.
+
+Joint names that are not USD identifiers (Rigify ``spine.001``, Mixamo ``mixamorig:Hips``,
+names with spaces, ``/`` or accents) are made into identifiers by :func:`usd_joint_names`;
+the names as written in the BVH are then kept on the Skeleton in ``tween:sourceJointNames``.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -17,10 +23,50 @@ from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
 from pipeline.usd.mapping import MODEL_JOINTS, MappingError, map_joints
 
+SOURCE_NAMES_ATTR = "tween:sourceJointNames"
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_NOT_IDENT = re.compile(r"[^A-Za-z0-9_]+")
+
+
+def usd_joint_names(names: tuple[str, ...] | list[str]) -> list[str]:
+    """USD identifiers for joint names, unique, in the same order; deterministic.
+
+    A name that already is an identifier (and not taken by an earlier joint) is kept, so
+    Bandai and Character Creator rigs convert unchanged. Otherwise accents are dropped
+    (``é`` → ``e``), every run of other characters becomes ``_`` (``spine.001`` →
+    ``spine_001``, ``thigh.L`` → ``thigh_L``, ``mixamorig:Hips`` → ``mixamorig_Hips``:
+    side markers stay separate words for the name-based mapper), a leading digit gets a
+    ``_``, a name with nothing left is ``joint_<index>``, and a repeat gets ``_2``, ``_3``…
+    """
+    base, kept = [], []
+    for j, n in enumerate(names):
+        kept.append(bool(_IDENT.fullmatch(n)))
+        if kept[-1]:
+            base.append(n)
+            continue
+        ascii_ = unicodedata.normalize("NFKD", n).encode("ascii", "ignore").decode("ascii")
+        b = _NOT_IDENT.sub("_", ascii_).strip("_") or f"joint_{j}"
+        base.append(f"_{b}" if b[0].isdigit() else b)
+    taken = set(base)
+    out = [""] * len(base)
+    used: set[str] = set()
+    # Names kept as written are placed first, so a made-up name never takes theirs.
+    for j in sorted(range(len(base)), key=lambda j: (not kept[j], j)):
+        name, k = base[j], 2
+        while name in used or (name != base[j] and name in taken):  # not another joint's name
+            name, k = f"{base[j]}_{k}", k + 1
+        out[j] = name
+        used.add(name)
+    return out
+
 
 def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     """Local rest rotations (J,4) and translations (J,3): the canonical T-pose when the rig
-    maps onto the model skeleton, else the first frame."""
+    maps onto the model skeleton, else the first frame.
+
+    The first frame is also the fallback when the canonical pose cannot be built (a rig
+    whose mapped joints sit on top of each other, like the CMU rig's zero-length
+    ``LowerBack`` above ``Hips``, gives a reference pose that is not finite)."""
     from pipeline.usd.retarget import reference_pose
 
     skel = motion.skeleton
@@ -29,9 +75,13 @@ def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     trans[0] = (0.0, float(motion.root_positions[0, 1]), 0.0)
     g, p = motion.slice(0, 1).fk()
     try:
-        roles = map_joints(skel.names, skel.parents)
-        ref = reference_pose(roles, g[0].astype(np.float64), p[0].astype(np.float64))
-    except MappingError:
+        roles = map_joints(usd_joint_names(skel.names), skel.parents)
+        with np.errstate(all="ignore"):
+            ref = reference_pose(roles, g[0].astype(np.float64), p[0].astype(np.float64))
+    except (MappingError, np.linalg.LinAlgError, ValueError, ZeroDivisionError):
+        return local, trans
+    mapped = [j for j, m in enumerate(MODEL_JOINTS) if m in roles]
+    if not np.isfinite(ref[mapped]).all():
         return local, trans
     want = {roles[m]: ref[j] for j, m in enumerate(MODEL_JOINTS) if m in roles}
     gnew = np.empty_like(local)
@@ -93,12 +143,20 @@ def write_shot(
         root = UsdSkel.Root.Define(stage, f"/World/{name}")
         if up_axis.upper() == "Z":  # the BVH is Y up: stand the character up along Z
             UsdGeom.Xformable(root).AddRotateXOp().Set(90.0)
-        tokens, paths = [], []
+        names = usd_joint_names(skel.names)
+        paths: list[str] = []
         for j, par in enumerate(skel.parents):
-            paths.append(skel.names[j] if par < 0 else f"{paths[par]}/{skel.names[j]}")
+            paths.append(names[j] if par < 0 else f"{paths[par]}/{names[j]}")
         tokens = Vt.TokenArray(paths)
         sk = UsdSkel.Skeleton.Define(stage, f"/World/{name}/Skel")
         sk.CreateJointsAttr(tokens)
+        if names != list(skel.names):
+            src = sk.GetPrim().CreateAttribute(SOURCE_NAMES_ATTR, Sdf.ValueTypeNames.StringArray, custom=True)
+            src.Set(Vt.StringArray(list(skel.names)))
+            src.SetDocumentation(
+                "Joint names as written in the source BVH, one per entry of joints "
+                "(whose last path elements are these names made into USD identifiers)."
+            )
         rest_rot, rest_trans = rest_pose(motion)
         rest_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
                   for q, t in zip(rest_rot, rest_trans, strict=False)]  # fmt: skip
@@ -149,6 +207,12 @@ def _mannequin(stage, path, sk, skel, g_pos, tokens) -> None:
         for f in _BOX_FACES:
             counts.append(4)
             faces.extend(base + v for v in f)
+    if not pts:  # every bone has zero length (a single joint): a small cube on the root
+        c = g_pos[0]
+        pts.extend(_box(c - (0.0, 2.0, 0.0), c + (0.0, 2.0, 0.0), 2.0))
+        idx.extend([0] * 8)
+        counts.extend([4] * 6)
+        faces.extend(v for f in _BOX_FACES for v in f)
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.array(pts, np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
