@@ -1,20 +1,26 @@
 """Mapping a rig's joints onto the model skeleton's 21 joints.
 
-Exact names first, then name conventions (Bandai, Character Creator ``CC_Base_*``, Mixamo
-``mixamorig:*`` / ``mixamorig_*``, HumanIK ``LeftUpLeg``), then a JSON override file
-``{"<model joint>": "<rig joint name or path>" | null}``. The torso is found from the
-topology (chest = the lowest common ancestor of the arms), so the number of spine
-joints a rig has does not matter. Hand-written: no maintained package maps skeletons by
-name conventions.
+The rig's names are read against every naming convention in ``pipeline.usd.conventions``
+(the model skeleton's own Bandai names, Character Creator, Mixamo, HumanIK, UE5 Mannequin,
+Rigify, DAZ/Poser, CMU, 3ds Max Biped), one data entry each; the convention that explains the
+most joints names them. Then a JSON override file ``{"<model joint>": "<rig joint name or
+path>" | null}``. The torso is found from the topology (chest = the lowest common ancestor of
+the arms), so the number of spine joints a rig has does not matter. Hand-written: no
+maintained package maps skeletons by name conventions.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import re
+from functools import cache
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
+
+from pipeline.usd.conventions import CONVENTIONS
 
 MODEL_JOINTS = (
     "Hips", "Spine", "Chest", "Neck", "Head",
@@ -23,47 +29,84 @@ MODEL_JOINTS = (
     "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L",
     "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R",
 )  # fmt: skip
+# A rig without hands, toes, shoulders, neck or spine joints still maps; these it must have.
 REQUIRED = ("Hips", "Head") + tuple(
-    f"{r}_{s}" for s in "LR" for r in ("UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot")
+    f"{r}_{s}" for s in "LR" for r in ("UpperArm", "LowerArm", "UpperLeg", "LowerLeg", "Foot")
 )
-# Words (side tokens removed, lower case, joined) that name each limb role.
-_LIMB_WORDS = {
-    "Shoulder": ("shoulder", "clavicle", "collar", "collarbone"),
-    "UpperArm": ("upperarm", "arm", "uparm"),
-    "LowerArm": ("lowerarm", "forearm", "elbow"),
-    "Hand": ("hand", "wrist"),
-    "UpperLeg": ("upperleg", "upleg", "thigh", "hip"),
-    "LowerLeg": ("lowerleg", "leg", "calf", "shin", "knee"),
-    "Foot": ("foot", "ankle"),
-    "Toes": ("toes", "toe", "toebase", "ball"),
-}
-_CENTRE_WORDS = {"Hips": ("hips", "hip", "pelvis"), "Head": ("head",)}
-_PREFIX = re.compile(r"^(mixamorig\d*[:_]|cc_base_|bip\d*[ _]|.*:)", re.I)
+LIMBS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "Toes")
 # Chains whose joints must descend from each other (parent role, child role).
 _CHAINS = [("Hips", "UpperLeg_{s}"), ("UpperLeg_{s}", "LowerLeg_{s}"), ("LowerLeg_{s}", "Foot_{s}"),
            ("Foot_{s}", "Toes_{s}"), ("Shoulder_{s}", "UpperArm_{s}"), ("UpperArm_{s}", "LowerArm_{s}"),
            ("LowerArm_{s}", "Hand_{s}"), ("Hips", "Head")]  # fmt: skip
+_SIDES = {"L": {"{L}": "L", "{l}": "l", "{Left}": "Left", "{left}": "left"},
+          "R": {"{L}": "R", "{l}": "r", "{Left}": "Right", "{left}": "right"}}  # fmt: skip
+_END = re.compile(r"(end|nub|top|tip)\d*$", re.I)  # an end site's name (HeadTop_End, head_nub)
+_NOT_PLACED_SHOWN = 8  # rig joints an error message lists
 
 
 class MappingError(Exception):
     """The rig's joints cannot be mapped onto the model skeleton (message says why)."""
 
 
-def _tokens(name: str) -> tuple[str | None, str]:
-    """(side "L"/"R"/None, role word) of a joint name."""
-    base = _PREFIX.sub("", name)
-    parts = [p for p in re.split(r"[_\.\-\s]+|(?<=[a-z0-9])(?=[A-Z])", base) if p]
-    words = [p.lower() for p in parts]
-    side = None
-    rest = []
-    for w in words:
-        if w in ("l", "left") and side is None:
-            side = "L"
-        elif w in ("r", "right") and side is None:
-            side = "R"
-        else:
-            rest.append(w)
-    return side, "".join(rest)
+class JointMapping(NamedTuple):
+    roles: dict[str, int]  # model joint → rig joint index
+    convention: str | None  # the CONVENTIONS key that named the joints (None: none named any)
+    missing: tuple[str, ...]  # model joints the rig does not have (never a REQUIRED one)
+
+
+def _norm(text: str) -> str:
+    """A name as compared: lower case, every run of other characters than letters/digits → ``_``."""
+    return re.sub(r"[^0-9a-z]+", "_", text.lower())
+
+
+def _keys(name: str) -> tuple[str, ...]:
+    """The forms a rig joint's leaf name is matched in (with and without a Maya namespace)."""
+    keys = [_norm(name).strip("_")]
+    if ":" in name:
+        keys.append(_norm(name.rsplit(":", 1)[-1]).strip("_"))
+    return tuple(keys)
+
+
+def _regex(pattern: str, side: str | None) -> str:
+    for ph, text in _SIDES[side or "L"].items():
+        if ph in pattern and side is None:
+            raise ValueError(f"convention pattern {pattern!r} has a side placeholder on a centre role")
+        pattern = pattern.replace(ph, text)
+    parts = re.split(r"(\{n\}|\*)", pattern)
+    return "".join({"{n}": r"\d*", "*": ".*"}.get(p) or re.escape(_norm(p)) for p in parts)
+
+
+@cache
+def _compiled(conv: str) -> tuple[list[tuple[re.Pattern, str, int]], list[re.Pattern]]:
+    """(role patterns as (regex, model joint, priority) in order, other known-joint patterns)."""
+    c = CONVENTIONS[conv]
+    pfx = "|".join(_regex(p, None) for p in c["prefixes"])
+    wrap = (lambda r: re.compile(f"(?:{pfx})?(?:{r})")) if pfx else re.compile
+    roles = []
+    for role, pats in c["roles"].items():
+        for prio, p in enumerate(pats):
+            if role in LIMBS:
+                roles += [(wrap(_regex(p, s)), f"{role}_{s}", prio) for s in "LR"]
+            else:
+                roles.append((wrap(_regex(p, None)), role, prio))
+    known = [wrap(_regex(p, s)) for p in (*c["torso"], *c["extras"]) for s in ("L", "R")]
+    return roles, known
+
+
+def _read(conv: str, names: list[str]) -> tuple[dict[str, list[tuple[int, int]]], set[int]]:
+    """Under one convention: {model joint: [(priority, rig index)]}, and the rig joints it knows."""
+    roles, known = _compiled(conv)
+    found: dict[str, list[tuple[int, int]]] = {}
+    explained: set[int] = set()
+    for i, n in enumerate(names):
+        keys = _keys(n)
+        hit = next(((m, pr) for rx, m, pr in roles if any(rx.fullmatch(k) for k in keys)), None)
+        if hit:
+            found.setdefault(hit[0], []).append((hit[1], i))
+            explained.add(i)
+        elif any(rx.fullmatch(k) for rx in known for k in keys):
+            explained.add(i)
+    return found, explained
 
 
 def _depths(parents: np.ndarray) -> np.ndarray:
@@ -100,43 +143,46 @@ def map_joints(
     joints: tuple[str, ...], parents: np.ndarray, override: dict[str, str | None] | None = None
 ) -> dict[str, int]:
     """Model joint name → rig joint index for every joint that maps."""
+    return map_joints_info(joints, parents, override).roles
+
+
+def map_joints_info(
+    joints: tuple[str, ...], parents: np.ndarray, override: dict[str, str | None] | None = None
+) -> JointMapping:
+    """The mapping, the convention that named the joints, and the model joints the rig lacks.
+
+    Every convention reads the names; the one that explains the most rig joints (placed or
+    known as its extras) wins, then the one placing the most model joints, then the first in
+    ``CONVENTIONS``. Per model joint, the first matching pattern wins, then the joint nearest
+    the root.
+    """
+    parents = np.asarray(parents)
     names = [t.rsplit("/", 1)[-1] for t in joints]
     depth = _depths(parents)
-    out: dict[str, int] = {}
-    exact = {n: i for i, n in enumerate(names)}
-    for m in MODEL_JOINTS:
-        if m in exact:
-            out[m] = exact[m]
-    if not all(r in out for r in REQUIRED):
-        out = {}
-        cands: dict[str, list[int]] = {}
-        for i, n in enumerate(names):
-            side, word = _tokens(n)
-            if side is None:
-                for role, words in _CENTRE_WORDS.items():
-                    if word in words:
-                        cands.setdefault(role, []).append(i)
-            else:
-                for role, words in _LIMB_WORDS.items():
-                    if word in words:
-                        cands.setdefault(f"{role}_{side}", []).append(i)
-        for role, idx in cands.items():
-            out[role] = min(idx, key=lambda i: (depth[i], i))  # the one nearest the root
+    best = None
+    for order, conv in enumerate(CONVENTIONS):
+        found, explained = _read(conv, names)
+        key = (-len(explained), -len(found), order)
+        if best is None or key < best[0]:
+            best = (key, conv, found, explained)
+    _, conv, found, explained = best
+    if not found:
+        conv = None
+    out = {m: min(c, key=lambda pi: (pi[0], depth[pi[1]], pi[1]))[1] for m, c in found.items()}
+    removed = set()
     for role, target in (override or {}).items():
         if target is None:
             out.pop(role, None)
+            removed.add(role)
             continue
         hit = [i for i, (t, n) in enumerate(zip(joints, names, strict=False)) if target in (t, n)]
         if not hit:
             raise MappingError(f"mapping override {role} -> {target!r}: no such joint in the skeleton")
         out[role] = hit[0]
-    _torso(out, parents)
+    _torso(out, names, parents, removed)
     missing = [r for r in REQUIRED if r not in out]
     if missing:
-        raise MappingError(
-            f"joints do not map onto the model skeleton: no {', '.join(missing)} "
-            "(name the rig's joints in a --mapping JSON file)"
-        )
+        raise MappingError(_missing_message(missing, names, out, explained, conv))
     for a, b in _CHAINS:
         for s in "LR":
             ra, rb = a.format(s=s), b.format(s=s)
@@ -145,28 +191,99 @@ def map_joints(
                     f"joint {names[out[rb]]!r} ({rb}) does not descend from {names[out[ra]]!r} ({ra})"
                 )
     if len(set(out.values())) != len(out):
-        raise MappingError("two model joints map onto the same rig joint")
-    return out
+        by_joint: dict[int, list[str]] = {}
+        for m, i in out.items():
+            by_joint.setdefault(i, []).append(m)
+        i, ms = next((i, ms) for i, ms in by_joint.items() if len(ms) > 1)
+        raise MappingError(
+            f"two model joints map onto the same rig joint: {' and '.join(ms)} onto {names[i]!r}"
+        )
+    roles = {m: out[m] for m in MODEL_JOINTS if m in out}
+    return JointMapping(roles, conv, tuple(m for m in MODEL_JOINTS if m not in out))
 
 
-def _torso(out: dict[str, int], parents: np.ndarray) -> None:
-    """Chest, Spine and Neck from the topology when names did not give them."""
-    if not all(k in out for k in ("Hips", "Head", "UpperArm_L", "UpperArm_R")):
+def _missing_message(missing, names, out, explained, conv) -> str:
+    """One line: the model joints not placed, the rig joints that might be them, the file to write."""
+    placed = set(out.values())
+    free = [i for i in range(len(names)) if i not in placed and i not in explained]
+    free = free or [i for i in range(len(names)) if i not in placed]
+    vocab = {m: _vocabulary(m) for m in missing}
+
+    def likeness(i):
+        k = _keys(names[i])[-1]
+        return max(difflib.SequenceMatcher(None, k, w).ratio() for m in missing for w in vocab[m])
+
+    ranked = sorted(free, key=lambda i: (-likeness(i), i))
+    shown = [names[i] for i in ranked[:_NOT_PLACED_SHOWN]]
+    more = len(ranked) - len(shown)
+    listed = ", ".join(shown) + (f", … ({more} more)" if more > 0 else "") if shown else "none"
+    read = f" (names read as {CONVENTIONS[conv]['label']})" if conv else ""
+    line = json.dumps({m: "<rig joint>" for m in missing})
+    return (
+        f"joints do not map onto the model skeleton: no {', '.join(missing)}{read}; "
+        f"rig joints not placed: {listed}; write them in a --mapping JSON file: {line}"
+    )
+
+
+@cache
+def _vocabulary(model_joint: str) -> tuple[str, ...]:
+    """Every convention's names for a model joint (compared without prefixes and wildcards)."""
+    role, _, side = model_joint.partition("_")
+    words = {_norm(m) for m in (model_joint, role)}
+    for c in CONVENTIONS.values():
+        for p in c["roles"].get(role, ()):
+            for ph, text in _SIDES[side or "L"].items():
+                p = p.replace(ph, text)
+            words.add(_norm(p.replace("{n}", "").replace("*", "")).strip("_"))
+    return tuple(sorted(words))
+
+
+def _torso(out: dict[str, int], names: list[str], parents: np.ndarray, removed: set[str]) -> None:
+    """Chest, Spine, Neck (and Head when no joint is named one) from the topology."""
+    if not all(k in out for k in ("Hips", "UpperArm_L", "UpperArm_R")):
         return
     arm_l = out.get("Shoulder_L", out["UpperArm_L"])
     arm_r = out.get("Shoulder_R", out["UpperArm_R"])
     anc_r = set(_ancestors(parents, arm_r))
-    chest = next(a for a in _ancestors(parents, arm_l)[1:] if a in anc_r)
-    hips, head = out["Hips"], out["Head"]
-    spine_path = _ancestors(parents, chest)  # chest … root
+    chest = next((a for a in _ancestors(parents, arm_l)[1:] if a in anc_r), None)
+    hips = out["Hips"]
+    spine_path = _ancestors(parents, chest) if chest is not None else []  # chest … root
     if hips not in spine_path or chest == hips:
         raise MappingError("the arms do not join the spine above the hips")
-    out.setdefault("Chest", chest)
+    if "Chest" not in removed:
+        out.setdefault("Chest", chest)
+    if "Head" not in out and "Head" not in removed:
+        head = _head_from_topology(names, parents, chest, (arm_l, arm_r))
+        if head is not None:
+            out["Head"] = head
     below = spine_path[: spine_path.index(hips)]  # chest … first joint above hips
-    if len(below) > 1:
+    if len(below) > 1 and "Spine" not in removed:
         out.setdefault("Spine", below[-1])
-    neck_path = _ancestors(parents, head)
-    if chest in neck_path:
+    if "Head" not in out:
+        return
+    neck_path = _ancestors(parents, out["Head"])
+    if chest in neck_path and "Neck" not in removed:
         above = neck_path[: neck_path.index(chest)]  # head … first joint above chest
         if len(above) > 1:
             out.setdefault("Neck", above[-1])
+
+
+def _head_from_topology(names, parents: np.ndarray, chest: int, arms: tuple[int, int]) -> int | None:
+    """The top of the chain above the chest that is not an arm: where it branches, or its end."""
+    children: dict[int, list[int]] = {}
+    for j, p in enumerate(parents):
+        children.setdefault(int(p), []).append(j)
+    on_arm = {a for arm in arms for a in _ancestors(parents, arm)}
+    size = np.ones(len(parents), np.int64)
+    for j in range(len(parents) - 1, 0, -1):  # parents come before children
+        if parents[j] >= 0:
+            size[parents[j]] += size[j]
+    kids = [c for c in children.get(chest, []) if c not in on_arm]
+    if not kids:
+        return None
+    first = j = max(kids, key=lambda c: (size[c], -c))
+    while len(children.get(j, [])) == 1:
+        j = children[j][0]
+    if not children.get(j) and j != first and parents[j] != first and _END.search(names[j]):
+        j = int(parents[j])  # an end site (HeadTop_End, face_end) above the head
+    return j
