@@ -105,7 +105,8 @@ def _plan(shot: str, opts: FillOptions, human):
         raise TweenError(f"format must be usda or usdc, not {opts.fmt!r}")
     rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
     fps = float(human.fps) if human is not None else 30.0
-    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig)
+    own = opts.model in ("interp", "interpolation")  # interpolation works on any rig, mapped or not
+    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig, own_rig=own)
 
 
 def dna_motion(opts: FillOptions, fps: float):
@@ -217,7 +218,8 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         c = cp.char
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
                       "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
-                      "model_kind": "rig" if cp.model else "human"})  # fmt: skip
+                      "model_kind": "rig" if cp.model else "human",
+                      "retarget": cp.retarget_info()})  # fmt: skip
     meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
             "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
             "chars": chars}  # fmt: skip

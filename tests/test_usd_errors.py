@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,9 +20,9 @@ def _edit(shot, fn):
     stage.GetRootLayer().Save()
 
 
-def _fails(shot, out, match, prim=None, **kw):
+def _fails(shot, out, match, prim=None, model="interp", **kw):
     with pytest.raises(TweenError) as ei:
-        fill_shot(str(shot), FillOptions(model="interp", out_dir=str(out), **kw))
+        fill_shot(str(shot), FillOptions(model=model, out_dir=str(out), **kw))
     msg = str(ei.value)
     assert "\n" not in msg and str(shot) in msg and match in msg, msg
     if prim:
@@ -96,13 +97,18 @@ def test_joint_count_mismatch(tmp_path):
 
 def test_real_rigs_the_model_cannot_map_are_refused(tmp_path):
     before = tree_hashes(ELEPHANT.parent)
+    human = str(Path(__file__).parents[1] / "models" / "default")  # the human model, no rig models
     msg = _fails(
-        ELEPHANT, tmp_path / "o", "not a humanoid", prim="/SoC_ElephantWithMonochord/Object/Elefant/_skel"
+        ELEPHANT,
+        tmp_path / "o",
+        "not a humanoid",
+        prim="/SoC_ElephantWithMonochord/Object/Elefant/_skel",
+        model=human,
     )
     assert "rig refused" in msg
     assert tree_hashes(ELEPHANT.parent) == before
-    _fails(FIGURE, tmp_path / "o", "joints do not map onto the model skeleton")
-    _fails(SIMPLE, tmp_path / "o", "joints do not map onto the model skeleton")
+    _fails(FIGURE, tmp_path / "o", "joints do not map onto the model skeleton", model=human)
+    _fails(SIMPLE, tmp_path / "o", "joints do not map onto the model skeleton", model=human)
 
 
 def test_shot_error_type_and_cli_one_line_exit_2(tmp_path):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from usd_fixtures import ANIM, BANDAI_CLIP, FILLED, bandai_shot, cmu_shot, samples, tree_hashes
 
+from pipeline.errors import ShotError
 from pipeline.fill import FillOptions, fill_shot, fill_take, validate_shot, write_layers
 from pipeline.infer.interp import interpolate_keys
 from pipeline.motion.bvh import read_bvh
@@ -148,7 +149,7 @@ def test_non_integer_time_codes_and_keys_override(tmp_path):
 def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
     before = tree_hashes(tmp_path)
-    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o")))
+    res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "o")))
     after = tree_hashes(tmp_path)
     assert {k: after[k] for k in before} == before
     stage = _open(res["review"])
@@ -166,12 +167,39 @@ def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
         for t in (1005.0, 1018.0, 1100.0):
             np.testing.assert_array_equal(filled[t][j], np.array(orig_attr.Get(t))[j])
     # Mapped joints are really retargeted: the thigh between keys follows a smooth path
-    # close to (but not equal to) USD's own per-joint SLERP.
+    # near USD's own per-joint SLERP, but not on it.
     th = joints.index("CC_Base_L_Thigh")
     seq = np.stack([filled[float(t)][th] for t in range(1001, 1122)])
     assert np.abs(np.abs((seq[1:] * seq[:-1]).sum(-1)) - 1).max() < 0.02
     usd = np.array(orig_attr.Get(1006.0))[th]
-    assert abs(abs(float(usd @ filled[1006.0][th])) - 1) < 0.01
+    assert 1e-6 < abs(abs(float(usd @ filled[1006.0][th])) - 1) < 0.05
+
+
+def test_interp_fills_any_rig_in_its_own_space(tmp_path):
+    """--model interp needs no mapping: an unmappable rig (joints renamed to nonsense) is
+    interpolated joint by joint, as USD itself interpolates between the keys."""
+    from pxr import Usd, Vt
+
+    shot = cmu_shot(tmp_path / "cc.usda", frames=61, keys_every=12)
+    stage = Usd.Stage.Open(str(shot))
+    skel = stage.GetPrimAtPath(ANIM).GetParent()
+    tokens = [str(t) for t in skel.GetAttribute("joints").Get()]
+    renamed = ["/".join(f"j{abs(hash(p)) % 10**6}" for p in t.split("/")) for t in tokens]
+    skel.GetAttribute("joints").Set(Vt.TokenArray(renamed))
+    stage.GetPrimAtPath(ANIM).GetAttribute("joints").Set(Vt.TokenArray(renamed))
+    stage.GetRootLayer().Save()
+    with pytest.raises(ShotError, match="map"):
+        validate_shot(str(shot), FillOptions(model="default"))
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o")))
+    out = _open(res["review"])
+    filled = samples(out, FILLED)
+    src = Usd.Stage.Open(str(shot))
+    orig = src.GetPrimAtPath(ANIM)
+    for t in (1001.0, 1013.0):  # keys: bitwise
+        assert np.array_equal(filled[t], np.array(orig.GetAttribute("rotations").Get(t)))
+    for t in (1005.0, 1018.0, 1050.0):  # between keys: USD's SLERP of the same keys
+        usd = np.array(orig.GetAttribute("rotations").Get(t))
+        assert np.abs(np.abs((filled[t] * usd).sum(-1)) - 1).max() < 1e-5
 
 
 def test_animators_sublayers_untouched_and_named_review_layer(walk, tmp_path):

@@ -15,20 +15,28 @@ import numpy as np
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd.keys import merge_times, parse_keys, parse_range
 from pipeline.usd.mapping import MappingError, load_override, map_joints
-from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot
+from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 from pipeline.usd.retarget import Retarget
-from pipeline.usd.rigmap import RigMap, skeleton_space
+from pipeline.usd.rigmap import OwnRig, RigMap, skeleton_space
 
 
 @dataclass
 class CharPlan:
     char: Character
-    retarget: Retarget | RigMap
+    retarget: Retarget | RigMap | OwnRig
     keys: np.ndarray  # key time codes (exact authored values where they are samples)
     fill_range: tuple[float, float]
     model: str | None = None  # a rig model folder; None = the job's human model
     fps: float = 30.0  # the frame rate of this character's model
     authored_keys: bool = False  # keys are the animation's own samples (not --keys / tween:keyTimes)
+
+    def retarget_info(self) -> dict:
+        """How the character reaches its model: the reference pose mapped through and the
+        model joints its rig lacks (provenance for the layer and the JSON)."""
+        rt = self.retarget
+        if isinstance(rt, RigMap):
+            return {"reference": "rig model", "missing": []}
+        return {"reference": rt.reference, "missing": list(rt.missing)}
 
 
 #: ``make_plan(rig=...)``: look for a stored rig model first (the default), or never.
@@ -55,6 +63,7 @@ class Plan:
             "range": {c.char.anim_path: [float(x) for x in c.fill_range] for c in self.chars},
             "refused": [{"prim": p, "reason": r} for p, r in self.refused],
             "rig_models": {c.char.anim_path: c.model for c in self.chars if c.model},
+            "retarget": {c.char.anim_path: c.retarget_info() for c in self.chars},
         }
 
 
@@ -92,6 +101,15 @@ def _rig_for(shot: Shot, c: Character, rig: str):
     return RigMap(c, info, perm, up, mpu), str(info.folder)
 
 
+def _own_rate(tcps: float, keys: np.ndarray) -> float:
+    """The rate a character is interpolated at on its own rig: the shot's, or a multiple
+    of it fine enough that no two keys (sub-frame time codes included) share a frame."""
+    for n in (1, 2, 4, 8, 16, 32):
+        if len(np.unique(np.round((keys - keys[0]) * n))) == len(keys):
+            return float(tcps * n)
+    return float(tcps * 64)
+
+
 def make_plan(
     path: str,
     keys: str | None,
@@ -99,10 +117,12 @@ def make_plan(
     mapping: str | None,
     model_fps: float,
     rig: str = RIG_OFF,
+    own_rig: bool = False,
 ) -> Plan:
     """``model_fps`` is the human model's rate; ``rig`` is RIG_AUTO (a stored rig model that
     fits a character wins over the human mapping), RIG_OFF (human model only) or a rig
-    model folder (that model only)."""
+    model folder (that model only); ``own_rig``: every character on its own rig, mapped or
+    not (interpolation needs no model skeleton)."""
     shot = read_shot(path)
     try:
         override = load_override(mapping)
@@ -112,8 +132,17 @@ def make_plan(
     chars: list[CharPlan] = []
     refused: list[tuple[str, str]] = []
     for c in shot.characters:
+        k = _keys_for(shot, c, keys)
+        if len(k) < 2:
+            raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
+        rot, tr, _ = anim_values(shot.stage, c, k)
+        bad = ~(np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)))
+        if bad.any():
+            raise ShotError(path, f"NaN or infinite values at time {k[bad][0]:g}", c.anim_path)
         rt, folder, fps = None, None, model_fps
-        if rig != RIG_OFF:
+        if own_rig:
+            rt, fps = OwnRig(c), _own_rate(shot.tcps, k)
+        elif rig != RIG_OFF:
             rt, folder = _rig_for(shot, c, rig)
             if rt is None and rig != RIG_AUTO:
                 refused.append((c.skel_path, folder))
@@ -123,18 +152,22 @@ def make_plan(
         if rt is None:
             try:
                 roles = map_joints(c.joints, c.parents, override)
-                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit)
+                poses = (k, *to_skeleton_order(c, rot, tr))
+                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, poses)
             except MappingError as e:
                 why = str(e)
-                if rig == RIG_AUTO:
+                if rig == RIG_AUTO and why.startswith("not a humanoid"):
                     from pipeline.rig.store import no_model_hint
 
                     why += "; " + no_model_hint(path, c.skel_path, c.names)
                 refused.append((c.skel_path, why))
                 continue
-        k = _keys_for(shot, c, keys)
-        if len(k) < 2:
-            raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
+            if rt.missing:
+                print(
+                    f"tween: {path} {c.skel_path}: the rig has no {', '.join(rt.missing)}: "
+                    "carried rigidly from their parents",
+                    file=sys.stderr,
+                )
         lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
         out = k[(k < lo) | (k > hi)]
         if len(out):
@@ -146,10 +179,6 @@ def make_plan(
         if len(dup):
             a, b = k[dup[0]], k[dup[0] + 1]
             raise ShotError(path, f"keys {a:g} and {b:g} fall on one model frame (1/{fps:g} s)", c.anim_path)
-        rot, tr, _ = anim_values(shot.stage, c, k)
-        bad = ~(np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)))
-        if bad.any():
-            raise ShotError(path, f"NaN or infinite values at time {k[bad][0]:g}", c.anim_path)
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:
             raise ShotError(

@@ -271,3 +271,13 @@ def anim_values(stage, char: Character, times) -> tuple[np.ndarray, np.ndarray, 
                 )
             out[i] = a
     return rot, tr, sc
+
+
+def to_skeleton_order(char, rot_a, tr_a):
+    """Animation-ordered locals → skeleton order (joints the animation lacks keep rest)."""
+    T = rot_a.shape[0]
+    rot = np.broadcast_to(char.rest_rot.astype(np.float32), (T,) + char.rest_rot.shape).copy()
+    tr = np.broadcast_to(char.rest_trans.astype(np.float32), (T,) + char.rest_trans.shape).copy()
+    rot[:, char.anim_index] = rot_a
+    tr[:, char.anim_index] = tr_a
+    return rot, tr

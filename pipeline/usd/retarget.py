@@ -65,18 +65,23 @@ def canonical_transform(skel_to_world: np.ndarray, up_axis: str, meters_per_unit
     return up_fix @ r, s_units * k, s_units * (up_fix @ skel_to_world[:3, 3])
 
 
-def humanoid_check(roles: dict[str, int], pos: np.ndarray) -> None:
-    """Raises MappingError unless the rest pose (canonical frame) is a standing humanoid's."""
+def _dir(pos: np.ndarray, a: int, b: int) -> tuple[np.ndarray, float]:
+    v = pos[b] - pos[a]
+    n = float(np.linalg.norm(v))
+    return (v / n if n > 0 else v), n
 
-    def d(a, b):
-        v = pos[roles[b]] - pos[roles[a]]
-        n = np.linalg.norm(v)
-        return v / n if n > 0 else v, n
 
-    spine, spine_len = d("Hips", "Head")
+def _arm_end(roles: dict[str, int], s: str) -> str:
+    """The joint an arm's direction is measured to (the hand, or the elbow on a handless rig)."""
+    return f"Hand_{s}" if f"Hand_{s}" in roles else f"LowerArm_{s}"
+
+
+def humanoid_check(roles: dict[str, int], pos: np.ndarray, what: str = "rest pose") -> None:
+    """Raises MappingError unless ``pos`` (canonical frame) is a standing humanoid's."""
+    spine, spine_len = _dir(pos, roles["Hips"], roles["Head"])
     if spine @ UP < 0.6:
         raise MappingError(
-            f"not a humanoid rest pose: the spine does not point up (cos {spine @ UP:.2f}; a quadruped?)"
+            f"not a humanoid {what}: the spine does not point up (cos {spine @ UP:.2f}; a quadruped?)"
         )
     left = (
         pos[roles["UpperLeg_L"]]
@@ -87,15 +92,15 @@ def humanoid_check(roles: dict[str, int], pos: np.ndarray) -> None:
     left -= (left @ UP) * UP
     left /= max(np.linalg.norm(left), 1e-9)
     for s, sign in (("L", 1), ("R", -1)):
-        leg, leg_len = d(f"UpperLeg_{s}", f"Foot_{s}")
+        leg, leg_len = _dir(pos, roles[f"UpperLeg_{s}"], roles[f"Foot_{s}"])
         if leg @ UP > -0.6:
-            raise MappingError(f"not a humanoid rest pose: leg {s} does not point down (cos {leg @ UP:.2f})")
-        arm, _ = d(f"UpperArm_{s}", f"Hand_{s}")
+            raise MappingError(f"not a humanoid {what}: leg {s} does not point down (cos {leg @ UP:.2f})")
+        arm, _ = _dir(pos, roles[f"UpperArm_{s}"], roles[_arm_end(roles, s)])
         # Arms may hang in a relaxed bind pose, but they reach outwards from the shoulders
         # (a quadruped's front legs go straight down).
         if sign * (arm @ left) < 0.1:
             raise MappingError(
-                f"not a humanoid rest pose: arm {s} does not reach sideways (points {np.round(arm, 2).tolist()})"
+                f"not a humanoid {what}: arm {s} does not reach sideways (points {np.round(arm, 2).tolist()})"
             )
         if not 0.5 < leg_len / max(spine_len, 1e-9) < 4.0:
             raise MappingError(
@@ -105,7 +110,12 @@ def humanoid_check(roles: dict[str, int], pos: np.ndarray) -> None:
 
 
 def reference_pose(roles: dict[str, int], rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    """Canonical reference global rotations (21, 4) for the model joints (NaN where unmapped)."""
+    """Canonical reference global rotations (21, 4) for the model joints (NaN where unmapped).
+
+    Each mapped joint's global rotation is turned so that its bone (towards the next mapped
+    joint at a distance) points the canonical way, the character's forward kept forward. A
+    joint without such a bone (zero length, or the last of its chain) takes its parent's
+    correction."""
     left = np.zeros(3)
     for a in ("UpperLeg", "UpperArm"):
         left += pos[roles[f"{a}_L"]] - pos[roles[f"{a}_R"]]
@@ -118,23 +128,32 @@ def reference_pose(roles: dict[str, int], rot: np.ndarray, pos: np.ndarray) -> n
     for j, m in enumerate(MODEL_JOINTS):
         if m not in roles:
             continue
-        nxt = next((n for n in _NEXT.get(m, ()) if n in roles), None)
-        if nxt is None:
+        bone = None
+        for n in _NEXT.get(m, ()):
+            if n in roles:
+                v = pos[roles[n]] - pos[roles[m]]
+                if np.linalg.norm(v) > 1e-6 * max(1.0, np.abs(pos).max()):
+                    bone = v
+                    break
+        c = None
+        if bone is not None:
+            sec_rest, sec_can = (UP, UP) if m.startswith("Foot") else (fwd, FWD)
+            try:
+                c = _frame(_CANON[m], sec_can) @ _frame(bone, sec_rest).T
+            except MappingError:
+                c = None  # a bone along the secondary axis: no twist reference, inherit
+        if c is None:
             p = parents[j]
             while p >= 0 and MODEL_JOINTS[p] not in corr:
                 p = parents[p]
             c = corr[MODEL_JOINTS[p]] if p >= 0 else np.eye(3)
-        else:
-            bone = pos[roles[nxt]] - pos[roles[m]]
-            canon = _CANON[m]
-            sec_rest, sec_can = (UP, UP) if m.startswith("Foot") else (fwd, FWD)
-            c = _frame(canon, sec_can) @ _frame(bone, sec_rest).T
         corr[m] = c
         ref[j] = quat_mul(matrix_to_quat(c), rot[roles[m]])
     return ref
 
 
 def leg_length(roles: dict[str, int], pos: np.ndarray) -> float:
+    """Mean of the two legs' hip-knee-ankle bone lengths (the same in every pose)."""
     total = 0.0
     for s in "LR":
         a, b, c = (pos[roles[f"{r}_{s}"]] for r in ("UpperLeg", "LowerLeg", "Foot"))
@@ -149,25 +168,88 @@ def _fk_global_rot(local: np.ndarray, parents) -> np.ndarray:
     return g
 
 
+def _fk_pos(g: np.ndarray, parents, offsets: np.ndarray) -> np.ndarray:
+    """Joint positions (J, 3) of global rotations ``g`` (J, 4) on ``offsets``, root at 0."""
+    pos = np.zeros((len(parents), 3))
+    for j, p in enumerate(parents):
+        if p >= 0:
+            pos[j] = pos[p] + quat_apply(g[p], offsets[j].astype(np.float64))
+    return pos
+
+
 @lru_cache(maxsize=1)
-def model_rig() -> tuple[np.ndarray, float]:
-    """The model skeleton's reference pose (from a stored standing pose) and leg length."""
+def model_rest() -> np.ndarray:
+    """The model skeleton's canonical T-pose, global rotations (21, 4): its stored standing
+    pose brought into the reference pose. Shots converted from a rig that is the model
+    skeleton are written with it as rest pose, so any tool's copy of such a rig (renamed,
+    re-oriented, re-scaled) carries the model's own reference in its rest pose."""
     skel = bandai_skeleton()
     d = json.loads(Path(__file__).with_name("bandai_stand.json").read_text())["rotations_xyzw"]
     local = quat_normalize(np.array([[d[n] for n in skel.names]], np.float64))
     g = _fk_global_rot(local, skel.parents)[0]
-    pos = np.zeros((len(skel), 3))
-    for j, p in enumerate(skel.parents):
-        if p >= 0:
-            pos[j] = pos[p] + quat_apply(g[p], skel.offsets[j].astype(np.float64))
+    roles = {n: i for i, n in enumerate(skel.names)}
+    return reference_pose(roles, g, _fk_pos(g, skel.parents, skel.offsets))
+
+
+@lru_cache(maxsize=1)
+def model_rig() -> tuple[np.ndarray, float]:
+    """The model skeleton's reference pose and leg length: the reference of its canonical
+    T-pose (:func:`model_rest`), computed as a shot's rest pose is, so that a rig whose
+    rest pose is that T-pose gets its own frames back exactly."""
+    skel = bandai_skeleton()
+    g = model_rest()
+    pos = _fk_pos(g, skel.parents, skel.offsets)
     roles = {n: i for i, n in enumerate(skel.names)}
     return reference_pose(roles, g, pos), leg_length(roles, pos)
 
 
-class Retarget:
-    """Maps one character's skeleton-ordered local transforms to and from the model skeleton."""
+def _zero_pose_match(roles: dict[str, int], pos: np.ndarray) -> np.ndarray | None:
+    """The rotation Q taking the model skeleton's zero pose (every rotation identity: bones
+    along its offsets, as a BVH importer's rest) onto ``pos`` when the mapped bones agree
+    within 3 degrees; else None."""
+    skel = bandai_skeleton()
+    zero = _fk_pos(np.tile([0.0, 0, 0, 1], (len(skel.parents), 1)), skel.parents, skel.offsets)
+    a, b = [], []
+    for j, m in enumerate(MODEL_JOINTS):
+        p = skel.parents[j]
+        if p < 0 or m not in roles or MODEL_JOINTS[p] not in roles:
+            continue
+        u, v = zero[j] - zero[p], pos[roles[m]] - pos[roles[MODEL_JOINTS[p]]]
+        nu, nv = np.linalg.norm(u), np.linalg.norm(v)
+        if nu > 1e-6 and nv > 1e-9:
+            a.append(u / nu)
+            b.append(v / nv)
+    if len(a) < 10:
+        return None
+    a, b = np.array(a), np.array(b)
+    u_, _, vt = np.linalg.svd(b.T @ a)
+    q = u_ @ np.diag([1.0, 1.0, np.linalg.det(u_ @ vt)]) @ vt  # Kabsch: b ≈ q a
+    if (np.einsum("ij,ij->i", a @ q.T, b)).min() < np.cos(np.radians(3.0)):
+        return None
+    return q
 
-    def __init__(self, char, roles: dict[str, int], up_axis: str, meters_per_unit: float):
+
+class Retarget:
+    """Maps one character's skeleton-ordered local transforms to and from the model skeleton.
+
+    The reference pose pair it maps through, in order of preference (``reference``):
+    ``model`` (the rig's joints are the model's: the same bones in the same joint frames,
+    whatever their names and rest pose: no correction at all), ``rest`` (the rest pose is a
+    standing human's), ``zero pose`` (the rest pose is the model skeleton's zero pose, as a
+    BVH importer writes it), ``key <t>`` (the shot's most upright key). A rig whose rest
+    pose and keys are none of these is refused as not a human."""
+
+    def __init__(
+        self,
+        char,
+        roles: dict[str, int],
+        up_axis: str,
+        meters_per_unit: float,
+        poses: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ):
+        """``poses``: (times (K,), rotations (K,J,4), translations (K,J,3)), skeleton-ordered
+        local values of the shot's keys; they decide the reference when the rest pose
+        cannot (without them only the rest pose is tried)."""
         self.char, self.roles = char, roles
         self.R, self.s, self.t = canonical_transform(char.skel_to_world, up_axis, meters_per_unit)
         self.q_R = matrix_to_quat(self.R)
@@ -175,21 +257,93 @@ class Retarget:
             np.allclose(self.R, np.eye(3), atol=1e-12) and self.s == 1.0 and not self.t.any()
         )
         model = bandai_skeleton()
+        self.model_parents = model.parents
+        self.missing = [m for m in MODEL_JOINTS if m not in roles]
+        self.inv_roles = {v: MODEL_JOINTS.index(k) for k, v in roles.items()}
         self.direct = (
             char.names == model.names
             and np.array_equal(char.parents, model.parents)
             and np.allclose(char.rest_trans[1:] * self.s, model.offsets[1:], atol=1e-3)
         )
+        self.tgt_ref, model_leg = model_rig()
         # Rest (bind) pose in the canonical frame.
         rot = quat_mul(np.broadcast_to(self.q_R, char.bind_rot.shape), char.bind_rot)
         pos = self.s * char.bind_pos @ self.R.T + self.t
-        if not self.direct:
-            humanoid_check(roles, pos)
-        self.src_ref = reference_pose(roles, rot, pos)
-        self.tgt_ref, model_leg = model_rig()
         self.ratio = model_leg / leg_length(roles, pos)
-        self.model_parents = model.parents
-        self.inv_roles = {v: MODEL_JOINTS.index(k) for k, v in roles.items()}
+        if self.direct:
+            self.reference = "model"
+            self.src_ref = self.tgt_ref
+            return
+        if poses is not None and self._same_frames(poses):
+            self.reference, self.src_ref, self.ratio = "model", self.tgt_ref, 1.0
+            return
+        try:
+            humanoid_check(roles, pos)
+        except MappingError as e:
+            why = e
+        else:
+            self.reference = "rest"
+            self.src_ref = reference_pose(roles, rot, pos)
+            return
+        q = _zero_pose_match(roles, pos)
+        if q is not None:
+            self.reference = "zero pose"
+            # The model's joint frames in its zero pose are the world's (turned by q).
+            self.src_ref = np.array([rot[roles[m]] if m in roles else [np.nan] * 4 for m in MODEL_JOINTS])
+            self.tgt_ref = np.tile(matrix_to_quat(q), (len(MODEL_JOINTS), 1))
+            return
+        if poses is not None:
+            best = self._standing_key(poses)
+            if best is not None:
+                t, g, p = best
+                self.reference = f"key {t:g}"
+                self.src_ref = reference_pose(roles, g, p)
+                return
+        raise MappingError(f"{why}, and no key of the shot is a standing human's either")
+
+    def _standing_key(self, poses):
+        """(time, canonical global rotations, positions) of the most upright standing key."""
+        times, rot, trans = poses
+        g, p = self._fk(rot, trans)
+        best, score = None, -np.inf
+        for i in range(len(times)):
+            try:
+                humanoid_check(self.roles, p[i], "pose")
+            except MappingError:
+                continue
+            sp, _ = _dir(p[i], self.roles["Hips"], self.roles["Head"])
+            legs = [-_dir(p[i], self.roles[f"UpperLeg_{s}"], self.roles[f"Foot_{s}"])[0] @ UP for s in "LR"]
+            sc = sp @ UP + min(legs)
+            if sc > score:
+                best, score = (float(times[i]), g[i], p[i]), sc
+        return best
+
+    def _same_frames(self, poses) -> bool:
+        """Whether the rig's joints carry the model's own bones in the model's own joint
+        frames: every model joint maps, each below its model parent's joint, and at every key
+        each model bone, seen from its parent joint's frame, is the model's offset (scaled).
+        Names, rest pose, extra joints in between or beside, units and up axis may differ."""
+        if self.missing:
+            return False
+        model = bandai_skeleton()
+        parents = self.char.parents
+        _, rot, trans = poses
+        g, p = self._fk(rot, trans)
+        for j, m in enumerate(MODEL_JOINTS):
+            pj = model.parents[j]
+            if pj < 0:
+                continue
+            i, ip = self.roles[m], self.roles[MODEL_JOINTS[pj]]
+            a = parents[i]
+            while a >= 0 and a != ip:
+                a = parents[a]
+            if a != ip:
+                return False
+            v = quat_apply(quat_inv(g[:, ip]), p[:, i] - p[:, ip])
+            want = model.offsets[j].astype(np.float64)
+            if np.abs(v - want).max() > 1e-3 + 1e-4 * np.linalg.norm(want):
+                return False
+        return True
 
     # -- shot rig -> model -------------------------------------------------------------
     def _fk(self, rot: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

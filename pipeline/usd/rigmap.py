@@ -83,3 +83,32 @@ class RigMap:
         )
         trans[:, self.root] = (root.astype(np.float64) @ self.R) / self.s
         return rot, trans
+
+
+class OwnRig:
+    """A character interpolated on its own rig (``--model interp``): no mapping, no model
+    skeleton. Rotations pass through as they are; the root joint's translation is the
+    root path; every other translation keeps the shot's own (USD-interpolated) values."""
+
+    reference = "own rig"
+
+    def __init__(self, char):
+        from pipeline.motion.skeleton import Skeleton
+
+        self.char = char
+        roots = np.flatnonzero(char.parents < 0)
+        self.root = int(roots[0])
+        self.missing: list[str] = []
+        self.skeleton = Skeleton(
+            tuple(char.names), char.parents, char.rest_trans.astype(np.float32), "Y", 0.01
+        )
+
+    def to_model(self, rot: np.ndarray, trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return rot.astype(np.float32).copy(), trans[:, self.root].astype(np.float32).copy()
+
+    def from_model(
+        self, local: np.ndarray, root: np.ndarray, rot_orig: np.ndarray, trans_orig: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        trans = trans_orig.astype(np.float32).copy()
+        trans[:, self.root] = root
+        return local.astype(np.float32), trans

@@ -10,17 +10,8 @@ from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
 from pipeline.usd.plan import CharPlan, Plan
-from pipeline.usd.read import TIME_EPS, anim_values
-
-
-def to_skeleton_order(char, rot_a, tr_a):
-    """Animation-ordered locals → skeleton order (joints the animation lacks keep rest)."""
-    T = rot_a.shape[0]
-    rot = np.broadcast_to(char.rest_rot.astype(np.float32), (T,) + char.rest_rot.shape).copy()
-    tr = np.broadcast_to(char.rest_trans.astype(np.float32), (T,) + char.rest_trans.shape).copy()
-    rot[:, char.anim_index] = rot_a
-    tr[:, char.anim_index] = tr_a
-    return rot, tr
+from pipeline.usd.read import TIME_EPS, anim_values, to_skeleton_order
+from pipeline.usd.rigmap import OwnRig
 
 
 def _slerp_frames(q: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -92,11 +83,12 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     k = cp.keys
     rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
     loc_k, root_k = cp.retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
-    fps = float(inb.fps)
+    fps = float(cp.fps)
     m = np.round((k - k[0]) / shot.tcps * fps).astype(np.int64)
     T = int(m[-1]) + 1
     near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
-    motion = Motion(inb.skeleton, loc_k[near], root_k[near], fps, c.anim_path)
+    skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
+    motion = Motion(skel, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
     # Partial keys go to models that take them (the human model); others get full keys.
     rig_keys = rig_key_channels(cp) if hasattr(inb, "fill_batch") else None

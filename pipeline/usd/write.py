@@ -130,6 +130,13 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                               ("modelHash", c.get("model_hash", meta["model_hash"])),
                               ("jobId", meta["job_id"]), ("createdAt", meta["created_at"])):  # fmt: skip
                 _attr(spec, f"tween:{name}", Sdf.ValueTypeNames.String, val)
+            # How the rig reached the model: the reference pose and the model joints it lacks.
+            rt = c.get("retarget")
+            if rt:
+                _attr(spec, "tween:retargetReference", Sdf.ValueTypeNames.String, rt["reference"])
+                _attr(
+                    spec, "tween:missingJoints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
+                )
             # Blend shape weights are the animator's: copied as authored.
             for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
                 a = src.GetAttribute(an)
