@@ -192,8 +192,9 @@ def map_joints_info(
                 )
     if len(set(out.values())) != len(out):
         by_joint: dict[int, list[str]] = {}
-        for m, i in out.items():
-            by_joint.setdefault(i, []).append(m)
+        for m in MODEL_JOINTS:
+            if m in out:
+                by_joint.setdefault(out[m], []).append(m)
         i, ms = next((i, ms) for i, ms in by_joint.items() if len(ms) > 1)
         raise MappingError(
             f"two model joints map onto the same rig joint: {' and '.join(ms)} onto {names[i]!r}"
