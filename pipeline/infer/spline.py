@@ -8,7 +8,9 @@ the curve stays between neighbouring key values. Of scipy's cubics, the PCHIP (F
 Hermite cubic does the same: each key's slope is the weighted harmonic mean of the slopes to its
 neighbours (zero at an extremum), so every segment stays within its two keys' values and the
 curve is C1. A C2 ``CubicSpline`` is smoother but overshoots — it rings after a fast key
-sequence, which no default DCC tangent does — and Akima's slopes are not flattened at extrema.
+sequence, which no default DCC tangent does (through the bench's 10 context frames and a
+target 45 frames on, its L2P is 28.5 against PCHIP's 3.0) — and Akima's slopes are not
+flattened at extrema.
 PCHIP reproduces straight lines exactly (with two keys it *is* the line), not cubics.
 
 One difference remains at the ends: Blender flattens the first and last key's auto handles
