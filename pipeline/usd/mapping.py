@@ -89,8 +89,8 @@ def _compiled(conv: str) -> tuple[list[tuple[re.Pattern, str, int]], list[re.Pat
                 roles += [(wrap(_regex(p, s)), f"{role}_{s}", prio) for s in "LR"]
             else:
                 roles.append((wrap(_regex(p, None)), role, prio))
-    known = [wrap(_regex(p, s)) for p in (*c["torso"], *c["extras"]) for s in ("L", "R")]
-    return roles, known
+    known = dict.fromkeys(_regex(p, s) for p in (*c["torso"], *c["extras"]) for s in "LR")
+    return roles, [wrap(r) for r in known]
 
 
 def _read(conv: str, names: list[str]) -> tuple[dict[str, list[tuple[int, int]]], set[int]]:
