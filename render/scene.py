@@ -94,7 +94,7 @@ def timecodes(times, timing: Timing) -> list[str]:
     from render.overlays import timecode
 
     rate = float(timing.rate)
-    counts = np.round(np.asarray(times, np.float64) / timing.tcps * rate).astype(int)
+    counts = np.floor(np.asarray(times, np.float64) / timing.tcps * rate + 0.5).astype(int)  # halves up
     return [timecode(int(c), rate) for c in counts]
 
 
