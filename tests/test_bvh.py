@@ -133,3 +133,126 @@ def test_missing_and_corrupt_gzip(tmp_path):
     p.write_bytes(b"not gzip at all")
     with pytest.raises(MotionFormatError, match="cannot read"):
         read_bvh(p)
+
+
+# ---- BVH from other tools: channel orders, position channels, rates, encodings ----
+
+
+def two_joint(root_ch, child_ch, child_offset="0 10 0", frame_time="0.0333333", rows=("",), name="Spine"):
+    return (
+        "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0 0\n"
+        f"  CHANNELS {len(root_ch.split())} {root_ch}\n"
+        f"  JOINT {name}\n  {{\n    OFFSET {child_offset}\n    CHANNELS {len(child_ch.split())} {child_ch}\n"
+        "    End Site\n    {\n      OFFSET 0 5 0\n    }\n  }\n}\n"
+        f"MOTION\nFrames: {len(rows)}\nFrame Time: {frame_time}\n" + "\n".join(rows) + "\n"
+    )
+
+
+@pytest.mark.parametrize("order", ["XYZ", "YXZ", "ZYX", "ZXY", "XZY", "YZX", "XY", "Z"])
+def test_any_rotation_order_is_intrinsic_in_channel_order(tmp_path, order):
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(len(order) * 7 + ord(order[0]))
+    ang = rng.uniform(-170, 170, (3, 2, len(order)))
+    rot = " ".join(f"{a}rotation" for a in order)
+    rows = [f"1 2 3 {' '.join(map(str, a[0]))} {' '.join(map(str, a[1]))}" for a in ang]
+    p = write(tmp_path, two_joint(f"Xposition Yposition Zposition {rot}", rot, rows=rows), "o.bvh")
+    m = read_bvh(p)
+    for t in range(3):
+        for j in range(2):
+            want = Rotation.from_euler(order, ang[t, j], degrees=True)
+            assert (want.inv() * Rotation.from_quat(m.rotations[t, j])).magnitude() < 1e-6
+
+
+def test_position_channels_below_the_root_give_the_bone(tmp_path):
+    # Exporters that write 6 channels per joint may leave OFFSET at zero: the channels hold
+    # the bone. Channels equal to the OFFSET (Bandai) keep the OFFSET bit for bit.
+    ch = "Zposition Xposition Yposition Yrotation Xrotation Zrotation"
+
+    def rig(spine_offset, rows):
+        return (
+            f"HIERARCHY\nROOT Hips\n{{\n  OFFSET 0 0 0\n  CHANNELS 6 {ch}\n"
+            f"  JOINT Spine\n  {{\n    OFFSET {spine_offset}\n    CHANNELS 6 {ch}\n"
+            "    End Site\n    {\n      OFFSET 0 5 0\n    }\n  }\n"
+            "  JOINT LeftUpLeg\n  {\n    OFFSET 9 -3 0\n    CHANNELS 3 Zrotation Xrotation Yrotation\n"
+            "    End Site\n    {\n      OFFSET 0 -40 0\n    }\n  }\n}\n"
+            f"MOTION\nFrames: {len(rows)}\nFrame Time: 0.0333333\n" + "\n".join(rows) + "\n"
+        )
+
+    rows = ["0 90 0 0 0 0 3 0 12 0 0 0 0 0 0", "1 91 0 0 0 0 3 0 12 0 0 0 0 0 0"]
+    m = read_bvh(write(tmp_path, rig("0 0 0", rows), "a.bvh"))
+    assert m.skeleton.names == ("Hips", "Spine", "LeftUpLeg")
+    np.testing.assert_array_equal(m.skeleton.offsets[1:], [[0, 12, 3], [9, -3, 0]])
+    np.testing.assert_array_equal(m.root_positions, [[90, 0, 0], [91, 0, 1]])  # Z X Y order
+    rows = ["0 90 0 0 0 0 0.1 0.2 0.30000001 0 0 0 0 0 0"] * 2
+    m = read_bvh(write(tmp_path, rig("0.2 0.30000002 0.1", rows), "b.bvh"))
+    np.testing.assert_array_equal(m.skeleton.offsets[1], np.float32([0.2, 0.30000002, 0.1]))
+
+
+def test_root_with_some_position_channels_or_none(tmp_path):
+    rows = ["95 0 0 0 0", "96 0 0 0 0"]
+    m = read_bvh(
+        write(tmp_path, two_joint("Yposition Zrotation Xrotation Yrotation", "Zrotation", rows=rows))
+    )
+    np.testing.assert_array_equal(m.root_positions, [[0, 95, 0], [0, 96, 0]])
+    m = read_bvh(
+        write(tmp_path, two_joint("Zrotation Xrotation Yrotation", "Zrotation", rows=["0 0 0 0"] * 2))
+    )
+    np.testing.assert_array_equal(m.root_positions, 0)
+
+
+@pytest.mark.parametrize(
+    "frame_time,fps",
+    [
+        ("0.041667", 24),
+        ("0.0333333", 30),
+        ("0.04", 25),
+        ("0.016667", 60),
+        ("0.008333", 120),
+        ("0.0083333", 120),
+    ],
+)
+def test_frame_time_24_to_120_fps(tmp_path, frame_time, fps):
+    text = two_joint("Zrotation Xrotation Yrotation", "Zrotation", frame_time=frame_time, rows=["0 0 0 0"])
+    assert read_bvh(write(tmp_path, text)).fps == fps
+
+
+def test_latin1_utf8_and_bom_names_are_kept(tmp_path):
+    text = two_joint("Zrotation Xrotation Yrotation", "Zrotation", rows=["0 0 0 0"], name="Épaule gauche")
+    (tmp_path / "l1.bvh").write_bytes(text.encode("latin-1"))
+    (tmp_path / "u8.bvh").write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    (tmp_path / "u8.bvh.gz").write_bytes(gzip.compress(text.replace("Hips", "mixamorig:Hips").encode()))
+    assert read_bvh(tmp_path / "l1.bvh").skeleton.names == ("Hips", "Épaule gauche")
+    assert read_bvh(tmp_path / "u8.bvh").skeleton.names == ("Hips", "Épaule gauche")
+    assert read_bvh(tmp_path / "u8.bvh.gz").skeleton.names == ("mixamorig:Hips", "Épaule gauche")
+
+
+@pytest.mark.parametrize(
+    "edit,line,message",
+    [
+        (
+            ("CHANNELS 3 Zrotation Xrotation Yrotation", "CHANNELS 3 Zrotation Zrotation Yrotation"),
+            9,
+            "listed twice",
+        ),
+        (("    End Site", "    CHANNELS 7 Xrotation\n    End Site"), 10, "CHANNELS 7 lists 1"),
+        (
+            ("  OFFSET 0 0 0\n", "  OFFSET 0 0 0\n  CHANNELS 3 Xrotation Yrotation Zrotation\n"),
+            6,
+            "second CHANNELS",
+        ),
+    ],
+)
+def test_bad_channel_lists_name_the_line(tmp_path, edit, line, message):
+    p = write(tmp_path, GOOD.replace(*edit, 1))
+    with pytest.raises(MotionFormatError) as err:
+        read_bvh(p)
+    assert str(err.value).startswith(f"{p}:{line}: ") and message in str(err.value), str(err.value)
+
+
+def test_folder_and_overflowing_values_are_refused(tmp_path):
+    with pytest.raises(MotionFormatError, match="is a folder"):
+        read_bvh(tmp_path)
+    p = write(tmp_path, GOOD.replace("1 90 0 0 0 0 20 0 0", "1 1e39 0 0 0 0 20 0 0"))
+    with pytest.raises(MotionFormatError, match="too large for 32-bit floats"):
+        read_bvh(p)

@@ -80,3 +80,36 @@ def test_cmu_rig_converts_z_up_and_reads_back(tmp_path):
     hips = c.names.index("CC_Base_Hip")
     assert abs(root[0, 1] / rt.ratio - src.root_positions[0, 1]) < 1e-3
     assert hips == 0
+
+
+def test_bandai_joint_names_are_written_unchanged(tmp_path):
+    from pxr import Usd
+
+    from pipeline.usd.convert import SOURCE_NAMES_ATTR, usd_joint_names
+
+    src = read_bvh(BANDAI_CLIP)
+    assert usd_joint_names(src.skeleton.names) == list(src.skeleton.names)
+    path = bandai_shot(tmp_path / "walk.usda", frames=5, keys_every=1)
+    stage = Usd.Stage.Open(str(path))
+    skel = stage.GetPrimAtPath("/World/Character/Skel")
+    leaf = [t.rsplit("/", 1)[-1] for t in skel.GetAttribute("joints").Get()]
+    assert leaf == list(src.skeleton.names)
+    assert not skel.GetAttribute(SOURCE_NAMES_ATTR)  # only written when a name had to change
+
+
+def test_single_joint_clip_gets_a_cube_mannequin(tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from pipeline.usd.convert import write_shot
+
+    p = tmp_path / "one.bvh"
+    p.write_text(
+        "HIERARCHY\nROOT Prop\n{\n  OFFSET 0 0 0\n  CHANNELS 6 Xposition Yposition Zposition "
+        "Zrotation Xrotation Yrotation\n  End Site\n  {\n    OFFSET 0 0 0\n  }\n}\n"
+        "MOTION\nFrames: 3\nFrame Time: 0.0416667\n0 10 0 0 0 0\n1 10 0 0 5 0\n2 10 0 0 10 0\n"
+    )
+    out = write_shot(read_bvh(p), tmp_path / "one.usda")
+    stage = Usd.Stage.Open(out)
+    pts = np.array(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Character/Mannequin")).GetPointsAttr().Get())
+    assert pts.shape == (8, 3) and np.isfinite(pts).all()
+    assert stage.GetTimeCodesPerSecond() == 24

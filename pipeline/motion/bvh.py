@@ -12,9 +12,9 @@ The root's position channels need a per-source rule (``root_position``):
   replacement its feet end up about 96 cm below the ground).
 
 Position channels below the root replace the OFFSET with their first frame (in Bandai they
-equal it); any channel order, 3 or 6 channels per joint, is read. Files that are not UTF-8
-are read as Latin-1; joint names are kept as written (``pipeline.usd.convert`` makes USD
-names of them).
+equal it). Any channel order and any subset of the six channels per joint is read. Files
+that are not UTF-8 are read as Latin-1; joint names are kept as written
+(``pipeline.usd.convert`` makes USD names of them).
 """
 
 from __future__ import annotations
@@ -137,9 +137,11 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]
             except (IndexError, ValueError):
                 raise MotionFormatError(path, lineno, "CHANNELS needs a count") from None
             names = tok[2:]
-            if n not in (3, 6) or len(names) != n:
+            if not 0 <= n <= 6 or len(names) != n:
                 raise MotionFormatError(
-                    path, lineno, f"CHANNELS {n} lists {len(names)} channels; expected 3 or 6"
+                    path,
+                    lineno,
+                    f"CHANNELS {n} lists {len(names)} channels; expected 0 to 6, as many as listed",
                 )
             bad = [c for c in names if c not in _VALID_CHANNELS]
             if bad:
@@ -297,9 +299,9 @@ def read_bvh(
                 offsets[j] = trans[0, j]
     offsets = offsets.astype(np.float32)
     # The root's rest position: its first-frame height above the origin (its OFFSET may be
-    # meaningless, as in Bandai); every other joint keeps its file OFFSET.
+    # meaningless, as in Bandai); every other joint keeps its bone from above.
     offsets[0] = (0.0, trans[0, 0, 1], 0.0)
-    if not (np.isfinite(offsets).all() and np.isfinite(trans[:, 0].astype(np.float32)).all()):
+    if not (np.isfinite(offsets).all() and (np.abs(trans[:, 0]) < np.finfo(np.float32).max).all()):
         raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
     end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
     skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
