@@ -99,7 +99,7 @@ def timecodes(times, timing: Timing) -> list[str]:
 
 
 _HIPS = re.compile(r"(^|[^a-z])(hips?|pelvis)([^a-z]|$)")
-STATIC_M = 1e-4  # a joint that moves less than this over the shot (in skeleton space) is static
+STATIC_M = 1e-4  # a joint that moves less than this (metres, skeleton space) over the shot is static
 
 
 def body_joint(positions: np.ndarray, parents, names) -> int:
@@ -299,19 +299,19 @@ def _character(stage, path, skel, query, skinning, world) -> Character | None:
         query,
         skinning,
         world,
-        _body(query, anim.GetJointTransformTimeSamples()),
+        _body(query, anim.GetJointTransformTimeSamples(), float(np.linalg.norm(world[0, :3]))),
     )
 
 
-def _body(query, samples, n: int = 64) -> int:
-    """:func:`body_joint` from skeleton-space joint positions at up to ``n`` of the animation's
-    samples, over the whole shot (not just the frames rendered)."""
+def _body(query, samples, metres: float, n: int = 64) -> int:
+    """:func:`body_joint` from skeleton-space joint positions (times ``metres`` per unit) at up
+    to ``n`` of the animation's samples, over the whole shot (not just the frames rendered)."""
     names = [str(j).split("/")[-1] for j in query.GetJointOrder()]
     parents = np.asarray(query.GetTopology().GetParentIndices())
     samples = list(samples) or [0.0]
     pick = np.unique(np.linspace(0, len(samples) - 1, min(n, len(samples))).round().astype(int))
     pos = np.stack([np.array(query.ComputeJointSkelTransforms(samples[i]))[:, 3, :3] for i in pick])
-    return body_joint(pos, parents, names)
+    return body_joint(pos * metres, parents, names)
 
 
 def open_shot(
