@@ -105,7 +105,8 @@ def _plan(shot: str, opts: FillOptions, human):
         raise TweenError(f"format must be usda or usdc, not {opts.fmt!r}")
     rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
     fps = float(human.fps) if human is not None else 30.0
-    own = opts.model in ("interp", "interpolation")  # interpolation works on any rig, mapped or not
+    # Interpolation and the spline work on any rig, mapped or not, in its own joint space.
+    own = opts.model in ("interp", "interpolation", "spline")
     return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig, own_rig=own)
 
 

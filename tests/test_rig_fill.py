@@ -208,9 +208,13 @@ def test_human_and_rig_characters_in_one_shot_each_get_their_model(tmp_path, mod
     assert stage.GetPrimAtPath(CREATURE_ANIM + "_tween").GetAttribute("tween:model").Get() == "creature"
     got = stage.GetPrimAtPath("/World/Character/Skel/Anim_tween").GetAttribute("tween:model").Get()
     assert got == human_model
-    # Forcing the human model leaves the creature without a model: skipped with the hint.
+    # Interpolation needs no model skeleton: both are interpolated, each on its own rig.
     res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o2")))
-    assert res["models"] == {"/World/Character/Skel/Anim": "interpolation"}
+    assert res["models"] == {CREATURE_ANIM: "interpolation", "/World/Character/Skel/Anim": "interpolation"}
+    # Forcing the human model leaves the creature without a model: skipped with the hint.
+    human_folder = str(Path(__file__).parents[1] / "models" / "default")
+    res = fill_shot(str(shot), FillOptions(model=human_folder, out_dir=str(tmp_path / "o3")))
+    assert list(res["models"]) == ["/World/Character/Skel/Anim"]
 
 
 def test_rig_without_model_is_refused_with_the_train_hint(tmp_path, models, capfd):

@@ -67,13 +67,24 @@ def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     The first frame is also the fallback when the canonical pose cannot be built (a rig
     whose mapped joints sit on top of each other, like the CMU rig's zero-length
     ``LowerBack`` above ``Hips``, gives a reference pose that is not finite)."""
-    from pipeline.usd.retarget import reference_pose
+    from pipeline.data.skeletons import bandai_skeleton
+    from pipeline.usd.retarget import model_rest, reference_pose
 
     skel = motion.skeleton
     local = motion.rotations[0].astype(np.float64)
     trans = skel.offsets.astype(np.float64).copy()
     trans[0] = (0.0, float(motion.root_positions[0, 1]), 0.0)
     g, p = motion.slice(0, 1).fk()
+    model = bandai_skeleton()
+    if skel.names == model.names and np.array_equal(skel.parents, model.parents):
+        # The model skeleton itself: its own canonical T-pose, the same for every clip, so a
+        # copy of the shot re-oriented or renamed by another tool still carries the model's
+        # frames in its rest pose (pipeline.usd.retarget.model_rest).
+        g = model_rest()
+        local = np.array(
+            [g[j] if q < 0 else quat_mul(quat_inv(g[q]), g[j]) for j, q in enumerate(skel.parents)]
+        )
+        return local, trans
     try:
         roles = map_joints(usd_joint_names(skel.names), skel.parents)
         with np.errstate(all="ignore"):

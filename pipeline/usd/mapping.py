@@ -45,7 +45,12 @@ _NOT_PLACED_SHOWN = 8  # rig joints an error message lists
 
 
 class MappingError(Exception):
-    """The rig's joints cannot be mapped onto the model skeleton (message says why)."""
+    """The rig's joints cannot be mapped onto the model skeleton (message says why).
+    ``unplaced``: the REQUIRED model joints the names did not place, when that is why."""
+
+    def __init__(self, message: str, unplaced: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.unplaced = tuple(unplaced)
 
 
 class JointMapping(NamedTuple):
@@ -182,7 +187,7 @@ def map_joints_info(
     _torso(out, names, parents, removed)
     missing = [r for r in REQUIRED if r not in out]
     if missing:
-        raise MappingError(_missing_message(missing, names, out, explained, conv))
+        raise MappingError(_missing_message(missing, names, out, explained, conv), tuple(missing))
     for a, b in _CHAINS:
         for s in "LR":
             ra, rb = a.format(s=s), b.format(s=s)

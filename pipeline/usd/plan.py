@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd.keys import merge_times, parse_keys, parse_range
-from pipeline.usd.mapping import MappingError, load_override, map_joints
+from pipeline.usd.mapping import REQUIRED, MappingError, load_override, map_joints
 from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 from pipeline.usd.retarget import Retarget
 from pipeline.usd.rigmap import OwnRig, RigMap, skeleton_space
@@ -156,7 +156,12 @@ def make_plan(
                 rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, poses)
             except MappingError as e:
                 why = str(e)
-                if rig == RIG_AUTO and why.startswith("not a humanoid"):
+                # A rig model is the way for a creature: a rig whose pose is not a human's, or
+                # whose names place no arm or leg joint at all; never for a human rig that
+                # only needs some joints named.
+                limbs = {r for r in REQUIRED if r not in ("Hips", "Head")}
+                creature = why.startswith("not a humanoid") or limbs <= set(e.unplaced)
+                if rig == RIG_AUTO and creature:
                     from pipeline.rig.store import no_model_hint
 
                     why += "; " + no_model_hint(path, c.skel_path, c.names)

@@ -76,8 +76,11 @@ def _arm_end(roles: dict[str, int], s: str) -> str:
     return f"Hand_{s}" if f"Hand_{s}" in roles else f"LowerArm_{s}"
 
 
-def humanoid_check(roles: dict[str, int], pos: np.ndarray, what: str = "rest pose") -> None:
-    """Raises MappingError unless ``pos`` (canonical frame) is a standing humanoid's."""
+def humanoid_check(
+    roles: dict[str, int], pos: np.ndarray, what: str = "rest pose", arms: bool = True
+) -> None:
+    """Raises MappingError unless ``pos`` (canonical frame) is a standing humanoid's.
+    ``arms``: also ask the arms to reach sideways (a bind pose's do; in motion they swing)."""
     spine, spine_len = _dir(pos, roles["Hips"], roles["Head"])
     if spine @ UP < 0.6:
         raise MappingError(
@@ -98,7 +101,7 @@ def humanoid_check(roles: dict[str, int], pos: np.ndarray, what: str = "rest pos
         arm, _ = _dir(pos, roles[f"UpperArm_{s}"], roles[_arm_end(roles, s)])
         # Arms may hang in a relaxed bind pose, but they reach outwards from the shoulders
         # (a quadruped's front legs go straight down).
-        if sign * (arm @ left) < 0.1:
+        if arms and sign * (arm @ left) < 0.1:
             raise MappingError(
                 f"not a humanoid {what}: arm {s} does not reach sideways (points {np.round(arm, 2).tolist()})"
             )
@@ -308,7 +311,7 @@ class Retarget:
         best, score = None, -np.inf
         for i in range(len(times)):
             try:
-                humanoid_check(self.roles, p[i], "pose")
+                humanoid_check(self.roles, p[i], "pose", arms=False)
             except MappingError:
                 continue
             sp, _ = _dir(p[i], self.roles["Hips"], self.roles["Head"])
