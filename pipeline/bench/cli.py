@@ -4,12 +4,14 @@ from pathlib import Path
 
 import typer
 
+from pipeline.errors import TweenError
+
 
 def register(app: typer.Typer) -> None:
     @app.command()
     def bench(
         methods: str = typer.Option(
-            "zero,interp", help="Comma-separated: zero, interp, model, or a model folder."
+            "zero,interp", help="Comma-separated: zero, interp, spline, model, or a model folder."
         ),
         limit: int = typer.Option(None, help="Use only the first N eval clips (quick check)."),
         out: Path = typer.Option(Path("bench_results"), help="Folder for bench.json and bench.md."),
@@ -28,11 +30,31 @@ def register(app: typer.Typer) -> None:
         partial_keys: bool = typer.Option(
             False, "--partial-keys", help="One partial key (root / legs / upper body) inside each gap."
         ),
+        rig_variants: bool = typer.Option(
+            False,
+            "--rig-variants",
+            help="The same eval motion on rigs of other conventions (names, joint frames, rest pose, "
+            "up axis, units, extra joints), filled through USD; --limit clips (default 8).",
+        ),
+        keys_every: int = typer.Option(10, "--keys-every", help="Key spacing of the --rig-variants shots."),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         from pipeline.bench.run import run_bench
 
         names = [m.strip() for m in methods.split(",") if m.strip()]
+        if rig_variants:
+            from pipeline.bench.rig_variants import bench_clips, run_rig_bench
+
+            if keys_every < 2:
+                raise TweenError(f"--keys-every {keys_every}: must be at least 2")
+            known = ("model", "interp", "spline")
+            bad = [m for m in names if m not in known]
+            if bad:
+                raise TweenError(f"--methods {bad[0]!r}: the rig bench runs {', '.join(known)}")
+            res = run_rig_bench(bench_clips(limit or 8), methods=tuple(names), keys_every=keys_every, out=out)
+            typer.echo(res["markdown"])
+            typer.echo(f"written: {out / 'rig_bench.json'}", err=True)
+            return
         if long_gaps:
             from pipeline.bench.long_gaps import run_long_gap_bench
 
