@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import sys
 import tempfile
 from dataclasses import asdict, dataclass
@@ -40,6 +41,70 @@ class FillOptions:
     review_layer: str | None = None  # root layer to add the fill to instead of a new review layer
     dna: str | None = None  # motion DNA: a reference take (USD or BVH) whose poses the fill should hold
     dna_poses: int = 4  # representative poses taken from it
+
+    def check(self) -> FillOptions:
+        """Raises TweenError (one line naming the option) unless every field is valid;
+        cheap (reads no file, loads no model), so it runs before anything else."""
+        check_fill_options(self)
+        return self
+
+
+#: Takes per shot: each is a full fill (and a variant of the layer), so a typo such as
+#: ``--takes 10000`` is refused rather than queued.
+MAX_TAKES = 64
+#: The seed of take k is ``seed + k``; it is stored in the layer's ``tween:seed`` (a USD
+#: int, 32 bits), so every take's seed is within 0 .. 2**31 - 1.
+MAX_SEED = 2**31 - 1
+FORMATS = ("usda", "usdc")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def _opt_path(opt: str, v) -> None:
+    if v is None:
+        return
+    if not isinstance(v, str | os.PathLike) or not str(v).strip() or "\0" in str(v):
+        raise TweenError(f"{opt} {v!r}: expected a file or folder path")
+
+
+def check_fill_options(opts: FillOptions) -> None:
+    """Validates every field of ``opts``; the messages name the command-line options."""
+    import math
+
+    from pipeline.infer.dna import MAX_POSES
+    from pipeline.usd.keys import parse_keys, parse_range
+
+    if not _is_int(opts.takes) or not 1 <= opts.takes <= MAX_TAKES:
+        raise TweenError(f"--takes {opts.takes!r}: must be a whole number from 1 to {MAX_TAKES}")
+    if not _is_int(opts.seed) or opts.seed < 0:
+        raise TweenError(f"--seed {opts.seed!r}: must be a whole number, 0 or more")
+    if opts.seed + opts.takes - 1 > MAX_SEED:
+        last = f" (take {opts.takes - 1} uses seed {opts.seed + opts.takes - 1})" if opts.takes > 1 else ""
+        raise TweenError(
+            f"--seed {opts.seed}: every take's seed (seed + take) must be at most 2**31-1 = {MAX_SEED}{last}"
+        )
+    if opts.fmt not in FORMATS:
+        raise TweenError(f"--format {opts.fmt!r}: must be usda or usdc")
+    if not _is_int(opts.dna_poses) or not 1 <= opts.dna_poses <= MAX_POSES:
+        raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_POSES}")
+    if not isinstance(opts.model, str) or not opts.model.strip():
+        raise TweenError(f"--model {opts.model!r}: expected default, interp, or a model name or folder")
+    if opts.keys is not None:
+        if not isinstance(opts.keys, str):
+            raise TweenError(f"--keys {opts.keys!r}: expected key time codes, e.g. 1001,1012,1030")
+        times = parse_keys(opts.keys)
+        if not np.isfinite(times).all():
+            raise TweenError(f"--keys {opts.keys!r}: key time codes must be finite numbers")
+    if opts.range is not None:
+        if not isinstance(opts.range, str):
+            raise TweenError(f"--range {opts.range!r}: expected START-END, e.g. 1010-1050")
+        if not all(math.isfinite(t) for t in parse_range(opts.range)):
+            raise TweenError(f"--range {opts.range!r}: time codes must be finite numbers")
+    for opt, v in (("--out-dir", opts.out_dir), ("--mapping", opts.mapping), ("--review-layer", opts.review_layer),
+                   ("--dna", opts.dna)):  # fmt: skip
+        _opt_path(opt, v)
 
 
 _MODELS: dict[tuple[int, str], object] = {}
@@ -99,10 +164,7 @@ def _human(opts: FillOptions):
 def _plan(shot: str, opts: FillOptions, human):
     from pipeline.usd.plan import RIG_AUTO, RIG_OFF, make_plan
 
-    if opts.takes < 1:
-        raise TweenError(f"takes must be at least 1, not {opts.takes}")
-    if opts.fmt not in ("usda", "usdc"):
-        raise TweenError(f"format must be usda or usdc, not {opts.fmt!r}")
+    opts.check()
     rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
     fps = float(human.fps) if human is not None else 30.0
     # Interpolation and the spline work on any rig, mapped or not, in its own joint space.
@@ -149,6 +211,7 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     with the model of each character under ``models``."""
     from pipeline.usd.write import check_out_dir
 
+    opts.check()  # before any model is loaded
     human = _human(opts)
     plan = _plan(shot, opts, human)
     summary = plan.summary()
@@ -227,16 +290,31 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     if dna is not None:
         meta["dna"] = {"file": os.path.realpath(opts.dna), "poses": len(dna)}
     arrays["meta"] = np.array(json.dumps(meta))
-    Path(work_dir).mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=work_dir, prefix=f".{out.name}.", suffix=".tmp")
+    _save_take(out, arrays)
+    return str(out)
+
+
+def _save_take(out: Path, arrays: dict) -> None:
+    """Writes the take atomically (a temp named after this process, then a rename); a full
+    disk is one line naming the take; the temps of dead writers in the folder go first."""
+    from pipeline.usd.write import clean_dead_temps, owner_tag, write_error
+
+    tmp = None
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        clean_dead_temps(out.parent, quiet=True)
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.{owner_tag()}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
             np.savez(f, **arrays)
         os.replace(tmp, out)
+    except OSError as e:
+        err = write_error(out, e)
+        if err is not None:
+            raise err from None
+        raise
     finally:
-        if os.path.exists(tmp):
+        if tmp and os.path.exists(tmp):
             os.unlink(tmp)
-    return str(out)
 
 
 def load_take(path: str) -> dict:
@@ -256,8 +334,8 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     from pipeline.usd import write
     from pipeline.usd.read import open_stage
 
-    out_dir = Path(opts.out_dir) if opts.out_dir else Path(shot).resolve().parent
-    if job_id and out_dir.is_dir():
+    out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
+    if job_id and out_dir.is_dir():  # a fast path; write.write checks again under the folder lock
         done = write.find_job(out_dir, write.shot_stem(shot), job_id)
         if done:
             return done
@@ -277,10 +355,24 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
 
 
 def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
-    """Validate, fill every take and write, in this process."""
+    """Validate, fill every take and write, in this process.
+
+    The takes go to a folder of the system temp folder named after this process
+    (``tween-take.<pid>@<host>.<rand>.tmp``); those of runs that died are removed first.
+    """
+    from pipeline.usd.write import clean_dead_temps, owner_tag, write_error
+
     summary = validate_shot(shot, opts)
-    with tempfile.TemporaryDirectory(prefix="tween-") as work:
+    base = tempfile.gettempdir()
+    clean_dead_temps(base, quiet=True)
+    try:
+        work = tempfile.mkdtemp(prefix=f"tween-take.{owner_tag()}.", suffix=".tmp", dir=base)
+    except OSError as e:
+        raise write_error(base, e) or e from None
+    try:
         files = [fill_take(shot, opts, t, work) for t in range(opts.takes)]
         result = write_layers(shot, opts, files, job_id)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
     return result

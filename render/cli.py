@@ -3,25 +3,56 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 
 import typer
+
+from pipeline.errors import TweenError
+
+#: Frame sides: H.264 (yuv420p) needs even sides, the renderer at least 16; 7680 is 8K UHD.
+MIN_SIDE, MAX_SIDE = 16, 7680
+#: Camera orbits over the shot (turntable); more is a blur, not a review.
+MAX_TURNS = 100.0
 
 
 def _size(text: str) -> tuple[int, int]:
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
     if not m:
-        raise typer.BadParameter(f"{text!r}: expected WIDTHxHEIGHT, e.g. 960x540")
-    return int(m.group(1)), int(m.group(2))
+        raise TweenError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 960x540")
+    w, h = int(m.group(1)), int(m.group(2))
+    for side in (w, h):
+        if not MIN_SIDE <= side <= MAX_SIDE or side % 2:
+            raise TweenError(
+                f"--size {text!r}: width and height must be even numbers from {MIN_SIDE} to {MAX_SIDE}"
+            )
+    return w, h
+
+
+_NUM = r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)"
 
 
 def _range(text: str | None) -> tuple[float, float] | None:
     if text is None:
         return None
-    m = re.fullmatch(r"\s*(-?[\d.]+)\s*[:-]\s*(-?[\d.]+)\s*", text)
+    m = re.fullmatch(rf"\s*({_NUM})\s*[:-]\s*({_NUM})\s*", text)
     if not m:
-        raise typer.BadParameter(f"{text!r}: expected START:END time codes, e.g. 1001:1100")
-    return float(m.group(1)), float(m.group(2))
+        raise TweenError(f"--frames {text!r}: expected START:END time codes, e.g. 1001:1100")
+    a, b = float(m.group(1)), float(m.group(2))
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise TweenError(f"--frames {text!r}: time codes must be finite numbers")
+    if b < a:
+        raise TweenError(f"--frames {text!r}: END is before START")
+    return a, b
+
+
+def _check_options(take: int | None, turns: float) -> None:
+    if take is not None and take < 0:
+        raise TweenError(f"--take {take}: must be a take number, 0 or more")
+    if not math.isfinite(turns):
+        raise TweenError(f"--turns {turns}: must be a finite number")
+    if abs(turns) > MAX_TURNS:
+        raise TweenError(f"--turns {turns:g}: must be from -{MAX_TURNS:g} to {MAX_TURNS:g}")
 
 
 def review(
@@ -50,15 +81,17 @@ def review(
     from render.review import render_review
     from render.scene import list_takes
 
+    # Every option is checked here, before anything is read or written.
     w, h = _size(size)
     fr = _range(frames)
+    _check_options(take, turns)
     if camera not in ("turntable", "front", "side"):
-        raise typer.BadParameter(f"{camera!r}: expected turntable, front or side", param_hint="--camera")
+        raise TweenError(f"--camera {camera!r}: must be turntable, front or side")
+    if all_takes and take is not None:
+        raise TweenError("--all-takes: give --take N or --all-takes, not both")
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
     takes = [take]
     if all_takes:
-        if take is not None:
-            raise typer.BadParameter("give --take N or --all-takes, not both", param_hint="--all-takes")
         takes = (list_takes(shot) if Path(shot).exists() else []) or [None]
     summaries = []
     for t in takes:

@@ -11,10 +11,13 @@ key prefix (``<prefix>rig:``), time limits and visibility timeout.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from celery import Celery
 
 import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
-from workers.settings import FarmSettings, load_settings
+from workers.errors import FarmConnectionError
+from workers.settings import FarmSettings, load_settings, redact_url, url_passwords
 
 #: Celery's own states plus the one the job record is stored under.
 SUBMITTED = "SUBMITTED"
@@ -102,6 +105,98 @@ settings = load_settings()
 app = configure(Celery("tween", include=["workers.tasks"]), settings)
 train_app = configure(Celery("tween-train", include=["workers.train_tasks"]), settings, train=True)
 rig_app = configure(Celery("tween-rig", include=["workers.rig_tasks"]), settings, rig=True)
+
+
+#: How long the CLI tries a broker or result backend before it gives up (seconds, about).
+CONNECT_TIMEOUT = 3.0
+
+
+def _why(e: BaseException, url: str) -> str:
+    """An exception's text on one line, with the URL's passwords hidden."""
+    text = " ".join(str(e).split()) or type(e).__name__
+    text = text.replace(url, redact_url(url))
+    for pw in url_passwords(url):
+        if len(pw) >= 4:
+            text = text.replace(pw, "***")
+    return text
+
+
+def connection_error(what: str, url: str, e: BaseException, env: str = "") -> FarmConnectionError:
+    """The one-line error for an unreachable ``what`` ("broker" or "result backend")."""
+    env = env or ("TWEEN_BROKER_URL" if what == "broker" else "TWEEN_RESULT_BACKEND")
+    return FarmConnectionError(
+        f"{what} {redact_url(url)}: cannot connect: {_why(e, url)} (the URL comes from {env} or "
+        "the farm config)"
+    )
+
+
+def check_broker(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Connects to ``celery_app``'s broker once, with a short bounded retry; raises
+    FarmConnectionError naming the URL (password hidden) when it cannot."""
+    url = celery_app.conf.broker_url
+    try:
+        conn = celery_app.connection_for_write(connect_timeout=timeout)
+        try:
+            conn.ensure_connection(max_retries=2, interval_start=0.2, interval_step=0.5, interval_max=1.0,
+                                   timeout=timeout)  # fmt: skip
+        finally:
+            conn.release()
+    except Exception as e:  # any failure to connect (refused, DNS, auth, unknown transport) is one line
+        raise connection_error("broker", url, e) from None
+
+
+def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Pings a Redis result backend (with a short bounded retry); other backends connect on
+    first use (a database one would create its tables)."""
+    url = celery_app.conf.result_backend
+    if not str(url).startswith(("redis://", "rediss://")):
+        return
+    import time
+
+    deadline = time.monotonic() + timeout / 2  # redis-py retries each ping a few times itself
+    while True:
+        try:
+            client = celery_app.backend.client
+            client.ping()
+            return
+        except Exception as e:
+            if time.monotonic() + 0.3 > deadline:
+                same = url == celery_app.conf.broker_url  # Redis: the backend is the broker by default
+                what, env = ("broker", "TWEEN_BROKER_URL") if same else ("result backend", "")
+                raise connection_error(what, url, e, env) from None
+            time.sleep(0.3)
+
+
+def check_farm(celery_app: Celery, *, broker: bool = True, backend: bool = True) -> None:
+    """Fails fast, in one line, when the farm the CLI talks to cannot be reached."""
+    if celery_app.conf.tween.embedded:
+        return
+    if broker:
+        check_broker(celery_app)
+    if backend:
+        check_backend(celery_app)
+
+
+@contextmanager
+def farm_errors(celery_app: Celery):
+    """Turns a broker or backend connection lost mid-command into the same one-line error."""
+    from kombu.exceptions import OperationalError
+
+    try:
+        from redis.exceptions import ConnectionError as RedisConnectionError
+        from redis.exceptions import TimeoutError as RedisTimeoutError
+
+        redis_errors: tuple = (RedisConnectionError, RedisTimeoutError)
+    except ImportError:  # no Redis client installed
+        redis_errors = ()
+    try:
+        yield
+    except OperationalError as e:
+        raise connection_error("broker", celery_app.conf.broker_url, e) from None
+    except redis_errors as e:
+        url = celery_app.conf.result_backend
+        same = url == celery_app.conf.broker_url
+        raise connection_error("broker" if same else "result backend", url, e) from None
 
 
 def use_queue(queue: str) -> None:

@@ -10,7 +10,8 @@ from pathlib import Path
 import typer
 
 _FILL_OPTS = dict(
-    takes=typer.Option(1, "--takes", min=1, help="Takes (variations) per shot."),
+    # No typer min/max: FillOptions.check() gives the one-line messages (typer's is a box).
+    takes=typer.Option(1, "--takes", help="Takes (variations) per shot, 1 to 64."),
     seed=typer.Option(0, "--seed", help="Seed of the first take."),
     keys=typer.Option(
         None, "--keys", help="Key frames to use, e.g. '1001,1012,1030' (default: the shot's keys)."
@@ -28,25 +29,28 @@ _FILL_OPTS = dict(
     dna=typer.Option(
         None, "--dna", help="Motion DNA: a reference take (USD or BVH) whose poses steer the fill."
     ),
-    dna_poses=typer.Option(4, "--dna-poses", min=1, max=8, help="Representative poses taken from --dna."),
+    dna_poses=typer.Option(4, "--dna-poses", help="Representative poses taken from --dna, 1 to 8."),
 )
 
 
 def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna=None, dna_poses=4) -> dict:
+    """The job's options, checked (one line naming the option) before anything is sent."""
+    from pipeline.fill import FillOptions
     from workers.jobs import make_opts
 
-    return make_opts(
-        keys=keys,
-        range=range_,
-        takes=takes,
-        seed=seed,
-        model=model,
-        out_dir=out_dir,
-        fmt=fmt,
-        mapping=mapping,
-        dna=dna,
-        dna_poses=dna_poses,
-    )
+    kw = dict(keys=keys, range=range_, takes=takes, seed=seed, model=model, out_dir=out_dir, fmt=fmt,
+              mapping=mapping, dna=dna, dna_poses=dna_poses)  # fmt: skip
+    kw = {k: str(v) if isinstance(v, Path) else v for k, v in kw.items()}
+    FillOptions(**{k: v for k, v in kw.items() if v is not None}).check()
+    return make_opts(**kw)
+
+
+def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:
+    """A whole-number option within lo..hi, or one line naming it."""
+    from pipeline.errors import TweenError
+
+    if value is not None and not lo <= value <= hi:
+        raise TweenError(f"{opt} {value}: must be from {lo} to {hi}")
 
 
 def _err(msg: str) -> None:
@@ -103,17 +107,22 @@ def register(app: typer.Typer) -> None:
         """
         from workers import jobs
         from workers.app import app as celery_app
+        from workers.app import check_farm, farm_errors
 
         s = celery_app.conf.tween
         opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
+        _int_opt("--concurrency", concurrency, 1, 256)
         paths = [str(p) for p in shots]
         for p in paths:
             if not os.path.isfile(p):
                 _err(f"{p}: no such shot file")
                 raise typer.Exit(2)
         if not s.embedded:
-            ids = jobs.submit(paths, opts, render=render)
-            raise typer.Exit(_report(jobs.wait(ids, progress=progress)))
+            check_farm(celery_app)
+            with farm_errors(celery_app):
+                ids = jobs.submit(paths, opts, render=render)
+                code = _report(jobs.wait(ids, progress=progress))
+            raise typer.Exit(code)
         from workers.embedded import EmbeddedWorker
 
         roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
@@ -144,12 +153,16 @@ def register(app: typer.Typer) -> None:
         """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
         from workers import jobs
         from workers.app import app as celery_app
+        from workers.app import check_farm, farm_errors
 
         if celery_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
             raise typer.Exit(2)
         opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
-        for job_id in jobs.submit([str(p) for p in shots], opts, render=render):
+        check_farm(celery_app)
+        with farm_errors(celery_app):
+            ids = jobs.submit([str(p) for p in shots], opts, render=render)
+        for job_id in ids:
             typer.echo(job_id)
 
     @app.command()
@@ -160,14 +173,20 @@ def register(app: typer.Typer) -> None:
     ):
         """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
         from workers import jobs
+        from workers.app import app as celery_app
+        from workers.app import check_farm, farm_errors
 
+        check_farm(celery_app, broker=False)  # the states are in the result backend
         fills = [j for j in job_ids if not j.startswith("rig-")]
-        by_id = dict(
-            zip(fills, jobs.wait(fills) if wait and fills else [jobs.state(j) for j in fills], strict=True)
-        )
-        for j in job_ids:
-            if j.startswith("rig-"):
-                by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
+        with farm_errors(celery_app):
+            by_id = dict(
+                zip(
+                    fills, jobs.wait(fills) if wait and fills else [jobs.state(j) for j in fills], strict=True
+                )
+            )
+            for j in job_ids:
+                if j.startswith("rig-"):
+                    by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
         states = [by_id[j] for j in job_ids]
         code = 0
         for s in states:
@@ -209,22 +228,32 @@ def register(app: typer.Typer) -> None:
         include: list[str] = typer.Option([], "--include", "-I", help="Extra modules to import."),
     ):
         """Run a Celery worker for the farm (several may run per host and across hosts)."""
+        from pipeline.errors import TweenError
         from workers.runtime import thread_env
 
+        _int_opt("--concurrency", concurrency, 1, 256)
+        levels = ("debug", "info", "warning", "error", "critical", "fatal")
+        if loglevel.lower() not in levels:
+            raise TweenError(f"--loglevel {loglevel!r}: must be one of {', '.join(levels)}")
         n = concurrency or os.cpu_count() or 1
         # Before any ORT/GL import: each pool process gets its share of the cores.
         for k, v in thread_env(n).items():
             os.environ.setdefault(k, v)
         if train and train_rig:
-            raise typer.BadParameter("--train and --train-rig are two different workers; start one of each")
+            raise TweenError("--train and --train-rig are two different workers; start one of each")
         if train_rig:
             from workers.app import rig_app as celery_app
         elif train:
             from workers.app import train_app as celery_app
         else:
             from workers.app import app as celery_app
+        from workers.app import check_farm
+        from workers.settings import redact_url
+
         s = celery_app.conf.tween
         q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
+        # Celery itself would retry an unreachable broker for minutes, logging tracebacks.
+        check_farm(celery_app)
         argv = ["worker", "-c", str(n), "-Q", q, "-l", loglevel, "--without-gossip", "--without-mingle"]
         argv += ["--pool", "prefork"]
         if hostname:
@@ -233,7 +262,7 @@ def register(app: typer.Typer) -> None:
             argv += ["--logfile", str(logfile)]
         for mod in include:
             argv += ["-I", mod]
-        print(f"tween worker: {s.broker_url.split('@')[-1]} queue {q}, {n} processes", file=sys.stderr)
+        print(f"tween worker: {redact_url(s.broker_url)} queue {q}, {n} processes", file=sys.stderr)
         celery_app.worker_main(argv)
 
     @app.command("submit-train-rig")
@@ -258,23 +287,39 @@ def register(app: typer.Typer) -> None:
     ):
         """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
         prints the job id (`tween status ID` shows its progress)."""
+        import re
+
+        from pipeline.errors import TweenError
+        from pipeline.fill import MAX_SEED
+        from pipeline.rig.source import parse_frames
         from workers import jobs
-        from workers.app import rig_app
+        from workers.app import check_farm, farm_errors, rig_app
 
         if rig_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
             raise typer.Exit(2)
+        if schedule not in ("tiny", "reduced", "paper"):
+            raise TweenError(f"--schedule {schedule!r}: must be tiny, reduced or paper")
+        _int_opt("--iters", iters, 1, 10_000_000)
+        _int_opt("--seed", seed, 0, MAX_SEED)
+        _int_opt("--threads", threads, 1, 256)
+        if not re.fullmatch(r"cpu|cuda(:\d+)?", device):
+            raise TweenError(f"--device {device!r}: must be cpu or cuda (cuda:N)")
+        parse_frames(frames)
         if not source.is_file():
             _err(f"{source}: no such file")
             raise typer.Exit(2)
         opts = dict(skeleton=skeleton, frames=frames, schedule=schedule, iters=iters, seed=seed, threads=threads,
                     device=device, name=name)  # fmt: skip
-        job_id = jobs.submit_train_rig(str(source), str(out), opts)
+        check_farm(rig_app)
+        with farm_errors(rig_app):
+            job_id = jobs.submit_train_rig(str(source), str(out), opts)
         if not wait:
             typer.echo(job_id)
             return
         print(job_id, file=sys.stderr)
-        s = jobs.wait_train_rig(job_id)
+        with farm_errors(rig_app):
+            s = jobs.wait_train_rig(job_id)
         if s.state != "SUCCESS":
             _err(s.error or f"{source}: training {job_id} {s.state.lower()}")
             raise typer.Exit(2)
@@ -289,8 +334,16 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(Path("bench_results") / "farm.json", "--out"),
     ):
         """Shots per minute with 1 and 2 workers, and Celery's overhead against a direct fill."""
+        from pipeline.errors import TweenError
         from workers.bench import run_bench_farm
 
-        res = run_bench_farm(shots, [int(w) for w in workers.split(",")], shot, out)
+        _int_opt("--shots", shots, 1, 100_000)
+        try:
+            counts = [int(w) for w in workers.split(",")]
+        except ValueError:
+            raise TweenError(f"--workers {workers!r}: expected worker counts, e.g. 1,2") from None
+        if not counts or not all(1 <= c <= 64 for c in counts):
+            raise TweenError(f"--workers {workers!r}: each worker count must be from 1 to 64")
+        res = run_bench_farm(shots, counts, shot, out)
         typer.echo(res["markdown"])
         typer.echo(f"written: {out}", err=True)

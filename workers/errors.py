@@ -9,3 +9,7 @@ class JobError(TweenError):
 
 class TransientError(Exception):
     """Shared storage or a connection hiccup; the task retries with back-off."""
+
+
+class FarmConnectionError(TweenError):
+    """The CLI cannot reach the broker or the result backend (one line, password hidden)."""

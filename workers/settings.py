@@ -9,6 +9,7 @@ backend on SQLite files under the cache folder, so nothing needs a server.
 from __future__ import annotations
 
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +19,25 @@ from pipeline.errors import TweenError
 
 class FarmConfigError(TweenError):
     """The farm configuration is inconsistent."""
+
+
+_USERINFO = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@;?#]*):(?P<pw>[^@/;?#]*)@")
+_QUERY_PW = re.compile(r"(?P<head>[?&](?:password|passwd|sentinel_kwargs_password)=)(?P<pw>[^&;#]*)", re.I)
+
+
+def redact_url(url: str) -> str:
+    """``url`` with every password shown as ``***`` (``redis://:***@host:6379/0``,
+    ``amqp://user:***@host//``, also ``?password=``), for messages and logs."""
+    out = _USERINFO.sub(lambda m: f"{m['head']}:***@" if m["pw"] else m[0], str(url))
+    return _QUERY_PW.sub(lambda m: f"{m['head']}***", out)
+
+
+def url_passwords(url: str) -> list[str]:
+    """The passwords in ``url`` (to scrub them out of error texts that might repeat them)."""
+    from urllib.parse import unquote
+
+    found = [m["pw"] for m in _USERINFO.finditer(str(url))] + [m["pw"] for m in _QUERY_PW.finditer(str(url))]
+    return sorted({v for p in found if p for v in (p, unquote(p))}, key=len, reverse=True)
 
 
 def cache_dir(env=None) -> Path:
