@@ -7,6 +7,7 @@ stops the worker. The worker's shot roots are the folders of the shots on the co
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import subprocess
@@ -15,6 +16,7 @@ import uuid
 from pathlib import Path
 
 from pipeline.errors import TweenError
+from workers import runtime
 from workers.settings import cache_dir
 
 
@@ -32,6 +34,10 @@ class EmbeddedWorker:
     def __enter__(self) -> EmbeddedWorker:
         self.log.parent.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, TWEEN_SHOT_ROOTS=os.pathsep.join(self.roots))
+        # The worker dies with this client, even on SIGKILL: PR_SET_PDEATHSIG on Linux (set in
+        # the child before exec; its pool children set theirs), and a watchdog thread in the
+        # worker that kills its process group once this pid is no longer its parent.
+        env[runtime.PARENT_ENV] = str(os.getpid())
         env.pop("TWEEN_BROKER_URL", None)
         cmd = [
             sys.executable,
@@ -48,7 +54,13 @@ class EmbeddedWorker:
         # Its output goes to the log: stdout of `tween fill` carries only results.
         with open(self.log, "ab") as logf:
             self.proc = subprocess.Popen(
-                cmd, env=env, start_new_session=True, stdin=subprocess.DEVNULL, stdout=logf, stderr=logf
+                cmd,
+                env=env,
+                start_new_session=True,
+                stdin=subprocess.DEVNULL,
+                stdout=logf,
+                stderr=logf,
+                preexec_fn=functools.partial(runtime.die_with, os.getpid()),
             )
         return self
 

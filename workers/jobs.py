@@ -51,9 +51,40 @@ def stage_ids(job_id: str, takes: int) -> list[tuple[str, str]]:
     )
 
 
-def work_dir_for(shot: str, opts: dict, job_id: str) -> str:
+#: Queues of the embedded farm (workers/embedded.py): private to one `tween fill` client.
+EMBEDDED_QUEUE_PREFIX = "tween.embedded."
+
+
+def work_dir_for(shot: str, opts: dict, job_id: str, owner: str | None = None) -> str:
+    """The job's folder of take files, beside its layers. With ``owner`` (``pid@host`` of an
+    embedded client, whose jobs die with it) it is named so that the next run can remove it
+    once that client is dead."""
     base = opts.get("out_dir") or os.path.dirname(shot)
-    return os.path.join(base, ".tween-work", job_id)
+    return os.path.join(base, ".tween-work", f".{job_id}.{owner}.tmp" if owner else job_id)
+
+
+def missing_dirs(path: str | None) -> list[str]:
+    """``path`` and its parents that do not exist (deepest first): a failed job removes those
+    it made, if empty, so that a refused fill leaves no new output folder."""
+    out: list[str] = []
+    p = os.path.abspath(path) if path else None
+    while p and not os.path.exists(p) and os.path.dirname(p) != p:
+        out.append(p)
+        p = os.path.dirname(p)
+    return out
+
+
+def clean_dead_work(shot: str, opts: dict) -> None:
+    """Removes the work folders of embedded jobs whose client has died (killed mid-job)."""
+    from pipeline.usd.write import clean_dead_temps
+
+    work = os.path.join(opts.get("out_dir") or os.path.dirname(shot), ".tween-work")
+    if os.path.isdir(work):
+        clean_dead_temps(work, quiet=True)
+        try:
+            os.rmdir(work)
+        except OSError:
+            pass
 
 
 def build(shot: str, opts: dict, job: dict, queue: str):
@@ -91,15 +122,24 @@ def submit(
     """Sends one job per shot; returns the job ids at once. Refuses paths outside ``roots``."""
     roots = app.conf.tween.shot_roots if roots is None else roots
     queue = queue or app.conf.task_default_queue
+    owner = None
+    if queue.startswith(EMBEDDED_QUEUE_PREFIX):
+        from pipeline.usd.write import owner_tag
+
+        owner = owner_tag()
     planned = []
     for shot in shots:  # every path is checked before anything is sent: all or nothing
         shot = os.path.abspath(shot)
         job_id = uuid.uuid4().hex
         job = {"id": job_id, "takes": int(opts.get("takes") or 1), "render": bool(render)}
-        job["work_dir"] = work_dir_for(shot, opts, job_id)
+        job["work_dir"] = work_dir_for(shot, opts, job_id, owner)
+        job["made_dirs"] = missing_dirs(opts.get("out_dir"))
         if roots:  # the worker checks again against its own roots
             jobpaths.check_job(shot, opts, roots, job["work_dir"])
         planned.append((shot, job))
+    if owner:
+        for shot, _ in planned:
+            clean_dead_work(shot, opts)
     try:
         for shot, job in planned:
             rec = {

@@ -4,6 +4,15 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import sys
+import threading
+import time
+
+#: Set by the embedded launcher in its worker's environment: the pid of the `tween fill`
+#: client. A worker with it dies with that client (the embedded farm is the client's own).
+PARENT_ENV = "TWEEN_EMBEDDED_PARENT"
+PR_SET_PDEATHSIG = 1
 
 
 def thread_budget(concurrency: int, cpus: int | None = None) -> int:
@@ -44,3 +53,47 @@ def init_process() -> None:
 def small_json(value) -> dict | list | str | int | float | bool | None:
     """``value`` reduced to JSON types (paths and numbers); anything else becomes its str()."""
     return json.loads(json.dumps(value, default=str))
+
+
+def set_pdeathsig(sig: int = signal.SIGKILL) -> bool:
+    """Linux: ``sig`` is sent to this process when its parent (thread) exits. False elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def die_with(parent: int, sig: int = signal.SIGKILL) -> None:
+    """This process dies when ``parent`` does: PR_SET_PDEATHSIG where there is one; exits at
+    once when ``parent`` is gone already (it died before the death signal was set)."""
+    set_pdeathsig(sig)
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+def _kill_group() -> None:
+    try:
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+    finally:
+        os._exit(1)
+
+
+def watch_parent(parent: int, interval: float = 0.25) -> threading.Thread:
+    """Portable fallback of :func:`die_with` for a whole worker: a daemon thread that kills
+    this process group (the worker and its pool) as soon as this process's parent is no longer
+    ``parent`` (it died, and this process was re-parented)."""
+
+    def run():
+        while True:
+            if os.getppid() != parent:
+                _kill_group()
+            time.sleep(interval)
+
+    t = threading.Thread(target=run, name="tween-parent-watch", daemon=True)
+    t.start()
+    return t

@@ -14,7 +14,7 @@ import shutil
 from contextlib import contextmanager
 
 from celery import Task
-from celery.signals import worker_process_init
+from celery.signals import worker_init, worker_process_init
 
 from workers import paths as jobpaths
 from workers import runtime
@@ -39,7 +39,7 @@ TRANSIENT_ERRNOS = {
 
 
 @contextmanager
-def _sorted_errors(shot: str, work_dir: str | None = None):
+def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] = ()):
     """Turns exceptions into TransientError (retried) or JobError (final, JSON-safe message)."""
     from pipeline.errors import TweenError
 
@@ -48,25 +48,32 @@ def _sorted_errors(shot: str, work_dir: str | None = None):
     except (TransientError, JobError):
         raise
     except TweenError as e:
-        _drop(work_dir)
+        _drop(work_dir, made_dirs)
         raise JobError(str(e)) from None
     except OSError as e:
         if e.errno in TRANSIENT_ERRNOS or isinstance(e, ConnectionError | TimeoutError):
             raise TransientError(f"{shot}: {e}") from e
-        _drop(work_dir)
+        _drop(work_dir, made_dirs)
         raise JobError(f"{shot}: {e}") from None
     except Exception as e:
-        _drop(work_dir)
+        _drop(work_dir, made_dirs)
         raise JobError(f"{shot}: {type(e).__name__}: {e}") from e
 
 
-def _drop(work_dir: str | None) -> None:
+def _drop(work_dir: str | None, made_dirs: list[str] = ()) -> None:
+    """Removes the job's work folder, and (``made_dirs``, on failure) the output folders that
+    did not exist when the job was submitted, if nothing else is in them."""
     if work_dir:
         shutil.rmtree(work_dir, ignore_errors=True)
         try:
             os.rmdir(os.path.dirname(work_dir))  # .tween-work itself, once no other job uses it
         except OSError:
             pass
+    for d in made_dirs:  # deepest first
+        try:
+            os.rmdir(d)
+        except OSError:
+            break
 
 
 class FarmTask(Task):
@@ -107,7 +114,7 @@ def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
     """Fills one take; returns the path of its .npz under the job's work folder."""
     from pipeline import fill
 
-    with _sorted_errors(shot, job["work_dir"]):
+    with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)
         os.makedirs(job["work_dir"], exist_ok=True)
         return str(fill.fill_take(shot, _opts(opts), take, job["work_dir"]))
@@ -118,7 +125,7 @@ def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -
     """The chord body: writes the filled layer (and review layer) from every take."""
     from pipeline import fill
 
-    with _sorted_errors(shot, job["work_dir"]):
+    with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)
         out = fill.write_layers(shot, _opts(opts), list(take_files), job_id=job["id"])
     return runtime.small_json(out)
@@ -151,8 +158,23 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
     return result
 
 
+_WORKER_PID = None
+
+
+@worker_init.connect
+def _init_worker(**_):
+    # In the worker's main process: an embedded worker dies with its `tween fill` client.
+    global _WORKER_PID
+    parent = os.environ.get(runtime.PARENT_ENV)
+    if parent:
+        _WORKER_PID = os.getpid()
+        runtime.watch_parent(int(parent))
+
+
 @worker_process_init.connect
 def _init_process(**_):
     # After fork, in each pool child: one ORT session (and GL context) per process, never in
-    # the parent before fork.
+    # the parent before fork. A pool child of an embedded worker dies with the worker.
+    if _WORKER_PID is not None:
+        runtime.die_with(_WORKER_PID)
     runtime.init_process()

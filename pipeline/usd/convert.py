@@ -140,8 +140,14 @@ def write_shot(
     keys = list(range(0, T, max(1, keys_every)))
     if keys[-1] != T - 1:
         keys.append(T - 1)
-    tmp = out.with_name(f".{out.stem}.tmp{os.getpid()}{out.suffix}")
-    stage = Usd.Stage.CreateNew(str(tmp))
+    # Atomic: a temp named after this process (those of dead writers are removed), renamed
+    # over ``out``; a full disk is one line naming ``out`` and leaves nothing behind.
+    from pipeline.usd.write import clean_dead_temps, saving, temp_path
+
+    tmp = temp_path(out)
+    clean_dead_temps(out.parent, quiet=True)
+    with saving(out, tmp):
+        stage = Usd.Stage.CreateNew(str(tmp))
     try:
         stage.SetTimeCodesPerSecond(motion.fps)
         stage.SetFramesPerSecond(motion.fps)
@@ -195,9 +201,11 @@ def write_shot(
                 ra.Set(Vt.QuatfArray.FromNumpy(np.ascontiguousarray(motion.rotations[k])), t)
                 ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(trans[k].astype(np.float32))), t)
         _mannequin(stage, f"/World/{name}/Mannequin", sk, skel, g_pos, tokens)
-        stage.GetRootLayer().Save()
-        del stage
-        os.replace(tmp, out)
+        with saving(out, tmp):
+            if not stage.GetRootLayer().Save():
+                raise OSError(f"{out}: the shot was not saved")
+            del stage
+            os.replace(tmp, out)
     finally:
         if tmp.exists():
             tmp.unlink()

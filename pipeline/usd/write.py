@@ -11,16 +11,154 @@ the variants, so no local opinion of the animator's layers can hide them).
 from __future__ import annotations
 
 import datetime
+import errno
 import os
 import re
+import shutil
+import socket
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 import pipeline.usd  # noqa: F401
-from pipeline.errors import ShotError
+from pipeline.errors import ShotError, TweenError
 
 VARIANT_SET = "tweenTake"
+
+# --- temp files, dead writers, full disks ---------------------------------------------------
+#
+# Every temp file (or take folder) this package writes is named ``.<base>.<pid>@<host>[.<rand>]
+# .tmp[.<ext>]`` (a take folder: ``tween-take.<pid>@<host>.<rand>.tmp``), so the next run into
+# that folder can tell the temps of a writer that died (killed mid-save) from those of one
+# still writing, and remove them. USD's own safe-save temp (``<name without ext>.<rand>``)
+# matches the same pattern. Temps of another host are never touched (its pids mean nothing here).
+
+_HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname() or "host")[:40] or "host"
+_TEMP_RE = re.compile(
+    r"^(?:\..+|tween-take)\.(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]+)(?:\.[A-Za-z0-9_]+)?\.tmp(?:\.[^.]+)?$"
+)
+# Temps of earlier versions (no host): only the fill and review layers had a pid in the name.
+_OLD_TEMP_RE = re.compile(r"^\..+\.(?:tween|review)\.v\d+\.(?P<pid>\d+)\.tmp(?:\.[^.]+)?$")
+
+_FULL = {
+    errno.ENOSPC: "no space left on device",
+    errno.EFBIG: "file too large",
+    errno.EDQUOT: "disk quota exceeded",
+}
+
+
+def owner_tag() -> str:
+    """``<pid>@<host>``: who writes a temp file."""
+    return f"{os.getpid()}@{_HOST}"
+
+
+def temp_path(final: Path) -> Path:
+    """The temp a writer of ``final`` saves to before the atomic rename/link (same folder)."""
+    final = Path(final)
+    return final.with_name(f".{final.stem}.{owner_tag()}.tmp{final.suffix}")
+
+
+def pid_alive(pid: int, host: str | None = None) -> bool:
+    """False only when ``pid`` certainly is not running on this host (a zombie is dead)."""
+    if host and host != _HOST:
+        return True
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (OSError, IndexError):
+        return True
+
+
+def dead_temp(name: str) -> bool:
+    """Whether ``name`` is a temp of this package whose writer has died."""
+    m = _TEMP_RE.match(name)
+    if m:
+        return not pid_alive(int(m["pid"]), m["host"])
+    m = _OLD_TEMP_RE.match(name)
+    return bool(m) and not pid_alive(int(m["pid"]))
+
+
+def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
+    """Removes the temp files and take folders of dead writers in ``folder``; returns them."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        if not dead_temp(e.name):
+            continue
+        try:
+            if e.is_dir(follow_symlinks=False):
+                shutil.rmtree(e.path)
+            else:
+                os.unlink(e.path)
+        except FileNotFoundError:
+            continue  # another run cleaned it first
+        except OSError:
+            continue
+        removed.append(e.path)
+    if removed and not quiet:
+        print(
+            f"tween: removed {len(removed)} temp file(s) left in {folder} by a dead writer", file=sys.stderr
+        )
+    return removed
+
+
+def write_error(path, exc: BaseException) -> TweenError | None:
+    """One-line error for a full disk / too large file while writing ``path``, else None."""
+    no = getattr(exc, "errno", None)
+    if no in _FULL:
+        return TweenError(f"{path}: {_FULL[no]}")
+    text = str(exc)
+    for no, msg in _FULL.items():
+        if os.strerror(no) in text:
+            return TweenError(f"{path}: {msg}")
+    return None
+
+
+def discard(tmp: Path) -> None:
+    """Removes a temp and any safe-save temp USD left beside it (``<tmp without ext>.<rand>``)."""
+    tmp = Path(tmp)
+    tmp.unlink(missing_ok=True)
+    stem = tmp.name[: -len(tmp.suffix)] if tmp.suffix else tmp.name
+    try:
+        for p in tmp.parent.glob(f"{stem}.*"):
+            if p.name != tmp.name and _TEMP_RE.match(p.name):
+                p.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+@contextmanager
+def saving(final, tmp: Path | None = None):
+    """Around a USD or file save whose result goes to ``final``: USD's error diagnostics are
+    collected (not printed), a full disk / too large file becomes one TweenError naming
+    ``final``, and ``tmp`` (with USD's own temp) is removed on any failure."""
+    from pxr import Tf
+
+    try:
+        yield
+    except BaseException as e:
+        if tmp is not None:
+            discard(tmp)
+        err = write_error(final, e)
+        if err is not None:
+            raise err from None
+        if isinstance(e, Tf.ErrorException):
+            first = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+            raise TweenError(f"{final}: cannot write: {first.split(' : ', 1)[-1]}") from None
+        raise
 
 
 def shot_stem(shot: str) -> str:
@@ -171,9 +309,15 @@ def _link_new(tmp: Path, final: Path) -> bool:
     return True
 
 
+def default_out_dir(shot: str) -> Path:
+    """Beside the shot as the user gave it: a shot given through a symlink gets its layers in
+    the link's folder, not in its target's."""
+    return Path(os.path.abspath(shot)).parent
+
+
 def check_out_dir(shot: str, out_dir: str | None) -> Path:
-    """The folder layers go to; raises ShotError when it cannot be written."""
-    out = Path(out_dir) if out_dir else Path(shot).resolve().parent
+    """The folder layers go to; raises ShotError when it cannot be written. Creates nothing."""
+    out = Path(out_dir) if out_dir else default_out_dir(shot)
     probe = out
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
@@ -183,24 +327,111 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
     return out
 
 
+def _mkdirs(shot: str, out: Path, created: list[Path]) -> None:
+    """Creates ``out`` and its missing parents, recording those this call made."""
+    missing = []
+    p = out
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    for d in reversed(missing):
+        try:
+            d.mkdir()
+            created.append(d)
+        except FileExistsError:
+            pass
+        except OSError as e:
+            raise write_error(d, e) or ShotError(
+                shot, f"cannot create output folder {out}: {e.strerror}"
+            ) from None
+
+
+def _remove_created(created: list[Path]) -> None:
+    """Undoes :func:`_mkdirs` after a failure: the folders it made, if still empty."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+@contextmanager
+def folder_lock(shot: str, out: Path, stem: str, created: list[Path]):
+    """Exclusive lock (flock) on ``out/.<stem>.tween.lock``, creating ``out`` when needed.
+
+    Serialises the job-id check and the version allocation of every writer of ``stem`` into
+    ``out``. The lock file is removed when released; a waiter that then holds a removed file's
+    lock sees its inode gone from the folder and locks the new file instead.
+    """
+    import fcntl
+
+    lock = out / f".{stem}.tween.lock"
+    while True:
+        _mkdirs(shot, out, created)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except FileNotFoundError:
+            continue  # the folder was removed meanwhile (another writer's failure)
+        except OSError as e:
+            raise write_error(lock, e) or ShotError(shot, f"cannot lock {lock}: {e.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            st = os.fstat(fd)
+            try:
+                cur = os.stat(lock)
+                same = (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
+            except FileNotFoundError:
+                same = False
+        except BaseException:
+            os.close(fd)
+            raise
+        if same:
+            break
+        os.close(fd)
+    try:
+        yield
+    finally:
+        try:
+            os.unlink(lock)
+        except OSError:
+            pass
+        os.close(fd)
+
+
 def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, fmt: str,
           review_layer: str | None) -> dict:  # fmt: skip
-    """Writes ``<stem>.tween.vNNN.<fmt>`` and its review root layer; returns the result dict."""
-    from pxr import Sdf, UsdUtils
+    """Writes ``<stem>.tween.vNNN.<fmt>`` and its review root layer; returns the result dict.
 
+    With ``meta["job_id"]`` set, a layer of that job already in the folder is returned instead
+    (checked under the folder lock, so concurrent writers of one job make one layer).
+    """
     if fmt not in ("usda", "usdc"):
         raise ShotError(shot, f"unknown layer format {fmt!r} (usda or usdc)")
     out = check_out_dir(shot, out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ShotError(shot, f"cannot create output folder {out}: {e.strerror}") from None
     animator = {os.path.realpath(p) for p in _layer_files(stage)}
     if review_layer and os.path.realpath(review_layer) in animator:
         raise ShotError(
             shot, f"{review_layer} is one of the shot's own layers; the animator's layers are never modified"
         )
     stem = shot_stem(shot)
+    created: list[Path] = []
+    try:
+        with folder_lock(shot, out, stem, created):
+            clean_dead_temps(out)
+            if review_layer:
+                clean_dead_temps(Path(os.path.abspath(review_layer)).parent)
+            done = find_job(out, stem, meta.get("job_id", ""))
+            if done:
+                return done
+            return _write_locked(shot, stage, takes, meta, out, stem, fmt, review_layer)
+    except BaseException:
+        _remove_created(created)
+        raise
+
+
+def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, review_layer) -> dict:
+    from pxr import Sdf, UsdUtils
+
     src_root = stage.GetRootLayer()
     meta = dict(meta, created_at=meta.get("created_at") or datetime.datetime.now(datetime.UTC).isoformat())
     for _ in range(1000):
@@ -212,9 +443,11 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
         n = max(taken, default=0) + 1
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
         review = Path(review_layer) if review_layer else out / f"{stem}.review.v{n:03d}.usda"
-        tmp = out / f".{stem}.tween.v{n:03d}.{os.getpid()}.tmp.{fmt}"
-        layer = Sdf.Layer.CreateNew(str(tmp))
-        try:
+        tmp = temp_path(final)
+        with saving(final, tmp):
+            layer = Sdf.Layer.CreateNew(str(tmp))
+            if layer is None:
+                raise TweenError(f"{final}: cannot write the layer")
             UsdUtils.CopyLayerMetadata(src_root, layer, True, True)
             layer.customLayerData = {
                 "tween": {
@@ -231,17 +464,18 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
                 }  # fmt: skip
             }
             author_fill_layer(layer, stage, takes, meta)
-            layer.Save()
-        except Exception:
-            tmp.unlink(missing_ok=True)
-            raise
-        if _link_new(tmp, final):
+            if not layer.Save():
+                raise TweenError(f"{final}: cannot write the layer")
+            del layer
+        with saving(final, tmp):
+            linked = _link_new(tmp, final)
+        if linked:
             break
     else:
         raise ShotError(shot, f"could not find a free version in {out}")
     try:
         _write_review(shot, src_root, final, review, bool(review_layer))
-    except Exception:
+    except BaseException:
         final.unlink(missing_ok=True)
         raise
     return {"layer": str(final), "review": str(review), "version": n, "takes": len(takes),
@@ -250,6 +484,12 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
 
 
 def _rel(target: Path, base_dir: Path) -> str:
+    """``target`` relative to ``base_dir`` as given (a symlinked shot stays the link), unless
+    a symlinked folder on the way makes that lexical path lead elsewhere."""
+    target, base_dir = os.path.abspath(target), os.path.abspath(base_dir)
+    rel = os.path.relpath(target, base_dir)
+    if os.path.realpath(os.path.join(base_dir, rel)) == os.path.realpath(target):
+        return rel
     return os.path.relpath(os.path.realpath(target), os.path.realpath(base_dir))
 
 
@@ -257,7 +497,7 @@ def _write_review(shot: str, src_root, fill: Path, review: Path, existing: bool)
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
     from pxr import Sdf, UsdUtils
 
-    tmp = review.with_name(f".{review.stem}.{os.getpid()}.tmp{review.suffix}")
+    tmp = temp_path(review)
     if existing:
         layer = Sdf.Layer.FindOrOpen(str(review))
         if layer is None:
@@ -267,16 +507,25 @@ def _write_review(shot: str, src_root, fill: Path, review: Path, existing: bool)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))
         text.subLayerPaths = subs
-        text.Export(str(tmp))
-        os.replace(tmp, review)
+        with saving(review, tmp):
+            if not text.Export(str(tmp)):
+                raise TweenError(f"{review}: cannot write the review layer")
+            os.replace(tmp, review)
         layer.Reload()
         return
-    layer = Sdf.Layer.CreateNew(str(tmp))
-    UsdUtils.CopyLayerMetadata(src_root, layer, True, True)
-    layer.subLayerPaths = [_rel(fill, review.parent), _rel(Path(shot), review.parent)]
-    layer.comment = "Review root layer written by usd-tween: the fill over the animator's shot."
-    layer.Save()
-    if not _link_new(tmp, review):
+    with saving(review, tmp):
+        layer = Sdf.Layer.CreateNew(str(tmp))
+        if layer is None:
+            raise TweenError(f"{review}: cannot write the review layer")
+        UsdUtils.CopyLayerMetadata(src_root, layer, True, True)
+        layer.subLayerPaths = [_rel(fill, review.parent), _rel(Path(shot), review.parent)]
+        layer.comment = "Review root layer written by usd-tween: the fill over the animator's shot."
+        if not layer.Save():
+            raise TweenError(f"{review}: cannot write the review layer")
+        del layer
+    with saving(review, tmp):
+        linked = _link_new(tmp, review)
+    if not linked:
         raise ShotError(shot, f"review layer {review} already exists")
 
 
