@@ -15,9 +15,12 @@ import numpy as np
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd.keys import merge_times, parse_keys, parse_range
 from pipeline.usd.mapping import REQUIRED, MappingError, load_override, map_joints
-from pipeline.usd.read import TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
+from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 from pipeline.usd.retarget import Retarget
 from pipeline.usd.rigmap import OwnRig, RigMap, skeleton_space
+
+#: The most model frames one character's keys may span (the in-betweener fills them all).
+MAX_MODEL_FRAMES = 1_000_000
 
 
 @dataclass
@@ -67,12 +70,11 @@ class Plan:
         }
 
 
-def _keys_for(shot: Shot, char: Character, keys_opt: str | None) -> np.ndarray:
-    if keys_opt:
-        want = parse_keys(keys_opt)
-    elif char.key_override is not None:
+def _keys_for(shot: Shot, char: Character, want: np.ndarray | None) -> np.ndarray:
+    """``want``: the parsed --keys, or None (tween:keyTimes, else the authored samples)."""
+    if want is None and char.key_override is not None:
         want = np.unique(char.key_override)
-    else:
+    elif want is None:
         return char.sample_times
     # Snap requested keys onto authored samples within tolerance so they keep exact values.
     return merge_times(
@@ -110,6 +112,22 @@ def _own_rate(tcps: float, keys: np.ndarray) -> float:
     return float(tcps * 64)
 
 
+def _check_key_values(path: str, c: Character, k: np.ndarray, rot, tr, sc) -> None:
+    """The values at every key: finite, rotations of length above QUAT_EPS (the samples
+    themselves were checked on read; keys between samples are USD's interpolation)."""
+    fin = np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)) & np.isfinite(sc).all((1, 2))
+    if not fin.all():
+        raise ShotError(path, f"NaN or infinite values at time {k[~fin][0]:g}", c.anim_path)
+    short = np.linalg.norm(rot.astype(np.float64), axis=-1) <= QUAT_EPS
+    if short.any():
+        i, j = (int(x[0]) for x in np.nonzero(short))
+        raise ShotError(
+            path,
+            f"rotations: joint {c.anim_joints[j]!r} at time {k[i]:g} is not a rotation (length ~0)",
+            c.anim_path,
+        )
+
+
 def make_plan(
     path: str,
     keys: str | None,
@@ -128,17 +146,18 @@ def make_plan(
         override = load_override(mapping)
     except MappingError as e:
         raise TweenError(str(e)) from None
-    rng = parse_range(range_) if range_ else None
+    # Options are checked against the stage before a range of them is expanded.
+    want = parse_keys(keys, path, shot.start, shot.end) if keys else None
+    rng = parse_range(range_, path, shot.start, shot.end) if range_ else None
     chars: list[CharPlan] = []
     refused: list[tuple[str, str]] = []
+    notes: list[str] = []  # said on stderr once every check has passed (one line on refusal)
     for c in shot.characters:
-        k = _keys_for(shot, c, keys)
+        k = _keys_for(shot, c, want)
         if len(k) < 2:
             raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
-        rot, tr, _ = anim_values(shot.stage, c, k)
-        bad = ~(np.isfinite(rot).all((1, 2)) & np.isfinite(tr).all((1, 2)))
-        if bad.any():
-            raise ShotError(path, f"NaN or infinite values at time {k[bad][0]:g}", c.anim_path)
+        rot, tr, sc = anim_values(shot.stage, c, k)
+        _check_key_values(path, c, k, rot, tr, sc)
         rt, folder, fps = None, None, model_fps
         if own_rig:
             rt, fps = OwnRig(c), _own_rate(shot.tcps, k)
@@ -168,16 +187,23 @@ def make_plan(
                 refused.append((c.skel_path, why))
                 continue
             if rt.missing:
-                print(
+                notes.append(
                     f"tween: {path} {c.skel_path}: the rig has no {', '.join(rt.missing)}: "
-                    "carried rigidly from their parents",
-                    file=sys.stderr,
+                    "carried rigidly from their parents"
                 )
         lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
         out = k[(k < lo) | (k > hi)]
         if len(out):
             raise ShotError(
                 path, f"key {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}", c.anim_path
+            )
+        span = (k[-1] - k[0]) / shot.tcps * fps
+        if not span <= MAX_MODEL_FRAMES:
+            raise ShotError(
+                path,
+                f"keys {k[0]:g}-{k[-1]:g} span {span:.0f} frames at {fps:g} fps "
+                f"(timeCodesPerSecond {shot.tcps:g}); at most {MAX_MODEL_FRAMES:,}",
+                c.anim_path,
             )
         m = np.round((k - k[0]) / shot.tcps * fps)
         dup = np.nonzero(np.diff(m) == 0)[0]
@@ -194,6 +220,8 @@ def make_plan(
     if not chars:
         prim, why = refused[0]
         raise ShotError(path, f"rig refused: {why}", prim)
+    for note in notes:
+        print(note, file=sys.stderr)
     for prim, why in refused:
         print(f"tween: warning: {path} {prim}: skipped: {why}", file=sys.stderr)
     return Plan(shot, chars, refused, model_fps)

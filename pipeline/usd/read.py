@@ -3,6 +3,12 @@
 Skeleton → animation bindings are resolved by UsdSkel's own cache (inherited
 ``skel:animationSource`` on a SkelRoot included). Matrices are converted to the column
 convention on read (USD's are row-vector); quaternions are xyzw as everywhere here.
+
+Bad content is refused here, before any work, as one ShotError line naming the prim and
+time: an invalid skeleton topology, rest/bind transforms or animation samples that are not
+finite, a rotation that is no quaternion (length ~0), a time code rate or stage range that
+is not a positive finite span. USD's own warnings while the shot is read are captured
+(:mod:`pipeline.usd.diagnostics`), kept off stderr and folded into the error line.
 """
 
 from __future__ import annotations
@@ -16,8 +22,11 @@ import numpy as np
 import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
 from pipeline.errors import ShotError
 from pipeline.motion.rotations import matrix_to_quat
+from pipeline.usd.diagnostics import short, usd_diagnostics
+from pipeline.usd.keys import MAX_FRAMES
 
 TIME_EPS = 1e-4  # time codes closer than this are the same frame (real files carry 3023.000157…)
+QUAT_EPS = 1e-6  # a rotation quaternion shorter than this is no rotation (a zeroed key)
 
 
 @dataclass
@@ -82,13 +91,14 @@ def open_stage(path: str | Path):
         raise ShotError(path, "file not found")
     if not Path(path).is_file():
         raise ShotError(path, "not a file")
-    try:
-        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
-    except Tf.ErrorException as e:
-        msg = str(e).strip().splitlines()
-        raise ShotError(path, f"cannot open as USD: {msg[-1].strip() if msg else 'unreadable'}") from None
-    if stage is None:
-        raise ShotError(path, "cannot open as USD")
+    with usd_diagnostics(path):
+        try:
+            stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+        except Tf.ErrorException as e:
+            msg = str(e).strip().splitlines()
+            raise ShotError(path, f"cannot open as USD: {msg[-1].strip() if msg else 'unreadable'}") from None
+        if stage is None:
+            raise ShotError(path, "cannot open as USD")
     return stage
 
 
@@ -108,6 +118,71 @@ def _fk_bind(parents, rest_rot, rest_trans):
     return g_rot, g_pos
 
 
+def check_topology(shot_path: str, skel_path: str, joints) -> None:
+    """Refuses a joint list UsdSkel cannot build a hierarchy from: a token that is not a
+    relative prim path (USD warns ``Ill-formed SdfPath`` and drops the joint's parent), a
+    joint listed twice, a parent listed after its child (``mis-ordered parent``)."""
+    from pxr import Sdf, UsdSkel, Vt
+
+    bad = "skeleton topology is invalid"
+    if not joints:
+        raise ShotError(shot_path, f"{bad}: the skeleton lists no joints", skel_path)
+    seen: dict[str, int] = {}
+    for i, t in enumerate(joints):
+        ok, why = Sdf.Path.IsValidPathString(t)
+        if ok and (Sdf.Path(t).IsAbsolutePath() or not Sdf.Path(t).IsPrimPath()):
+            ok, why = False, "expected a relative prim path like Hips/Spine"
+        if not ok:
+            raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is not a joint path: {short(why)}", skel_path)
+        if t in seen:
+            raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is joint {seen[t]} again", skel_path)
+        seen[t] = i
+    ok, why = UsdSkel.Topology(Vt.TokenArray(list(joints))).Validate()
+    if not ok:
+        raise ShotError(shot_path, f"{bad}: {short(why) or 'UsdSkel refuses it'}", skel_path)
+
+
+def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray, joints) -> None:
+    bad = ~np.isfinite(mats).all((1, 2))
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise ShotError(shot_path, f"{name}: NaN or infinite values (joint {joints[j]!r})", skel_path)
+
+
+def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
+    """Every authored sample (or the default, when there are none) of the animation's
+    rotations, translations and scales: one value per joint, finite, rotations of length
+    above QUAT_EPS. Names the attribute, the time and the joint."""
+    Ja = len(anim_joints)
+    for attr in (anim.GetRotationsAttr(), anim.GetTranslationsAttr(), anim.GetScalesAttr()):
+        name = attr.GetName()
+        times = attr.GetTimeSamples()
+        for t in times or [None]:
+            v = attr.Get(t) if t is not None else attr.Get()
+            if v is None:
+                continue
+            at = f"at time {t:g}" if t is not None else "in its default value"
+            a = np.asarray(v, np.float64)
+            if a.ndim != 2 or a.shape[0] != Ja:
+                raise ShotError(shot_path, f"{name} holds {len(a)} values for {Ja} joints {at}", anim_path)
+            finite = np.isfinite(a).all(1)
+            if not finite.all():
+                j = int(np.flatnonzero(~finite)[0])
+                raise ShotError(
+                    shot_path, f"{name}: NaN or infinite values {at} (joint {anim_joints[j]!r})", anim_path
+                )
+            if name == "rotations":
+                n = np.linalg.norm(a, axis=1)
+                if (n <= QUAT_EPS).any():
+                    j = int(np.flatnonzero(n <= QUAT_EPS)[0])
+                    raise ShotError(
+                        shot_path,
+                        f"{name}: joint {anim_joints[j]!r} {at} is not a rotation "
+                        f"(quaternion ({', '.join(f'{x:g}' for x in a[j])}) has length {n[j]:.3g})",
+                        anim_path,
+                    )
+
+
 def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     from pxr import UsdGeom, UsdSkel
 
@@ -120,11 +195,22 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     parents = np.array([topo.GetParent(i) for i in range(J)], np.int64)
     rest = skel.GetRestTransformsAttr().Get()
     bind = skel.GetBindTransformsAttr().Get()
+    for name, m in (("restTransforms", rest), ("bindTransforms", bind)):
+        if m is not None and len(m) == J:
+            _finite_matrices(shot_path, skel_path, name, _col(m), joints)
     if rest is not None and len(rest) == J:
         rest_rot, rest_trans = _decompose(_col(rest))
     elif bind is not None and len(bind) == J:
         # No rest pose: derive locals from the bind pose, as UsdSkel itself does.
         b = _col(bind)
+        singular = np.abs(np.linalg.det(b[:, :3, :3])) < 1e-12
+        if singular.any():
+            j = int(np.flatnonzero(singular)[0])
+            raise ShotError(
+                shot_path,
+                f"bindTransforms: the matrix of joint {joints[j]!r} is singular (no restTransforms to use)",
+                skel_path,
+            )
         loc = np.array([b[j] if parents[j] < 0 else np.linalg.inv(b[parents[j]]) @ b[j] for j in range(J)])
         rest_rot, rest_trans = _decompose(loc)
     else:
@@ -146,6 +232,7 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         raise ShotError(
             shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
         )
+    check_samples(shot_path, anim, anim_path, anim_joints)
     rot_times = anim.GetRotationsAttr().GetTimeSamples()
     trans_times = anim.GetTranslationsAttr().GetTimeSamples()
     times = sorted(set(rot_times) | set(trans_times))
@@ -153,9 +240,17 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     kt = anim_prim.GetAttribute("tween:keyTimes")
     if kt and kt.HasAuthoredValue():
         override = np.array(kt.Get(), np.float64)
+        if not np.isfinite(override).all():
+            raise ShotError(shot_path, "tween:keyTimes holds NaN or infinite time codes", anim_path)
     keyed = _keyed_joints(anim_prim, anim_joints, shot_path, anim_path)
     start = stage.GetStartTimeCode()
     xf = UsdGeom.Xformable(skel.GetPrim()).ComputeLocalToWorldTransform(start)
+    if not np.isfinite(np.array(xf)).all():
+        raise ShotError(
+            shot_path,
+            f"the skeleton's world transform at time {start:g} holds NaN or infinite values",
+            skel_path,
+        )
     bs = anim.GetBlendShapeWeightsAttr()
     return Character(
         shot=shot_path,
@@ -199,12 +294,40 @@ def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
     return out
 
 
+def _check_rate(path: str, stage) -> float:
+    tcps = float(stage.GetTimeCodesPerSecond())
+    if not (tcps > 0 and math.isfinite(tcps)):
+        root = stage.GetRootLayer()
+        fps_only = not root.HasTimeCodesPerSecond() and root.HasFramesPerSecond()
+        name = "framesPerSecond" if fps_only else "timeCodesPerSecond"
+        raise ShotError(path, f"{name} {tcps:g} is not a positive number")
+    return tcps
+
+
+def _check_span(path: str, start: float, end: float, what: str) -> None:
+    if not (math.isfinite(start) and math.isfinite(end)):
+        raise ShotError(path, f"{what} {start:g}-{end:g} is not finite")
+    if end < start:
+        raise ShotError(path, f"{what} ends ({end:g}) before it starts ({start:g})")
+    if end - start > MAX_FRAMES:
+        raise ShotError(path, f"{what} {start:g}-{end:g} spans more than {MAX_FRAMES:,} frames")
+
+
 def read_shot(path: str | Path) -> Shot:
-    """Every skeleton with a bound animation in the shot (UsdSkel binding resolution)."""
+    """Every skeleton with a bound animation in the shot (UsdSkel binding resolution).
+    USD's diagnostics while reading are captured, and folded into a refusal."""
+    path = str(path)
+    with usd_diagnostics(path):
+        return _read_shot(path)
+
+
+def _read_shot(path: str) -> Shot:
     from pxr import Usd, UsdGeom, UsdSkel
 
-    path = str(path)
     stage = open_stage(path)
+    tcps = _check_rate(path, stage)
+    if stage.HasAuthoredTimeCodeRange():
+        _check_span(path, stage.GetStartTimeCode(), stage.GetEndTimeCode(), "the stage range")
     cache = UsdSkel.Cache()
     chars: list[Character] = []
     seen: set[str] = set()
@@ -216,6 +339,11 @@ def read_shot(path: str | Path) -> Shot:
             if not sub.IsA(UsdSkel.Skeleton) or str(sub.GetPath()) in seen:
                 continue
             skel = UsdSkel.Skeleton(sub)
+            if UsdSkel.BindingAPI(sub).GetInheritedAnimationSource():
+                # A skeleton meant to be animated: its joints must make a hierarchy (UsdSkel
+                # only warns, and drops it from the cache).
+                joints = [str(t) for t in (skel.GetJointsAttr().Get() or [])]
+                check_topology(path, str(sub.GetPath()), joints)
             skelq = cache.GetSkelQuery(skel)
             if not skelq:
                 continue
@@ -234,7 +362,8 @@ def read_shot(path: str | Path) -> Shot:
     if not stage.HasAuthoredTimeCodeRange():
         allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])
         start, end = float(allt.min()), float(allt.max())
-    return Shot(path, stage, float(stage.GetTimeCodesPerSecond()), float(start), float(end), up, mpu, chars)
+        _check_span(path, start, end, "the animation's time samples")
+    return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
 
 
 def anim_values(stage, char: Character, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,6 +372,11 @@ def anim_values(stage, char: Character, times) -> tuple[np.ndarray, np.ndarray, 
     Values between authored samples are USD's own interpolation (SLERP / LERP). An
     attribute with no value at all falls back to the rest pose, as UsdSkel does.
     """
+    with usd_diagnostics(char.shot):
+        return _anim_values(stage, char, times)
+
+
+def _anim_values(stage, char: Character, times):
     from pxr import UsdSkel
 
     anim = UsdSkel.Animation(stage.GetPrimAtPath(char.anim_path))
