@@ -375,4 +375,5 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
+    result["retarget"] = summary["retarget"]  # per character: reference pose, joints the rig lacks
     return result
