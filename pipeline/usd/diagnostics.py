@@ -52,6 +52,27 @@ def short(text: str) -> str:
     return first
 
 
+_ERROR = re.compile(r"Error in '[^']*' at line \d+ in file \S+ : '(.*?)'\s*(?=\n\s*Error in |\Z)", re.S)
+
+
+def error_text(exc, path: str | None = None) -> str:
+    """The telling part of a ``Tf.ErrorException``: of the errors it carries, the first
+    that is not the closing "Failed to open layer", preferring one that gives a line in
+    ``path`` (``line 5:5: invalid value for field ...``), as one short clause."""
+    raw = str(exc).strip()
+    found = [_one_line(m) for m in _ERROR.findall(raw)] or [
+        _one_line(ln) for ln in raw.splitlines() if ln.strip()
+    ]
+    if not found:
+        return "unreadable"
+    telling = [t for t in found if not t.startswith("Failed to open layer")] or found
+    if path:
+        where = [t for t in telling if t.startswith(f"{path}:")]
+        if where:
+            return short("line " + where[0][len(path) + 1 :])
+    return short(telling[0])
+
+
 @dataclass
 class Diagnostics:
     """What USD posted while the block ran, in order (duplicates dropped)."""
@@ -128,9 +149,7 @@ def usd_diagnostics(shot: str | None = None, fold: bool = True):
         diags._take(delegate)
         if shot is None:
             raise
-        lines = [ln.strip() for ln in str(e).strip().splitlines() if ln.strip()]
-        why = short(lines[-1]) if lines else "unreadable"
-        raise ShotError(shot, f"USD error: {why}") from None
+        raise ShotError(shot, f"USD error: {error_text(e, shot)}") from None
     finally:
         diags._take(delegate)
         # Unregisters it from TfDiagnosticMgr (its destructor): later diagnostics print again.

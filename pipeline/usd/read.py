@@ -22,7 +22,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
 from pipeline.errors import ShotError
 from pipeline.motion.rotations import matrix_to_quat
-from pipeline.usd.diagnostics import short, usd_diagnostics
+from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
 
 TIME_EPS = 1e-4  # time codes closer than this are the same frame (real files carry 3023.000157…)
@@ -95,8 +95,7 @@ def open_stage(path: str | Path):
         try:
             stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
         except Tf.ErrorException as e:
-            msg = str(e).strip().splitlines()
-            raise ShotError(path, f"cannot open as USD: {msg[-1].strip() if msg else 'unreadable'}") from None
+            raise ShotError(path, f"cannot open as USD: {error_text(e, path)}") from None
         if stage is None:
             raise ShotError(path, "cannot open as USD")
     return stage
