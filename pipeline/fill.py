@@ -56,6 +56,8 @@ MAX_TAKES = 64
 #: int, 32 bits), so every take's seed is within 0 .. 2**31 - 1.
 MAX_SEED = 2**31 - 1
 FORMATS = ("usda", "usdc")
+#: pipeline.infer.dna.MAX_POSES, not imported for the check (that module pulls in scipy).
+MAX_DNA_POSES = 8
 
 
 def _is_int(v) -> bool:
@@ -73,7 +75,6 @@ def check_fill_options(opts: FillOptions) -> None:
     """Validates every field of ``opts``; the messages name the command-line options."""
     import math
 
-    from pipeline.infer.dna import MAX_POSES
     from pipeline.usd.keys import parse_keys, parse_range
 
     if not _is_int(opts.takes) or not 1 <= opts.takes <= MAX_TAKES:
@@ -87,8 +88,8 @@ def check_fill_options(opts: FillOptions) -> None:
         )
     if opts.fmt not in FORMATS:
         raise TweenError(f"--format {opts.fmt!r}: must be usda or usdc")
-    if not _is_int(opts.dna_poses) or not 1 <= opts.dna_poses <= MAX_POSES:
-        raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_POSES}")
+    if not _is_int(opts.dna_poses) or not 1 <= opts.dna_poses <= MAX_DNA_POSES:
+        raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_DNA_POSES}")
     if not isinstance(opts.model, str) or not opts.model.strip():
         raise TweenError(f"--model {opts.model!r}: expected default, interp, or a model name or folder")
     if opts.keys is not None:

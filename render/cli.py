@@ -78,10 +78,7 @@ def review(
     """Renders review media for a filled shot: H.264 MP4, numbered frames, contact sheet."""
     from pathlib import Path
 
-    from render.review import render_review
-    from render.scene import list_takes
-
-    # Every option is checked here, before anything is read or written.
+    # Every option is checked here, before anything is imported, read or written.
     w, h = _size(size)
     fr = _range(frames)
     _check_options(take, turns)
@@ -89,6 +86,9 @@ def review(
         raise TweenError(f"--camera {camera!r}: must be turntable, front or side")
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
+    from render.review import render_review
+    from render.scene import list_takes
+
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
     takes = [take]
     if all_takes:

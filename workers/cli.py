@@ -36,12 +36,13 @@ _FILL_OPTS = dict(
 def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna=None, dna_poses=4) -> dict:
     """The job's options, checked (one line naming the option) before anything is sent."""
     from pipeline.fill import FillOptions
-    from workers.jobs import make_opts
 
     kw = dict(keys=keys, range=range_, takes=takes, seed=seed, model=model, out_dir=out_dir, fmt=fmt,
               mapping=mapping, dna=dna, dna_poses=dna_poses)  # fmt: skip
     kw = {k: str(v) if isinstance(v, Path) else v for k, v in kw.items()}
     FillOptions(**{k: v for k, v in kw.items() if v is not None}).check()
+    from workers.jobs import make_opts
+
     return make_opts(**kw)
 
 
@@ -105,13 +106,14 @@ def register(app: typer.Typer) -> None:
         With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
         embedded farm: a local worker on a SQLite broker, started and stopped here.
         """
+        # The options first: a bad one is refused before Celery is even imported.
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
+        _int_opt("--concurrency", concurrency, 1, 256)
         from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
 
         s = celery_app.conf.tween
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
-        _int_opt("--concurrency", concurrency, 1, 256)
         paths = [str(p) for p in shots]
         for p in paths:
             if not os.path.isfile(p):
@@ -151,6 +153,7 @@ def register(app: typer.Typer) -> None:
         render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
     ):
         """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
+        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
         from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
@@ -158,7 +161,6 @@ def register(app: typer.Typer) -> None:
         if celery_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
             raise typer.Exit(2)
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
         check_farm(celery_app)
         with farm_errors(celery_app):
             ids = jobs.submit([str(p) for p in shots], opts, render=render)
@@ -292,12 +294,7 @@ def register(app: typer.Typer) -> None:
         from pipeline.errors import TweenError
         from pipeline.fill import MAX_SEED
         from pipeline.rig.source import parse_frames
-        from workers import jobs
-        from workers.app import check_farm, farm_errors, rig_app
 
-        if rig_app.conf.tween.embedded:
-            _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
-            raise typer.Exit(2)
         if schedule not in ("tiny", "reduced", "paper"):
             raise TweenError(f"--schedule {schedule!r}: must be tiny, reduced or paper")
         _int_opt("--iters", iters, 1, 10_000_000)
@@ -306,6 +303,12 @@ def register(app: typer.Typer) -> None:
         if not re.fullmatch(r"cpu|cuda(:\d+)?", device):
             raise TweenError(f"--device {device!r}: must be cpu or cuda (cuda:N)")
         parse_frames(frames)
+        from workers import jobs
+        from workers.app import check_farm, farm_errors, rig_app
+
+        if rig_app.conf.tween.embedded:
+            _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
+            raise typer.Exit(2)
         if not source.is_file():
             _err(f"{source}: no such file")
             raise typer.Exit(2)
