@@ -29,6 +29,13 @@ from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import matrix_to_quat, quat_normalize, sixd_to_matrix, slerp_pairs
 
+# Fills up to CHUNK_FRAMES model frames (4.5 min at 30 fps) run as one window, exactly as
+# they always did; longer ones go through windows of about CHUNK_CORE frames each (plus the
+# network's receptive field on both sides), so that a fill's memory is bounded by the window
+# and not by the shot (OnnxInbetweener.chunk_plan).
+CHUNK_FRAMES = 8192
+CHUNK_CORE = 2048
+
 
 def models_root() -> Path:
     env = os.environ.get("TWEEN_MODELS")
@@ -80,6 +87,7 @@ class OnnxInbetweener:
         min_window: int | None = None,
         feet_anchor: bool | None = None,
         feet_orient: bool | None = None,
+        chunk_frames: int | None = None,
     ):
         self.folder = Path(folder)
         self.meta = json.loads((self.folder / "model.json").read_text())
@@ -104,6 +112,10 @@ class OnnxInbetweener:
         self.pad_tail = int(self.meta.get("pad_tail", 0) if pad_tail is None else pad_tail)
         self.min_window = int(self.meta.get("min_window", 0) if min_window is None else min_window)
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
+        # Long fills: windows of CHUNK_CORE frames, each seeing ``margin`` frames more on
+        # both sides (the network's receptive field), once the fill is over ``chunk_frames``.
+        self.chunk_frames = CHUNK_FRAMES if chunk_frames is None else int(chunk_frames)
+        self.margin = int(self.meta.get("receptive_field", 512))
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
@@ -257,6 +269,10 @@ class OnnxInbetweener:
         keys = np.unique(keys)
         if self.hierarchical and np.diff(keys).max() > self.max_gap:
             rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys, dna)
+        return self._chunked(rot, root, keys, noise, joint_keys, dna, self.feet)
+
+    def _solve(self, rot, root, keys, noise, joint_keys, dna, feet: bool):
+        """Networks and post-processing on one window whose gaps all fit the model."""
         gcfg = self.meta.get("generator", {})
         if joint_keys is None or gcfg.get("key_mask", False) or gcfg.get("key_adapter", False):
             q, r, contacts = self.raw(rot, root, keys, noise, joint_keys, dna)
@@ -266,7 +282,7 @@ class OnnxInbetweener:
             full = joint_keys.all(axis=1)
             q, r, contacts = self.raw(rot, root, keys[full], noise, None, dna)
         q, r = match_keys(q, r, rot[:, keys], root[:, keys], keys, joint_keys)
-        if self.feet:
+        if feet:
             # Contact per leg: the ankle (Foot_*) channels 0 and 2.
             for b in range(len(q)):
                 q[b] = lock_feet(
@@ -279,6 +295,63 @@ class OnnxInbetweener:
                     anchor=self.feet_anchor,
                     orient=self.feet_orient,
                 )
+        return q, r
+
+    def chunk_plan(self, n: int, keys: np.ndarray, joint_keys=None) -> list[tuple[int, int, int, int]]:
+        """How a fill of ``n`` frames between sorted ``keys`` is split: [(lo, hi, a, b)], the
+        window of frames lo..hi the networks see and the frames a..b of its result kept.
+
+        Up to ``chunk_frames`` frames, one window: the whole shot (the fill is then what it
+        always was). Longer fills go through windows of about ``CHUNK_CORE`` kept frames, cut
+        at full keys (so each kept piece meets the next one at a key, which both leave exact),
+        each seeing ``margin`` more frames on both sides (out to the next full key): every
+        kept frame then sees all the keys the network's receptive field reaches. What a
+        window does not see — keys beyond its margins, the first key's heading the shot is
+        put in, the position of its frames in the network's stride — changes a long fill
+        slightly against one window over the whole shot (docs in MODEL_CARD's "long shots").
+        """
+        keys = np.asarray(keys, np.int64)
+        if n <= self.chunk_frames:
+            return [(0, n - 1, 0, n - 1)]
+        full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
+        seams, nxt = [], int(full[0]) + CHUNK_CORE
+        for k in full[1:-1]:
+            if k >= nxt and int(full[-1]) - k >= CHUNK_CORE // 2:
+                seams.append(int(k))
+                nxt = int(k) + CHUNK_CORE
+        if not seams:
+            return [(0, n - 1, 0, n - 1)]
+        bounds = [0, *seams, n - 1]
+        plan = []
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            i = np.searchsorted(full, a - self.margin, side="right") - 1
+            j = np.searchsorted(full, b + self.margin, side="left")
+            lo = int(full[i]) if a > 0 and i > 0 else 0
+            hi = int(full[j]) if b < n - 1 and j < len(full) - 1 else n - 1
+            plan.append((lo, hi, a, b))
+        return plan
+
+    def _chunked(self, rot, root, keys, noise, joint_keys, dna, feet: bool):
+        """:meth:`_solve` over the windows of :meth:`chunk_plan`: memory follows the window,
+        not the shot."""
+        plan = self.chunk_plan(rot.shape[1], keys, joint_keys)
+        if len(plan) == 1:
+            return self._solve(rot, root, keys, noise, joint_keys, dna, feet)
+        q = np.empty(rot.shape, np.float32)
+        r = np.empty(root.shape, np.float32)
+        for lo, hi, a, b in plan:
+            at = (keys >= lo) & (keys <= hi)
+            qc, rc = self._solve(
+                rot[:, lo : hi + 1],
+                root[:, lo : hi + 1],
+                keys[at] - lo,
+                noise,
+                None if joint_keys is None else joint_keys[at],
+                dna,
+                feet,
+            )
+            q[:, a : b + 1] = qc[:, a - lo : b - lo + 1]
+            r[:, a : b + 1] = rc[:, a - lo : b - lo + 1]
         return q, r
 
     def _insert_keys(self, rot, root, keys, noise, joint_keys=None, dna=None):
@@ -298,8 +371,7 @@ class OnnxInbetweener:
         c_rot = np.repeat(rot[:, :1], nc, 1).copy()
         c_root = np.repeat(root[:, :1], nc, 1).copy()
         c_rot[:, ck], c_root[:, ck] = rot[:, fk_], root[:, fk_]
-        q, r, _ = self.raw(c_rot, c_root, ck, noise, None, dna)
-        q, r = match_keys(q, r, c_rot[:, ck], c_root[:, ck], ck)
+        q, r = self._chunked(c_rot, c_root, ck, noise, None, dna, feet=False)
         new = []
         for a, b in zip(keys[:-1], keys[1:], strict=True):
             if b - a > self.max_gap:

@@ -13,6 +13,9 @@ from pipeline.usd.plan import CharPlan, Plan
 from pipeline.usd.read import TIME_EPS, anim_values, to_skeleton_order
 from pipeline.usd.rigmap import OwnRig
 
+# Shot frames a fill turns back onto the rig at once (fill_character).
+SOLVE_BLOCK = 8192
+
 
 def _slerp_frames(q: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
     """q[i0]…q[i0+1] at per-frame weights w; rotations.slerp takes one weight list for all
@@ -55,7 +58,11 @@ def rig_key_channels(cp: CharPlan) -> tuple[np.ndarray, np.ndarray] | None:
     def at(times):  # an attribute with no samples holds one value: keyed everywhere
         if len(times) == 0:
             return np.ones(len(k), bool)
-        return np.abs(k[:, None] - times[None]).min(axis=1) < TIME_EPS
+        # The nearest sample on either side (not a keys × samples table: long shots).
+        t = np.sort(np.asarray(times))
+        i = np.searchsorted(t, k)
+        below, above = t[np.maximum(i - 1, 0)], t[np.minimum(i, len(t) - 1)]
+        return np.minimum(np.abs(k - below), np.abs(k - above)) < TIME_EPS
 
     rot, trans = at(c.rot_times), at(c.trans_times)
     rig = np.repeat(rot[:, None], len(c.joints), 1)
@@ -106,12 +113,21 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     i0 = np.floor(u + 1e-9).astype(np.int64)
     w = np.clip(u - i0, 0.0, 1.0)
     w[w < 1e-7] = 0.0
-    loc = _slerp_frames(filled.rotations, i0, w)
-    i1 = np.minimum(i0 + 1, T - 1)
-    root = (1 - w[:, None]) * filled.root_positions[i0] + w[:, None] * filled.root_positions[i1]
-    rot_o, tr_o, sc_o = anim_values(shot.stage, c, inside)
-    rot_s, tr_s = cp.retarget.from_model(loc, root, *to_skeleton_order(c, rot_o, tr_o))
-    rot, tr = rot_s[:, c.anim_index], tr_s[:, c.anim_index]
+    # Frame by frame from here on: long shots go in blocks, so that the float64 temporaries
+    # follow the block, not the shot (a shot of up to SOLVE_BLOCK frames is one block).
+    parts = []
+    for s in range(0, max(len(inside), 1), SOLVE_BLOCK):  # one block for any short shot
+        b = slice(s, s + SOLVE_BLOCK)
+        loc = _slerp_frames(filled.rotations, i0[b], w[b])
+        i1 = np.minimum(i0[b] + 1, T - 1)
+        wb = w[b, None]
+        root = (1 - wb) * filled.root_positions[i0[b]] + wb * filled.root_positions[i1]
+        rot_o, tr_o, sc_o = anim_values(shot.stage, c, inside[b])
+        rot_s, tr_s = cp.retarget.from_model(loc, root, *to_skeleton_order(c, rot_o, tr_o))
+        parts.append((rot_s[:, c.anim_index], tr_s[:, c.anim_index], sc_o))
+        del loc, root, rot_o, tr_o, rot_s, tr_s
+    rot, tr, sc_o = parts[0] if len(parts) == 1 else (np.concatenate(p) for p in zip(*parts, strict=True))
+    del parts
     if not (np.isfinite(rot).all() and np.isfinite(tr).all()):
         raise ShotError(shot.path, "the in-betweener produced non-finite values", c.anim_path)
     # Keys carry exactly the authored values (not round-tripped ones).
