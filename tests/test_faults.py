@@ -37,6 +37,12 @@ HOOKS = """
 import os
 if os.environ.get("TWEEN_TEST_SLOW_FILL"):
     import farm_slowfill  # noqa: F401
+if os.environ.get("TWEEN_TEST_FAIL_TAKE"):
+    from pipeline import fill as _f
+    from pipeline.errors import ShotError
+    def _fail(shot, *a, **k):
+        raise ShotError(shot, "refused by the test")
+    _f.fill_take = _fail
 if os.environ.get("TWEEN_TEST_HANG_SAVE"):
     import time
     from pipeline.usd import write as _w
@@ -415,6 +421,19 @@ def test_refusal_creates_no_output_folder(tmp_path):
     assert "animator's layers are never modified" in res.stderr
     assert not new.exists()
     assert sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+
+
+def test_farm_refusal_after_the_take_folder_was_made_leaves_no_output_folder(tmp_path):
+    # The farm's take folder is beside the layers (<out>/.tween-work/<job>): a job that fails
+    # removes the output folders that did not exist when it was submitted.
+    shot = _shot(tmp_path)
+    new = tmp_path / "new"
+    env = _env(tmp_path, TWEEN_TEST_FAIL_TAKE=1)
+    cmd = _cli("fill", shot, "--model", "interp", "--out-dir", new / "nested", "--no-progress")
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2, res.stderr[-2000:]
+    assert _errors(res.stderr) == [f"tween: error: {shot}: refused by the test"], res.stderr[-2000:]
+    assert not new.exists()
 
 
 def test_symlinked_shot_gets_its_layers_beside_the_link(tmp_path):
