@@ -85,13 +85,7 @@ def test_mapping_override_file(tmp_path):
         load_override(f)
 
 
-def test_usdz_figure_fills_with_a_mapping_file_and_read_only_folder_is_refused(tmp_path):
-    from pxr import Usd
-    from usd_fixtures import samples, tree_hashes
-
-    from pipeline.errors import ShotError
-    from pipeline.fill import FillOptions, fill_shot
-
+def _figure_roles(tmp_path):
     f = tmp_path / "map.json"
     roles = {"Hips": "torso_joint_1", "Head": "neck_joint_2"}
     for s in "LR":
@@ -99,11 +93,40 @@ def test_usdz_figure_fills_with_a_mapping_file_and_read_only_folder_is_refused(t
                       f"Hand_{s}": f"arm_joint_{s}_3", f"UpperLeg_{s}": f"leg_joint_{s}_1",
                       f"LowerLeg_{s}": f"leg_joint_{s}_2", f"Foot_{s}": f"leg_joint_{s}_3"})  # fmt: skip
     f.write_text(json.dumps(roles))
-    before = tree_hashes(FIGURE.parent)
-    with pytest.raises(ShotError, match="read-only"):  # published folder: never written, even as root
-        fill_shot(str(FIGURE), FillOptions(model="interp", mapping=str(f)))
-    res = fill_shot(str(FIGURE), FillOptions(model="interp", mapping=str(f), out_dir=str(tmp_path / "o")))
-    assert tree_hashes(FIGURE.parent) == before
+    return f
+
+
+def test_usdz_figure_fills_with_a_mapping_file_and_read_only_folder_is_refused(tmp_path):
+    """The published folder is the test's own (a copy of the usdz in a 0o555 folder), never
+    ../shared/data, whose permissions depend on the checkout. Tests run as root, which
+    os.access() lets write anywhere; check_out_dir also refuses a folder whose mode bits
+    allow no write, so the refusal holds for root too."""
+    import os
+    import shutil
+
+    from pxr import Usd
+    from usd_fixtures import samples, tree_hashes
+
+    from pipeline.errors import ShotError
+    from pipeline.fill import FillOptions, fill_shot
+
+    f = _figure_roles(tmp_path)
+    published = tmp_path / "published"
+    published.mkdir()
+    shot = published / FIGURE.name
+    shutil.copyfile(FIGURE, shot)
+    shared_before = tree_hashes(FIGURE.parent)
+    os.chmod(published, 0o555)
+    try:
+        before = tree_hashes(published)
+        with pytest.raises(ShotError, match="read-only"):  # published folder: never written, even as root
+            fill_shot(str(shot), FillOptions(model="interp", mapping=str(f)))
+        assert sorted(os.listdir(published)) == [FIGURE.name] and tree_hashes(published) == before
+        res = fill_shot(str(shot), FillOptions(model="interp", mapping=str(f), out_dir=str(tmp_path / "o")))
+        assert tree_hashes(published) == before
+    finally:
+        os.chmod(published, 0o755)
+    assert tree_hashes(FIGURE.parent) == shared_before
     stage = Usd.Stage.Open(res["review"])
     assert stage.GetTimeCodesPerSecond() == 24
     anim = "/RiggedFigure/Animations/skelAnim_0"
@@ -111,3 +134,21 @@ def test_usdz_figure_fills_with_a_mapping_file_and_read_only_folder_is_refused(t
     assert sorted(filled) == [float(t) for t in range(0, 31)]
     for t, v in orig.items():
         assert np.array_equal(filled[t], v)
+
+
+def test_out_folder_os_access_refusal(tmp_path, monkeypatch):
+    """A folder the user may not write (os.access says no: another owner, a read-only
+    mount), mode bits notwithstanding; root cannot be made to fail os.access, so it is
+    monkeypatched."""
+    import os
+
+    from pipeline.errors import ShotError
+    from pipeline.usd import write
+
+    shot = tmp_path / "shot.usda"
+    assert write.check_out_dir(str(shot), str(tmp_path / "o")) == tmp_path / "o"
+    real = os.access
+    monkeypatch.setattr(write.os, "access", lambda p, mode, **kw: False if mode & os.W_OK else real(p, mode))
+    with pytest.raises(ShotError, match="read-only"):
+        write.check_out_dir(str(shot), str(tmp_path / "o" / "deeper"))
+    assert not (tmp_path / "o").exists()
