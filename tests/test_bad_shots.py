@@ -530,3 +530,11 @@ def test_valid_shot_still_fills_with_sub_frame_and_ranged_keys(base, tmp_path, c
     assert Path(res["layer"]).is_file() and hashlib.sha256(shot.read_bytes()).hexdigest() == digest
     assert "Warning" not in capfd.readouterr().err
     assert Path(res["layer"]).parent == tmp_path / "o"
+
+
+def test_keys_too_dense_for_the_model_rate(base, tmp_path, capfd):
+    """20,001 sub-frame keys: within the bounds, refused by the plan (two on one frame)."""
+    shot, digest, listing = _prepare(tmp_path, base, None)
+    msg = _bounded(lambda: _api(shot, tmp_path, capfd, "1001-1021x0.001"))
+    _check_line(msg, shot, "keys 1001 and 1001.001 fall on one model frame", ANIM)
+    _untouched(tmp_path, shot, digest, listing)

@@ -209,7 +209,9 @@ def make_plan(
         dup = np.nonzero(np.diff(m) == 0)[0]
         if len(dup):
             a, b = k[dup[0]], k[dup[0] + 1]
-            raise ShotError(path, f"keys {a:g} and {b:g} fall on one model frame (1/{fps:g} s)", c.anim_path)
+            raise ShotError(
+                path, f"keys {a:.10g} and {b:.10g} fall on one model frame (1/{fps:g} s)", c.anim_path
+            )
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:
             raise ShotError(
