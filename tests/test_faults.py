@@ -397,7 +397,7 @@ def test_disk_full_and_too_large_converting(tmp_path, tmpfs, bandai_clip, monkey
         def full(*a, **k):
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-        monkeypatch.setattr(convert, "_mannequin", full)
+        monkeypatch.setattr(convert.os, "replace", full)  # the final rename of the saved temp
         with pytest.raises(TweenError, match=r"shot\.usda: no space left on device$"):
             convert.write_shot(read_bvh(bandai_clip).slice(0, 31), out)
         assert list(folder.iterdir()) == []
