@@ -16,9 +16,9 @@ import numpy as np
 from pipeline.errors import ShotError, TweenError
 
 #: The most keys one ``--keys`` may give (a range is counted before it is expanded).
-MAX_KEYS = 100_000
+MAX_KEYS = 1_000_000
 #: The most frames a stage range (and so ``--range``) may span.
-MAX_FRAMES = 100_000
+MAX_FRAMES = 1_000_000
 _EPS = 1e-4  # as read.TIME_EPS: time codes closer than this are the same frame
 
 _NUM = r"[-+]?(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?|nan|inf(?:inity)?)"

@@ -351,6 +351,20 @@ def _read_shot(path: str) -> Shot:
                 continue
             seen.add(str(sub.GetPath()))
             chars.append(_character(path, stage, skel, skelq, animq))
+    # A skeleton with a bound animation outside any SkelRoot: what Blender exports for an
+    # armature with no skinned mesh (a BVH import). UsdSkel still resolves its animation.
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if not prim.IsA(UsdSkel.Skeleton) or str(prim.GetPath()) in seen:
+            continue
+        if not UsdSkel.BindingAPI(prim).GetAnimationSource():
+            continue
+        skel = UsdSkel.Skeleton(prim)
+        check_topology(path, str(prim.GetPath()), [str(t) for t in (skel.GetJointsAttr().Get() or [])])
+        skelq = cache.GetSkelQuery(skel)
+        animq = skelq.GetAnimQuery() if skelq else None
+        if animq:
+            seen.add(str(prim.GetPath()))
+            chars.append(_character(path, stage, skel, skelq, animq))
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
     up = str(UsdGeom.GetStageUpAxis(stage))
