@@ -155,3 +155,19 @@ def test_bench_cli_rig_variants(tmp_path):
     assert all(abs(v["interp"] - 1) < 1e-6 for v in res["ratio_to_model_skeleton"].values())
     r = CliRunner().invoke(app, ["bench", "--rig-variants", "--methods", "zero"])
     assert r.exit_code != 0 and "the rig bench runs" in str(r.exception)
+
+
+def test_skeleton_outside_any_skelroot_is_filled(clip, tmp_path):
+    """Blender exports an armature without a skinned mesh as a Skeleton under plain Xforms,
+    its animation bound by skel:animationSource: it is read and filled."""
+    from pxr import Usd
+
+    rig = rv.variant(rv.model_rig_of(clip), "all:rest:zero+frames+z-up+metres")
+    shot = rv.write_rig_shot(rig, tmp_path / "blender.usda")
+    stage = Usd.Stage.Open(str(shot))
+    prim = stage.GetPrimAtPath("/World/Character")
+    prim.SetTypeName("Xform")
+    prim.RemoveAPI(__import__("pxr").UsdSkel.BindingAPI)
+    stage.GetRootLayer().Save()
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    assert res["retarget"] == {"/World/Character/Skel/Anim": {"reference": "zero pose", "missing": []}}
