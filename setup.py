@@ -28,6 +28,7 @@ setup(
         "tqdm>=4.66",
         "moderngl>=5.10",
         "av>=12",
+        "opentimelineio>=0.17",
     ],
     extras_require={
         # torch is pinned: these machines install exactly this CPU build from local disk;

@@ -69,7 +69,12 @@ def review(
     ),
     out: str = typer.Option(None, "--out", "-o", help="Output folder (default: ./review/<shot>)."),
     exr: bool = typer.Option(False, "--exr", help="Write frames as half-float linear EXR instead of PNG."),
-    camera: str = typer.Option("turntable", "--camera", help="turntable, front or side."),
+    camera: str = typer.Option(
+        "turntable", "--camera", help="turntable, front or side; or follow / fixed (the turntable so framed)."
+    ),
+    framing: str = typer.Option(
+        None, "--framing", help="follow (default: the camera follows the character) or fixed (today's view)."
+    ),
     turns: float = typer.Option(1.0, "--turns", help="Camera orbits over the shot (turntable)."),
     ghosts: bool = typer.Option(False, "--ghosts", help="Translucent key poses along the path."),
     no_frames: bool = typer.Option(False, "--no-frames", help="Only the MP4 and the contact sheet."),
@@ -82,8 +87,12 @@ def review(
     w, h = _size(size)
     fr = _range(frames)
     _check_options(take, turns)
-    if camera not in ("turntable", "front", "side"):
-        raise TweenError(f"--camera {camera!r}: must be turntable, front or side")
+    if camera not in ("turntable", "front", "side", "follow", "fixed"):
+        raise TweenError(f"--camera {camera!r}: must be turntable, front, side, follow or fixed")
+    if framing not in (None, "follow", "fixed") or (
+        camera in ("follow", "fixed") and framing not in (None, camera)
+    ):
+        raise TweenError(f"--framing {framing!r}: must be follow or fixed (and agree with --camera {camera})")
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
     from render.review import render_review
@@ -97,7 +106,7 @@ def review(
     for t in takes:
         result = render_review(
             shot, out_dir, take=t, size=(w, h), side_by_side=side_by_side, exr=exr, camera=camera, turns=turns,
-            ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True,
+            ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True, framing=framing,
         )  # fmt: skip
         summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers", "timecodes")}
         summary["frame_count"] = len(result["frame_numbers"])

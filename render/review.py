@@ -6,25 +6,99 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from render.camera import Camera
+from render.camera import FRAMINGS, VIEWS, Camera, follow_path
 from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, thumbnail, write_frame
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import Geometry, evaluate, open_shot
+from render.scene import Geometry, Shot, evaluate, open_shot
+from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
 CONTACT_FRAMES = 12
 
 
+def _frame_bounds(geom_lists) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(sampled frame indices, per-frame min (S, 3), per-frame max (S, 3)) over every geometry."""
+    b = [g.frame_bounds() for gl in geom_lists for g in gl if g.n_points and g.n_frames]
+    idx = b[0][0]
+    lo = np.min([x[1] for x in b], axis=0).astype(np.float64)
+    hi = np.max([x[2] for x in b], axis=0).astype(np.float64)
+    return idx, lo, hi
+
+
 def _bounds(geom_lists) -> tuple[np.ndarray, np.ndarray]:
-    b = [g.bounds() for gl in geom_lists for g in gl if g.n_points and g.n_frames]
-    lo, hi = np.min([x[0] for x in b], axis=0), np.max([x[1] for x in b], axis=0)
-    return lo.astype(np.float64), hi.astype(np.float64)
+    _, lo, hi = _frame_bounds(geom_lists)
+    return lo.min(0), hi.max(0)
+
+
+def camera_modes(camera: str, framing: str | None = None) -> tuple[str, str]:
+    """(view, framing) from ``camera`` (turntable | front | side, or follow | fixed: the
+    turntable so framed) and ``framing`` (follow | fixed; default follow)."""
+    if camera in FRAMINGS:
+        if framing is not None and framing != camera:
+            raise RenderError(f"camera {camera!r} and framing {framing!r} disagree")
+        camera, framing = "turntable", camera
+    framing = framing or "follow"
+    if camera not in VIEWS:
+        raise RenderError(f"camera must be one of {', '.join(VIEWS + FRAMINGS)}, not {camera!r}")
+    if framing not in FRAMINGS:
+        raise RenderError(f"framing must be follow or fixed, not {framing!r}")
+    return camera, framing
+
+
+@dataclass
+class Plan:
+    """What a review draws and how it is framed, decided once before the first frame."""
+
+    shot: Shot
+    panels: list  # [geometries] per panel (blocking, fill when side by side)
+    roots: list  # each character's body joint path (T, 3)
+    lo: np.ndarray  # the whole motion's box
+    hi: np.ndarray
+    camera: Camera
+    burn: BurnIn
+    size: tuple[int, int]
+    framing: str
+
+
+def plan_review(
+    stage_path: str,
+    take: int | None = None,
+    size=(960, 540),
+    side_by_side: bool = False,
+    camera: str = "turntable",
+    turns: float = 1.0,
+    frame_range: tuple[float, float] | None = None,
+    framing: str | None = None,
+    shot: Shot | None = None,
+) -> Plan:
+    """Opens the shot, evaluates what is drawn and frames the camera (see ``render.camera``)."""
+    view, framing = camera_modes(camera, framing)
+    w, h = (int(v) for v in size)
+    shot = shot or open_shot(stage_path, take, frame_range)
+    T = len(shot.times)
+    geoms, roots = evaluate(shot, shot.times)
+    panels = [evaluate(shot, shot.held_times())[0], geoms] if side_by_side else [geoms]
+    idx, flo, fhi = _frame_bounds(panels)
+    lo, hi = flo.min(0), fhi.max(0)
+    labels = ["BLOCKING (stepped keys)", "FILLED"] if side_by_side else None
+    burn = BurnIn((w, h), shot.name, shot.facts, shot.fps, labels)
+    covered = burn.band * (4 if side_by_side else 2)  # the bands (and panel labels) are symmetric-ish
+    aspect, safe = (w / len(panels)) / h, 1.0 - covered / h
+    if framing == "fixed":
+        cam = Camera(lo, hi, aspect, T, view, turns, safe=safe)
+    else:
+        follow = follow_path(np.mean([np.asarray(r, np.float64) for r in roots], axis=0), shot.fps)
+        ground = follow[idx] * [1.0, 0.0, 1.0]  # the character's box around the followed point
+        cam = Camera(lo, hi, aspect, T, view, turns, safe=safe, follow=follow,
+                     local_min=(flo - ground).min(0), local_max=(fhi - ground).max(0))  # fmt: skip
+    return Plan(shot, panels, roots, lo, hi, cam, burn, (w, h), framing)
 
 
 def _materialise(g: Geometry) -> Geometry:
@@ -47,20 +121,26 @@ def render_review(
     write_frames: bool = True,
     frame_range: tuple[float, float] | None = None,
     progress: bool = False,
+    framing: str | None = None,
 ) -> dict:
     """Renders every animated skeleton of ``stage_path`` into ``out_dir``.
 
-    Returns {"mp4", "contact_sheet", "frames": [...], "frame_numbers", "timecodes", "key_frames",
-    "fps", "size", "take", "timings"}; ``fps`` is the playback rate (``scene.shot_timing``).
-    Nothing is left in ``out_dir`` if rendering fails.
+    ``camera``: turntable | front | side (or follow | fixed: the turntable so framed);
+    ``framing``: follow (default: the camera follows the character) | fixed (framed once on
+    the whole motion). Also writes/updates ``<shot>.otio`` (``render.timeline``): this take's
+    track replaces its previous one, the other takes' are kept.
+
+    Returns {"mp4", "contact_sheet", "timeline", "frames": [...], "frame_numbers", "timecodes",
+    "key_frames", "fps", "size", "take", "camera", "framing", "timings"}; ``fps`` is the
+    playback rate (``scene.shot_timing``). Nothing is left in ``out_dir`` if rendering fails.
     """
     t0 = time.perf_counter()
-    w, h = (int(v) for v in size)
-    shot = open_shot(stage_path, take, frame_range)
+    plan = plan_review(stage_path, take, size, side_by_side, camera, turns, frame_range, framing)
+    shot, panels, roots, lo, hi, cam, burn = (
+        plan.shot, plan.panels, plan.roots, plan.lo, plan.hi, plan.camera, plan.burn
+    )  # fmt: skip
+    w, h = plan.size
     T = len(shot.times)
-    geoms, roots = evaluate(shot, shot.times)
-    panels = [evaluate(shot, shot.held_times())[0], geoms] if side_by_side else [geoms]
-    lo, hi = _bounds(panels)
     is_key = shot.is_key()
     key_idx = np.nonzero(is_key)[0]
     ghost_geoms = None
@@ -86,10 +166,6 @@ def render_review(
         sets = [renderer.mesh_set(g) for g in panels]
         colors = [BLOCKING_CLAY, CLAY] if side_by_side else [CLAY]
         ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
-        labels = ["BLOCKING (stepped keys)", "FILLED"] if side_by_side else None
-        burn = BurnIn((w, h), shot.name, shot.facts, shot.fps, labels)
-        covered = burn.band * (4 if side_by_side else 2)  # the bands (and panel labels) are symmetric-ish
-        cam = Camera(lo, hi, (w / len(panels)) / h, T, camera, turns, safe=1.0 - covered / h)
         rate = shot.timing.rate if shot.timing is not None else shot.fps
         movie = Movie(
             str(tmp / f"{stem}.mp4"), (w, h), rate, comment=f"{shot.name} {shot.take or ''} {shot.facts}"
@@ -130,8 +206,18 @@ def render_review(
         movie.close()
         title = f"{shot.name}  {shot.take or ''}  {shot.facts.get('model', 'no model')}  {T} frames @ {shot.fps:g} fps"
         contact_sheet(thumbs, str(tmp / f"{stem}_contact.png"), title)
-        for f in tmp.iterdir():
-            f.replace(out / f.name)
+        timeline = out / f"{shot.name.replace(' ', '_')}.otio"
+        track = take_track(
+            f"{stem}.mp4", rate, shot.frames, [int(shot.frames[i]) for i in key_idx], shot.take, shot.facts,
+            {"shot": shot.name, "stage": str(stage_path), "contact_sheet": f"{stem}_contact.png",
+             "frames": f"{stem}.####.{ext}" if write_frames else None, "camera": cam.mode,
+             "framing": plan.framing, "side_by_side": bool(side_by_side)},
+        )  # fmt: skip
+        with folder_lock(out):
+            update_timeline(timeline, tmp / timeline.name, shot.name, track, shot.facts,
+                            keep=lambda url: bool(url) and (out / url).exists())  # fmt: skip
+            for f in tmp.iterdir():
+                f.replace(out / f.name)
     except BaseException:
         if movie is not None:
             movie.abort()
@@ -149,6 +235,7 @@ def render_review(
     return {
         "mp4": str(out / f"{stem}.mp4"),
         "contact_sheet": str(out / f"{stem}_contact.png"),
+        "timeline": str(timeline),
         "frames": [str(out / f) for f in frames],
         "frame_numbers": [int(f) for f in shot.frames],
         "timecodes": shot.timecodes(),
@@ -156,6 +243,8 @@ def render_review(
         "fps": shot.fps,
         "size": (w, h),
         "take": shot.take,
+        "camera": cam.mode,
+        "framing": plan.framing,
         "timings": {"scene_s": round(t_scene, 3), "total_s": round(total, 3), "fps": round(T / total, 1)},
     }
 

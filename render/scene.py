@@ -157,9 +157,20 @@ class Geometry:
 
     def bounds(self, samples: int = 96) -> tuple[np.ndarray, np.ndarray]:
         """(min, max) over up to ``samples`` evenly spaced frames (all frames on short shots)."""
-        idx = np.unique(np.linspace(0, self.n_frames - 1, min(samples, self.n_frames)).round().astype(int))
+        _, lo, hi = self.frame_bounds(samples)
+        return lo.min(0), hi.max(0)
+
+    def frame_bounds(self, samples: int = 96) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(frame indices (S,), per-frame min (S, 3), per-frame max (S, 3)) at up to ``samples``
+        evenly spaced frames (all frames on short shots)."""
+        idx = sample_frames(self.n_frames, samples)
         pts = [self.frame(int(i))[0] for i in idx]
-        return np.min([p.min(0) for p in pts], 0), np.max([p.max(0) for p in pts], 0)
+        return idx, np.array([p.min(0) for p in pts]), np.array([p.max(0) for p in pts])
+
+
+def sample_frames(n_frames: int, samples: int = 96) -> np.ndarray:
+    """Up to ``samples`` evenly spaced frame indices of ``n_frames`` (all of them on short shots)."""
+    return np.unique(np.linspace(0, n_frames - 1, min(samples, n_frames)).round().astype(int))
 
 
 @dataclass
@@ -428,10 +439,7 @@ def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.nda
     for c in shot.characters:
         q = c._skel_query
         skel_prim = UsdGeom.Imageable(q.GetSkeleton().GetPrim())
-        joints = np.empty((len(uniq), len(q.GetJointOrder()), 3), np.float64)
-        for i, t in enumerate(uniq):
-            to_world = np.array(skel_prim.ComputeLocalToWorldTransform(t)) @ c._world
-            joints[i] = _apply(np.array(q.ComputeJointSkelTransforms(t))[:, 3, :3], to_world)
+        joints = _joints(c, uniq)
         roots.append(joints[inv, c.body].astype(np.float32))
         if c._skinning:
             skin = _SkinCache(q, skel_prim, c._world)
@@ -470,6 +478,25 @@ def evaluate(shot: Shot, times: np.ndarray) -> tuple[list[Geometry], list[np.nda
 
         geoms.append(Geometry(_triangles(prim, shot.path), n, len(times), prop_frame))
     return geoms, roots
+
+
+def _joints(c: Character, times: np.ndarray) -> np.ndarray:
+    from pxr import UsdGeom
+
+    q = c._skel_query
+    skel_prim = UsdGeom.Imageable(q.GetSkeleton().GetPrim())
+    joints = np.empty((len(times), len(q.GetJointOrder()), 3), np.float64)
+    for i, t in enumerate(times):
+        to_world = np.array(skel_prim.ComputeLocalToWorldTransform(t)) @ c._world
+        joints[i] = _apply(np.array(q.ComputeJointSkelTransforms(t))[:, 3, :3], to_world)
+    return joints
+
+
+def joint_positions(shot: Shot, times=None) -> list[np.ndarray]:
+    """Every character's joint positions (T, J, 3) at ``times`` (default: the frames rendered),
+    in metres, Y up: the world the renderer draws (and projects with its camera)."""
+    times = shot.times if times is None else np.asarray(times, np.float64)
+    return [_joints(c, times) for c in shot.characters]
 
 
 class _SkinCache:

@@ -150,3 +150,28 @@ def converted_review(clip: Path, work: Path, frames: int = 60, key_step: int = 1
     if keys[-1] != len(motion) - 1:
         keys.append(len(motion) - 1)
     return result["review"], [START + k for k in keys]
+
+
+def long_walk(clip: Path, frames: int = 300) -> Motion:
+    """``clip`` carried on past its end to ``frames`` frames: after its last frame the clip
+    plays again from just after the pose closest to that last one (the gait's phase), moved
+    on the ground so the root carries on. A 7-s walk becomes a 10-s one that walks further."""
+    m = read_bvh(clip)
+    n = len(m)
+    rots, roots = [m.rotations], [m.root_positions]
+    while sum(len(r) for r in rots) < frames:
+        last_rot, last_root = rots[-1][-1], roots[-1][-1]
+        step = roots[-1][-1] - roots[-1][-2]
+        similar = np.abs(np.einsum("tjc,jc->tj", m.rotations[: 2 * n // 3], last_rot)).sum(1)
+        s = int(np.argmax(similar)) + 1
+        off = last_root + step - m.root_positions[s]
+        off[1] = 0.0
+        rots.append(m.rotations[s:])
+        roots.append(m.root_positions[s:] + off)
+    return Motion(
+        m.skeleton,
+        np.concatenate(rots)[:frames],
+        np.concatenate(roots)[:frames],
+        m.fps,
+        f"{m.name} x{frames}",
+    )
