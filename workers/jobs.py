@@ -18,6 +18,7 @@ from celery import states as cstates
 
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app
+from workers.limits import failure_message
 
 
 @dataclass
@@ -208,7 +209,7 @@ def state(job_id: str) -> JobState:
         # A failed take also fails the chord body with a ChordError; report the cause.
         name, exc = ([f for f in failures if type(f[1]).__name__ != "ChordError"] or failures)[0]
         js.state, js.stage = "FAILURE", name
-        js.error = str(exc) or type(exc).__name__
+        js.error = failure_message(exc, js.shot)
     elif js.done == js.total:
         js.state, js.stage = "SUCCESS", ""
         js.result = _meta(stages[-1][1]).get("result")

@@ -14,12 +14,14 @@ import shutil
 from contextlib import contextmanager
 
 from celery import Task
+from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_init, worker_process_init
 
 from workers import paths as jobpaths
 from workers import runtime
 from workers.app import app
 from workers.errors import JobError, TransientError
+from workers.limits import soft_limit_error
 
 # errnos that mean "try again later" on shared storage (NFS, SMB) or a busy host; anything
 # else, FileNotFoundError above all, is the job's own fault and is not retried.
@@ -50,6 +52,9 @@ def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] 
     except TweenError as e:
         _drop(work_dir, made_dirs)
         raise JobError(str(e)) from None
+    except SoftTimeLimitExceeded:
+        _drop(work_dir, made_dirs)
+        raise soft_limit_error(shot) from None
     except OSError as e:
         if e.errno in TRANSIENT_ERRNOS or isinstance(e, ConnectionError | TimeoutError):
             raise TransientError(f"{shot}: {e}") from e

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -43,11 +44,28 @@ def load_inbetweener(name: str = "default") -> Inbetweener:
         from pipeline.infer.spline import SplineInbetweener
 
         return SplineInbetweener()
-    from pipeline.infer.model import OnnxInbetweener, find_model
+    from pipeline.infer.model import OnnxInbetweener, find_model, read_model_json
 
     folder = find_model(name)
     if folder is None:
+        broken = _folder_without_json(name)
+        if broken is not None:  # its ONNX files are there, model.json is not: a broken model
+            read_model_json(broken)  # ModelFolderError: "<folder>/model.json: missing (...)"
         if name == "default":
             return InterpolationInbetweener()
         raise FileNotFoundError(f"{name}: no such model (expected a folder with model.json)")
     return OnnxInbetweener(folder)
+
+
+def _folder_without_json(name: str):
+    """The model folder ``name`` refers to when it holds .onnx files but no model.json (and is
+    no per-rig model, which has rig.json instead), else None."""
+    from pipeline.infer.model import models_root
+
+    for cand in (Path(name), models_root() / name):
+        try:
+            if cand.is_dir() and not (cand / "rig.json").exists() and any(cand.glob("*.onnx")):
+                return cand
+        except OSError:
+            continue
+    return None

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
+from pipeline.errors import TweenError
 from pipeline.infer.dna import dna_poses, n_dna_channels
 from pipeline.infer.features import (
     EULER_ORDER,
@@ -48,6 +49,137 @@ def find_model(name: str) -> Path | None:
         return p
     cand = models_root() / name
     return cand if (cand / "model.json").exists() else None
+
+
+class ModelFolderError(TweenError, ValueError):
+    """A model folder that cannot be used: one line naming the file and what is wrong."""
+
+
+# model.json: the keys every model has, and the types of those the farm reads.
+_NUMBER = (int, float)
+_REQUIRED = {"name": str, "hash": str, "fps": _NUMBER, "multiple": int, "files": dict}
+_OPTIONAL = {
+    "root": str,
+    "pad": str,
+    "pad_tail": int,
+    "min_window": int,
+    "max_gap": int,
+    "receptive_field": int,
+    "mirror_average": bool,
+    "feet_anchor": bool,
+    "feet_orient": bool,
+    "generator": dict,
+}
+_TYPE_NAMES = {
+    str: "a string",
+    int: "an integer",
+    bool: "true or false",
+    dict: "an object",
+    _NUMBER: "a number",
+}
+
+
+def _json_type(v) -> str:
+    return {dict: "an object", list: "an array", str: "a string", bool: "a boolean", type(None): "null"}.get(
+        type(v), "a number"
+    )
+
+
+def read_model_json(folder: str | Path) -> dict:
+    """``folder``/model.json, checked: readable JSON, an object with every required key of
+    the right type; or ModelFolderError naming the file."""
+    path = Path(folder) / "model.json"
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ModelFolderError(
+            f"{path}: missing (a model folder holds model.json beside its .onnx files)"
+        ) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelFolderError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
+    try:
+        meta = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ModelFolderError(
+            f"{path}: not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
+        ) from None
+    if not isinstance(meta, dict):
+        raise ModelFolderError(f"{path}: expected a JSON object, found {_json_type(meta)}")
+    missing = [k for k in _REQUIRED if k not in meta]
+    if missing:
+        raise ModelFolderError(f"{path}: missing key(s) {', '.join(repr(k) for k in missing)}")
+    for key, want in (*_REQUIRED.items(), *_OPTIONAL.items()):
+        if key not in meta:
+            continue
+        v = meta[key]
+        # JSON true/false are not numbers here, and 30.0 is not an integer.
+        if (isinstance(v, bool) and want is not bool) or not isinstance(v, want):
+            raise ModelFolderError(f"{path}: {key!r} must be {_TYPE_NAMES[want]}, not {_json_type(v)}")
+    for key in ("fps", "multiple", "max_gap", "receptive_field"):
+        if key in meta and not meta[key] > 0:
+            raise ModelFolderError(f"{path}: {key!r} must be positive, not {meta[key]!r}")
+    for key in ("pad_tail", "min_window"):
+        if meta.get(key, 0) < 0:
+            raise ModelFolderError(f"{path}: {key!r} must be 0 or more, not {meta[key]!r}")
+    files = meta["files"]
+    if not isinstance(files.get("generator"), str) or not files["generator"]:
+        raise ModelFolderError(f"{path}: 'files' must name the generator's ONNX file ('generator': \"...\")")
+    for role, name in files.items():
+        if not isinstance(name, str) or not name:
+            raise ModelFolderError(f"{path}: files.{role} must be a file name, not {_json_type(name)}")
+    rotation = meta.get("generator", {}).get("rotation", "6d")
+    if rotation not in ("6d", "euler"):
+        raise ModelFolderError(f'{path}: generator.rotation must be "6d" or "euler", not {rotation!r}')
+    return meta
+
+
+def check_onnx_file(path: Path) -> None:
+    """ModelFolderError unless ``path`` is there, non-empty, and reads as a whole ONNX model:
+    its top-level protobuf fields (an ONNX ModelProto) all fit in the file and include the
+    graph. Cheap (it seeks over the graph), so a truncated or empty file is named at load
+    time instead of failing inside onnxruntime on the first fill."""
+    try:
+        size = path.stat().st_size
+        f = path.open("rb")
+    except FileNotFoundError:
+        raise ModelFolderError(f"{path}: missing (named in model.json's 'files')") from None
+    except OSError as e:
+        raise ModelFolderError(f"{path}: cannot read: {e.strerror or e}") from None
+    if size == 0:
+        f.close()
+        raise ModelFolderError(f"{path}: empty file (not an ONNX model)")
+    bad = f"{path}: truncated or not an ONNX model ({size} bytes)"
+
+    def varint() -> int:
+        out = shift = 0
+        while True:
+            b = f.read(1)
+            if not b or shift > 63:
+                raise ModelFolderError(bad)
+            out |= (b[0] & 0x7F) << shift
+            shift += 7
+            if b[0] < 0x80:
+                return out
+
+    graph = False
+    with f:
+        while f.tell() < size:
+            tag = varint()
+            field, wire = tag >> 3, tag & 7
+            if field == 0:
+                raise ModelFolderError(bad)
+            if wire == 0:
+                varint()
+            elif wire in (1, 2, 5):
+                n = {1: 8, 5: 4}.get(wire) or varint()
+                if f.tell() + n > size:
+                    raise ModelFolderError(bad)
+                f.seek(n, os.SEEK_CUR)
+                graph |= field == 7 and wire == 2  # ModelProto.graph
+            else:
+                raise ModelFolderError(bad)
+    if not graph:
+        raise ModelFolderError(f"{path}: not an ONNX model (no graph in its {size} bytes)")
 
 
 def ort_session(path: str | Path):
@@ -88,9 +220,12 @@ class OnnxInbetweener:
         feet_anchor: bool | None = None,
         feet_orient: bool | None = None,
         chunk_frames: int | None = None,
+        chunk_core: int | None = None,
     ):
         self.folder = Path(folder)
-        self.meta = json.loads((self.folder / "model.json").read_text())
+        self.meta = read_model_json(self.folder)
+        for name in self.meta["files"].values():
+            check_onnx_file(self.folder / name)
         self.name = self.meta["name"]
         self.model_hash = self.meta["hash"]
         self.fps = float(self.meta["fps"])
@@ -106,22 +241,35 @@ class OnnxInbetweener:
         self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
         self.pad = pad or self.meta.get("pad", "end")
         if self.pad not in ("end", "hold-key", "front"):
-            raise ValueError(f"{self.folder}: unknown pad layout {self.pad!r}")
+            raise ModelFolderError(f"{self.folder}: unknown pad layout {self.pad!r}")
         # Padded window: at least ``min_window`` frames, with at least ``pad_tail`` held frames
         # after the last key (0 and 0, the layout before v5.1, pad to the next multiple only).
         self.pad_tail = int(self.meta.get("pad_tail", 0) if pad_tail is None else pad_tail)
         self.min_window = int(self.meta.get("min_window", 0) if min_window is None else min_window)
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
-        # Long fills: windows of CHUNK_CORE frames, each seeing ``margin`` frames more on
+        # Long fills: windows of ``chunk_core`` frames, each seeing ``margin`` frames more on
         # both sides (the network's receptive field), once the fill is over ``chunk_frames``.
         self.chunk_frames = CHUNK_FRAMES if chunk_frames is None else int(chunk_frames)
+        self.chunk_core = CHUNK_CORE if chunk_core is None else int(chunk_core)
         self.margin = int(self.meta.get("receptive_field", 512))
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
     def session(self, which: str):
         if which not in self._sessions:
-            self._sessions[which] = ort_session(self.folder / self.meta["files"][which])
+            path = self.folder / self.meta["files"][which]
+            try:
+                sess = ort_session(path)
+            except Exception as e:  # onnxruntime's errors are RuntimeError subclasses of its own
+                first = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+                raise ModelFolderError(f"{path}: onnxruntime cannot load it: {first}") from None
+            want = {"generator": "features", "path": "local_positions"}.get(which)
+            names = [i.name for i in sess.get_inputs()]
+            if want and want not in names:
+                raise ModelFolderError(
+                    f"{path}: not this model's {which} (inputs {names}, expected {want!r})"
+                )
+            self._sessions[which] = sess
         return self._sessions[which]
 
     def raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
@@ -302,7 +450,7 @@ class OnnxInbetweener:
         window of frames lo..hi the networks see and the frames a..b of its result kept.
 
         Up to ``chunk_frames`` frames, one window: the whole shot (the fill is then what it
-        always was). Longer fills go through windows of about ``CHUNK_CORE`` kept frames, cut
+        always was). Longer fills go through windows of about ``chunk_core`` kept frames, cut
         at full keys (so each kept piece meets the next one at a key, which both leave exact),
         each seeing ``margin`` more frames on both sides (out to the next full key): every
         kept frame then sees all the keys the network's receptive field reaches. What a
@@ -314,11 +462,11 @@ class OnnxInbetweener:
         if n <= self.chunk_frames:
             return [(0, n - 1, 0, n - 1)]
         full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
-        seams, nxt = [], int(full[0]) + CHUNK_CORE
+        seams, nxt = [], int(full[0]) + self.chunk_core
         for k in full[1:-1]:
-            if k >= nxt and int(full[-1]) - k >= CHUNK_CORE // 2:
+            if k >= nxt and int(full[-1]) - k >= self.chunk_core // 2:
                 seams.append(int(k))
-                nxt = int(k) + CHUNK_CORE
+                nxt = int(k) + self.chunk_core
         if not seams:
             return [(0, n - 1, 0, n - 1)]
         bounds = [0, *seams, n - 1]
