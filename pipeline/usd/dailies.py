@@ -1,0 +1,424 @@
+"""The dailies step: approve a take of a fill, publish the approved take as plain animation.
+
+``approve`` never edits a layer: it copies the shot's latest fill layer
+``<stem>.tween.vNNN`` into the next free version with the decision added (on every root
+prim that carries ``TweenAPI``: ``tween:reviewStatus = "approved"``, ``tween:approvedTake``,
+``tween:approvedBy``, ``tween:approvedAt``, ``tween:approvalNote``; the ``tweenTake``
+selection set to the approved take; ``customLayerData["tween"]["approval"]``) and writes a
+new review root layer over it. ``publish`` flattens the approved take out of the variants
+into ``<stem>.publish.vNNN.<fmt>``: ``over`` specs that author the shot's own SkelAnimation
+(rotations, translations, scales at every filled time code, bit for bit the take's
+samples), for use as a stronger sublayer over the shot in any USD tool.
+
+Versions are allocated and written the way :mod:`pipeline.usd.write` writes a fill (folder
+lock, temp file, hard link that never overwrites).
+"""
+
+from __future__ import annotations
+
+import datetime
+import getpass
+import os
+import re
+from pathlib import Path
+
+import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
+from pipeline.errors import ShotError, TweenError
+from pipeline.usd import write
+
+SUFFIX = "_tween"
+ANIM_ATTRS = ("rotations", "translations", "scales")
+#: Provenance attributes of the fill's animation copied onto the published one.
+_PROVENANCE = ("tween:keyTimes", "tween:model", "tween:modelHash", "tween:jobId", "tween:createdAt")
+_DECISION = {
+    "status": ("tween:reviewStatus", "Token"),
+    "take": ("tween:approvedTake", "Int"),
+    "by": ("tween:approvedBy", "String"),
+    "at": ("tween:approvedAt", "String"),
+    "note": ("tween:approvalNote", "String"),
+}
+
+
+# --- reading fill layers ------------------------------------------------------------------------
+
+
+def _open(path: Path, what: str = "fill layer"):
+    """The layer at ``path``, opened anonymously (never saved back), or a one-line error."""
+    from pxr import Sdf, Tf
+
+    from pipeline.usd.diagnostics import error_text, usd_diagnostics
+
+    if not os.access(path, os.R_OK):
+        raise TweenError(f"{path}: cannot read the {what}: permission denied")
+    with usd_diagnostics(fold=False):
+        try:
+            layer = Sdf.Layer.OpenAsAnonymous(str(path))
+        except Tf.ErrorException as e:
+            raise TweenError(f"{path}: cannot read the {what}: {error_text(e, str(path))}") from None
+    if layer is None:
+        raise TweenError(f"{path}: cannot read the {what}")
+    return layer
+
+
+def _roots(layer) -> list:
+    """The root prim specs that carry the review state (``tween:reviewStatus``)."""
+    return [p for p in layer.rootPrims if "tween:reviewStatus" in p.attributes]
+
+
+def _animations(layer) -> list:
+    """The filled animations of a fill layer: ``def SkelAnimation "<anim>_tween"`` specs."""
+    from pxr import Sdf
+
+    found, todo = [], list(layer.rootPrims)
+    while todo:
+        spec = todo.pop()
+        if (
+            spec.typeName == "SkelAnimation"
+            and spec.specifier == Sdf.SpecifierDef
+            and spec.name.endswith(SUFFIX)
+        ):
+            found.append(spec)
+        todo.extend(spec.nameChildren)
+    return sorted(found, key=lambda s: s.path)
+
+
+def _takes(layer) -> list[int]:
+    """The take numbers a fill layer holds: its ``tweenTake`` variants (common to every root),
+    else the single take's ``tween:take``."""
+    sets = [r.variantSets[write.VARIANT_SET] for r in _roots(layer) if write.VARIANT_SET in r.variantSets]
+    if sets:
+        names = set.intersection(*({v.name for v in s.variants} for s in sets))
+        return sorted(int(n[4:]) for n in names if re.fullmatch(r"take\d+", n))
+    takes = {
+        int(a.attributes["tween:take"].default) for a in _animations(layer) if "tween:take" in a.attributes
+    }
+    return sorted(takes) or [0]
+
+
+def _read_decision(layer) -> dict | None:
+    """The decision authored on the layer's review roots; None while pending."""
+    for r in _roots(layer):
+        attrs = r.attributes
+        status = attrs["tween:reviewStatus"].default
+        if not status or status == "pending":
+            continue
+        out = {"status": str(status)}
+        for key, (name, _) in _DECISION.items():
+            if key != "status":
+                a = attrs.get(name)
+                out[key] = (
+                    a.default if a is not None and a.default is not None else (-1 if key == "take" else "")
+                )
+        return out
+    return None
+
+
+def _fill_layers(out: Path, stem: str) -> dict[int, Path]:
+    return write._versions(out, stem)
+
+
+def _latest(shot: str, out: Path, stem: str) -> tuple[int, Path]:
+    versions = _fill_layers(out, stem) if out.is_dir() else {}
+    if not versions:
+        raise ShotError(shot, f"no fill yet: no {stem}.tween.vNNN layer in {out} (run tween fill first)")
+    n = max(versions)
+    return n, versions[n]
+
+
+def _fill_folder(shot: str, out_dir: str | os.PathLike | None) -> Path:
+    return Path(out_dir) if out_dir else write.default_out_dir(shot)
+
+
+def _check_shot(shot: str) -> None:
+    if not Path(shot).exists():
+        raise ShotError(shot, "file not found")
+    if not Path(shot).is_file():
+        raise ShotError(shot, "not a file")
+
+
+def _who() -> str:
+    try:
+        return getpass.getuser()
+    except Exception:  # no login name, no passwd entry (containers)
+        return os.environ.get("USER") or "unknown"
+
+
+def _describe(d: dict) -> str:
+    at = f" at {d['at']}" if d.get("at") else ""
+    return f"take {d['take']} by {d.get('by') or 'unknown'}{at}"
+
+
+# --- decision ----------------------------------------------------------------------------------
+
+
+def decision(layer_path, _depth: int = 0) -> dict | None:
+    """The dailies decision for a layer, or None (pending, not a tween layer, unreadable).
+
+    ``layer_path`` may be a fill layer (a pending one reports the approval layer written
+    from it, if any), a review root layer (its strongest fill layer decides) or a published
+    layer. Returns ``{"status", "take", "by", "at", "note", "layer"}``, ``layer`` being the
+    file that records the decision.
+    """
+    path = Path(layer_path)
+    try:
+        layer = _open(path)
+    except TweenError:
+        return None
+    info = dict(layer.customLayerData.get("tween", {}))
+    if info.get("kind") == "publish" and info.get("approval"):
+        return {**dict(info["approval"]), "layer": str(path)}
+    if _roots(layer):
+        d = _read_decision(layer)
+        if d:
+            return {**d, "layer": str(path)}
+        # A pending fill: the approval written from it, newest first.
+        m = re.match(r"^(?P<stem>.+)\.tween\.v(?P<n>\d+)\.usd[ac]?$", path.name)
+        if m and _depth == 0:
+            later = {k: p for k, p in _fill_layers(path.parent, m["stem"]).items() if k > int(m["n"])}
+            for _, p in sorted(later.items(), reverse=True):
+                try:
+                    cand = _open(p)
+                except TweenError:
+                    continue
+                of = dict(dict(cand.customLayerData.get("tween", {})).get("approval", {})).get("of")
+                if of == path.name:
+                    return decision(p, _depth + 1)
+        return None
+    if _depth < 4:  # a root layer: its fill layers, strongest first
+        for sub in layer.subLayerPaths:
+            p = Path(sub) if os.path.isabs(sub) else path.parent / sub
+            if re.search(r"\.tween\.v\d+\.usd[ac]?$", p.name):
+                return decision(p, _depth + 1)
+    return None
+
+
+# --- approve -----------------------------------------------------------------------------------
+
+
+def _check_approvable(layer, path: Path, take: int) -> None:
+    if not _roots(layer) or not _animations(layer):
+        raise TweenError(f"{path}: not a usd-tween fill layer (no TweenAPI review state or filled animation)")
+    d = _read_decision(layer)
+    if d and d["status"] == "approved":
+        raise TweenError(
+            f"{path}: already approved ({_describe(d)}); a decision is never rewritten, "
+            "fill the shot again to approve another take"
+        )
+    takes = _takes(layer)
+    if take not in takes:
+        raise TweenError(
+            f"{path}: take {take} is not one of the layer's takes ({', '.join(map(str, takes))})"
+        )
+
+
+def _taken(out: Path, stem: str) -> set[int]:
+    """Versions in use: fill layers and review layers (as write.write allocates them)."""
+    review = re.compile(rf"^{re.escape(stem)}\.review\.v(\d+)\.usd[ac]?$")
+    used = set(_fill_layers(out, stem))
+    used |= {int(m[1]) for p in out.glob(f"{stem}.review.v*.usd*") if (m := review.match(p.name))}
+    return used
+
+
+def _author_decision(layer, take: int, d: dict) -> None:
+    from pxr import Sdf
+
+    for r in _roots(layer):
+        for key, (name, tn) in _DECISION.items():
+            write._attr(r, name, getattr(Sdf.ValueTypeNames, tn), d[key])
+        if write.VARIANT_SET in r.variantSets:
+            r.variantSelections[write.VARIANT_SET] = f"take{take}"
+
+
+def approve(shot: str, take: int, note: str | None = None, out_dir: str | None = None) -> dict:
+    """Records the approval of ``take`` in a new version of the shot's latest fill layer and
+    a new review root layer over it; returns {"layer", "review", "version", "of", "take",
+    "by", "at", "note"}. The latest layer is read, never written."""
+    from pxr import Sdf
+
+    shot = str(shot)
+    if isinstance(take, bool) or not isinstance(take, int) or take < 0:
+        raise TweenError(f"--take {take!r}: expected a take number, 0 or more")
+    if note is not None and "\0" in note:
+        raise TweenError("--note: contains a NUL character")
+    _check_shot(shot)
+    stem = write.shot_stem(shot)
+    out = _fill_folder(shot, out_dir)
+    # Checked before the lock (nothing is created for bad input), then again under it.
+    _, path = _latest(shot, out, stem)
+    _check_approvable(_open(path), path, take)
+    out = write.check_out_dir(shot, str(out))
+    shot_layer = _open(Path(shot), "shot")
+    created: list[Path] = []
+    with write.folder_lock(shot, out, stem, created):
+        write.clean_dead_temps(out)
+        n_src, path = _latest(shot, out, stem)
+        src = _open(path)
+        _check_approvable(src, path, take)
+        d = {"status": "approved", "take": int(take), "by": _who(),
+             "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "note": note or ""}  # fmt: skip
+        n = max(_taken(out, stem)) + 1
+        fmt = path.suffix.lstrip(".")
+        final = out / f"{stem}.tween.v{n:03d}.{fmt}"
+        review = out / f"{stem}.review.v{n:03d}.usda"
+        tmp = write.temp_path(final)
+        with write.saving(final, tmp):
+            layer = Sdf.Layer.CreateNew(str(tmp))
+            if layer is None:
+                raise TweenError(f"{final}: cannot write the layer")
+            layer.TransferContent(src)
+            info = dict(layer.customLayerData.get("tween", {}))
+            info.update(version=n, review=review.name, approval={**d, "of": path.name})
+            data = dict(layer.customLayerData)
+            data["tween"] = info
+            layer.customLayerData = data
+            with Sdf.ChangeBlock():
+                _author_decision(layer, take, d)
+            if not layer.Save():
+                raise TweenError(f"{final}: cannot write the layer")
+            del layer
+        with write.saving(final, tmp):
+            if not write._link_new(tmp, final):
+                raise ShotError(shot, f"{final} already exists; never overwritten")
+        try:
+            write._write_review(shot, shot_layer, final, review, False)
+        except BaseException:
+            final.unlink(missing_ok=True)
+            raise
+    return {
+        "layer": str(final),
+        "review": str(review),
+        "version": n,
+        "of": str(path),
+        "of_version": n_src,
+        **d,
+    }
+
+
+# --- publish -----------------------------------------------------------------------------------
+
+
+def _approved_latest(shot: str, out: Path, stem: str) -> tuple[int, Path, object, dict]:
+    n, path = _latest(shot, out, stem)
+    layer = _open(path)
+    if not _roots(layer) or not _animations(layer):
+        raise TweenError(f"{path}: not a usd-tween fill layer (no TweenAPI review state or filled animation)")
+    d = _read_decision(layer)
+    if not d or d["status"] != "approved":
+        status = d["status"] if d else "pending"
+        raise TweenError(
+            f"{path}: nothing approved (the latest fill is {status}); run tween approve {shot} --take N first"
+        )
+    if d["take"] not in _takes(layer):
+        raise TweenError(f"{path}: the approved take {d['take']} is not one of the layer's takes")
+    return n, path, layer, d
+
+
+def _publish_path(shot: str, out: Path, stem: str, n: int, fmt: str | None, dest) -> tuple[Path, str]:
+    if fmt is not None and fmt not in ("usda", "usdc"):
+        raise TweenError(f"--format {fmt!r}: must be usda or usdc")
+    if dest is None:
+        fmt = fmt or "usda"
+        return out / f"{stem}.publish.v{n:03d}.{fmt}", fmt
+    dest = Path(dest)
+    if dest.suffix not in (".usda", ".usdc", ".usd"):
+        raise TweenError(f"{dest}: the published layer must end in .usda, .usdc or .usd")
+    if dest.suffix != ".usd":
+        if fmt is not None and fmt != dest.suffix[1:]:
+            raise TweenError(f"{dest}: --format {fmt} does not match the file's extension")
+        fmt = dest.suffix[1:]
+    if not dest.parent.is_dir():
+        raise TweenError(f"{dest}: the folder {dest.parent} does not exist")
+    return dest, fmt or "usda"
+
+
+def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = None) -> dict:
+    """Writes the approved take of the shot's latest fill layer as a plain animation layer
+    (see the module doc); returns {"layer", "of", "take", "format", "animations"}. Never
+    overwrites a file."""
+    from pxr import Sdf, UsdUtils
+
+    from pipeline.usd.read import open_stage
+
+    shot = str(shot)
+    _check_shot(shot)
+    stem = write.shot_stem(shot)
+    out = _fill_folder(shot, out_dir)
+    n, path, src, d = _approved_latest(shot, out, stem)
+    final, fmt = _publish_path(shot, out, stem, n, fmt, dest)
+    if final.exists():
+        raise TweenError(f"{final}: already exists; a published layer is never overwritten")
+    if not os.access(final.parent, os.W_OK) or not final.parent.stat().st_mode & 0o222:
+        raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
+    stage = open_stage(shot)
+    take, many = int(d["take"]), any(write.VARIANT_SET in r.variantSets for r in _roots(src))
+    anims = []
+    for spec in _animations(src):
+        orig = spec.path.GetParentPath().AppendChild(spec.name[: -len(SUFFIX)])
+        prim = stage.GetPrimAtPath(orig)
+        if not prim or prim.GetTypeName() != "SkelAnimation":
+            raise ShotError(shot, f"the fill's animation {spec.path} has no SkelAnimation {orig} in the shot")
+        if many:
+            root = spec.path.GetPrefixes()[0]  # the root prim that holds the tweenTake variants
+            vpath = root.AppendVariantSelection(write.VARIANT_SET, f"take{take}").AppendPath(
+                spec.path.MakeRelativePath(root)
+            )
+        else:
+            vpath = spec.path
+        anims.append((spec, vpath, orig))
+    info = dict(src.customLayerData.get("tween", {}))
+    now = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    provenance = {
+        "kind": "publish",
+        "model": info.get("model", ""),
+        "modelHash": info.get("modelHash", ""),
+        "models": dict(info.get("models", {})),
+        "jobId": info.get("jobId", ""),
+        "take": take,
+        "approval": {k: d[k] for k in ("status", "take", "by", "at", "note")},
+        "fillLayer": path.name,
+        "fillVersion": n,
+        "shot": shot,
+        "publishedAt": now,
+        "publishedBy": _who(),
+    }
+    tmp = write.temp_path(final)
+    with write.saving(final, tmp):
+        layer = Sdf.Layer.CreateNew(str(tmp), {"format": fmt} if final.suffix == ".usd" else {})
+        if layer is None:
+            raise TweenError(f"{final}: cannot write the layer")
+        UsdUtils.CopyLayerMetadata(stage.GetRootLayer(), layer, True, True)
+        layer.customLayerData = {"tween": provenance}
+        layer.comment = (
+            f"Published by usd-tween: take {take} of {path.name}, approved by {d['by']} at {d['at']}. "
+            "Plain animation: sublayer it over the shot (stronger)."
+        )
+        with Sdf.ChangeBlock():
+            for spec, vpath, orig in anims:
+                dst = Sdf.CreatePrimInLayer(layer, orig)  # an over, and overs above it
+                write._apply_api(dst, "TweenAPI")
+                joints = spec.attributes.get("joints")
+                if joints is not None and joints.default is not None:
+                    write._attr(dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True)
+                for name in _PROVENANCE:
+                    a = spec.attributes.get(name)
+                    if a is not None and a.default is not None:
+                        write._attr(dst, name, a.typeName, a.default)
+                write._attr(dst, "tween:take", Sdf.ValueTypeNames.Int, take)
+                seed = src.GetAttributeAtPath(vpath.AppendProperty("tween:seed"))
+                if seed is not None and seed.default is not None:
+                    write._attr(dst, "tween:seed", Sdf.ValueTypeNames.Int, seed.default)
+                for name in ANIM_ATTRS:
+                    a = src.GetAttributeAtPath(vpath.AppendProperty(name)) or spec.attributes.get(name)
+                    if a is None:
+                        raise TweenError(f"{path}: {vpath} has no {name} for take {take}")
+                    # The samples as stored (bit for bit), without the variant around them.
+                    if not Sdf.CopySpec(src, a.path, layer, dst.path.AppendProperty(name)):
+                        raise TweenError(f"{final}: cannot copy {a.path}")
+        if not layer.Save():
+            raise TweenError(f"{final}: cannot write the layer")
+        del layer
+    with write.saving(final, tmp):
+        if not write._link_new(tmp, final):
+            raise TweenError(f"{final}: already exists; a published layer is never overwritten")
+    return {"layer": str(final), "of": str(path), "take": take, "format": fmt,
+            "animations": [str(o) for _, _, o in anims]}  # fmt: skip
