@@ -1,4 +1,5 @@
-"""USD commands of the ``tween`` CLI: ``convert`` (BVH → shot) and ``fill-local`` (in process).
+"""USD commands of the ``tween`` CLI: ``convert`` (BVH → shot), ``fill-local`` (in process),
+``approve`` and ``publish`` (dailies, :mod:`pipeline.usd.dailies`).
 
 ``tween fill`` (the farm) is defined in ``workers/cli.py``; ``fill-local`` runs the same
 fill in this process, for debugging.
@@ -144,3 +145,37 @@ def register(app: typer.Typer) -> None:
         result = fill_shot(str(shot), opts, job_id=job_id)
         print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
         typer.echo(json.dumps(result, indent=1))
+
+    @app.command()
+    def approve(
+        shot: Path = typer.Argument(..., help="USD shot whose latest fill is approved."),
+        take: int = typer.Option(..., "--take", help="The approved take (0, 1, ...)."),
+        note: str = typer.Option(None, "--note", help="The reviewer's note."),
+        out_dir: Path = typer.Option(
+            None, "--out-dir", help="Folder of the fill layers (default: beside the shot)."
+        ),
+    ):
+        """Dailies: record the approval of a take in a new fill layer version (and review layer)."""
+        from pipeline.usd.dailies import approve as approve_take
+
+        r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None)
+        print(f"tween: approved take {r['take']} of {r['of']} -> {r['layer']}", file=sys.stderr)
+        typer.echo(json.dumps(r, indent=1))
+
+    @app.command()
+    def publish(
+        shot: Path = typer.Argument(..., help="USD shot whose approved take is published."),
+        fmt: str = typer.Option(None, "--format", help="usda (default) or usdc."),
+        out: Path = typer.Option(
+            None, "--out", help="Published layer (default: <shot>.publish.vNNN.<format> beside the fills)."
+        ),
+        out_dir: Path = typer.Option(
+            None, "--out-dir", help="Folder of the fill layers (default: beside the shot)."
+        ),
+    ):
+        """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
+        from pipeline.usd.dailies import publish as publish_take
+
+        r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
+        print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
+        typer.echo(r["layer"])

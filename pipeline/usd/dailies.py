@@ -314,8 +314,6 @@ def _approved_latest(shot: str, out: Path, stem: str) -> tuple[int, Path, object
 
 
 def _publish_path(shot: str, out: Path, stem: str, n: int, fmt: str | None, dest) -> tuple[Path, str]:
-    if fmt is not None and fmt not in ("usda", "usdc"):
-        raise TweenError(f"--format {fmt!r}: must be usda or usdc")
     if dest is None:
         fmt = fmt or "usda"
         return out / f"{stem}.publish.v{n:03d}.{fmt}", fmt
@@ -340,6 +338,8 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     from pipeline.usd.read import open_stage
 
     shot = str(shot)
+    if fmt is not None and fmt not in ("usda", "usdc"):
+        raise TweenError(f"--format {fmt!r}: must be usda or usdc")
     _check_shot(shot)
     stem = write.shot_stem(shot)
     out = _fill_folder(shot, out_dir)
