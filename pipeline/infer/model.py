@@ -453,10 +453,16 @@ class OnnxInbetweener:
         always was). Longer fills go through windows of about ``chunk_core`` kept frames, cut
         at full keys (so each kept piece meets the next one at a key, which both leave exact),
         each seeing ``margin`` more frames on both sides (out to the next full key): every
-        kept frame then sees all the keys the network's receptive field reaches. What a
-        window does not see — keys beyond its margins, the first key's heading the shot is
-        put in, the position of its frames in the network's stride — changes a long fill
-        slightly against one window over the whole shot (docs in MODEL_CARD's "long shots").
+        kept frame then sees all the keys the network's receptive field reaches.
+
+        A gap's fill depends on the keys within the receptive field around it and, through
+        the canonical frame, on the window's first key (its position and heading), and on
+        where its frames fall in the network's stride. So a long fill differs from one window
+        over the whole shot, by about as much as another heading of the first key would make:
+        on a 9,692-frame walk (keys every 10 frames) 3.0 degrees per joint on average between
+        the two, each 6.9 / 6.8 degrees (root 3.0 / 2.7 cm) from the real motion. Seams are
+        keys, exact on both sides. Hierarchical key insertion runs before the windows (on the
+        whole shot; its coarse pass goes through windows too).
         """
         keys = np.asarray(keys, np.int64)
         if n <= self.chunk_frames:
