@@ -58,6 +58,24 @@ def _err(msg: str) -> None:
     print(f"tween: error: {msg}", file=sys.stderr)
 
 
+def _decision(layer) -> str:
+    """``, approved take N by WHO at WHEN ("note") in LAYER`` for a result layer with a
+    dailies decision (:func:`pipeline.usd.dailies.decision`), else ""; never fails."""
+    if not layer:
+        return ""
+    try:
+        from pipeline.usd.dailies import decision
+
+        d = decision(layer)
+    except Exception:
+        return ""
+    if not d:
+        return ""
+    note = " ".join(str(d.get("note") or "").split())
+    return (f", {d['status']} take {d['take']} by {d.get('by') or 'unknown'} at {d.get('at')}"
+            + (f' ("{note}")' if note else "") + f" in {d['layer']}")  # fmt: skip
+
+
 def _report(states) -> int:
     """Results to stdout, failures to stderr; returns the exit code."""
     failed = 0
@@ -204,7 +222,8 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "
                            f"{r['iteration']}/{r['iterations']} ({100 * r['fraction']:.0f} %)")  # fmt: skip
             elif s.state == "SUCCESS":
-                typer.echo(f"{s.id} {s.shot}: success, layer {(s.result or {}).get('layer')}")
+                layer = (s.result or {}).get("layer")
+                typer.echo(f"{s.id} {s.shot}: success, layer {layer}{_decision(layer)}")
             elif s.state == "UNKNOWN":
                 typer.echo(f"{s.id}: unknown: {s.error}")
             elif s.state == "FAILURE":

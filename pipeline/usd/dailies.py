@@ -151,43 +151,57 @@ def _describe(d: dict) -> str:
 # --- decision ----------------------------------------------------------------------------------
 
 
+_FILL_NAME = re.compile(r"^(?P<stem>.+)\.tween\.v(?P<n>\d+)\.usd[ac]?$")
+_KEYS = ("status", "take", "by", "at", "note")
+
+
+def _metadata(path: Path):
+    """The layer's metadata only (``customLayerData``, ``subLayers``): fast even for a
+    100 MB fill layer; None when unreadable."""
+    from pxr import Sdf, Tf
+
+    from pipeline.usd.diagnostics import usd_diagnostics
+
+    try:
+        with usd_diagnostics(fold=False):
+            return Sdf.Layer.OpenAsAnonymous(str(path), True)
+    except Tf.ErrorException:
+        return None
+
+
+def _approval(layer) -> dict | None:
+    appr = dict(dict(layer.customLayerData.get("tween", {})).get("approval", {}))
+    return {k: appr.get(k) for k in _KEYS} if appr.get("status") else None
+
+
 def decision(layer_path, _depth: int = 0) -> dict | None:
     """The dailies decision for a layer, or None (pending, not a tween layer, unreadable).
 
     ``layer_path`` may be a fill layer (a pending one reports the approval layer written
     from it, if any), a review root layer (its strongest fill layer decides) or a published
     layer. Returns ``{"status", "take", "by", "at", "note", "layer"}``, ``layer`` being the
-    file that records the decision.
+    file that records the decision. Reads layer metadata only (cheap).
     """
     path = Path(layer_path)
-    try:
-        layer = _open(path)
-    except TweenError:
+    layer = _metadata(path) if path.is_file() else None
+    if layer is None:
         return None
-    info = dict(layer.customLayerData.get("tween", {}))
-    if info.get("kind") == "publish" and info.get("approval"):
-        return {**dict(info["approval"]), "layer": str(path)}
-    if _roots(layer):
-        d = _read_decision(layer)
-        if d:
-            return {**d, "layer": str(path)}
-        # A pending fill: the approval written from it, newest first.
-        m = re.match(r"^(?P<stem>.+)\.tween\.v(?P<n>\d+)\.usd[ac]?$", path.name)
-        if m and _depth == 0:
-            later = {k: p for k, p in _fill_layers(path.parent, m["stem"]).items() if k > int(m["n"])}
-            for _, p in sorted(later.items(), reverse=True):
-                try:
-                    cand = _open(p)
-                except TweenError:
-                    continue
-                of = dict(dict(cand.customLayerData.get("tween", {})).get("approval", {})).get("of")
-                if of == path.name:
-                    return decision(p, _depth + 1)
+    d = _approval(layer)
+    if d:
+        return {**d, "layer": str(path)}
+    m = _FILL_NAME.match(path.name)
+    if m:  # a pending fill: the approval written from it, newest first
+        later = {k: p for k, p in _fill_layers(path.parent, m["stem"]).items() if k > int(m["n"])}
+        for _, p in sorted(later.items(), reverse=True):
+            cand = _metadata(p)
+            d = _approval(cand) if cand is not None else None
+            if d and dict(cand.customLayerData["tween"]["approval"]).get("of") == path.name:
+                return {**d, "layer": str(p)}
         return None
-    if _depth < 4:  # a root layer: its fill layers, strongest first
+    if _depth < 4:  # a root layer: its strongest fill layer decides
         for sub in layer.subLayerPaths:
             p = Path(sub) if os.path.isabs(sub) else path.parent / sub
-            if re.search(r"\.tween\.v\d+\.usd[ac]?$", p.name):
+            if _FILL_NAME.match(p.name):
                 return decision(p, _depth + 1)
     return None
 
@@ -201,8 +215,8 @@ def _check_approvable(layer, path: Path, take: int) -> None:
     d = _read_decision(layer)
     if d and d["status"] == "approved":
         raise TweenError(
-            f"{path}: already approved ({_describe(d)}); a decision is never rewritten, "
-            "fill the shot again to approve another take"
+            f"{path}: already approved ({_describe(d)}); a decision is never rewritten: "
+            "a new fill is needed to approve another take"
         )
     takes = _takes(layer)
     if take not in takes:
