@@ -258,16 +258,20 @@ def approve(shot: str, take: int, note: str | None = None, out_dir: str | None =
     stem = write.shot_stem(shot)
     out = _fill_folder(shot, out_dir)
     # Checked before the lock (nothing is created for bad input), then again under it.
-    _, path = _latest(shot, out, stem)
-    _check_approvable(_open(path), path, take)
+    _, first = _latest(shot, out, stem)
+    src = _open(first)
+    _check_approvable(src, first, take)
     out = write.check_out_dir(shot, str(out))
-    shot_layer = _open(Path(shot), "shot")
+    shot_layer = _metadata(Path(shot))  # its layer metadata goes into the review layer
+    if shot_layer is None:
+        raise ShotError(shot, "cannot open as USD")
     created: list[Path] = []
     with write.folder_lock(shot, out, stem, created):
         write.clean_dead_temps(out)
         n_src, path = _latest(shot, out, stem)
-        src = _open(path)
-        _check_approvable(src, path, take)
+        if path != first:  # another writer came first (layers are never rewritten: same name, same file)
+            src = _open(path)
+            _check_approvable(src, path, take)
         d = {"status": "approved", "take": int(take), "by": _who(),
              "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "note": note or ""}  # fmt: skip
         n = max(_taken(out, stem)) + 1
