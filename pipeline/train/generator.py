@@ -47,51 +47,115 @@ from pipeline.train.keymatch import match_partial_keys, partial_match_weights
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
 
 
+def _knob(default, help: str, **meta):
+    """A TrainConfig field: its default and its `tween train --help` text, declared once here."""
+    return field(default=default, metadata={"help": help, **meta})
+
+
 @dataclass
 class TrainConfig:
-    steps: int = 6000
-    batch: int = 32
-    lengths: tuple[int, ...] = (64, 96, 128)
-    lr: float = 1e-3
-    gap_start: int = 15
-    gap_end: int = 90
-    curriculum: float = 0.4
-    w_rot: float = 1.0
-    w_pos: float = 1.0
-    w_root: float = 1.0
-    w_vel: float = 1.0  # joint-velocity L1: suppresses frame-to-frame jitter (foot skate, L2P)
-    w_contact: float = 0.1
-    w_br: float = 0.01
-    noise_prob: float = 0.5  # share of batches with a random take latent (else the zero latent)
-    adv_start: int | None = None  # step from which the LSGAN term refines the generator
-    w_adv: float = 0.02
-    d_lr: float = 1e-4
-    seed: int = 0
-    threads: int = 1  # two cores shared with data prep and other jobs: more threads thrash
-    checkpoint_minutes: float = 3.0
-    limit_clips: int | None = None
-    data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
-    init: str | None = None  # start from this checkpoint's generator weights (a continuation run)
-    pos_zscore: bool = False  # weigh position errors by 1/std of each coordinate (train statistics)
-    data_pack: str | None = None  # the train split packed by pipeline.data.pack (hosts without ../shared)
-    gap_weighting: float = (
-        0.0  # frames weighted by gap length ** −this (0: every frame alike; 1: every gap alike)
+    """Every knob of a generator training run. `tween train` makes one flag of each field
+    (``--gap-start`` for ``gap_start``; pipeline/train/recipe.py), with this default and help.
+    ``model`` is the network's config; the fields of it that `tween train` sets are listed in
+    its ``flags`` metadata (flag name: (GeneratorConfig field, help))."""
+
+    steps: int = _knob(8000, "Generator steps.")
+    batch: int = _knob(32, "Windows per batch (path predictor and generator).")
+    lengths: tuple[int, ...] = _knob((64, 96, 128), "Training window lengths, comma-separated.")
+    lr: float = _knob(1e-3, "Peak learning rate of the one-cycle schedule.")
+    gap_start: int = _knob(15, "Longest gap (frames) at the start of the gap curriculum.")
+    gap_end: int = _knob(90, "Longest gap (frames) once the curriculum is through: the longest trained gap.")
+    curriculum: float = _knob(
+        0.4, "Share of the steps over which the longest gap grows from --gap-start to --gap-end."
     )
-    mirror: float = 0.0  # share of windows replaced by their left/right mirror image (augmentation)
-    posture: float = 0.0  # largest per-joint posture offset in degrees (augmentation; 0: off)
-    posture_prob: float = 0.5  # share of windows given posture offsets
-    partial: float = 0.0  # share of batches with partial keys (needs model.key_mask or key_adapter)
-    partial_layout: str = "convert"  # "convert" some keys to partial ones, or "insert" them in gaps
-    match_partial: bool = True  # losses on the output with partial keys matched (keymatch.py)
-    dna_prob: float = 0.5  # share of windows given a motion DNA (needs model.dna)
-    dna_max: int = 4  # poses per DNA: 1 … this
-    w_dna: float = 0.5  # every DNA pose should appear among the in-betweens (eq. 11)
-    dna_from: float = 0.0  # share of DNAs taken from the rest of the window's clip (else its gap)
-    new_lr: float = 10.0  # learning-rate factor of the weights an --init checkpoint lacks
-    freeze: bool = False  # train only the add-on modules (DNA, key mask, adapter); the trunk stays as it was
-    device: str = "cpu"  # "cuda" trains on a GPU; batches are still made on CPU
-    workers: int = 0  # processes making batches ahead (0: in the training process)
-    model: GeneratorConfig = field(default_factory=GeneratorConfig)
+    w_rot: float = _knob(1.0, "Weight of the L1 loss on rotation matrices.")
+    w_pos: float = _knob(1.0, "Weight of the L1 loss on FK joint positions (decimetres).")
+    w_root: float = _knob(1.0, "Weight of the L1 loss on the root (decimetres).")
+    w_vel: float = _knob(
+        1.0, "Weight of the joint-velocity L1 loss: suppresses frame-to-frame jitter (foot skate, L2P)."
+    )
+    w_contact: float = _knob(0.1, "Weight of the foot-contact BCE loss.")
+    w_br: float = _knob(0.01, "Weight of the batch-regularisation loss (eq. 9), generator and discriminator.")
+    noise_prob: float = _knob(0.5, "Share of batches with a random take latent (else the zero latent).")
+    adv_start: int | None = _knob(
+        6800,
+        "Generator step where the LSGAN refinement starts (none: -1).",
+        none_if_negative=True,
+    )
+    w_adv: float = _knob(0.02, "Weight of the LSGAN term in the refinement.")
+    d_lr: float = _knob(1e-4, "Learning rate of the discriminator.")
+    seed: int = _knob(0, "Seed of weights and batches: a run is deterministic for a seed.")
+    threads: int = _knob(1, "torch threads; 1 is fastest on 2 shared cores (more threads thrash).")
+    checkpoint_minutes: float = _knob(3.0, "Minutes between checkpoints (a run resumes from its last one).")
+    limit_clips: int | None = _knob(None, "Use only the first N train clips (smoke tests).")
+    data: str | None = _knob(
+        None, "A folder of your own BVH clips (model skeleton) instead of Bandai train.", path=True
+    )
+    init: str | None = _knob(None, "Continue from this generator checkpoint's weights.", path=True)
+    pos_zscore: bool = _knob(False, "Weigh position errors by 1/std per coordinate (train statistics).")
+    data_pack: str | None = _knob(
+        None, "Train split packed by `python -m pipeline.data.pack` (hosts without ../shared).", path=True
+    )
+    gap_weighting: float = _knob(
+        0.0, "Weigh frames by gap length ** -this (0: every frame alike; 1: every gap alike)."
+    )
+    mirror: float = _knob(0.0, "Share of windows mirrored left/right (augmentation).")
+    posture: float = _knob(0.0, "Largest per-joint posture offset, degrees (augmentation; 0: off).")
+    posture_prob: float = _knob(0.5, "Share of windows given posture offsets (with --posture).")
+    partial: float = _knob(
+        0.0, "Share of batches with partial keys (some joints only; needs --key-mask or --key-adapter)."
+    )
+    partial_layout: str = _knob(
+        "convert",
+        "Partial keys in training: 'convert' some keys, or 'insert' them in gaps.",
+        choices=PARTIAL_LAYOUTS,
+    )
+    match_partial: bool = _knob(
+        True, "Losses on the output with partial keys matched, as the farm matches them."
+    )
+    dna_prob: float = _knob(0.5, "Share of windows given a motion DNA (with --dna).")
+    dna_max: int = _knob(4, "Poses per motion DNA: 1 ... this.")
+    w_dna: float = _knob(
+        0.5, "Weight of the DNA loss (eq. 11): every DNA pose should appear among the in-betweens."
+    )
+    dna_from: float = _knob(0.0, "Share of DNAs from the rest of the window's clip (else from its gap).")
+    new_lr: float = _knob(10.0, "Learning-rate factor of the weights the --init checkpoint lacks.")
+    freeze: bool = _knob(
+        False, "Train only the add-on modules (DNA, key mask, adapter); the trunk stays as it was."
+    )
+    device: str = _knob("cpu", "cpu, or cuda where a GPU is available (batches are still made on CPU).")
+    workers: int = _knob(
+        0, "Processes making batches ahead (0: in the training process; useful with --device cuda)."
+    )
+    model: GeneratorConfig = field(
+        default_factory=GeneratorConfig,
+        metadata={
+            "flags": {
+                "target_noise": (
+                    "noise_schedule",
+                    "Scheduled target noise: the take latent fades to 0 within 5 frames of a key.",
+                ),
+                "key_mask": (
+                    "key_mask",
+                    "Per-joint key-mask input (partial keys), its own zero-start convolution.",
+                ),
+                "full_timing": (
+                    "full_timing",
+                    "Key distance, key flag and time-to-arrival inputs count full keys only (partial "
+                    "keys reach the network through their joints and the key mask).",
+                ),
+                "key_adapter": (
+                    "key_adapter",
+                    "Partial keys as a side input through a zero-start adapter; the main input is that "
+                    "of the full keys alone (with --freeze, fills from full keys stay bit for bit).",
+                ),
+                "dna": (
+                    "dna",
+                    "Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero.",
+                ),
+            }
+        },
+    )
 
     def __post_init__(self):
         if self.partial_layout not in PARTIAL_LAYOUTS:

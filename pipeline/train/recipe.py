@@ -1,0 +1,566 @@
+"""`tween train`'s flags, made from TrainConfig, and training recipes as files.
+
+**Flags.** Every field of :class:`pipeline.train.generator.TrainConfig` is one `tween train`
+flag (``gap_start`` -> ``--gap-start``) with the field's default and its ``help`` metadata;
+the GeneratorConfig fields that `tween train` sets are listed in the ``model`` field's
+``flags`` metadata. Only what is not a TrainConfig field is declared here: ``--out``,
+``--path-steps`` (PathTrainConfig's steps, default from there) and the recipe options. The
+command is built on first use (it imports torch), so `tween --help` and `tween fill` never
+import torch.
+
+**Recipes.** ``recipes/NAME.toml`` holds the ordered training stages of a shipped model:
+
+.. code-block:: toml
+
+    name = "tween-bandai-v5.3"
+    model = "models/default"             # the folder the shipped export went to
+    base = {recipe = "other", through = "s7"}   # optional: that recipe's stages first, up to s7
+
+    [[stage]]
+    name = "s2"                          # runs into OUT/s2/
+    init = "s1"                          # --init: an earlier stage's generator.pt (or a path)
+    args = "--path-steps 0 --steps 8000 --lr 3e-4 --pos-zscore --adv-start 7000 --seed 0"
+    packed = false                       # true: --data-pack OUT/train.pack (made once)
+    wall_s = 2058.0                      # measured wall time, seconds
+    measured = "2-core CPU, one torch thread"   # where that was measured (and how)
+
+    [export]                             # optional: `tween export OUT/<stage> --out OUT/model ARGS`
+    stage = "s9"
+    path_from = "s1"                     # path.pt copied from that stage's folder
+    args = "--name tween-bandai-v5.3 --pad hold-key --pad-tail 16 --min-window 64 --feet-anchor"
+
+``tween train --recipe NAME`` replays it on CPU (flags given beside ``--recipe``, such as
+``--device cuda --workers 7`` or ``--limit-clips 2``, apply to every stage), skipping every
+stage whose folder holds its finished checkpoint, so a replay resumes across sessions.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import shlex
+import shutil
+import sys
+import time
+import tomllib
+import types
+import typing
+from dataclasses import MISSING, dataclass, field, fields
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import typer
+
+RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+EXPLICIT = ("out", "path_steps", "recipe", "from_stage", "dry_run")  # flags that are not TrainConfig's
+RESERVED = ("--out", "--init", "--recipe", "--from-stage", "--dry-run", "--data-pack")  # not in stage args
+
+
+class RecipeError(ValueError):
+    """A recipe file that cannot be replayed as written."""
+
+
+# ---------------------------------------------------------------------------- flags
+
+
+@dataclass(frozen=True)
+class Flag:
+    """One `tween train` flag made from a config field."""
+
+    name: str  # the Python name; the flag is --name with _ as -
+    field: str  # the TrainConfig field, or the GeneratorConfig one when ``model`` is set
+    model: bool  # a GeneratorConfig field (TrainConfig.model)
+    kind: Any  # the flag's type: int, float, str, bool, Path
+    default: Any  # the config's default
+    help: str
+    meta: dict
+
+    @property
+    def option(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+    def cli_default(self):
+        if isinstance(self.default, tuple):
+            return ",".join(str(x) for x in self.default)
+        if self.kind is Path and self.default is not None:
+            return Path(self.default)
+        return self.default
+
+    def to_config(self, value):
+        """The flag's value as the config field holds it."""
+        if value is None:
+            return None
+        if isinstance(self.default, tuple):
+            kind = type(self.default[0]) if self.default else int
+            return tuple(kind(x) for x in str(value).split(",") if x.strip())
+        if self.kind is Path:
+            return str(value)
+        if self.meta.get("none_if_negative") and value < 0:
+            return None
+        return value
+
+    def to_args(self, value) -> list[str]:
+        """Command-line arguments that give this flag ``value`` (a config or flag value)."""
+        if isinstance(value, bool):
+            return [self.option if value else "--no-" + self.option[2:]]
+        if value is None:
+            if self.meta.get("none_if_negative"):
+                return [self.option, "-1"]
+            raise ValueError(f"{self.option} cannot be given as None")
+        if isinstance(value, tuple):
+            value = ",".join(str(x) for x in value)
+        return [self.option, str(value)]
+
+
+def _flag_type(hint) -> Any:
+    """int | None -> int, tuple[int, ...] -> str (comma-separated)."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        hint = next(a for a in typing.get_args(hint) if a is not type(None))
+    if typing.get_origin(hint) is tuple:
+        return str
+    return hint
+
+
+@cache
+def train_flags() -> tuple[Flag, ...]:
+    """The flags `tween train` makes from TrainConfig (and the model fields it lists)."""
+    from pipeline.models.generator import GeneratorConfig
+    from pipeline.train.generator import TrainConfig
+
+    hints = typing.get_type_hints(TrainConfig)
+    ghints = typing.get_type_hints(GeneratorConfig)
+    gdefaults = {f.name: f.default for f in fields(GeneratorConfig)}
+    out = []
+    for f in fields(TrainConfig):
+        if f.name == "model":
+            for name, (gfield, help) in f.metadata["flags"].items():
+                out.append(Flag(name, gfield, True, _flag_type(ghints[gfield]), gdefaults[gfield], help, {}))
+            continue
+        if "help" not in f.metadata:
+            raise TypeError(f"TrainConfig.{f.name} has no help: declare it with _knob(default, help)")
+        default = f.default if f.default is not MISSING else f.default_factory()
+        kind = Path if f.metadata.get("path") else _flag_type(hints[f.name])
+        out.append(Flag(f.name, f.name, False, kind, default, f.metadata["help"], dict(f.metadata)))
+    clash = {fl.name for fl in out} & set(EXPLICIT)
+    if clash:
+        raise TypeError(f"TrainConfig fields clash with tween train's own flags: {sorted(clash)}")
+    return tuple(out)
+
+
+def path_steps_default() -> int:
+    from pipeline.train.path import PathTrainConfig
+
+    return next(f.default for f in fields(PathTrainConfig) if f.name == "steps")
+
+
+def configs(values: dict):
+    """Flag values (as click parsed them) -> (TrainConfig, PathTrainConfig)."""
+    from pipeline.models.generator import GeneratorConfig
+    from pipeline.train.generator import TrainConfig
+    from pipeline.train.path import PathTrainConfig
+
+    kw, model = {}, {}
+    for fl in train_flags():
+        (model if fl.model else kw)[fl.field] = fl.to_config(values[fl.name])
+        choices = fl.meta.get("choices")
+        if choices and kw[fl.field] not in choices:
+            raise typer.BadParameter(f"{fl.option} must be one of {', '.join(choices)}")
+    if kw["adv_start"] is not None and kw["adv_start"] >= kw["steps"]:
+        kw["adv_start"] = None  # no refinement within the run
+    try:
+        cfg = TrainConfig(**kw, model=GeneratorConfig(**model))
+    except ValueError as e:
+        raise typer.BadParameter(str(e)) from None
+    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data")}
+    return cfg, PathTrainConfig(steps=values["path_steps"], **common)
+
+
+def train_run(out: Path, cfg, path_cfg) -> Path:
+    """The training entry point of `tween train` and of every recipe stage: the path predictor
+    (when it has steps), then the generator. Returns the generator checkpoint."""
+    from pipeline.train.generator import train as train_generator
+    from pipeline.train.path import train_path
+
+    if path_cfg.steps:
+        train_path(path_cfg, out)
+    return train_generator(cfg, out)
+
+
+def _train(ctx: typer.Context, **values) -> None:
+    out, recipe = values.pop("out"), values.pop("recipe")
+    from_stage, dry_run = values.pop("from_stage"), values.pop("dry_run")
+    if recipe is None:
+        if from_stage is not None or dry_run:
+            raise typer.BadParameter("--from-stage and --dry-run go with --recipe")
+        cfg, path_cfg = configs(values)
+        typer.echo(str(train_run(out or Path("runs/default"), cfg, path_cfg)))
+        return
+    given = [n for n in values if ctx.get_parameter_source(n).name in ("COMMANDLINE", "ENVIRONMENT")]
+    if "init" in given or "data_pack" in given:
+        raise typer.BadParameter("--init and --data-pack are the recipe's, per stage (see recipes/README)")
+    flags = {fl.name: fl for fl in train_flags()}
+    overrides = []
+    for n in given:
+        if n == "path_steps":
+            overrides += ["--path-steps", str(values[n])]
+        else:
+            overrides += flags[n].to_args(values[n])
+    try:
+        rec = load_recipe(recipe)
+        run_recipe(rec, out or Path("runs") / rec.name, from_stage, dry_run, overrides)
+    except RecipeError as e:
+        from pipeline.errors import TweenError
+
+        raise TweenError(str(e)) from None
+
+
+TRAIN_HELP = (
+    "Train the path predictor, then the generator, on CPU. Deterministic for a seed. "
+    "`--recipe NAME` replays a shipped model's stages from recipes/NAME.toml instead."
+)
+
+
+@cache
+def train_command():
+    """The click command of `tween train`, its options made from TrainConfig's fields."""
+    params = [
+        inspect.Parameter("ctx", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=typer.Context),
+        inspect.Parameter(
+            "out",
+            inspect.Parameter.KEYWORD_ONLY,
+            annotation=Path,
+            default=typer.Option(
+                None,
+                help="Run folder: checkpoints, logs (resumes if present). Default runs/default; "
+                "with --recipe NAME, runs/NAME (a folder per stage).",
+                show_default=False,
+            ),
+        ),
+        inspect.Parameter(
+            "path_steps",
+            inspect.Parameter.KEYWORD_ONLY,
+            annotation=int,
+            default=typer.Option(
+                path_steps_default(), help="Path-predictor steps (trained first, then frozen; 0: none)."
+            ),
+        ),
+    ]
+    for fl in train_flags():
+        params.append(
+            inspect.Parameter(
+                fl.name,
+                inspect.Parameter.KEYWORD_ONLY,
+                annotation=fl.kind,
+                default=typer.Option(fl.cli_default(), help=fl.help),
+            )
+        )
+    params += [
+        inspect.Parameter(
+            "recipe",
+            inspect.Parameter.KEYWORD_ONLY,
+            annotation=str,
+            default=typer.Option(
+                None,
+                help="Replay a recipe: recipes/NAME.toml (or a .toml path), stage by stage into "
+                "OUT/<stage>/; finished stages are skipped. Flags given beside it apply to every stage.",
+            ),
+        ),
+        inspect.Parameter(
+            "from_stage",
+            inspect.Parameter.KEYWORD_ONLY,
+            annotation=str,
+            default=typer.Option(
+                None, help="With --recipe: start at this stage (earlier ones must hold their checkpoints)."
+            ),
+        ),
+        inspect.Parameter(
+            "dry_run",
+            inspect.Parameter.KEYWORD_ONLY,
+            annotation=bool,
+            default=typer.Option(False, help="With --recipe: print each stage's command; train nothing."),
+        ),
+    ]
+
+    def train(ctx, **values):
+        return _train(ctx, **values)
+
+    train.__signature__ = inspect.Signature(params)
+    train.__annotations__ = {p.name: p.annotation for p in params}
+    sub = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+    sub.command("train", help=TRAIN_HELP)(train)
+    return typer.main.get_command(sub)
+
+
+def parse_train_args(args: list[str]) -> dict:
+    """`tween train` arguments -> the flag values, by the command's own parser (a typo fails)."""
+    cmd = train_command()
+    ctx = cmd.make_context("train", list(args))
+    return dict(ctx.params)
+
+
+# ---------------------------------------------------------------------------- recipes
+
+
+@dataclass
+class Stage:
+    name: str
+    args: list[str]  # `tween train` arguments, without --out and --init
+    init: str | None = None  # an earlier stage's name, or a checkpoint path
+    packed: bool = False  # reads the train split packed by pipeline.data.pack
+    wall_s: float | None = None  # measured wall time of the original run
+    measured_device: str = "cpu"  # the device of that measurement (replays run on CPU by default)
+    measured: str = ""  # where and how that was measured
+    note: str = ""
+
+
+@dataclass
+class Export:
+    stage: str
+    args: list[str]  # `tween export` options, without the run folder and --out
+    path_from: str | None = None  # the stage whose path.pt goes beside the exported generator
+
+
+@dataclass
+class Recipe:
+    name: str
+    source: Path
+    stages: list[Stage]
+    export: Export | None = None
+    model: str | None = None
+    notes: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def stage(self, name: str) -> Stage:
+        for s in self.stages:
+            if s.name == name:
+                return s
+        raise RecipeError(f"{self.name}: no stage {name!r} (stages: {', '.join(self.names)})")
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.stages]
+
+    def wall_s(self) -> dict[str, float]:
+        """The measured wall time summed over the stages, per device they were measured on."""
+        out: dict[str, float] = {}
+        for s in self.stages:
+            out[s.measured_device] = out.get(s.measured_device, 0.0) + (s.wall_s or 0.0)
+        return out
+
+    def wall_line(self) -> str:
+        per = self.wall_s()
+        parts = [f"{_fmt_s(v)} ({v:,.1f} s) on {k}" for k, v in per.items()]
+        return f"# measured wall time, summed over the stages: {' + '.join(parts)}"
+
+
+def _split(args) -> list[str]:
+    return shlex.split(args) if isinstance(args, str) else [str(a) for a in args]
+
+
+def recipe_path(name: str | Path) -> Path:
+    p = Path(name)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return RECIPES / f"{name}.toml"
+
+
+def load_recipe(name: str | Path) -> Recipe:
+    """recipes/NAME.toml (or a path to a .toml file) -> Recipe, its base's stages first."""
+    path = recipe_path(name)
+    if not path.exists():
+        known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
+        raise RecipeError(f"no recipe {name!r} ({path} does not exist; recipes: {known})")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise RecipeError(f"{path}: {e}") from None
+    unknown = set(raw) - {"name", "model", "base", "notes", "stage", "export"}
+    if unknown:
+        raise RecipeError(f"{path}: unknown keys {sorted(unknown)}")
+    stages = []
+    if "base" in raw:
+        base = load_recipe(raw["base"]["recipe"])
+        through = raw["base"].get("through", base.names[-1])
+        stages = base.stages[: base.names.index(base.stage(through).name) + 1]
+    keys = {f.name for f in fields(Stage)}
+    for s in raw.get("stage", []):
+        bad = set(s) - keys
+        if bad:
+            raise RecipeError(f"{path}: stage {s.get('name')!r}: unknown keys {sorted(bad)}")
+        stages.append(Stage(**{**s, "args": _split(s.get("args", []))}))
+    export = None
+    if "export" in raw:
+        e = raw["export"]
+        export = Export(stage=e["stage"], args=_split(e.get("args", [])), path_from=e.get("path_from"))
+    rec = Recipe(
+        name=raw.get("name", path.stem),
+        source=path,
+        stages=stages,
+        export=export,
+        model=raw.get("model"),
+        notes=raw.get("notes", ""),
+    )
+    _check_structure(rec)
+    return rec
+
+
+def _check_structure(rec: Recipe) -> None:
+    seen: set[str] = set()
+    for s in rec.stages:
+        if s.name in seen:
+            raise RecipeError(f"{rec.name}: stage {s.name!r} twice")
+        if "/" in s.name or not s.name:
+            raise RecipeError(f"{rec.name}: stage name {s.name!r}: a folder name, please")
+        for a in s.args:
+            if a.split("=")[0] in RESERVED:
+                raise RecipeError(
+                    f"{rec.name}: stage {s.name}: {a} is set by the recipe runner "
+                    "(use init = STAGE, packed = true)"
+                )
+        if s.init is not None and s.init not in seen and not _is_path(s.init):
+            raise RecipeError(f"{rec.name}: stage {s.name}: init {s.init!r} is no earlier stage")
+        seen.add(s.name)
+    if rec.export is not None:
+        for ref in (rec.export.stage, rec.export.path_from):
+            if ref is not None and ref not in seen:
+                raise RecipeError(f"{rec.name}: export: {ref!r} is no stage")
+
+
+def _is_path(ref: str) -> bool:
+    return "/" in ref or ref.endswith(".pt")
+
+
+def stage_args(rec: Recipe, stage: Stage, out: Path, overrides: list[str] = ()) -> list[str]:
+    """The full `tween train` arguments of a stage run into ``out``/<stage>/."""
+    args = ["--out", str(out / stage.name), *stage.args]
+    if stage.packed:
+        args += ["--data-pack", str(out / "train.pack")]
+    if stage.init is not None:
+        args += ["--init", stage.init if _is_path(stage.init) else str(out / stage.init / "generator.pt")]
+    return args + list(overrides)
+
+
+def export_args(rec: Recipe, out: Path) -> list[str]:
+    return [str(out / rec.export.stage), "--out", str(out / "model"), *rec.export.args]
+
+
+def check_recipe(rec: Recipe, overrides: list[str] = ()) -> list:
+    """Every stage's arguments parsed by `tween train`'s parser (and the export's by
+    `tween export`'s): a typo is an error here, before any training. Returns the configs."""
+    out = Path("runs") / rec.name
+    parsed = []
+    for s in rec.stages:
+        try:
+            parsed.append(configs(parse_train_args(stage_args(rec, s, out, overrides)[2:])))
+        except Exception as e:  # click's usage errors, BadParameter
+            msg = e.format_message() if hasattr(e, "format_message") else str(e)
+            raise RecipeError(f"{rec.source}: stage {s.name}: {msg}") from None
+    if rec.export is not None:
+        from pipeline.train.cli import export_command
+
+        try:
+            export_command().make_context("export", export_args(rec, out))
+        except Exception as e:
+            msg = e.format_message() if hasattr(e, "format_message") else str(e)
+            raise RecipeError(f"{rec.source}: export: {msg}") from None
+    return parsed
+
+
+def finished(run: Path, steps: int) -> bool:
+    """The stage folder holds its generator checkpoint at its last step."""
+    ckpt = run / "generator.pt"
+    if not ckpt.exists():
+        return False
+    import torch
+
+    state = torch.load(ckpt, weights_only=False, map_location="cpu")
+    return int(state.get("step", 0)) >= steps
+
+
+def _fmt_s(s: float) -> str:
+    return f"{s / 3600:.2f} h" if s >= 3600 else f"{s / 60:.1f} min"
+
+
+def run_recipe(
+    rec: Recipe,
+    out: Path,
+    from_stage: str | None = None,
+    dry_run: bool = False,
+    overrides: list[str] = (),
+    echo=typer.echo,
+) -> Path | None:
+    """Replay a recipe into ``out``/<stage>/ (and ``out``/model/ for its export). Returns the
+    last stage's generator checkpoint (the export's folder when it has one)."""
+    configs_ = check_recipe(rec, overrides)
+    start = rec.names.index(rec.stage(from_stage).name) if from_stage else 0
+    say = echo if dry_run else (lambda m: print(m, file=sys.stderr))
+    say(f"# recipe {rec.name} ({rec.source}): {len(rec.stages)} stages into {out}/")
+    last, packed_said = None, False
+    for i, (s, (cfg, path_cfg)) in enumerate(zip(rec.stages, configs_, strict=True)):
+        run = out / s.name
+        cmd = "tween train " + shlex.join(stage_args(rec, s, out, overrides))
+        wall = f"measured {_fmt_s(s.wall_s)} on {s.measured_device}" if s.wall_s else "no measured time"
+        if i < start:
+            say(f"# {s.name}: before --from-stage {from_stage}, not run")
+            last = run / "generator.pt"
+            continue
+        if dry_run:
+            if s.packed and not packed_said:
+                echo(f"python -m pipeline.data.pack {out / 'train.pack'}   # once, where ../shared is")
+                packed_said = True
+            echo(f"{cmd}   # {s.name}: {wall}")
+            continue
+        if finished(run, cfg.steps):
+            say(f"# {s.name}: {run / 'generator.pt'} finished ({cfg.steps} steps), skipped")
+            last = run / "generator.pt"
+            continue
+        if cfg.init is not None and not Path(cfg.init).exists():
+            raise RecipeError(f"{rec.name}: stage {s.name}: its --init {cfg.init} does not exist")
+        if s.packed and not (out / "train.pack").exists():
+            from pipeline.data.cache import load_split
+            from pipeline.data.pack import pack
+
+            say(f"# packing the train split into {out / 'train.pack'}")
+            pack(load_split("train"), out / "train.pack")
+        say(f"{cmd}   # {s.name}: {wall}")
+        t0 = time.time()
+        last = train_run(run, cfg, path_cfg)
+        (run / "recipe_stage.json").write_text(
+            json.dumps(
+                {
+                    "recipe": rec.name,
+                    "stage": s.name,
+                    "args": stage_args(rec, s, out, overrides),
+                    "wall_s": round(time.time() - t0, 1),
+                    "measured_wall_s": s.wall_s,
+                },
+                indent=1,
+            )  # fmt: skip
+        )
+    if rec.export is None:
+        if dry_run:
+            echo(rec.wall_line())
+        return last
+    args = export_args(rec, out)
+    steps = []
+    if rec.export.path_from and rec.export.path_from != rec.export.stage:
+        src, dst = out / rec.export.path_from / "path.pt", out / rec.export.stage / "path.pt"
+        steps.append(f"cp {src} {dst}")
+    steps.append("tween export " + shlex.join(args))
+    if dry_run:
+        for line in steps:
+            echo(line)
+        echo(rec.wall_line())
+        return None
+    model = out / "model"
+    if (model / "model.json").exists():
+        say(f"# export: {model / 'model.json'} exists, skipped")
+        return model
+    if len(steps) == 2:
+        shutil.copyfile(src, dst)
+    say(steps[-1])
+    from pipeline.train.cli import export_command
+
+    export_command().main(args, prog_name="tween export", standalone_mode=False)
+    return model
