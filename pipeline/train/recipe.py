@@ -198,7 +198,7 @@ def _train(ctx: typer.Context, **values) -> None:
         return
     given = [n for n in values if ctx.get_parameter_source(n).name in ("COMMANDLINE", "ENVIRONMENT")]
     if "init" in given or "data_pack" in given:
-        raise typer.BadParameter("--init and --data-pack are the recipe's, per stage (see recipes/README)")
+        raise typer.BadParameter("--init and --data-pack are set by the recipe, per stage (init =, packed =)")
     flags = {fl.name: fl for fl in train_flags()}
     overrides = []
     for n in given:
@@ -445,10 +445,11 @@ def export_args(rec: Recipe, out: Path) -> list[str]:
     return [str(out / rec.export.stage), "--out", str(out / "model"), *rec.export.args]
 
 
-def check_recipe(rec: Recipe, overrides: list[str] = ()) -> list:
+def check_recipe(rec: Recipe, overrides: list[str] = (), out: Path | None = None) -> list:
     """Every stage's arguments parsed by `tween train`'s parser (and the export's by
-    `tween export`'s): a typo is an error here, before any training. Returns the configs."""
-    out = Path("runs") / rec.name
+    `tween export`'s): a typo is an error here, before any training. Returns the configs
+    of the stages run into ``out`` (default runs/NAME)."""
+    out = Path("runs") / rec.name if out is None else out
     parsed = []
     for s in rec.stages:
         try:
@@ -492,7 +493,7 @@ def run_recipe(
 ) -> Path | None:
     """Replay a recipe into ``out``/<stage>/ (and ``out``/model/ for its export). Returns the
     last stage's generator checkpoint (the export's folder when it has one)."""
-    configs_ = check_recipe(rec, overrides)
+    configs_ = check_recipe(rec, overrides, out)
     start = rec.names.index(rec.stage(from_stage).name) if from_stage else 0
     say = echo if dry_run else (lambda m: print(m, file=sys.stderr))
     say(f"# recipe {rec.name} ({rec.source}): {len(rec.stages)} stages into {out}/")
