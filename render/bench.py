@@ -1,4 +1,6 @@
-"""Speed of a review turntable: ``python -m render.bench`` (or ``tween bench-render``).
+"""Speed of a review turntable: ``python -m render.bench`` (or ``tween bench-render``);
+``--png`` adds the numbered frames, ``--side-by-side`` the blocking panel, ``--fixed`` the
+original (not following) camera.
 
 Converts a real 300-frame Bandai clip (10 s at 30 fps) with ``pipeline.usd.convert``, fills it
 with the interpolation model (keys every 10 frames), then renders the review at 960x540 with
@@ -17,7 +19,13 @@ from pathlib import Path
 CLIP = "bandai_namco/dataset-1/dataset-1_dance-short_normal_001.bvh.gz"
 
 
-def bench(frames: int = 300, size=(960, 540), write_frames: bool = False, side_by_side: bool = False) -> dict:
+def bench(
+    frames: int = 300,
+    size=(960, 540),
+    write_frames: bool = False,
+    side_by_side: bool = False,
+    framing: str = "follow",
+) -> dict:
     from pipeline.data.split import shared_data_dir
     from pipeline.fill import FillOptions, fill_shot
     from pipeline.motion.bvh import read_bvh
@@ -32,7 +40,7 @@ def bench(frames: int = 300, size=(960, 540), write_frames: bool = False, side_b
         renderer_name()  # the EGL context is made once per process (a worker keeps it): not timed
         t0 = time.perf_counter()
         out = render_review(review, str(Path(work) / "out"), size=size, write_frames=write_frames,
-                            side_by_side=side_by_side)  # fmt: skip
+                            side_by_side=side_by_side, framing=framing)  # fmt: skip
         wall = time.perf_counter() - t0
         mp4_kb = os.path.getsize(out["mp4"]) // 1024
     return {
@@ -41,6 +49,7 @@ def bench(frames: int = 300, size=(960, 540), write_frames: bool = False, side_b
         "msaa": 4,
         "png_frames": write_frames,
         "side_by_side": side_by_side,
+        "framing": framing,
         "wall_s": round(wall, 2),
         "frames_per_s": round(len(out["frame_numbers"]) / wall, 1),
         "mp4_kb": mp4_kb,
@@ -53,7 +62,11 @@ def bench(frames: int = 300, size=(960, 540), write_frames: bool = False, side_b
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    res = bench(write_frames="--png" in argv, side_by_side="--side-by-side" in argv)
+    res = bench(
+        write_frames="--png" in argv,
+        side_by_side="--side-by-side" in argv,
+        framing="fixed" if "--fixed" in argv else "follow",
+    )
     print(json.dumps(res))
 
 

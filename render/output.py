@@ -11,6 +11,8 @@ import numpy as np
 
 from render.gl import RenderError
 
+PNG_FILTER_NONE = 8  # libpng's PNG_FILTER_NONE flag (OIIO's "png:filter")
+
 
 def frame_metadata(shot: str, take, facts: dict, frame: int, colorspace: str) -> dict:
     return {
@@ -34,6 +36,9 @@ def write_frame(path: str, rgb: np.ndarray, meta: dict, exr: bool = False) -> No
         buf.set_write_format(oiio.HALF)
     else:
         buf.specmod().attribute("png:compressionLevel", 3)  # zlib level 6 costs 3x the time for ~10% size
+        # No per-row filter search: half the time of libpng's adaptive filters, and smaller
+        # files on these renders (flat clay, gradients); the pixels are the same.
+        buf.specmod().attribute("png:filter", PNG_FILTER_NONE)
     for k, v in meta.items():
         # PNG keeps only text chunks (ints are dropped), EXR keeps typed attributes
         buf.specmod().attribute(k, v if exr else str(v))

@@ -16,6 +16,24 @@ KEY_DIR = np.array([0.45, 0.80, 0.40]) / np.linalg.norm([0.45, 0.80, 0.40])
 FILL_DIR = np.array([-0.6, 0.35, -0.3]) / np.linalg.norm([-0.6, 0.35, -0.3])
 
 
+def _gil_free_finish(ctx):
+    """``glFinish`` called through ctypes, which lets go of the GIL while llvmpipe's threads
+    rasterise (moderngl holds it for the whole wait), so the review's writer thread can burn
+    in, encode and write the previous frames meanwhile. Falls back to ``ctx.finish``."""
+    import ctypes
+
+    try:
+        egl = ctypes.CDLL("libEGL.so.1")
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        addr = egl.eglGetProcAddress(b"glFinish")
+        if addr:
+            return ctypes.CFUNCTYPE(None)(addr)
+    except OSError:
+        pass
+    return ctx.finish
+
+
 class MeshSet:
     """GPU buffers for a list of geometries; ``upload(i)`` writes frame ``i``'s points."""
 
@@ -127,6 +145,7 @@ class Renderer:
         self.flat = ctx.program(vertex_shader=shaders.FLAT_VS, fragment_shader=shaders.FLAT_FS)
         self._owned = []
         self.out = np.empty((h, w, 4), np.uint8)  # RGBA: the GL-native read is 10x faster than RGB
+        self._finish = _gil_free_finish(ctx)
 
     def _own(self, *objs):
         self._owned.extend(objs)
@@ -181,14 +200,26 @@ class Renderer:
         return MeshSet(self.ctx, self.mesh, self.shadow, geoms)
 
     def render(
-        self, frame: int, cameras, sets: list[MeshSet], colors, is_key: bool, ghosts: MeshSet | None = None
+        self,
+        frame: int,
+        cameras,
+        sets: list[MeshSet],
+        colors,
+        is_key: bool,
+        ghosts: MeshSet | None = None,
+        out: np.ndarray | None = None,
     ):
-        """One frame: panel k shows ``sets[k]`` through ``cameras[k]``; returns (h, w, 4) uint8 (reused)."""
+        """One frame: panel k shows ``sets[k]`` through ``cameras[k]``; returns (h, w, 4) uint8:
+        ``out`` if given, else a buffer reused from frame to frame."""
         mgl, ctx = self.mgl, self.ctx
         w, h = self.size
         pw = w // self.panels
         self.msaa.use()
+        # Depth only: the background pass covers every sample of every panel (no blending), so
+        # clearing the colour too is wasted fill on llvmpipe (the image is the same).
+        self.msaa.color_mask = (False, False, False, False)
         self.msaa.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        self.msaa.color_mask = (True, True, True, True)
         for k, (cam, ms, color) in enumerate(zip(cameras, sets, colors, strict=True)):
             vp_rect = (k * pw, 0, pw, h)
             vp = cam.view_proj(frame).T.copy()
@@ -262,9 +293,12 @@ class Renderer:
                     ghosts.upload(i)
                     ghosts.draw(m)
                 self.msaa.depth_mask = True
+        out = self.out if out is None else out
+        self._finish()  # the frame's rasterisation, waited for without the GIL
         ctx.copy_framebuffer(self.resolved, self.msaa)
-        self.resolved.read_into(self.out, components=4, alignment=1)
-        return self.out
+        self._finish()  # the MSAA resolve, likewise
+        self.resolved.read_into(out, components=4, alignment=1)
+        return out
 
     def _release_last(self, n):
         for o in self._owned[-n:][::-1]:

@@ -21,6 +21,99 @@ from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
 CONTACT_FRAMES = 12
+QUEUE_FRAMES = 4  # rendered frames waiting for the writer thread at most (bounded memory)
+FRAME_THREADS = 2  # threads writing numbered frames (PNG/EXR encoding lets go of the GIL)
+
+
+class FrameWriter:
+    """The second half of the render loop on its own thread, so the GL loop never waits on it.
+
+    ``buffer()`` hands out one of ``depth + 2`` frame buffers (waiting while all are in use:
+    the render loop is at most ``depth`` frames ahead); ``put(i, buf)`` queues the rendered
+    frame; the thread calls ``handle(i, buf, save)`` in frame order and recycles the buffer.
+    ``save(fn, *args)`` runs ``fn`` on one of ``frame_threads`` more threads (numbered frames),
+    at most ``2 * frame_threads`` queued. An error on any thread is raised by the next call in
+    the render loop, or by ``close()``, which waits for everything.
+    """
+
+    def __init__(self, shape, handle, depth: int = QUEUE_FRAMES, frame_threads: int = 0):
+        import queue
+        import threading
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.handle, self.error, self.cancelled = handle, None, False
+        self.free: queue.Queue = queue.Queue()
+        for _ in range(depth + 2):
+            self.free.put(np.empty(shape, np.uint8))
+        self.todo: queue.Queue = queue.Queue(maxsize=depth)
+        self.pool = ThreadPoolExecutor(frame_threads, "review-frames") if frame_threads else None
+        self.slots = threading.BoundedSemaphore(2 * frame_threads) if frame_threads else None
+        self.jobs: list = []
+        self.thread = threading.Thread(target=self._run, name="review-writer", daemon=True)
+        self.thread.start()
+
+    def _save(self, fn, *args):
+        if self.pool is None:
+            return fn(*args)
+        self.slots.acquire()
+        job = self.pool.submit(fn, *args)
+        job.add_done_callback(lambda _: self.slots.release())
+        self.jobs.append(job)
+        for done in [j for j in self.jobs if j.done()]:
+            self.jobs.remove(done)
+            done.result()  # raises a writer's error here, on the writer thread
+        return None
+
+    def _run(self):
+        while True:
+            item = self.todo.get()
+            if item is None:
+                break
+            i, buf = item
+            try:
+                if self.error is None and not self.cancelled:
+                    self.handle(i, buf, self._save)
+            except BaseException as e:  # handed to the render loop
+                self.error = e
+            finally:
+                self.free.put(buf)
+
+    def _check(self):
+        if self.error is not None:
+            raise self.error
+
+    def buffer(self) -> np.ndarray:
+        import queue
+
+        while True:
+            self._check()
+            try:
+                return self.free.get(timeout=0.5)
+            except queue.Empty:
+                if not self.thread.is_alive():
+                    raise RenderError("the review's writer thread stopped") from None
+
+    def put(self, i: int, buf: np.ndarray) -> None:
+        self._check()
+        self.todo.put((i, buf))
+
+    def close(self) -> None:
+        self.todo.put(None)
+        self.thread.join()
+        try:
+            self._check()
+            for job in self.jobs:
+                job.result()
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
+
+    def abort(self) -> None:
+        self.cancelled = True
+        self.todo.put(None)
+        self.thread.join(timeout=30)
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _frame_bounds(geom_lists) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,28 +274,31 @@ def render_review(
 
             it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
         tcs = shot.timecodes()
-        for i in it:
-            img = renderer.render(i, [cam] * len(panels), sets, colors, bool(is_key[i]), ghost_set)
+
+        def finish_frame(i: int, img: np.ndarray, save) -> None:
+            """On the writer thread, in frame order: burn-in, MP4, thumbnail, numbered frame."""
             fno = int(shot.frames[i])
             burn.apply(img[..., :3], fno, bool(is_key[i]), tcs[i])
             movie.add(img)
+            if i in thumb_at:
+                thumbs.append((thumbnail(img, max(1, w // 480)), f"{fno}" + (" KEY" if is_key[i] else ""),
+                               bool(is_key[i])))  # fmt: skip
             if write_frames:
                 name = f"{stem}.{fno:04d}.{ext}"
-                write_frame(
-                    str(tmp / name),
-                    img,
-                    frame_metadata(shot.name, shot.take, shot.facts, fno, colorspace),
-                    exr,
-                )
+                meta = frame_metadata(shot.name, shot.take, shot.facts, fno, colorspace)
+                save(write_frame, str(tmp / name), np.ascontiguousarray(img[..., :3]), meta, exr)
                 frames.append(name)
-            if i in thumb_at:
-                thumbs.append(
-                    (
-                        thumbnail(img, max(1, w // 480)),
-                        f"{fno}" + (" KEY" if is_key[i] else ""),
-                        bool(is_key[i]),
-                    )
-                )
+
+        writer = FrameWriter((h, w, 4), finish_frame, frame_threads=FRAME_THREADS if write_frames else 0)
+        try:
+            for i in it:
+                buf = writer.buffer()
+                renderer.render(i, [cam] * len(panels), sets, colors, bool(is_key[i]), ghost_set, out=buf)
+                writer.put(i, buf)
+        except BaseException:
+            writer.abort()
+            raise
+        writer.close()
         movie.close()
         title = f"{shot.name}  {shot.take or ''}  {shot.facts.get('model', 'no model')}  {T} frames @ {shot.fps:g} fps"
         contact_sheet(thumbs, str(tmp / f"{stem}_contact.png"), title)

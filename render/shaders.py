@@ -97,6 +97,7 @@ void main() {
     float s = texelFetch(shadow_mask, ivec2(gl_FragCoord.xy), 0).r;
     c *= 1.0 - 0.5 * s;
     float r = length(p - center) / radius;
+    if (r >= 1.0) discard;  // fully faded: blending it would leave the pixel as it is
     color = vec4(c, 1.0 - smoothstep(0.55, 1.0, r));
 }"""
 
