@@ -196,3 +196,13 @@ def test_cli_defaults_are_trainconfig_defaults():
 def test_tween_help_does_not_import_torch():
     code = "import sys, pipeline.cli; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+def test_the_card_gives_the_recipe_and_its_summed_wall_time():
+    card = (ROOT / "models/default/MODEL_CARD.md").read_text()
+    assert len(card.splitlines()) <= 200
+    assert "tween train --recipe tween-bandai-v5.3" in card and "(HISTORY.md)" in card
+    walls = load_recipe("tween-bandai-v5.3").wall_s()
+    assert f"{walls['cpu']:,.1f} s" in card and f"{walls['cpu'] / 3600:.2f} h" in card
+    assert f"{walls['cuda']:,.1f} s" in card and f"{walls['cuda'] / 60:.1f} min" in card
+    assert "tween train --recipe tween-bandai-dna-v1" in (ROOT / "models/dna/MODEL_CARD.md").read_text()
