@@ -58,3 +58,14 @@ def test_generated_files_match_schema_source(tmp_path):
     )
     gen = (tmp_path / "generatedSchema.usda").read_text()
     assert gen == Path(usd_schemas.PLUGIN_DIR / "generatedSchema.usda").read_text()
+
+
+def test_tokens_module_is_generated_from_the_schema():
+    """usd_schemas/tokens.py holds one constant per TweenAPI attribute, current with the
+    schema (regenerate with python -m usd_schemas.generate)."""
+    from pathlib import Path
+
+    from usd_schemas import generate, tokens
+
+    assert Path(tokens.__file__).read_text() == generate.tokens_source()
+    assert tokens.KEY_TIMES == "tween:keyTimes" and tokens.TAKE_VARIANT_SET == "tweenTake"

@@ -29,7 +29,38 @@ def main() -> None:
         out.mkdir(exist_ok=True)
         (out / "plugInfo.json").write_text(json.dumps(body, indent=2) + "\n")
         (out / "generatedSchema.usda").write_text((Path(tmp) / "generatedSchema.usda").read_text())
+    TOKENS.write_text(tokens_source())
     print(out)
+
+
+TOKENS = Path(__file__).resolve().parent / "tokens.py"
+
+
+def _attributes() -> list[str]:
+    """Every TweenAPI property name, in schema order (their docs are the schema's)."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(HERE / "schema.usda"))
+    return [p.name for p in layer.GetPrimAtPath("/TweenAPI").properties]
+
+
+def tokens_source() -> str:
+    """The text of tokens.py: a constant per schema attribute (``tween:keyTimes`` ->
+    ``KEY_TIMES``), the schema's name and the take variant set."""
+    import re
+
+    lines = [
+        '"""Every ``tween:*`` name the project authors or reads, generated from ``tween/schema.usda``',
+        "by ``python -m usd_schemas.generate`` (do not edit by hand; a test checks it is current).",
+        '"""',
+        "",
+        'API = "TweenAPI"  # the applied API schema',
+        'TAKE_VARIANT_SET = "tweenTake"  # the variant set holding the takes of a fill',
+    ]
+    for name in _attributes():
+        const = re.sub(r"(?<!^)(?=[A-Z])", "_", name.split(":", 1)[1]).upper()
+        lines.append(f'{const} = "{name}"')
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
