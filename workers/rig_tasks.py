@@ -2,25 +2,29 @@
 
 The task runs the training package's own CLI in a subprocess (torch stays out of the
 worker process; a crash of the trainer cannot take the worker down) and reports progress in
-the task's meta (state ``PROGRESS``): the level group, iteration and overall fraction, parsed
-from the trainer's progress bar on stderr. Training checkpoints into ``OUT/checkpoints`` and
-resumes from them, so a job that is redelivered (a dead host) or resubmitted after its time
-limit carries on where it stopped.
+the task's meta (state ``PROGRESS``). The trainer sends its progress as structured records
+(``pipeline.rig.progress.Progress``) over a pipe of their own (``--progress-fd``); each
+becomes the meta as it is (``asdict``) plus the keys ``tween status`` shows (``levels``,
+``iteration``, ``iterations``, ``fraction``). Nothing reads the text of a progress bar; stderr
+is kept for the error message only. Training checkpoints into ``OUT/checkpoints`` and resumes
+from them, so a job that is redelivered (a dead host) or resubmitted after its time limit
+carries on where it stopped.
 """
 
 from __future__ import annotations
 
 import os
-import re
 import select
 import signal
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import asdict
 
 from celery.exceptions import SoftTimeLimitExceeded
 
+from pipeline.rig.progress import JsonLinesReader, Progress
 from workers import paths as jobpaths
 from workers.app import rig_app
 from workers.errors import JobError
@@ -41,8 +45,8 @@ OPTIONS = {
     "licence": "--licence",
     "name": "--name",
 }
-# tqdm's bar of pipeline.rig.train: "levels 3-4/7:  40%|████      | 12/30 [...]"
-_BAR = re.compile(r"levels (\d+)-(\d+)/(\d+):\s*\d+%\|[^|]*\|\s*(\d+)/(\d+)")
+#: Least seconds between two state updates (the backend is written at most this often).
+UPDATE_EVERY = 0.2
 
 
 def train_args(source: str, out: str, options: dict) -> list[str]:
@@ -58,24 +62,24 @@ def train_args(source: str, out: str, options: dict) -> list[str]:
     return args
 
 
-def command(source: str, out: str, options: dict) -> list[str]:
-    return [sys.executable, "-m", "pipeline.cli", *train_args(source, out, options)]
+def command(source: str, out: str, options: dict, progress_fd: int | None = None) -> list[str]:
+    cmd = [sys.executable, "-m", "pipeline.cli", *train_args(source, out, options)]
+    if progress_fd is not None:
+        cmd += ["--progress-fd", str(progress_fd)]
+    return cmd
 
 
-def parse_progress(text: str) -> dict | None:
-    """The last progress-bar state in ``text`` (stderr of the trainer), or None."""
-    found = None
-    for m in _BAR.finditer(text):
-        first, top, levels, it, iters = map(int, m.groups())
-        span = top - first + 1
-        frac = (first - 1 + span * it / max(1, iters)) / max(1, levels)
-        found = {
-            "levels": f"{first}-{top}/{levels}",
-            "iteration": it,
-            "iterations": iters,
-            "fraction": round(min(1.0, frac), 4),
-        }
-    return found
+def progress_meta(record: Progress) -> dict:
+    """A record as task meta: its fields (``asdict``) and the keys ``tween status`` and
+    ``submit-train-rig --wait`` show: ``levels`` ("3-4/7"), ``iteration``/``iterations``
+    (within that group of levels) and ``fraction`` (of the whole run)."""
+    meta = asdict(record)
+    meta["group_levels"] = list(record.group_levels)
+    if record.group_levels:
+        meta["levels"] = f"{record.group_levels[0]}-{record.group_levels[-1]}/{record.n_levels}"
+    meta["iteration"], meta["iterations"] = record.stage_step, record.stage_steps
+    meta["fraction"] = round(record.fraction, 4)
+    return meta
 
 
 def check_paths(source: str, out: str, roots) -> None:
@@ -86,42 +90,64 @@ def check_paths(source: str, out: str, roots) -> None:
 @rig_app.task(name="tween.train_rig", bind=True)
 def train_rig(self, source: str, out: str, options: dict) -> dict:
     """Trains (and exports) a per-rig model from ``source`` into ``out``."""
+    return run_train_rig(self, source, out, options)
+
+
+def run_train_rig(task, source: str, out: str, options: dict) -> dict:
+    """The body of :func:`train_rig`; ``task`` is the bound task (``task.update_state`` gets
+    the progress)."""
     s = rig_app.conf.tween
     check_paths(source, out, s.shot_roots)
-    cmd = command(source, out, options)
     env = dict(os.environ)
     threads = str(options.get("threads") or 1)
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads)
-    last: dict | None = None
-    tail = ""
+    last: Progress | None = None
+    tail = b""
     updates = 0
+
+    def report(record: Progress) -> None:
+        nonlocal updates
+        updates += 1
+        task.update_state(state=PROGRESS, meta={"source": source, "out": out, **progress_meta(record)})
+
+    read_fd, write_fd = os.pipe()
     with tempfile.TemporaryFile() as stdout:
-        proc = subprocess.Popen(
-            cmd,
-            stdout=stdout,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            env=env,
-            start_new_session=True,
-        )
         try:
-            t_last, pending, fd = 0.0, None, proc.stderr.fileno()
-            while True:
+            proc = subprocess.Popen(
+                command(source, out, options, progress_fd=write_fd),
+                stdout=stdout,
+                stderr=subprocess.PIPE,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                start_new_session=True,
+                pass_fds=(write_fd,),
+            )
+        finally:
+            os.close(write_fd)  # the child holds its copy: EOF here when it exits
+        try:
+            reader, pending, t_last = JsonLinesReader(), None, 0.0
+            err_fd = proc.stderr.fileno()
+            open_fds = [read_fd, err_fd]
+            while open_fds:
                 # Wake at least twice a second, so the last state before a long step is reported.
-                if select.select([fd], [], [], 0.5)[0]:
+                for fd in select.select(open_fds, [], [], 0.5)[0]:
                     chunk = os.read(fd, 65536)
                     if not chunk:
-                        break
-                    tail = (tail + chunk.decode(errors="replace"))[-20000:]
-                    p = parse_progress(tail[-4000:])
-                    if p and p != last:
-                        pending = p
+                        open_fds.remove(fd)
+                    elif fd == err_fd:
+                        tail = (tail + chunk)[-20000:]
+                    else:
+                        for record in reader.feed(chunk):
+                            if record != last:
+                                pending = record
                 now = time.monotonic()
-                if pending and now - t_last >= 0.2:
+                if pending is not None and now - t_last >= UPDATE_EVERY:
                     last, pending, t_last = pending, None, now
-                    updates += 1
-                    self.update_state(state=PROGRESS, meta={"source": source, "out": out, **last})
+                    report(last)
             proc.wait()
+            if pending is not None:  # the final record, whatever the throttle held back
+                last = pending
+                report(last)
         except SoftTimeLimitExceeded:
             _stop(proc)
             raise JobError(
@@ -131,15 +157,17 @@ def train_rig(self, source: str, out: str, options: dict) -> dict:
         except BaseException:
             _stop(proc)
             raise
+        finally:
+            os.close(read_fd)
         stdout.seek(0)
         out_text = stdout.read().decode(errors="replace")
     if proc.returncode != 0:
-        lines = [ln for ln in re.split(r"[\r\n]+", tail) if ln.strip() and not _BAR.search(ln)]
-        msg = lines[-1].strip() if lines else f"exit {proc.returncode}"
+        lines = [ln.strip() for ln in tail.decode(errors="replace").splitlines() if ln.strip()]
+        msg = lines[-1] if lines else f"exit {proc.returncode}"
         raise JobError(msg.removeprefix("tween: error: "))
     result = {"source": source, "out": out, "stdout": out_text[-2000:], "progress_updates": updates}
-    if last:
-        result["progress"] = dict(last, fraction=1.0)
+    if last is not None:
+        result["progress"] = dict(progress_meta(last), fraction=1.0)
     try:
         from pipeline.rig.store import read_rig_json
 

@@ -45,10 +45,17 @@ def register(app: typer.Typer) -> None:
         name: str = typer.Option(None, help="Model name (default: the --out folder's name)."),
         checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
         no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
+        progress_fd: int = typer.Option(
+            None,
+            "--progress-fd",
+            hidden=True,
+            help="Write progress records as JSON lines to this open file descriptor instead of a bar "
+            "on stderr (the farm's channel; pipeline.rig.progress).",
+        ),
     ):
         """Train a per-rig GANimator on one clip, then export it (ONNX per level + rig.json + card)."""
         from pipeline.rig.source import parse_frames
-        from pipeline.rig.train import TrainConfig, train
+        from pipeline.rig.train import TrainConfig
 
         cfg = TrainConfig(
             source=str(source),
@@ -68,7 +75,7 @@ def register(app: typer.Typer) -> None:
             name=name or out.resolve().name,
             checkpoints=str(checkpoints) if checkpoints else None,
         )
-        tr = train(cfg)
+        tr = _train_shown(cfg, progress_fd)
         if not no_export:
             from pipeline.rig.export import export
 
@@ -88,6 +95,28 @@ def register(app: typer.Typer) -> None:
         motion = load_rig_source(source, skeleton, parse_frames(frames))
         save_npz(motion, out)
         typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
+
+
+def _train_shown(cfg, progress_fd: int | None):
+    """Runs ``train(cfg)`` with its progress records shown: a bar per group of levels on stderr,
+    or JSON lines on ``progress_fd`` for a reader such as the farm's task."""
+    import os
+    import sys
+
+    from pipeline.rig.progress import JsonLinesWriter, ProgressBar
+    from pipeline.rig.train import train
+
+    if progress_fd is None:
+        show = ProgressBar(sys.stderr)
+    else:
+        try:
+            show = JsonLinesWriter(os.fdopen(progress_fd, "w", buffering=1))
+        except OSError as e:
+            from pipeline.errors import TweenError
+
+            raise TweenError(f"--progress-fd {progress_fd}: {e.strerror}") from None
+    with show:
+        return train(cfg, on_progress=show)
 
 
 def _guess_credit(source: Path) -> str | None:

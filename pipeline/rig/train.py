@@ -27,6 +27,7 @@ import numpy as np
 
 from pipeline.errors import TweenError
 from pipeline.motion.clip import Motion
+from pipeline.rig.progress import Progress, ProgressBar, ProgressCallback
 from pipeline.rig.represent import RigSpec, encode, make_spec, pyramid_lengths, resample_linear
 from pipeline.rig.topology import neighbourhoods
 
@@ -320,11 +321,38 @@ class Trainer:
         return state
 
     # -- training ------------------------------------------------------------------------
-    def train(self) -> None:
+    def train(self, on_progress: ProgressCallback | None = None) -> None:
+        """Trains every group not done yet; ``on_progress`` gets a :class:`Progress` record at
+        the start of each group and after every iteration (one final one if nothing is left)."""
         import torch
-        from tqdm import tqdm
 
         state = self.load()
+        iters, n = self.sched.iters, len(self.lengths)
+        steps = len(self.groups) * iters
+        t_session, step_session = time.perf_counter(), self.group_done * iters + self.iteration
+        last: Progress | None = None
+
+        def report(gi: int, it: int, losses: dict) -> None:
+            nonlocal last
+            if on_progress is None:
+                return
+            step = gi * iters + it
+            done_here, took = step - step_session, time.perf_counter() - t_session
+            levels = tuple(i + 1 for i in self.groups[gi])
+            last = Progress(
+                stage=f"levels {levels[0]}-{levels[-1]}/{n}",
+                step=step,
+                steps=steps,
+                loss={k: float(v) for k, v in losses.items() if k not in ("group", "iteration")},
+                elapsed_s=round(sum(self.wall), 3),
+                eta_s=round(took / done_here * (steps - step), 1) if done_here > 0 else None,
+                stage_step=it,
+                stage_steps=iters,
+                group_levels=levels,
+                n_levels=n,
+            )
+            on_progress(last)
+
         for gi, group in enumerate(self.groups):
             if gi < self.group_done:
                 continue
@@ -336,30 +364,23 @@ class Trainer:
             first, top = group[0], group[-1]
             for i in range(first):
                 self.G[i].requires_grad_(False)
-            bar = tqdm(
-                total=self.sched.iters,
-                initial=self.iteration,
-                desc=f"levels {first + 1}-{top + 1}/{len(self.lengths)}",
-                file=sys.stderr,
-                disable=self.quiet,
-                dynamic_ncols=True,
-            )
+            report(gi, self.iteration, {})
             t0 = time.perf_counter()
             wall0 = self.wall[gi]
-            while self.iteration < self.sched.iters:
+            while self.iteration < iters:
                 losses = self.step(group, opt_g, opt_d)
                 self.iteration += 1
                 self.wall[gi] = wall0 + time.perf_counter() - t0
-                if self.iteration % 10 == 0 or self.iteration in (1, self.sched.iters):
+                if self.iteration % 10 == 0 or self.iteration in (1, iters):
                     self.log.append({"group": gi, "iteration": self.iteration, **losses})
-                    bar.set_postfix({k: f"{v:.3g}" for k, v in losses.items()}, refresh=False)
-                bar.update(1)
-                if self.iteration % self.sched.ckpt_every == 0 and self.iteration < self.sched.iters:
+                report(gi, self.iteration, losses)
+                if self.iteration % self.sched.ckpt_every == 0 and self.iteration < iters:
                     self.save(opt_g, opt_d)
-            bar.close()
             self.group_done, self.iteration = gi + 1, 0
             self.save(None, None)
             torch.save([self.G[i].state_dict() for i in range(top + 1)], self.ckpt_dir / f"group{gi}.pt")
+        if last is None or not last.done:  # resumed after the end: still say where it stands
+            report(len(self.groups) - 1, iters, self.log[-1] if self.log else {})
 
     def step(self, group: list[int], opt_g, opt_d) -> dict:
         from pipeline.rig.networks import contact_loss
@@ -438,12 +459,24 @@ class Trainer:
         }
 
 
-def train(cfg: TrainConfig, motion: Motion | None = None, quiet: bool = False) -> Trainer:
-    """Train (or resume) into ``cfg.out``; returns the trainer with every level trained."""
+def train(
+    cfg: TrainConfig,
+    motion: Motion | None = None,
+    quiet: bool = False,
+    on_progress: ProgressCallback | None = None,
+) -> Trainer:
+    """Train (or resume) into ``cfg.out``; returns the trainer with every level trained.
+
+    ``on_progress`` gets the run's :class:`~pipeline.rig.progress.Progress` records; without
+    one, a bar on stderr shows them unless ``quiet``."""
     tr = Trainer(cfg, motion, quiet)  # reads and checks the clip before anything is written
     tr.ckpt_dir.mkdir(parents=True, exist_ok=True)
     (tr.ckpt_dir / "train_config.json").write_text(
         json.dumps({k: v for k, v in asdict(cfg).items()}, indent=1, default=str)
     )
-    tr.train()
+    if on_progress is not None or quiet:
+        tr.train(on_progress)
+    else:
+        with ProgressBar(sys.stderr) as bar:
+            tr.train(bar)
     return tr
