@@ -112,18 +112,19 @@ _MODELS: dict[tuple[int, str], object] = {}
 
 
 def _load_rig(folder: str):
-    """A per-rig model (pipeline.rig; numpy/ORT at fill time)."""
-    from pipeline.rig.infer import RigInbetweener
+    """The per-rig model in ``folder`` (its rig.json), by its kind (pipeline.infer.api)."""
+    from pipeline.infer.api import RIG_FILE, load_folder
 
-    return RigInbetweener(folder)
+    return load_folder(folder, RIG_FILE)
 
 
 def rig_folder(name: str) -> str | None:
     """The rig model folder ``name`` refers to (a folder with rig.json, or one under the
     models root), or None when it is not a rig model."""
+    from pipeline.infer.api import builtin_names
     from pipeline.rig.store import is_rig_folder, models_root
 
-    if name in ("default", "interp", "interpolation"):
+    if name == "default" or name in builtin_names():
         return None
     for cand in (Path(name), models_root() / name):
         if is_rig_folder(cand):
@@ -133,8 +134,9 @@ def rig_folder(name: str) -> str | None:
 
 def _model(name: str):
     """The in-betweener ``name`` (a human model, or a rig model folder), loaded once per
-    process (a forked worker loads its own: onnxruntime sessions must not cross a fork)."""
-    from pipeline.infer.api import load_inbetweener
+    process (a forked worker loads its own: onnxruntime sessions must not cross a fork), by
+    the registry (pipeline.infer.api.load_model: the kind its folder declares)."""
+    from pipeline.infer.api import load_model
 
     folder = rig_folder(name)
     key = (os.getpid(), name)
@@ -145,7 +147,7 @@ def _model(name: str):
         key = (os.getpid(), folder, read_rig_json(folder).hash)
     if key not in _MODELS:
         try:
-            _MODELS[key] = _load_rig(folder) if folder else load_inbetweener(name)
+            _MODELS[key] = _load_rig(folder) if folder else load_model(name)
         except FileNotFoundError as e:
             raise TweenError(f"model {name!r}: {e}") from None
         except (OSError, ValueError, RuntimeError) as e:
@@ -193,7 +195,7 @@ def _check_dna(opts: FillOptions, inbs: list) -> None:
     if not opts.dna:
         return
     for inb in inbs:
-        if not getattr(inb, "has_dna", False):
+        if not inb.capabilities.dna:
             raise TweenError(
                 f"{opts.dna}: model {inb.name} takes no motion DNA (drop --dna or pick a DNA model)"
             )

@@ -17,6 +17,7 @@ from pipeline.fill import FillOptions, fill_shot, validate_shot
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import euler_to_quat
 from pipeline.motion.skeleton import Skeleton
+from pipeline.rig.infer import RigInbetweener
 
 CREATURE_ANIM = "/World/Creature/Skel/Anim"
 
@@ -60,6 +61,7 @@ class FakeRig:
     """Stands in for pipeline.rig.infer.RigInbetweener: SLERP/LERP between keys on the rig
     skeleton, plus a seed-dependent sway so takes differ; records every call."""
 
+    capabilities = RigInbetweener.capabilities  # declared, as every in-betweener's
     calls: list = []
 
     def __init__(self, folder):

@@ -46,7 +46,8 @@ def spline(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
 
 
 def inbetweener_method(inbetweener, batch: int = 64) -> Method:
-    """Adapts a product :class:`~pipeline.infer.api.Inbetweener` (keys = context + target)."""
+    """Adapts a product :class:`~pipeline.infer.api.Inbetweener` (keys = context + target):
+    in batches through ``fill_batch`` when it declares ``capabilities.batch``, else clip by clip."""
     from pipeline.motion.clip import Motion
 
     def run(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
@@ -55,7 +56,7 @@ def inbetweener_method(inbetweener, batch: int = 64) -> Method:
         rots = np.concatenate([ctx_rot, np.repeat(tgt_rot[:, None], T + 1, axis=1)], axis=1)
         roots = np.concatenate([ctx_root, np.repeat(tgt_root[:, None], T + 1, axis=1)], axis=1)
         keys = np.r_[np.arange(c), L - 1]
-        if hasattr(inbetweener, "fill_batch"):
+        if inbetweener.capabilities.batch:
             out_r, out_p = [], []
             for s in range(0, n, batch):
                 r, p = inbetweener.fill_batch(rots[s : s + batch], roots[s : s + batch], keys)
@@ -80,6 +81,6 @@ BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation, 
 def resolve(name: str) -> Method:
     if name in BASELINES:
         return BASELINES[name]
-    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.api import load_model
 
-    return inbetweener_method(load_inbetweener("default" if name == "model" else name))
+    return inbetweener_method(load_model("default" if name == "model" else name))

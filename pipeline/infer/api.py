@@ -1,60 +1,236 @@
-"""The one interface every in-betweener implements, on the model's skeleton and frame rate."""
+"""The one interface every in-betweener implements, and the one registry that loads them by kind.
+
+An in-betweener works on its model's skeleton and frame rate (:class:`Inbetweener`) and
+declares what it can do in a class attribute ``capabilities`` (:class:`Capabilities`);
+callers read that, never ``hasattr``.
+
+A model folder says which family it belongs to in its JSON file's ``"kind"``: ``model.json``
+for models on the human (Bandai) skeleton, ``rig.json`` for per-rig models (the store,
+:mod:`pipeline.rig.store`, matches characters against their skeletons). :func:`register`
+maps a kind to the loader of its family; :func:`load_model` reads the kind and calls it.
+Built-in kinds: ``"interpolation"`` (alias ``"interp"``) and ``"spline"`` need no folder;
+``"generator-onnx"`` (the shipped human models; a ``model.json`` without ``"kind"`` is one)
+and ``"rig-ganimator-onnx"`` (per-rig GANimator; ``"rig"``, the spelling of rig.json files
+written before kinds had names, is the same family). See docs/models.md.
+"""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
+MODEL_FILE = "model.json"
+RIG_FILE = "rig.json"
+#: The kind of a model.json that names none (every model exported before kinds existed).
+DEFAULT_KIND = "generator-onnx"
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What an in-betweener can do beyond ``fill(motion, keys, seed)``.
+
+    ``partial_keys``: ``fill(..., joint_keys=mask)`` takes keys that set some joints only
+    (a (K, J + 1) mask: the joints, then the root). ``dna``: ``fill(..., dna=poses)`` takes a
+    motion DNA. ``batch``: ``fill_batch(rotations, roots, keys)`` fills (N, T, J, 4) /
+    (N, T, 3) windows sharing their keys in one call (:class:`BatchInbetweener`).
+    ``any_rig``: fills whatever skeleton the motion carries, in its own joint space (no
+    retargeting onto :attr:`Inbetweener.skeleton`).
+    """
+
+    partial_keys: bool = False
+    dna: bool = False
+    batch: bool = False
+    any_rig: bool = False
+
 
 @runtime_checkable
 class Inbetweener(Protocol):
     """Fills every frame of a motion from the values at its key frames.
 
-    ``fill(motion, keys, seed)``: ``motion`` is on :attr:`skeleton` at :attr:`fps`;
-    only the frames listed in ``keys`` (sorted int indices, at least two) hold real
-    values, the rest are ignored. Returns a motion of the same length whose key frames
-    equal the input exactly. Frames before the first key and after the last are held.
-    The same seed on the same host gives the same output.
+    ``fill(motion, keys, seed, joint_keys=None, dna=None)``: ``motion`` is on :attr:`skeleton`
+    at :attr:`fps` (on any skeleton with ``capabilities.any_rig``); only the frames listed in
+    ``keys`` (sorted int indices, at least two) hold real values, the rest are ignored.
+    Returns a motion of the same length whose key frames equal the input exactly. Frames
+    before the first key and after the last are held. The same seed on the same host gives
+    the same output. ``joint_keys`` (with ``capabilities.partial_keys``) marks what each key
+    sets; ``dna`` (with ``capabilities.dna``) is a Motion of poses the fill should contain;
+    an in-betweener without the capability refuses them (ValueError).
     """
 
     name: str
     model_hash: str
     fps: float
     skeleton: Skeleton
+    capabilities: ClassVar[Capabilities]
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion: ...
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion: ...
 
 
-def load_inbetweener(name: str = "default") -> Inbetweener:
-    """``"interp"`` (SLERP/LERP baseline), ``"spline"`` (clamped-tangent cubic through the keys)
-    or ``"default"`` / a model folder (shipped ONNX model).
+class BatchInbetweener(Inbetweener, Protocol):
+    """An in-betweener with ``capabilities.batch``."""
 
-    ``"default"`` falls back to interpolation only when no model is shipped.
+    def fill_batch(
+        self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(N, T, J, 4) local rotations and (N, T, 3) root positions of windows sharing
+        ``keys`` → the filled (rotations, roots), same shapes."""
+        ...
+
+
+def refuse_extras(inb, joint_keys=None, dna=None) -> None:
+    """ValueError when ``joint_keys`` or ``dna`` is given to an in-betweener that does not
+    declare the capability (for ``fill`` implementations)."""
+    if joint_keys is not None and not inb.capabilities.partial_keys:
+        raise ValueError(f"{inb.name}: this in-betweener takes no partial keys (joint_keys)")
+    if dna is not None and not inb.capabilities.dna:
+        raise ValueError(f"{inb.name}: this in-betweener takes no motion DNA")
+
+
+# -- the registry ---------------------------------------------------------------------------
+Loader = Callable[[Path | None], Inbetweener]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A registered kind: its loader (called with the model folder, or None for a kind that
+    needs no folder) and the file its folders hold (``model.json``, ``rig.json`` or None)."""
+
+    kind: str
+    loader: Loader
+    file: str | None
+
+
+_FAMILIES: dict[str, Family] = {}
+_NAMES: dict[str, str] = {}  # names that load a folderless kind: "interp" → "interpolation"
+
+
+def register(kind: str, loader: Loader, file: str | None = MODEL_FILE, names: tuple[str, ...] = ()) -> None:
+    """Makes ``kind`` loadable by :func:`load_model`.
+
+    ``loader(folder)`` returns the in-betweener of a model folder whose ``file``
+    (``"model.json"``, the default, or ``"rig.json"`` for a per-rig model the store matches
+    against characters) says ``"kind": kind``. With ``file=None`` the kind needs no folder:
+    ``load_model(kind)`` (or any of ``names``) calls ``loader(None)``. Registering a kind
+    again replaces its loader.
     """
-    from pipeline.infer.interp import InterpolationInbetweener
+    if not isinstance(kind, str) or not kind:
+        raise ValueError(f"kind must be a non-empty string, not {kind!r}")
+    if file not in (MODEL_FILE, RIG_FILE, None):
+        raise ValueError(f"file must be {MODEL_FILE!r}, {RIG_FILE!r} or None, not {file!r}")
+    _FAMILIES[kind] = Family(kind, loader, file)
+    for n in (kind, *names) if file is None else ():
+        _NAMES[n] = kind
 
-    if name in ("interp", "interpolation"):
-        return InterpolationInbetweener()
-    if name == "spline":
-        from pipeline.infer.spline import SplineInbetweener
 
-        return SplineInbetweener()
-    from pipeline.infer.model import OnnxInbetweener, find_model, read_model_json
+def unregister(kind: str) -> None:
+    """Forgets ``kind`` (and the names that loaded it)."""
+    _FAMILIES.pop(kind, None)
+    for n in [n for n, k in _NAMES.items() if k == kind]:
+        del _NAMES[n]
 
-    folder = find_model(name)
-    if folder is None:
+
+def kinds(file: str | None | bool = False) -> tuple[str, ...]:
+    """The registered kinds, sorted; with ``file`` those whose folders hold that file
+    (None: the folderless ones)."""
+    return tuple(sorted(k for k, f in _FAMILIES.items() if file is False or f.file == file))
+
+
+def rig_kinds() -> tuple[str, ...]:
+    """The kinds a ``rig.json`` may carry."""
+    return kinds(RIG_FILE)
+
+
+def builtin_names() -> tuple[str, ...]:
+    """Every name that loads a folderless kind ("interp", "interpolation", "spline")."""
+    return tuple(sorted(_NAMES))
+
+
+def model_folder(name: str | Path) -> tuple[Path, str] | None:
+    """(folder, file) of the model folder ``name`` refers to (the folder itself, else the
+    folder of that name under the models root) and the JSON file it holds, or None. A
+    model.json anywhere wins over a rig.json."""
+    from pipeline.infer.model import models_root
+
+    for file in (MODEL_FILE, RIG_FILE):
+        for cand in (Path(name), models_root() / name):
+            if (cand / file).exists():
+                return cand, file
+    return None
+
+
+def folder_kind(folder: str | Path, file: str = MODEL_FILE) -> str:
+    """The ``"kind"`` in ``folder``/``file``; a model.json without one is ``DEFAULT_KIND``.
+    An unreadable file is a one-line TweenError naming it."""
+    folder = Path(folder)
+    if file == RIG_FILE:
+        from pipeline.rig.store import read_rig_json
+
+        return read_rig_json(folder).meta["kind"]
+    from pipeline.infer.model import ModelFolderError, read_model_json
+
+    path = folder / file
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        meta = None
+    if not isinstance(meta, dict):
+        read_model_json(folder)  # says what is wrong with the file, in one line
+        raise ModelFolderError(f"{path}: not a model.json")
+    kind = meta.get("kind", DEFAULT_KIND)
+    if not isinstance(kind, str):
+        raise ModelFolderError(f"{path}: 'kind' must be a string, not {type(kind).__name__}")
+    return kind
+
+
+def load_folder(folder: str | Path, file: str | None = None) -> Inbetweener:
+    """The in-betweener of a model folder, by the kind its model.json or rig.json declares."""
+    from pipeline.infer.model import ModelFolderError
+
+    folder = Path(folder)
+    if file is None:
+        file = RIG_FILE if (folder / RIG_FILE).exists() and not (folder / MODEL_FILE).exists() else MODEL_FILE
+    kind = folder_kind(folder, file)
+    family = _FAMILIES.get(kind)
+    if family is None or family.file != file:
+        known = ", ".join(kinds(file)) or "none"
+        raise ModelFolderError(f"{folder / file}: unknown kind {kind!r} (known {file} kinds: {known})")
+    return family.loader(folder)
+
+
+def load_model(name_or_folder: str | Path = "default") -> Inbetweener:
+    """The in-betweener ``name_or_folder`` names: a folderless kind ("interp" /
+    "interpolation", "spline"), or a model folder (a path, or a folder under the models
+    root) loaded by its declared kind.
+
+    ``"default"`` falls back to interpolation only when no model is shipped; another name
+    that is no model is FileNotFoundError.
+    """
+    name = str(name_or_folder)
+    if name in _NAMES:
+        return _FAMILIES[_NAMES[name]].loader(None)
+    found = model_folder(name)
+    if found is None:
         broken = _folder_without_json(name)
         if broken is not None:  # its ONNX files are there, model.json is not: a broken model
+            from pipeline.infer.model import read_model_json
+
             read_model_json(broken)  # ModelFolderError: "<folder>/model.json: missing (...)"
         if name == "default":
-            return InterpolationInbetweener()
+            return load_model("interpolation")
         raise FileNotFoundError(f"{name}: no such model (expected a folder with model.json)")
-    return OnnxInbetweener(folder)
+    return load_folder(*found)
+
+
+#: The name callers used before the registry; the same function.
+load_inbetweener = load_model
 
 
 def _folder_without_json(name: str):
@@ -64,8 +240,59 @@ def _folder_without_json(name: str):
 
     for cand in (Path(name), models_root() / name):
         try:
-            if cand.is_dir() and not (cand / "rig.json").exists() and any(cand.glob("*.onnx")):
+            if cand.is_dir() and not (cand / RIG_FILE).exists() and any(cand.glob("*.onnx")):
                 return cand
         except OSError:
             continue
     return None
+
+
+# -- the built-in families --------------------------------------------------------------------
+def _interpolation(folder):
+    from pipeline.infer.interp import InterpolationInbetweener
+
+    return InterpolationInbetweener()
+
+
+def _spline(folder):
+    from pipeline.infer.spline import SplineInbetweener
+
+    return SplineInbetweener()
+
+
+def _generator_onnx(folder):
+    from pipeline.infer.model import OnnxInbetweener
+
+    return OnnxInbetweener(folder)
+
+
+def _rig_ganimator_onnx(folder):
+    from pipeline.rig.infer import RigInbetweener
+
+    return RigInbetweener(folder)
+
+
+register("interpolation", _interpolation, file=None, names=("interp",))
+register("spline", _spline, file=None)
+register("generator-onnx", _generator_onnx)
+register("rig-ganimator-onnx", _rig_ganimator_onnx, file=RIG_FILE)
+register("rig", _rig_ganimator_onnx, file=RIG_FILE)  # rig.json files written before kinds had names
+
+
+__all__ = [
+    "BatchInbetweener",
+    "Capabilities",
+    "Family",
+    "Inbetweener",
+    "builtin_names",
+    "folder_kind",
+    "kinds",
+    "load_folder",
+    "load_inbetweener",
+    "load_model",
+    "model_folder",
+    "refuse_extras",
+    "register",
+    "rig_kinds",
+    "unregister",
+]

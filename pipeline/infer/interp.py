@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.data.skeletons import bandai_skeleton
+from pipeline.infer.api import Capabilities, refuse_extras
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import slerp
 
@@ -45,9 +46,11 @@ class InterpolationInbetweener:
     name = "interpolation"
     model_hash = "none"
     fps = 30.0
+    capabilities = Capabilities(any_rig=True)
 
     def __init__(self):
         self.skeleton = bandai_skeleton()
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion:
+        refuse_extras(self, joint_keys, dna)
         return interpolate_keys(motion, keys)

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
+from pipeline.infer.api import Capabilities
 from pipeline.infer.dna import dna_poses, n_dna_channels
 from pipeline.infer.features import (
     EULER_ORDER,
@@ -69,6 +70,7 @@ _OPTIONAL = {
     "feet_anchor": bool,
     "feet_orient": bool,
     "generator": dict,
+    "kind": str,
 }
 _TYPE_NAMES = {
     str: "a string",
@@ -205,7 +207,13 @@ def _sigmoid(x):
 
 
 class OnnxInbetweener:
-    """Fills shots with the exported networks; ``root`` is "generator" or "path"."""
+    """Fills shots with the exported networks; ``root`` is "generator" or "path".
+
+    Kind ``"generator-onnx"``. Every such model takes partial keys and batches; it takes a
+    motion DNA when its generator has a DNA encoder (``generator.dna`` in model.json), so
+    ``capabilities.dna`` is set per model folder."""
+
+    capabilities = Capabilities(partial_keys=True, batch=True)
 
     def __init__(
         self,
@@ -224,6 +232,8 @@ class OnnxInbetweener:
     ):
         self.folder = Path(folder)
         self.meta = read_model_json(self.folder)
+        dna = bool(self.meta.get("generator", {}).get("dna", 0))
+        self.capabilities = replace(type(self).capabilities, dna=dna)
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)
         self.name = self.meta["name"]
@@ -399,13 +409,13 @@ class OnnxInbetweener:
     @property
     def has_dna(self) -> bool:
         """Whether the generator takes a motion DNA (``fill(..., dna=...)``)."""
-        return bool(self.meta.get("generator", {}).get("dna", 0))
+        return self.capabilities.dna
 
     def fill_batch(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """Fill a batch sharing its keys; ``joint_keys`` (K, J + 1) marks partial keys (the
         joints, then the root, keyed at each key; the first and last keys full); ``dna`` the
         local rotations of motion-DNA poses, (R, J, 4) or (B, R, J, 4)."""
-        if dna is not None and not self.has_dna:
+        if dna is not None and not self.capabilities.dna:
             raise ValueError(f"{self.name}: this model has no motion-DNA encoder")
         keys = np.asarray(keys, np.int64)
         if joint_keys is not None:

@@ -30,6 +30,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline, CubicSpline, PchipInterpolator
 
+from pipeline.infer.api import Capabilities, refuse_extras
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
@@ -136,6 +137,7 @@ class SplineInbetweener:
     name = "spline"
     model_hash = "none"
     fps = 30.0
+    capabilities = Capabilities(batch=True, any_rig=True)
 
     def __init__(self, skeleton: Skeleton | None = None, method: str = "pchip", ends: str = "auto"):
         if skeleton is None:
@@ -146,7 +148,8 @@ class SplineInbetweener:
         self.method = method
         self.ends = ends
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion:
+        refuse_extras(self, joint_keys, dna)
         return spline_motion(motion, keys, self.method, self.ends)
 
     def fill_batch(self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray):

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import TweenError
+from pipeline.infer.api import Capabilities, refuse_extras
 from pipeline.infer.interp import interpolate_keys
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.motion.clip import Motion
@@ -31,6 +32,8 @@ from pipeline.motion.skeleton import Skeleton
 from pipeline.rig.represent import RigSpec, encode, from_yup, resample_linear, to_yup
 
 MIN_FRAMES = 8  # spans shorter than this are interpolated (every level needs > 2 frames)
+#: The kinds of this family in rig.json: the name, and the spelling of earlier rig.json files.
+KINDS = ("rig-ganimator-onnx", "rig")
 
 
 class RigModelError(TweenError):
@@ -66,7 +69,10 @@ def spread_residual(x: np.ndarray, idx: np.ndarray, target: np.ndarray) -> np.nd
 
 
 class RigInbetweener:
-    """Satisfies :class:`pipeline.infer.api.Inbetweener` for the rig in ``folder``/rig.json."""
+    """Satisfies :class:`pipeline.infer.api.Inbetweener` for the rig in ``folder``/rig.json
+    (kind ``"rig-ganimator-onnx"``): on that rig's skeleton only, full keys, no DNA."""
+
+    capabilities = Capabilities()
 
     def __init__(self, folder: str | Path, coarse: str = "keys", feet: bool = True):
         self.folder = Path(folder)
@@ -77,8 +83,8 @@ class RigInbetweener:
             self.meta = json.loads(path.read_text())
         except (OSError, ValueError) as e:
             raise RigModelError(path, f"unreadable: {e}") from None
-        if self.meta.get("kind") != "rig":
-            raise RigModelError(path, f"kind is {self.meta.get('kind')!r}, not 'rig'")
+        if self.meta.get("kind") not in KINDS:
+            raise RigModelError(path, f"kind is {self.meta.get('kind')!r}, not {KINDS[0]!r}")
         m = self.meta
         s = m["skeleton"]
         self.name = m["name"]
@@ -173,8 +179,9 @@ class RigInbetweener:
                 f"rig model {self.name}: motion at {motion.fps:g} fps, the model runs at {self.fps:g}"
             )
 
-    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0) -> Motion:
+    def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion:
         """Every frame between the keys generated; key frames exact, outside the keys held."""
+        refuse_extras(self, joint_keys, dna)
         self.check_motion(motion)
         keys = np.unique(np.asarray(keys, np.int64))
         if len(keys) < 2:

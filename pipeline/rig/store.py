@@ -1,8 +1,9 @@
 """The per-rig model store: which trained rig model (``rig.json``) fits a character's skeleton.
 
-A rig model folder holds ``rig.json`` with ``"kind": "rig"``, ``name``, ``hash``, ``fps`` and
-``skeleton`` = {``names``, ``parents``, ``offsets``, ``up_axis``, ``meters_per_unit``}: the
-skeleton it was trained on. The store is every such folder directly under the models root
+A rig model folder holds ``rig.json`` with ``"kind"`` (one registered for rig.json,
+:func:`pipeline.infer.api.rig_kinds`: ``"rig-ganimator-onnx"``, or ``"rig"`` as rig.json files
+written before kinds had names say), ``name``, ``hash``, ``fps`` and ``skeleton`` = {``names``,
+``parents``, ``offsets``, ``up_axis``, ``meters_per_unit``}: the skeleton it was trained on. The store is every such folder directly under the models root
 (``$TWEEN_MODELS`` or the repository's ``models/``).
 
 **Matching** (:func:`match_rig`): a character fits a model when
@@ -73,8 +74,11 @@ def read_rig_json(folder: str | Path) -> RigModelInfo:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise RigModelError(f"{path}: cannot read: {e}") from None
     try:
-        if not isinstance(meta, dict) or meta.get("kind") != "rig":
-            raise ValueError('"kind" is not "rig"')
+        from pipeline.infer.api import rig_kinds
+
+        if not isinstance(meta, dict) or meta.get("kind") not in rig_kinds():
+            others = ", ".join(k for k in rig_kinds() if k != "rig")
+            raise ValueError(f'"kind" is not "rig" nor another rig model kind ({others})')
         sk = meta["skeleton"]
         names = tuple(str(n) for n in sk["names"])
         parents = np.asarray(sk["parents"], np.int64).reshape(-1)

@@ -75,6 +75,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     )
     files["generator"] = "generator.onnx"
     meta = {
+        "kind": "generator-onnx",  # the family pipeline.infer.api.load_model loads it with
         "name": name,
         "format": 1,
         "fps": 30.0,

@@ -98,7 +98,7 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     motion = Motion(skel, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
     # Partial keys go to models that take them (the human model); others get full keys.
-    takes_partial = hasattr(inb, "fill_batch") and not isinstance(cp.retarget, OwnRig)
+    takes_partial = inb.capabilities.partial_keys and not isinstance(cp.retarget, OwnRig)
     rig_keys = rig_key_channels(cp) if takes_partial else None
     mask = key_channels(cp, rig_keys)
     extra = {} if dna is None else {"dna": dna}
