@@ -1,6 +1,10 @@
 """Post-processing after the networks: keys exact, root through every key, foot contacts locked.
 
-All in numpy (scipy rotations), on motions of the model skeleton:
+All in numpy, on motions of the model skeleton. Quaternion products, rotations of vectors,
+rotation vectors and FK are batched float64 array arithmetic (``batch_*`` in
+``pipeline.motion.rotations``, ``pipeline.motion.fk``): a scipy ``Rotation`` built per call
+cost more than the arithmetic on these small arrays. scipy stays for the average of a
+contact's foot orientations and the slerp along held keys (see :func:`lock_feet`).
 - :func:`match_keys` — the residual at each key (rotation vector per joint, vector for the
   root) is spread over the frames between neighbouring keys with smoothstep weights, so key
   frames equal the input exactly and the correction has zero velocity at keys (no pop).
@@ -18,7 +22,15 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.infer.features import key_groups
 from pipeline.motion.fk import fk
-from pipeline.motion.rotations import quat_continuity, quat_mul
+from pipeline.motion.rotations import (
+    batch_quat_apply,
+    batch_quat_conj,
+    batch_quat_continuity,
+    batch_quat_mul,
+    batch_quat_normalize,
+    batch_quat_to_rotvec,
+    batch_rotvec_to_quat,
+)
 
 
 def _smoothstep(x):
@@ -48,13 +60,11 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     keys = np.asarray(keys)
     K = len(keys)
     mask = np.ones((K, J + 1), bool) if joint_keys is None else np.asarray(joint_keys, bool)
-    pred_k = rot[:, keys].astype(np.float64)
-    kr = key_rot.astype(np.float64)
     # Residual rotation r with r · pred = key, as a rotation vector (world-from-local side).
-    inv = pred_k.copy()
-    inv[..., :3] *= -1
-    delta = quat_mul(kr, inv).reshape(-1, 4)
-    rv = Rotation.from_quat(delta).as_rotvec().reshape(B, K, J, 3)
+    # (Inputs normalised first, as scipy's Rotation did.)
+    inv = batch_quat_conj(batch_quat_normalize(rot[:, keys]))
+    delta = batch_quat_mul(batch_quat_normalize(key_rot), inv)
+    rv = batch_quat_to_rotvec(batch_quat_normalize(delta))
     dr = key_root.astype(np.float64) - root[:, keys]
     corr = np.empty((B, N, J, 3))
     out_root = np.asarray(root, np.float64).copy()
@@ -66,9 +76,7 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
         corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
         if J in cols:
             out_root = out_root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
-    out_rot = quat_mul(
-        Rotation.from_rotvec(corr.reshape(-1, 3)).as_quat().reshape(B, N, J, 4), rot.astype(np.float64)
-    )
+    out_rot = batch_quat_mul(batch_rotvec_to_quat(corr), batch_quat_normalize(rot))
 
     def put_keys(out_rot):
         # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
@@ -81,7 +89,7 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     out_root[:, : keys[0]] = key_root[:, :1]
     out_rot[:, keys[-1] + 1 :] = key_rot[:, -1:]
     out_root[:, keys[-1] + 1 :] = key_root[:, -1:]
-    out_rot = quat_continuity(out_rot, axis=1)
+    out_rot = batch_quat_continuity(out_rot, axis=1)
     put_keys(out_rot)  # continuity may have flipped a key's sign; keep its value
     return out_rot.astype(np.float32), out_root.astype(np.float32)
 
@@ -109,7 +117,7 @@ def contact_segments(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _rot_between(u, v):
-    """Minimal rotations taking directions u to v, (N, 3) -> scipy Rotation."""
+    """Minimal rotations taking directions u to v, (N, 3) -> unit quaternions (N, 4)."""
     u = u / np.linalg.norm(u, axis=-1, keepdims=True)
     v = v / np.linalg.norm(v, axis=-1, keepdims=True)
     axis = np.cross(u, v)
@@ -117,7 +125,7 @@ def _rot_between(u, v):
     c = (u * v).sum(-1, keepdims=True)
     ang = np.arctan2(s, c)
     axis = np.where(s > 1e-9, axis / np.maximum(s, 1e-12), 0.0)
-    return Rotation.from_rotvec(axis * ang)
+    return batch_rotvec_to_quat(axis * ang)
 
 
 def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
@@ -132,7 +140,8 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
     if not sel.any():
         return rot
     rot = rot.copy()
-    gq, gp = fk(rot[sel].astype(np.float64), root[sel], skeleton.parents, skeleton.offsets)
+    parent = skeleton.parents[hip]
+    gq, gp = fk(rot[sel].astype(np.float64), root[sel], skeleton.parents, skeleton.offsets, joints=[ankle])
     a, b, c = gp[:, hip], gp[:, knee], gp[:, ankle]
     t = c + weight[sel, None] * (targets[sel] - c)
     lab = np.linalg.norm(b - a, axis=-1)
@@ -145,24 +154,25 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
     n = np.cross(a - b, c - b)
     n_norm = np.linalg.norm(n, axis=-1, keepdims=True)
     # A straight leg has no bend plane: bend forward around the hip's local X as a fallback.
-    fallback = Rotation.from_quat(gq[:, hip]).apply(np.array([1.0, 0, 0]))
+    q_parent, q_hip, q_knee, q_ankle = (batch_quat_normalize(gq[:, j]) for j in (parent, hip, knee, ankle))
+    fallback = batch_quat_apply(q_hip, np.array([1.0, 0, 0]))
     n = np.where(n_norm > 1e-6, n / np.maximum(n_norm, 1e-12), fallback)
     # Rotating c about the knee by +angle around n opens the interior angle.
-    r_knee = Rotation.from_rotvec(n * dtheta[:, None])
-    c1 = b + r_knee.apply(c - b)
+    r_knee = batch_rotvec_to_quat(n * dtheta[:, None])
+    c1 = b + batch_quat_apply(r_knee, c - b)
     r_hip = _rot_between(c1 - a, t - a)
-    g_hip = r_hip * Rotation.from_quat(gq[:, hip])
-    g_knee = r_hip * r_knee * Rotation.from_quat(gq[:, knee])
-    g_ankle = Rotation.from_quat(gq[:, ankle])
+    g_hip = batch_quat_mul(r_hip, q_hip)
+    g_knee = batch_quat_mul(batch_quat_mul(r_hip, r_knee), q_knee)
+    g_ankle = q_ankle
     if orient is not None:
         # Per-frame slerp from the network's foot orientation to the held one.
-        delta = (g_ankle.inv() * Rotation.from_quat(orient[sel])).as_rotvec()
-        g_ankle = g_ankle * Rotation.from_rotvec(delta * weight[sel, None])
-    parent = skeleton.parents[hip]
-    g_parent = Rotation.from_quat(gq[:, parent])
-    rot[sel, hip] = (g_parent.inv() * g_hip).as_quat()
-    rot[sel, knee] = (g_hip.inv() * g_knee).as_quat()
-    rot[sel, ankle] = (g_knee.inv() * g_ankle).as_quat()
+        delta = batch_quat_to_rotvec(
+            batch_quat_mul(batch_quat_conj(g_ankle), batch_quat_normalize(orient[sel]))
+        )
+        g_ankle = batch_quat_mul(g_ankle, batch_rotvec_to_quat(delta * weight[sel, None]))
+    rot[sel, hip] = batch_quat_mul(batch_quat_conj(q_parent), g_hip)
+    rot[sel, knee] = batch_quat_mul(batch_quat_conj(g_hip), g_knee)
+    rot[sel, ankle] = batch_quat_mul(batch_quat_conj(g_knee), g_ankle)
     return rot
 
 
@@ -181,7 +191,8 @@ def lock_feet(
     """
     N = len(rot)
     keys = np.asarray(keys)
-    gq, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets)
+    ankles = [leg[2] for leg in legs]
+    gq, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets, joints=ankles)
     dist_key = np.min(np.abs(np.arange(N)[:, None] - keys[None]), axis=1)
     key_fade = np.clip(dist_key / ramp, 0, 1)
     outside = np.zeros(N, bool)

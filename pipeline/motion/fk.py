@@ -9,29 +9,87 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.motion.rotations import quat_apply, quat_mul
+from pipeline.motion.rotations import batch_quat_normalize
 
 
-def fk(local_rot: np.ndarray, root_pos: np.ndarray, parents, offsets) -> tuple[np.ndarray, np.ndarray]:
-    """Global (rotations, positions) for local quaternions (..., J, 4) and root (..., 3)."""
+def fk(
+    local_rot: np.ndarray, root_pos: np.ndarray, parents, offsets, joints=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Global (rotations, positions) for local quaternions (..., J, 4) and root (..., 3).
+
+    Plain float64 array arithmetic rather than a scipy ``Rotation`` per joint (whose set-up
+    was most of the time on these small arrays): the local quaternions are normalised once,
+    as scipy normalised them at every product, so the result equals the scipy chain to
+    rounding (~1e-15); the root's global rotation is its local one as given. The work runs
+    joint by joint on component rows ((J, 4, M) layout, M the frames), so each operation is
+    on contiguous memory. With ``joints`` only those joints and their ancestors are
+    computed; the other joints' entries are NaN.
+    """
     parents = np.asarray(parents)
     offsets = np.asarray(offsets, np.float64)
     J = local_rot.shape[-2]
-    g_rot = [None] * J
-    g_pos = [None] * J
-    for j in range(J):
-        p = parents[j]
+    root = np.asarray(root_pos, np.float64)
+    lead = np.broadcast_shapes(local_rot.shape[:-2], root.shape[:-1])
+    M = int(np.prod(lead, dtype=np.int64))
+    todo = np.zeros(J, bool)
+    for j in range(J) if joints is None else np.atleast_1d(joints):
+        while j >= 0 and not todo[j]:
+            todo[j] = True
+            j = parents[j]
+    idx = np.flatnonzero(todo)  # parents come before their children
+    at = np.full(J, -1)
+    at[idx] = np.arange(len(idx))
+    # (n, 4, M) unit local rotations of the joints computed: one contiguous row per joint
+    # and component.
+    local = np.broadcast_to(local_rot, lead + local_rot.shape[-2:])
+    sub = local if joints is None else local[..., idx, :]
+    unit = batch_quat_normalize(sub).reshape(M, len(idx), 4).transpose(1, 2, 0)
+    g_rot = np.empty((len(idx), 4, M))
+    g_pos = np.empty((len(idx), 3, M))
+    for i, j in enumerate(idx):
+        p = at[parents[j]] if parents[j] >= 0 else -1
         if p < 0:
-            g_rot[j] = local_rot[..., j, :].astype(np.float64)
-            g_pos[j] = np.asarray(root_pos, np.float64)
+            g_rot[i] = unit[i]
+            g_pos[i] = np.broadcast_to(root, lead + (3,)).reshape(M, 3).T
         else:
-            g_rot[j] = quat_mul(g_rot[p], local_rot[..., j, :].astype(np.float64))
-            g_pos[j] = g_pos[p] + quat_apply(g_rot[p], offsets[j])
-    rot = np.stack(g_rot, axis=-2)
-    pos = np.stack(g_pos, axis=-2)
-    return rot.astype(local_rot.dtype, copy=False), pos.astype(
-        np.result_type(root_pos, np.float32), copy=False
-    )
+            _mul_rows(g_rot[p], unit[i], g_rot[i])
+            _apply_rows(g_rot[p], offsets[j], g_pos[i])
+            g_pos[i] += g_pos[p]
+    # The root's own rotation as given (scipy composed, and so normalised, only the others).
+    for i in np.flatnonzero(parents[idx] < 0):
+        g_rot[i] = sub[..., i, :].reshape(M, 4).T
+    dtype = (local_rot.dtype, np.result_type(root_pos, np.float32))
+    if joints is None:
+        rot = g_rot.transpose(2, 0, 1).reshape(lead + (J, 4)).astype(dtype[0])
+        pos = g_pos.transpose(2, 0, 1).reshape(lead + (J, 3)).astype(dtype[1])
+        return rot, pos
+    rot = np.full(lead + (J, 4), np.nan, dtype[0])
+    pos = np.full(lead + (J, 3), np.nan, dtype[1])
+    rot[..., idx, :] = g_rot.transpose(2, 0, 1).reshape(lead + (len(idx), 4))
+    pos[..., idx, :] = g_pos.transpose(2, 0, 1).reshape(lead + (len(idx), 3))
+    return rot, pos
+
+
+def _mul_rows(a, b, out):
+    """Hamilton product of (4, M) quaternion rows into ``out`` (4, M)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    out[0] = aw * bx + bw * ax + (ay * bz - az * by)
+    out[1] = aw * by + bw * ay + (az * bx - ax * bz)
+    out[2] = aw * bz + bw * az + (ax * by - ay * bx)
+    out[3] = aw * bw - (ax * bx + ay * by + az * bz)
+
+
+def _apply_rows(q, v, out):
+    """Unit quaternion rows (4, M) applied to one vector v (3,), into ``out`` (3, M)."""
+    ux, uy, uz, w = q
+    vx, vy, vz = v
+    tx = 2 * (uy * vz - uz * vy)
+    ty = 2 * (uz * vx - ux * vz)
+    tz = 2 * (ux * vy - uy * vx)
+    out[0] = vx + w * tx + (uy * tz - uz * ty)
+    out[1] = vy + w * ty + (uz * tx - ux * tz)
+    out[2] = vz + w * tz + (ux * ty - uy * tx)
 
 
 def fk_torch(local_rot, root_pos, parents, offsets):

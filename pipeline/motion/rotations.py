@@ -133,3 +133,164 @@ def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float =
     s1 = np.where(near, w, np.sin(w * theta) / sin_t)
     out = s0 * q0 + s1 * q1
     return quat_normalize(out)
+
+
+# --- Batched quaternion arithmetic in plain numpy -------------------------------------------
+# The helpers above build a scipy ``Rotation`` per call, which normalises its input, checks
+# it and allocates several intermediates; on the small per-joint arrays of FK, IK and key
+# matching that overhead, not the arithmetic, is most of the time. These do the same math
+# as component-wise float64 array arithmetic (equal to scipy's to rounding, ~1e-16) and do
+# not normalise their inputs: callers pass unit quaternions (see :func:`batch_quat_normalize`).
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot products over the last axis, summed left to right as numpy's ``(a * b).sum(-1)``
+    sums a short axis (so bitwise the same), without its slow reduction over 3 or 4 items."""
+    out = a[..., 0] * b[..., 0]
+    for i in range(1, a.shape[-1]):
+        out += a[..., i] * b[..., i]
+    return out
+
+
+def batch_quat_normalize(q: np.ndarray) -> np.ndarray:
+    """q / |q| in float64, as scipy's ``Rotation.from_quat`` normalises."""
+    q = np.asarray(q, np.float64)
+    return q / np.sqrt(_dot(q, q))[..., None]
+
+
+def batch_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b of unit quaternions (..., 4), broadcasting: ``quat_mul``
+    without the normalisation of its inputs."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bx + bw * ax + (ay * bz - az * by)
+    out[..., 1] = aw * by + bw * ay + (az * bx - ax * bz)
+    out[..., 2] = aw * bz + bw * az + (ax * by - ay * bx)
+    out[..., 3] = aw * bw - (ax * bx + ay * by + az * bz)
+    return out
+
+
+def batch_quat_conj(q: np.ndarray) -> np.ndarray:
+    """The inverse of unit quaternions (float64)."""
+    out = np.array(q, np.float64, copy=True)
+    out[..., :3] *= -1
+    return out
+
+
+def batch_quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4), broadcasting:
+    v + 2w (u × v) + 2 u × (u × v) with u the vector part."""
+    q = np.asarray(q, np.float64)
+    v = np.asarray(v, np.float64)
+    ux, uy, uz, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    tx = 2 * (uy * vz - uz * vy)
+    ty = 2 * (uz * vx - ux * vz)
+    tz = 2 * (ux * vy - uy * vx)
+    out = np.empty(np.broadcast_shapes(q.shape[:-1], v.shape[:-1]) + (3,))
+    out[..., 0] = vx + w * tx + (uy * tz - uz * ty)
+    out[..., 1] = vy + w * ty + (uz * tx - ux * tz)
+    out[..., 2] = vz + w * tz + (ux * ty - uy * tx)
+    return out
+
+
+def batch_quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors of unit quaternions (..., 4) -> (..., 3), as scipy's ``as_rotvec``
+    (the w >= 0 cover, a Taylor series below 1e-3 rad)."""
+    q = np.asarray(q, np.float64)
+    q = np.where(q[..., 3:] < 0, -q, q)
+    u = q[..., :3]
+    angle = 2 * np.arctan2(np.sqrt(_dot(u, u)), q[..., 3])
+    small = angle <= 1e-3
+    a2 = angle * angle
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(small, 2 + a2 / 12 + 7 * a2 * a2 / 2880, angle / np.sin(angle / 2))
+    return scale[..., None] * u
+
+
+def batch_rotvec_to_quat(rv: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation vectors (..., 3), as scipy's ``from_rotvec``."""
+    rv = np.asarray(rv, np.float64)
+    angle = np.sqrt(_dot(rv, rv))
+    small = angle <= 1e-3
+    a2 = angle * angle
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(small, 0.5 - a2 / 48 + a2 * a2 / 3840, np.sin(angle / 2) / angle)
+    out = np.empty(rv.shape[:-1] + (4,))
+    out[..., :3] = rv * scale[..., None]
+    out[..., 3] = np.cos(angle / 2)
+    return out
+
+
+def batch_quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of quaternions (..., 4), normalised first as scipy's
+    ``Rotation.from_quat(q).as_matrix()``."""
+    q = batch_quat_normalize(q)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    m = np.empty(q.shape[:-1] + (3, 3))
+    m[..., 0, 0] = x2 - y2 - z2 + w2
+    m[..., 0, 1] = 2 * (xy - zw)
+    m[..., 0, 2] = 2 * (xz + yw)
+    m[..., 1, 0] = 2 * (xy + zw)
+    m[..., 1, 1] = -x2 + y2 - z2 + w2
+    m[..., 1, 2] = 2 * (yz - xw)
+    m[..., 2, 0] = 2 * (xz - yw)
+    m[..., 2, 1] = 2 * (yz + xw)
+    m[..., 2, 2] = -x2 - y2 + z2 + w2
+    return m
+
+
+def batch_quat_to_6d(q: np.ndarray) -> np.ndarray:
+    """``quat_to_6d`` (the first two matrix columns) without the scipy round trip."""
+    m = batch_quat_to_matrix(q)
+    return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+
+
+def batch_matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation matrices (..., 3, 3) that are orthonormal (to
+    1e-12, as Gram–Schmidt's are), by the case analysis scipy's ``from_matrix`` uses (the
+    largest of the diagonal and the trace picks the formula, so the same sign comes out).
+    Not for matrices that scipy would first orthogonalise by SVD or reject (det <= 0)."""
+    m = np.asarray(m, np.float64)
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    tr = m00 + m11 + m22
+    choice = np.argmax(np.stack([m00, m11, m22, tr], -1), axis=-1)
+    cases = (
+        (1 - tr + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
+        (m10 + m01, 1 - tr + 2 * m11, m21 + m12, m02 - m20),
+        (m20 + m02, m21 + m12, 1 - tr + 2 * m22, m10 - m01),
+        (m21 - m12, m02 - m20, m10 - m01, 1 + tr),
+    )
+    q = np.empty(m.shape[:-2] + (4,))
+    for c in range(4):
+        q[..., c] = np.choose(choice, [case[c] for case in cases])
+    return batch_quat_normalize(q)
+
+
+def batch_quat_continuity(q: np.ndarray, axis: int = 0) -> np.ndarray:
+    """:func:`quat_continuity` without its loop over samples, bitwise the same. The loop
+    flips sample t when its dot product with sample t - 1 as flipped is negative; that dot is
+    the unflipped one, d_t, times t - 1's sign. So a negative d_t flips t relative to t - 1,
+    a positive one keeps t - 1's sign, and a zero (or NaN) one leaves t unflipped: the signs
+    are the running parity of negative dots since the last such restart."""
+    q = np.moveaxis(np.array(q, copy=True), axis, 0)
+    if q.shape[0] < 2:
+        return np.moveaxis(q, 0, axis)
+    d = _dot(q[1:], q[:-1])  # (T - 1, ...): the dot of each sample with the one before
+    neg = np.concatenate([np.zeros((1,) + d.shape[1:], bool), d < 0])
+    reset = np.concatenate([np.ones((1,) + d.shape[1:], bool), ~((d < 0) | (d > 0))])
+    parity = np.cumsum(neg, axis=0)
+    # The parity at the latest reset at or before each sample (a reset sample is unflipped).
+    idx = np.where(reset, np.arange(len(q)).reshape((-1,) + (1,) * (d.ndim - 1)), 0)
+    last = np.maximum.accumulate(idx, axis=0)
+    base = np.take_along_axis(parity, last, axis=0)
+    flip = (parity - base) % 2 == 1
+    q[flip] *= -1
+    return np.moveaxis(q, 0, axis)
