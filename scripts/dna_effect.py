@@ -82,7 +82,7 @@ def dna_distance(rot, root, dna, skel) -> np.ndarray:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("model")
     ap.add_argument("--poses", type=int, default=3)
     ap.add_argument("--every", type=int, default=1, help="Every k-th window only (quick checks).")

@@ -1,25 +1,27 @@
 """Choose the foot lock's settings without the eval split.
 
-python scripts/foot_lock_variants.py MODEL_DIR
+python scripts/foot_lock_variants.py MODEL_DIR [--every K]
 
 Compares ``OnnxInbetweener(feet_anchor=..., feet_orient=...)`` on the protocol's task on
-windows cut from every 4th train clip (``scripts/pad_layouts.py``): L2P and foot skate ÷
-interpolation, and foot skate per foot joint at 5 frames, where the bar is tightest.
+windows cut from every 4th train clip (``pipeline.bench.selection.train_windows``): L2P and
+foot skate ÷ interpolation, and foot skate per foot joint at 5 frames, where the bar is tightest.
 """
 
+from __future__ import annotations
+
+import argparse
 import sys
 
 import numpy as np
 
 from pipeline.bench.methods import inbetweener_method, interpolation
 from pipeline.bench.protocol import CONTEXT, global_positions, position_stats
+from pipeline.bench.ratios import cell, ratio_cell
 from pipeline.bench.run import evaluate
+from pipeline.bench.selection import EVERY, train_windows
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
 from pipeline.infer.model import OnnxInbetweener
-
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-from pad_layouts import train_windows  # noqa: E402
 
 VARIANTS = (
     ("none", None),
@@ -42,23 +44,27 @@ def skate_per_joint(method, rots, roots, T: int = 5) -> list[float]:
     return [float(slide[..., j][contact[..., j]].mean()) for j in range(len(feet))]
 
 
-def main(model: str) -> None:
-    rots, roots = train_windows()
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("model", help="model folder")
+    ap.add_argument("--every", type=int, default=EVERY, help="windows from every K-th train clip")
+    a = ap.parse_args(argv)
+    rots, roots = train_windows(a.every)
     mean, std = position_stats(load_split("train"))
     base = evaluate(interpolation, rots, roots, mean, std)
     print(f"{len(rots)} train windows; ÷ interp at 5 / 15 / 30 / 45; skate per joint at 5 {FOOT_JOINTS}")
     for name, setting in VARIANTS:
         if setting is None:
-            inb = OnnxInbetweener(model, feet=False)
+            inb = OnnxInbetweener(a.model, feet=False)
         else:
-            inb = OnnxInbetweener(model, feet_anchor=setting[0], feet_orient=setting[1])
+            inb = OnnxInbetweener(a.model, feet_anchor=setting[0], feet_orient=setting[1])
         method = inbetweener_method(inb)
         r = evaluate(method, rots, roots, mean, std)
-        l2p = " / ".join(f"{r[t]['L2P'] / base[t]['L2P']:.3f}" for t in r)
-        skate = " / ".join(f"{r[t]['skate'] / base[t]['skate']:.3f}" for t in r)
-        joints = " / ".join(f"{v:.3f}" for v in skate_per_joint(method, rots, roots))
+        l2p, skate = ratio_cell(r, base, "L2P"), ratio_cell(r, base, "skate")
+        joints = cell(skate_per_joint(method, rots, roots))
         print(f"| {name} | {l2p} | {skate} | {joints} |", flush=True)
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    sys.exit(main())

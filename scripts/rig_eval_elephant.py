@@ -43,7 +43,7 @@ def skate(motion, spec, gt_contact) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="models/elephant")
     ap.add_argument("--shot", default=str(SHOT))
     ap.add_argument("--seeds", type=int, default=5)

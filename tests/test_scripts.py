@@ -1,0 +1,158 @@
+"""The research scripts use public APIs only (issue 18): each imports without running, takes
+``--help``, and imports nothing but the standard library, installed libraries and the
+project's packages (no ``sys.path`` edits, no script importing another). Code they shared
+lives in the package (pipeline.bench.selection, pipeline.bench.ratios), tested here."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((REPO / "scripts").glob("*.py"))
+#: Needs Blender's ``bpy`` for two of its commands (imported lazily): checked with --help only.
+BPY = "blender_roundtrip.py"
+PLAIN = [p for p in SCRIPTS if p.name != BPY]
+PROJECT = ("pipeline", "workers", "render", "usd_schemas")
+
+
+def _id(p: Path) -> str:
+    return p.stem
+
+
+def test_there_are_scripts():
+    assert len(SCRIPTS) >= 2 and any(p.name == BPY for p in SCRIPTS)
+
+
+@pytest.mark.parametrize("path", PLAIN, ids=_id)
+def test_imports_without_running(path, capsys):
+    name = f"_script_{path.stem}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    before = list(sys.path)
+    try:
+        spec.loader.exec_module(mod)  # __name__ is not "__main__": nothing may run
+    finally:
+        sys.modules.pop(name, None)
+    assert sys.path == before, "importing the script changed sys.path"
+    assert callable(getattr(mod, "main", None)), "no main()"
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == "", "the script ran something when imported"
+    assert (mod.__doc__ or "").strip(), "no docstring (it is the --help text)"
+
+
+def _imports(tree: ast.AST) -> list[tuple[int, str]]:
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, f"line {node.lineno}: relative import"
+            found.append((node.lineno, node.module))
+    return found
+
+
+@pytest.mark.parametrize("path", PLAIN, ids=_id)
+def test_public_imports_only(path):
+    tree = ast.parse(path.read_text(), str(path))
+    stems = {p.stem for p in SCRIPTS}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr == "path":
+            v = node.value
+            assert not (isinstance(v, ast.Name) and v.id == "sys"), f"line {node.lineno}: sys.path"
+        if isinstance(node, ast.Name):
+            assert node.id != "__import__", f"line {node.lineno}: __import__"
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            assert "PYTHONPATH" not in node.value, f"line {node.lineno}: PYTHONPATH"
+    for line, module in _imports(tree):
+        top = module.split(".")[0]
+        assert top not in stems, f"line {line}: imports the script {top!r}"
+        assert top not in ("importlib", "runpy"), f"line {line}: loads code by path ({module})"
+        if top in sys.stdlib_module_names or top in PROJECT:
+            continue
+        spec = importlib.util.find_spec(top)  # an installed library
+        assert spec is not None, f"line {line}: {module} is not installed"
+        origin = Path(spec.origin or next(iter(spec.submodule_search_locations or []), "")).resolve()
+        assert REPO / "scripts" not in origin.parents, f"line {line}: {module} comes from scripts/"
+
+
+@pytest.mark.parametrize("path", SCRIPTS, ids=_id)
+def test_help_exits_0(path, tmp_path):
+    # -P: the script's folder is not put on sys.path, so only installed modules import;
+    # run from elsewhere, so nothing depends on the working directory.
+    r = subprocess.run(
+        [sys.executable, "-P", str(path), "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.startswith("usage:") and "-h, --help" in r.stdout
+    assert not list(tmp_path.iterdir()), "--help wrote files"
+
+
+# --- what moved out of the scripts ----------------------------------------------------
+
+
+def _rows(scale: float, skate: float = 1.0) -> dict:
+    return {
+        str(t): {"L2P": scale * t, "L2Q": 2 * scale * t, "NPSS": scale, "skate": skate}
+        for t in (5, 15, 30, 45)
+    }
+
+
+def test_bench_ratio_row_divides_the_model_by_interp():
+    from pipeline.bench.ratios import bench_ratio_row
+
+    results = {"zero": _rows(9.0), "interp": _rows(2.0, 4.0), "model-v5": _rows(1.0, 1.0)}
+    row = bench_ratio_row("v5", results)
+    assert (
+        row
+        == "| v5 | "
+        + " | ".join(["0.500 / 0.500 / 0.500 / 0.500"] * 3)
+        + " | 0.250 / 0.250 / 0.250 / 0.250 |"
+    )
+    with pytest.raises(ValueError, match="interp"):
+        bench_ratio_row("x", {"model": _rows(1.0)})
+    with pytest.raises(ValueError, match="no model row"):
+        bench_ratio_row("x", {"interp": _rows(1.0), "zero": _rows(1.0)})
+
+
+def test_ratio_cells_over_evaluate_results():
+    from pipeline.bench.ratios import cell, ratio_cell, ratios
+
+    rows = {5: {"L2P": 1.0}, 15: {"L2P": 3.0}}
+    base = {5: {"L2P": 2.0}, 15: {"L2P": 4.0}}
+    assert ratios(rows, base, "L2P") == {5: 0.5, 15: 0.75}
+    assert ratio_cell(rows, base, "L2P") == "0.500 / 0.750"
+    assert cell([1 / 3, 2], digits=2) == "0.33 / 2.00"
+
+
+def test_ratio_rows_script_prints_the_card_row(tmp_path):
+    import json
+
+    f = tmp_path / "bench.json"
+    f.write_text(json.dumps({"results": {"interp": _rows(2.0, 4.0), "m": _rows(1.0)}}))
+    r = subprocess.run(
+        [sys.executable, "-P", str(REPO / "scripts" / "ratio_rows.py"), f"v5={f}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("| v5 | 0.500 / 0.500") and r.stdout.count("\n") == 1
+    bad = subprocess.run(
+        [sys.executable, "-P", str(REPO / "scripts" / "ratio_rows.py"), str(f)],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 2 and "LABEL=PATH" in bad.stderr
+
+
+def test_train_windows_refuses_no_clips():
+    from pipeline.bench.selection import train_windows
+
+    with pytest.raises(ValueError, match="every=0"):
+        train_windows(0)
