@@ -23,10 +23,18 @@ zero, so the adapter can never change a fill from full keys.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from pipeline.motion.fk import fk
-from pipeline.motion.rotations import quat_apply, quat_mul, quat_to_6d, slerp_pairs
+from pipeline.motion.rotations import (
+    batch_quat_apply,
+    batch_quat_mul,
+    batch_quat_normalize,
+    batch_quat_to_6d,
+    batch_slerp_pairs,
+)
 
 TTA_FREQS = 8
 MAX_TTA = 300.0  # frames; the longest gap the embedding distinguishes (10 s at 30 fps)
@@ -98,18 +106,19 @@ def canonical_transform(rot_key: np.ndarray, root_key: np.ndarray, skeleton) -> 
 
 def apply_transform(rot, root, q, off):
     """Rotate (B, N, J, 4)/(B, N, 3) windows by yaw q (B, 4) after subtracting off (B, 3)."""
-    root = quat_apply(q[:, None], root - off[:, None])
-    rot = rot.astype(np.float64).copy()
-    rot[:, :, 0] = quat_mul(q[:, None], rot[:, :, 0])
+    q = batch_quat_normalize(q)  # (inputs normalised, as scipy's Rotation did)
+    root = batch_quat_apply(q[:, None], root - off[:, None])
+    rot = rot.astype(np.float64)  # a copy
+    rot[:, :, 0] = batch_quat_mul(q[:, None], batch_quat_normalize(rot[:, :, 0]))
     return rot, root
 
 
 def invert_transform(rot, root, q, off):
-    qi = q.copy()
+    qi = batch_quat_normalize(q)
     qi[:, :3] *= -1
-    root = quat_apply(qi[:, None], root) + off[:, None]
-    rot = rot.astype(np.float64).copy()
-    rot[:, :, 0] = quat_mul(qi[:, None], rot[:, :, 0])
+    root = batch_quat_apply(qi[:, None], root) + off[:, None]
+    rot = np.array(rot, np.float64)  # a copy
+    rot[:, :, 0] = batch_quat_mul(qi[:, None], batch_quat_normalize(rot[:, :, 0]))
     return rot, root
 
 
@@ -140,7 +149,7 @@ def interpolate(rot, root, keys, joint_keys=None):
         nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
         joints = cols[cols < J]
         if len(joints):
-            out[:, :, joints] = slerp_pairs(
+            out[:, :, joints] = batch_slerp_pairs(
                 rot[:, prev][:, :, joints], rot[:, nxt][:, :, joints], w[None, :, None]
             )
         if J in cols:
@@ -190,6 +199,7 @@ def build_features(
     key_mask: bool = False,
     full_timing: bool = False,
     key_adapter: bool = False,
+    adapter: bool = True,
 ):
     """Network input (B, C, N) and what is needed to decode: canonical frame and baseline.
 
@@ -198,7 +208,9 @@ def build_features(
     latent, constant over time (zeros when None), or with ``noise_schedule`` scaled per
     frame by :func:`noise_scale`, so that every take arrives at the keys the same way.
     ``joint_keys`` (K, J + 1) marks partial keys (module docstring); ``key_mask`` adds its
-    channels, ``key_adapter`` the side input of :func:`adapter_channels`.
+    channels, ``key_adapter`` the side input of :func:`adapter_channels`; with ``adapter``
+    False and no partial keys that side input (all zeros then) is left out, for the
+    generator without its adapter (:func:`adapter_free_graph`).
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
@@ -207,6 +219,10 @@ def build_features(
     if key_adapter:
         full = np.ones(len(keys), bool) if joint_keys is None else joint_keys.all(axis=1)
         feats, ctx = build_features(rot, root, keys[full], skeleton, noise, tta, noise_schedule)
+        if not adapter:
+            if not full.all():
+                raise ValueError("partial keys need the adapter's side input (adapter=True)")
+            return feats, ctx
         side = adapter_channels(ctx, keys[~full], None if joint_keys is None else joint_keys[~full])
         return np.ascontiguousarray(np.concatenate([feats, side], axis=1)), ctx
     q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
@@ -229,11 +245,12 @@ def build_features(
     if noise_schedule:
         latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
+    key_rot = np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)  # the nearest key's pose
     feats = np.concatenate(
         [
-            quat_to_6d(irot).reshape(B, N, J * 6),
+            batch_quat_to_6d(irot).reshape(B, N, J * 6),
             iroot / ROOT_SCALE,
-            quat_to_6d(np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)).reshape(B, N, J * 6),
+            batch_quat_to_6d(key_rot).reshape(B, N, J * 6),
             croot[:, nearest[:, J]] / ROOT_SCALE,
             np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
             np.broadcast_to(latent, (B, N, NOISE_CHANNELS)),
@@ -271,7 +288,8 @@ def adapter_channels(ctx: dict, keys: np.ndarray, joint_keys) -> np.ndarray:
         return np.ascontiguousarray(side.transpose(0, 2, 1))
     keys = np.asarray(keys, np.int64)
     m = np.asarray(joint_keys, bool)
-    d6 = (quat_to_6d(crot[:, keys]) - quat_to_6d(irot[:, keys])) * m[None, :, :J, None]  # (B, P, J, 6)
+    d6 = batch_quat_to_6d(crot[:, keys]) - batch_quat_to_6d(irot[:, keys])
+    d6 = d6 * m[None, :, :J, None]  # (B, P, J, 6)
     droot = (croot[:, keys] - iroot[:, keys]) / ROOT_SCALE * m[None, :, J:]
     idx = np.arange(N)
     p = np.abs(idx[:, None] - keys[None]).argmin(axis=1)  # nearest partial key of each frame
@@ -291,3 +309,119 @@ def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
     rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
     B, N = rel.shape[:2]
     return np.ascontiguousarray(rel.reshape(B, N, -1).transpose(0, 2, 1), np.float32)
+
+
+_ADAPTER_FREE: dict = {}  # (path, mtime, size, joints) -> graph bytes or None, per process
+
+
+def adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | None:
+    """:func:`build_adapter_free_graph`, once per process for each file."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    key = (str(path), st.st_mtime_ns, st.st_size, n_joints, frames)
+    if key not in _ADAPTER_FREE:
+        _ADAPTER_FREE[key] = build_adapter_free_graph(path, n_joints, frames)
+    return _ADAPTER_FREE[key]
+
+
+class AdapterFreeSession:
+    """The generator's session for a model with a partial-key adapter: features without the
+    adapter's side input (``width`` channels: no partial keys) run on the adapter-free graph
+    (made by ``make`` from its bytes on first use), others on the whole graph ``full``."""
+
+    def __init__(self, full, graph: bytes, width: int, make):
+        self.full, self.graph, self.width, self.make = full, graph, width, make
+        self.lean = None
+
+    def run(self, names, feeds):
+        if feeds["features"].shape[1] != self.width:
+            return self.full.run(names, feeds)
+        if self.lean is None:
+            self.lean = self.make(self.graph)
+        return self.lean.run(names, feeds)
+
+    def __getattr__(self, name):  # get_inputs() and the rest: the whole graph's
+        return getattr(self.full, name)
+
+
+def build_adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | None:
+    """The generator ONNX graph at ``path`` without its partial-key adapter, as bytes for
+    onnxruntime; it takes the features without :func:`adapter_channels`.
+
+    Fills from full keys give the adapter all-zero input, and its two bias-free convolutions
+    around a PReLU then add exactly zero (``Generator.adapter``): 0.30 MFLOP a frame of
+    zeros. Built at load time from the same graph (so from the same weights, and the model's
+    hash and files are unchanged): the adapter's nodes are dropped, the sum they fed is
+    replaced by its other input, the main input slice ends at the main channels. The result
+    is checked against the whole graph on random features with a zero side input (it must be
+    bitwise the same) before it is used. None where that cannot be done: the ``onnx`` package
+    missing (it comes with the ``train`` extra; the farm then runs the whole graph, as
+    before), no adapter, a graph of another shape, or outputs that differ.
+    """
+    try:
+        import onnx
+        import onnxruntime as ort
+        from onnx import numpy_helper
+    except ImportError:
+        return None
+    try:
+        model = onnx.load(str(path))
+    except Exception:  # an unreadable graph is named by the session that loads it
+        return None
+    g = model.graph
+    adapter = [n for n in g.node if n.name.startswith("/adapter/")]
+    inputs = [i for i in g.input if i.name == "features"]
+    if not adapter or not inputs or len(g.input) != 1:
+        return None
+    ids = {id(n) for n in adapter}
+    others = [n for n in g.node if id(n) not in ids]
+    outs = {o for n in adapter for o in n.output if any(o in m.input for m in others)}
+    sums = [m for m in others if outs & set(m.input)]
+    if len(outs) != 1 or len(sums) != 1 or sums[0].op_type != "Add":
+        return None
+    (out,), add = outs, sums[0]
+    keep = [i for i in add.input if i != out]
+    side = [n for n in others if adapter[0].input[0] in n.output]
+    main = [n for n in others if n.op_type == "Slice" and n.input[0] == "features" and n not in side]
+    dim = inputs[0].type.tensor_type.shape.dim
+    n_side = n_adapter_channels(n_joints)
+    if len(keep) != 1 or len(main) != 1 or len(side) != 1 or len(dim) != 3 or not dim[1].dim_value:
+        return None
+    n_in = dim[1].dim_value
+    if n_in != n_input_channels(n_joints, key_adapter=True) or any(o.name == add.output[0] for o in g.output):
+        return None  # (a key-mask model's mask slice would need moving too: not handled)
+    for n in others:
+        for k, name in enumerate(n.input):
+            if name == add.output[0]:
+                n.input[k] = keep[0]
+    g.initializer.append(
+        numpy_helper.from_array(np.array([n_in - n_side], np.int64), "adapter_free/main_end")
+    )
+    main[0].input[2] = "adapter_free/main_end"
+    dim[1].dim_value = n_in - n_side
+    # Drop what no output needs any more (the adapter, its slice, the shape arithmetic).
+    need = {o.name for o in g.output}
+    live = []
+    for n in reversed(list(g.node)):
+        if need & set(n.output):
+            live.append(n)
+            need.update(n.input)
+    del g.node[:]
+    g.node.extend(reversed(live))
+    inits = [t for t in g.initializer if t.name in need]
+    del g.initializer[:]
+    g.initializer.extend(inits)
+    lean = model.SerializeToString()
+    try:
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = opts.inter_op_num_threads = 1
+        x = np.random.default_rng(0).normal(size=(1, n_in, frames)).astype(np.float32)
+        x[:, n_in - n_side :] = 0.0
+        cpu = ["CPUExecutionProvider"]
+        a = ort.InferenceSession(str(path), opts, providers=cpu).run(None, {"features": x})[0]
+        b = ort.InferenceSession(lean, opts, providers=cpu).run(None, {"features": x[:, : n_in - n_side]})[0]
+    except Exception:
+        return None
+    return lean if np.array_equal(a, b) else None
