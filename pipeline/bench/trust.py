@@ -1,0 +1,229 @@
+"""The trusted fill on the benchmark: model, spline, interpolation and the decided fill.
+
+Every window is one shot, keyed at its 10 context frames and its target: the probes of
+:mod:`pipeline.infer.trust` see those keys only, and each window gets its own decision. On
+the protocol's eval windows and on every held-out source (``cmu``: other actors; ``posture30``:
+posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q per transition
+length of the four fills, the decided fill's ratio to the better of model and spline and to
+the model, how often each choice was made and the time it took.
+
+``python -m pipeline.bench.trust [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz]``
+(``--limit``: the first N eval clips, and at most 2N CMU windows evenly spaced over the
+takes; ``--dump``: per-window probe errors and per-window L2P of blends at w = 0, ¼, ½, ¾, 1,
+what the thresholds of the decision were tuned on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.bench.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
+from pipeline.infer import trust
+
+SOURCES = ("eval", "cmu", "posture30", "mirrored")
+METHODS = ("interp", "spline", "model", "decided")
+GRID = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def source_windows(source: str, limit: int | None = None):
+    """(rotations (N, 65, J, 4), roots (N, 65, 3)) of a source, normalised as the protocol's."""
+    from pipeline.bench.run import test_windows
+
+    if source == "eval":
+        return test_windows(limit)
+    if source == "cmu":
+        r, p = test_windows(source="cmu")
+        if limit:
+            idx = np.unique(np.linspace(0, len(r) - 1, min(len(r), 2 * limit)).astype(int))
+            r, p = r[idx], p[idx]
+        return r, p
+    if source == "mirrored":
+        return test_windows(limit, mirrored=True)
+    if source.startswith("posture"):
+        return test_windows(limit, posture=float(source[len("posture") :]))
+    raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
+
+
+def _per_window_l2p(gp_p, gp_t, mean, std) -> np.ndarray:
+    n, t = gp_p.shape[:2]
+    a = (gp_p.reshape(n, t, -1) - mean) / std
+    b = (gp_t.reshape(n, t, -1) - mean) / std
+    return np.linalg.norm(a - b, axis=-1).mean(axis=1)
+
+
+def _per_window_l2q(gq_p, gq_t) -> np.ndarray:
+    d = (gq_p - gq_t).reshape(gq_p.shape[0], gq_p.shape[1], -1)
+    return np.linalg.norm(d, axis=-1).mean(axis=1)
+
+
+def _shots(rots, roots, T: int):
+    """The windows as shots: context, then the target held (frames between are not keys)."""
+    tgt = CONTEXT + T
+    r = np.concatenate([rots[:, :CONTEXT], np.repeat(rots[:, tgt : tgt + 1], T + 1, axis=1)], axis=1)
+    p = np.concatenate([roots[:, :CONTEXT], np.repeat(roots[:, tgt : tgt + 1], T + 1, axis=1)], axis=1)
+    return r, p, np.r_[np.arange(CONTEXT), tgt]
+
+
+def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None) -> dict:
+    """Per transition length: L2P / L2Q of each method, choices and seconds."""
+    from pipeline.infer.interp import interpolate_between
+
+    out = {}
+    cache: dict = {}  # context probes are the same for every transition length
+    for T in transitions:
+        sl = slice(CONTEXT, CONTEXT + T)
+        rr, pp, keys = _shots(rots, roots, T)
+        t0 = time.perf_counter()
+        m_r, m_p = trust._fill_windows(model, rr, pp, keys, model.skeleton)
+        t_model = time.perf_counter() - t0
+        s_r, s_p = spline.fill_batch(rr, pp, keys)
+        t0 = time.perf_counter()
+        decisions = trust.decide_batch(model, spline, rr, pp, keys, cache=cache)
+        t_probe = time.perf_counter() - t0
+        w = np.array([d.weight for d in decisions])
+        d_r, d_p = trust.blend_arrays(w, m_r, m_p, s_r, s_p)
+        i_r, i_p = interpolate_between(
+            rots[:, CONTEXT - 1], rots[:, CONTEXT + T], roots[:, CONTEXT - 1], roots[:, CONTEXT + T], T
+        )
+        i_r, i_p = np.moveaxis(i_r, 0, 1), np.moveaxis(i_p, 0, 1)
+        gq_t, gp_t = global_positions(rots[:, sl], roots[:, sl])
+        fills = {"interp": (i_r, i_p), "spline": (s_r[:, sl], s_p[:, sl]), "model": (m_r[:, sl], m_p[:, sl])}
+        fills["decided"] = (d_r[:, sl], d_p[:, sl])
+        res = {}
+        for name, (r, p) in fills.items():
+            gq, gp = global_positions(r, p)
+            res[name] = {
+                "L2P": float(_per_window_l2p(gp, gp_t, mean, std).mean()),
+                "L2Q": float(_per_window_l2q(gq, gq_t).mean()),
+            }
+        choices = [d.choice for d in decisions]
+        res["choices"] = {c: choices.count(c) for c in trust.CHOICES}
+        res["mean_weight"] = float(w.mean())
+        res["probes"] = len(decisions[0].probes)
+        res["seconds"] = {"model_fill": t_model, "probes": t_probe}
+        if dump is not None:
+            grid = []
+            for g in GRID:
+                b_r, b_p = trust.blend_arrays(g, m_r[:, sl], m_p[:, sl], s_r[:, sl], s_p[:, sl])
+                grid.append(_per_window_l2p(global_positions(b_r, b_p)[1], gp_t, mean, std))
+            em = np.array([[p["model_cm"] for p in d.probes] for d in decisions])
+            es = np.array([[p["spline_cm"] for p in d.probes] for d in decisions])
+            dump[T] = {
+                "l2p_grid": np.stack(grid, 1),
+                "em": em,
+                "es": es,
+                "kinds": [p["kind"] for p in decisions[0].probes],
+            }
+        out[T] = res
+    return out
+
+
+def run_trust_bench(
+    sources=SOURCES, limit: int | None = None, transitions=TRANSITIONS, dump: str | None = None
+) -> dict:
+    """Every source's table (see the module docstring): ``{"sources": {source: {"windows": N,
+    "seconds": s, "results": {T: {method: {"L2P", "L2Q"}, "choices", ...}}}}, "markdown": str}``."""
+    from pipeline.data.cache import load_split
+    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.spline import SplineInbetweener
+
+    mean, std = position_stats(load_split("train"))
+    model = load_inbetweener("default")
+    spline = SplineInbetweener(model.skeleton)
+    report: dict = {"model": model.name, "hash": model.model_hash, "limit": limit, "sources": {}}
+    dumps = {}
+    for src in sources:
+        t0 = time.perf_counter()
+        rots, roots = source_windows(src, limit)
+        print(f"trust bench: {src}, {len(rots)} windows…", file=sys.stderr)
+        d = {} if dump else None
+        results = evaluate_source(model, spline, rots, roots, mean, std, transitions, d)
+        report["sources"][src] = {
+            "windows": int(len(rots)),
+            "seconds": time.perf_counter() - t0,
+            "results": results,
+        }
+        if dump:
+            dumps[src] = d
+    report["constants"] = {
+        k: getattr(trust, k)
+        for k in ("MIN_GAP", "MAX_PROBES", "RUN_SIDE", "EPS_CM", "THRESHOLD", "BAND", "PRIOR_PROBES")
+    }
+    report["markdown"] = markdown(report, transitions)
+    if dump:
+        flat = {}
+        for src, per_t in dumps.items():
+            for T, v in per_t.items():
+                for k in ("l2p_grid", "em", "es"):
+                    flat[f"{src}/{T}/{k}"] = v[k]
+                flat[f"{src}/{T}/kinds"] = np.array(v["kinds"])
+        np.savez(dump, **flat)
+    return report
+
+
+def markdown(report: dict, transitions=TRANSITIONS) -> str:
+    lines = [
+        f"Model {report['model']} ({report['hash']}); each window one shot keyed at its context and target.",
+        "",
+    ]
+    head = "| source | method | " + " | ".join(str(t) for t in transitions) + " |"
+    sep = "|---|---|" + "---|" * len(transitions)
+    for metric in ("L2P", "L2Q"):
+        lines += [f"**{metric}**", "", head, sep]
+        for src, s in report["sources"].items():
+            r = s["results"]
+            for m in METHODS:
+                lines.append(
+                    f"| {src} | {m} | " + " | ".join(f"{r[t][m][metric]:.4f}" for t in transitions) + " |"
+                )
+            best = [min(r[t]["model"][metric], r[t]["spline"][metric]) for t in transitions]
+            cells = [f"{r[t]['decided'][metric] / b:.3f}" for t, b in zip(transitions, best, strict=True)]
+            lines.append(f"| {src} | decided ÷ better of model, spline | " + " | ".join(cells) + " |")
+            cells = [f"{r[t]['decided'][metric] / r[t]['model'][metric]:.3f}" for t in transitions]
+            lines.append(f"| {src} | decided ÷ model | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += ["**Choices** (model / blend / spline windows; mean weight; probes per shot)", "", head, sep]
+    for src, s in report["sources"].items():
+        r = s["results"]
+        cells = [
+            f"{r[t]['choices']['model']}/{r[t]['choices']['blend']}/{r[t]['choices']['spline']}; "
+            f"w̄ {r[t]['mean_weight']:.2f}; {r[t]['probes']}"
+            for t in transitions
+        ]
+        lines.append(f"| {src} | choices | " + " | ".join(cells) + " |")
+    lines += ["", "| source | windows | seconds (all) | model fill s | probe s |", "|---|---|---|---|---|"]
+    for src, s in report["sources"].items():
+        r = s["results"]
+        mf = sum(r[t]["seconds"]["model_fill"] for t in transitions)
+        pr = sum(r[t]["seconds"]["probes"] for t in transitions)
+        lines.append(f"| {src} | {s['windows']} | {s['seconds']:.0f} | {mf:.0f} | {pr:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipeline.bench.trust", description=__doc__.splitlines()[0])
+    ap.add_argument("--limit", type=int, default=None, help="first N eval clips (and at most 2N CMU windows)")
+    ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
+    ap.add_argument("--out", type=Path, default=None, help="folder for trust.json and trust.md")
+    ap.add_argument("--dump", default=None, help="npz of per-window probe errors and blend L2P (tuning)")
+    a = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    report = run_trust_bench(tuple(s for s in a.sources.split(",") if s), a.limit, dump=a.dump)
+    report["seconds"] = time.perf_counter() - t0
+    md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "trust.json").write_text(json.dumps(report, indent=1, default=str))
+        (a.out / "trust.md").write_text(md)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

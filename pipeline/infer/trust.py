@@ -1,0 +1,427 @@
+"""Never worse than the animator's curves: per shot, how far to trust the network over the spline.
+
+The shipped network is far ahead of interpolation on its own benchmark, and behind it on other
+actors or on rigs posed differently from the capture (README, issue 19). A studio's shot says
+which case it is only through its keys, so the evidence comes from the keys alone: **probes**.
+A probe leaves a few interior keys out, fills the rest of a local window around them with the
+model and with the spline, and measures both against the left-out keys (global joint
+positions by forward kinematics on the model skeleton, in cm). The keys' own poses are the
+ground truth, so a model that does not know this character shows it there.
+
+Probes (:func:`probe_plan`, at most :data:`MAX_PROBES` a shot, each a local window):
+
+- **gap probes**: beside a gap of the shot, the keys nearest to it are left out until the gap
+  grows by at least :data:`MIN_GAP` frames. Where keys are sparse (blocking every few frames)
+  that is one key (leave-one-out); beside a run of consecutive keys (the protocol's 10 context
+  frames) it is a run of keys, and the probe is then the shot's own task with a longer gap.
+- **run probes**: inside a run of consecutive keys, a hole of :data:`MIN_GAP` keys with at
+  least two keys of the run kept on each side, and the widest hole (the run's two end keys
+  kept), which asks the model for a motion the keys barely constrain.
+
+Decision (:func:`decide`): per probe the log-ratio ``log((e_spline + ε) / (e_model + ε))``
+(ε = :data:`EPS_CM`, so sub-millimetre probes do not dominate), averaged, then shrunk toward
+the model by :data:`PRIOR_PROBES` pseudo-probes (few probes cannot flip a good model). The
+weight of the model ``w = clip((score − THRESHOLD) / BAND + 1/2, 0, 1)``: 1 is ``"model"``,
+0 ``"spline"``, between them ``"blend"``: fill = spline + w·(model − spline), the root position
+linearly and every joint's local rotation by SLERP (:func:`apply`). Keys stay bitwise exact.
+
+:class:`TrustedInbetweener` wraps a model in the same ``fill`` interface and keeps
+``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record.
+The constants were tuned on train-split windows (``pipeline/bench/trust.py``, docs/trust.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from pipeline.motion.clip import Motion
+from pipeline.motion.fk import fk
+from pipeline.motion.rotations import slerp_pairs
+
+TRUST_MODES = ("auto", "model", "spline")
+CHOICES = ("model", "spline", "blend")
+#: The shortest gap a probe opens, in frames (and how much a gap probe lengthens a gap).
+MIN_GAP = 5
+#: At most this many probes a shot (each one local window of the model and of the spline).
+MAX_PROBES = 8
+#: Keys of a run kept on each side of a run probe's hole.
+RUN_SIDE = 2
+#: Added to both probe errors (cm) before their ratio.
+EPS_CM = 0.2
+#: Score (mean log error ratio spline / model) at which the weight is one half.
+THRESHOLD = -0.3
+#: Score range over which the weight goes from 0 to 1.
+BAND = 0.4
+#: Pseudo-probes at the model's end of the band (w = 1) the probes' mean is shrunk toward.
+PRIOR_PROBES = 1.0
+#: Windows per model call when probing many shots at once.
+BATCH = 128
+
+
+@dataclass(frozen=True)
+class Probe:
+    """One probe: the window of frames ``lo..hi`` the two methods fill, from the keys ``kept``,
+    scored at the keys ``left_out`` (absolute frame numbers); ``gap`` the frames between the
+    kept keys around the hole; ``kind`` "gap" or "run"."""
+
+    lo: int
+    hi: int
+    kept: tuple[int, ...]
+    left_out: tuple[int, ...]
+    gap: int
+    kind: str
+
+    def describe(self) -> dict:
+        return {
+            "kind": self.kind,
+            "frames": [self.lo, self.hi],
+            "left_out": [self.left_out[0], self.left_out[-1]],
+            "n_left_out": len(self.left_out),
+            "gap": self.gap,
+        }
+
+
+@dataclass
+class TrustDecision:
+    """How one character's fill was decided. ``weight``: the model's share (1: the model's
+    fill, 0: the spline's); ``model_error_cm`` / ``spline_error_cm``: the mean joint-position
+    error of each at the probes' left-out keys (None without probes); ``score``: the shrunk
+    mean log error ratio the weight comes from; ``probes``: one dict per probe (its window,
+    left-out keys and both errors); ``reason``: one line for people."""
+
+    choice: str
+    weight: float
+    model_error_cm: float | None
+    spline_error_cm: float | None
+    probes: list[dict] = field(default_factory=list)
+    reason: str = ""
+    score: float | None = None
+    trust: str = "auto"
+
+    def to_json(self) -> dict:
+        """Plain JSON types only (what a layer attribute or log line can carry)."""
+        return asdict(self)
+
+
+def _unique_keys(keys) -> np.ndarray:
+    return np.unique(np.asarray(keys, np.int64))
+
+
+def _runs(keys: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges [a, b] of maximal runs of consecutive-frame keys (of two keys or more)."""
+    out, a = [], 0
+    for i in range(1, len(keys) + 1):
+        if i == len(keys) or keys[i] != keys[i - 1] + 1:
+            if i - 1 > a:
+                out.append((a, i - 1))
+            a = i
+    return out
+
+
+def _make_probe(keys: np.ndarray, i: int, j: int, kind: str) -> Probe:
+    """The probe leaving keys[i..j] (interior indices) out, in a window reaching as far as the
+    hole's gap on each side (but at least to the kept keys around the hole)."""
+    left, right = int(keys[i - 1]), int(keys[j + 1])
+    gap = right - left - 1
+    reach = max(gap, MIN_GAP)
+    out = set(keys[i : j + 1].tolist())
+    kept = [int(k) for k in keys if k not in out and left - reach <= k <= right + reach]
+    return Probe(kept[0], kept[-1], tuple(kept), tuple(int(k) for k in keys[i : j + 1]), gap, kind)
+
+
+def _spread(items: list, n: int) -> list:
+    """At most ``n`` of ``items``, evenly spaced, in order."""
+    if len(items) <= n:
+        return list(items)
+    idx = np.unique(np.round(np.linspace(0, len(items) - 1, n)).astype(int))
+    return [items[i] for i in idx]
+
+
+def probe_plan(keys, max_probes: int = MAX_PROBES) -> list[Probe]:
+    """The probes of a shot keyed at ``keys`` (frame numbers): see the module docstring.
+    The first and last keys are never left out; fewer than three keys give no probe."""
+    keys = _unique_keys(keys)
+    n = len(keys)
+    if n < 3 or max_probes <= 0:
+        return []
+    gap_probes: dict[tuple[int, int], Probe] = {}
+    for g in range(n - 1):
+        length = int(keys[g + 1] - keys[g] - 1)
+        if length <= 0:
+            continue
+        # Left side: leave keys[g - r + 1 .. g] out; right side: keys[g + 1 .. g + r].
+        for r in range(1, g + 1):
+            if keys[g + 1] - keys[g - r] - 1 >= length + MIN_GAP or r == g:
+                gap_probes.setdefault((g - r + 1, g), _make_probe(keys, g - r + 1, g, "gap"))
+                break
+        for r in range(1, n - 2 - g + 1):
+            if keys[g + 1 + r] - keys[g] - 1 >= length + MIN_GAP or r == n - 2 - g:
+                gap_probes.setdefault((g + 1, g + r), _make_probe(keys, g + 1, g + r, "gap"))
+                break
+    run_probes: list[Probe] = []
+    for a, b in _runs(keys):
+        size = b - a + 1
+        # Run ends that are the shot's ends stay keys: a hole needs a kept key on both sides.
+        lo_i, hi_i = max(a + RUN_SIDE, 1), min(b - RUN_SIDE, n - 2)
+        offsets = list(range(lo_i, hi_i - MIN_GAP + 2))
+        for s in _spread(offsets, 2):
+            run_probes.append(_make_probe(keys, s, s + MIN_GAP - 1, "run"))
+        wa, wb = max(a + 1, 1), min(b - 1, n - 2)
+        if size >= MIN_GAP + 2 and wb - wa + 1 > MIN_GAP:
+            run_probes.append(_make_probe(keys, wa, wb, "run"))
+    gaps = sorted(gap_probes.values(), key=lambda p: p.left_out[0])
+    n_gap = min(len(gaps), max(max_probes - len(run_probes), (max_probes + 1) // 2))
+    chosen = _spread(gaps, n_gap)
+    chosen += _spread(run_probes, max_probes - len(chosen))
+    return sorted(chosen, key=lambda p: (p.left_out[0], p.left_out[-1]))
+
+
+# -- filling probes ----------------------------------------------------------------------------
+
+
+def _fill_windows(inb, rots: np.ndarray, roots: np.ndarray, keys: np.ndarray, skeleton):
+    """(N, T, J, 4), (N, T, 3) windows sharing ``keys`` filled by ``inb`` (seed 0)."""
+    caps = getattr(inb, "capabilities", None)
+    batch = getattr(caps, "batch", None)
+    if batch is None:
+        batch = hasattr(inb, "fill_batch")
+    if batch:
+        out_r, out_p = [], []
+        for s in range(0, len(rots), BATCH):
+            r, p = inb.fill_batch(rots[s : s + BATCH], roots[s : s + BATCH], keys)
+            out_r.append(np.asarray(r))
+            out_p.append(np.asarray(p))
+        return np.concatenate(out_r), np.concatenate(out_p)
+    fps = float(getattr(inb, "fps", 30.0))
+    res = [inb.fill(Motion(skeleton, r, p, fps), keys) for r, p in zip(rots, roots, strict=True)]
+    return np.stack([m.rotations for m in res]), np.stack([m.root_positions for m in res])
+
+
+def _errors_cm(skeleton, rot, root, true_rot, true_root) -> np.ndarray:
+    """(N,) mean global joint-position error over frames and joints, in cm."""
+    to_cm = 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))
+    _, a = fk(rot, root, skeleton.parents, skeleton.offsets)
+    _, b = fk(true_rot, true_root, skeleton.parents, skeleton.offsets)
+    return np.linalg.norm(np.asarray(a, np.float64) - b, axis=-1).mean(axis=(1, 2)) * to_cm
+
+
+def run_probes(model, spline, rots, roots, probes: list[Probe], skeleton=None, cache: dict | None = None):
+    """Model and spline errors (cm), each (N, P), of ``probes`` on N shots sharing their keys.
+
+    ``cache`` (a dict kept by the caller) reuses a probe's errors for a later call whose
+    probe covers the same frames and keys of the same shots (the benchmark's transition
+    lengths share their context probes); the caller vouches that those frames are the same.
+    """
+    skel = skeleton or model.skeleton
+    rots, roots = np.asarray(rots), np.asarray(roots)
+    N = len(rots)
+    em = np.zeros((N, len(probes)))
+    es = np.zeros((N, len(probes)))
+    for c, p in enumerate(probes):
+        tag = (p.lo, p.hi, p.kept, p.left_out)
+        if cache is not None and tag in cache:
+            em[:, c], es[:, c] = cache[tag]
+            continue
+        win = slice(p.lo, p.hi + 1)
+        w_rot, w_root = rots[:, win], roots[:, win]
+        kept = np.asarray(p.kept, np.int64) - p.lo
+        out = np.asarray(p.left_out, np.int64) - p.lo
+        true_r, true_p = w_rot[:, out], w_root[:, out]
+        m_r, m_p = _fill_windows(model, w_rot, w_root, kept, skel)
+        s_r, s_p = _fill_windows(spline, w_rot, w_root, kept, skel)
+        em[:, c] = _errors_cm(skel, m_r[:, out], m_p[:, out], true_r, true_p)
+        es[:, c] = _errors_cm(skel, s_r[:, out], s_p[:, out], true_r, true_p)
+        if cache is not None:
+            cache[tag] = (em[:, c].copy(), es[:, c].copy())
+    return em, es
+
+
+# -- the decision ------------------------------------------------------------------------------
+
+
+def weight_of(score: float) -> float:
+    """The model's weight for a (shrunk) score."""
+    return float(np.clip((score - THRESHOLD) / BAND + 0.5, 0.0, 1.0))
+
+
+def shrunk_score(log_ratios: np.ndarray) -> float:
+    """Mean of the probes' log ratios, shrunk toward the model's end of the band."""
+    prior = THRESHOLD + 0.5 * BAND
+    n = len(log_ratios)
+    return float((np.sum(log_ratios) + PRIOR_PROBES * prior) / (n + PRIOR_PROBES))
+
+
+def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe]) -> TrustDecision:
+    if not probes:
+        return TrustDecision(
+            "model",
+            1.0,
+            None,
+            None,
+            [],
+            "no probe possible (fewer than three keys): the model, unchecked",
+            None,
+        )
+    lr = np.log((es + EPS_CM) / (em + EPS_CM))
+    score = shrunk_score(lr)
+    w = weight_of(score)
+    choice = "model" if w >= 1.0 else "spline" if w <= 0.0 else "blend"
+    me, se = float(np.mean(em)), float(np.mean(es))
+    rows = [
+        {**p.describe(), "model_cm": round(float(a), 4), "spline_cm": round(float(b), 4)}
+        for p, a, b in zip(probes, em, es, strict=True)
+    ]
+    better = int(np.sum(em < es))
+    reason = (
+        f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
+        f"left-out keys (model better on {better}); score {score:+.2f} → "
+        + ("the model" if choice == "model" else "the spline" if choice == "spline" else f"blend w={w:.2f}")
+    )
+    return TrustDecision(choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(score, 6))
+
+
+def decide_batch(
+    model, spline, rots, roots, keys, skeleton=None, cache: dict | None = None
+) -> list[TrustDecision]:
+    """:func:`decide` for N shots sharing their keys: rotations (N, T, J, 4), roots (N, T, 3)
+    on the model skeleton (only the key frames are read). One model call per probe."""
+    probes = probe_plan(keys)
+    if not probes:
+        return [_decision(np.zeros(0), np.zeros(0), []) for _ in range(len(rots))]
+    em, es = run_probes(model, spline, rots, roots, probes, skeleton, cache)
+    return [_decision(em[i], es[i], probes) for i in range(len(rots))]
+
+
+def decide(model, spline, motion: Motion, keys) -> TrustDecision:
+    """How far to trust ``model`` over ``spline`` on this shot, from its ``keys`` alone."""
+    return decide_batch(
+        model, spline, motion.rotations[None], motion.root_positions[None], keys, motion.skeleton
+    )[0]
+
+
+# -- applying it -------------------------------------------------------------------------------
+
+
+def blend_arrays(weight, m_rot, m_root, s_rot, s_root) -> tuple[np.ndarray, np.ndarray]:
+    """spline + w·(model − spline): root linearly, local rotations by SLERP; ``weight`` a
+    scalar or one per leading index (e.g. (N,) for (N, T, J, 4) windows). Where the two
+    fills are bitwise equal (keys, held frames) the result is that value, bitwise."""
+    m_rot, s_rot = np.asarray(m_rot), np.asarray(s_rot)
+    m_root, s_root = np.asarray(m_root), np.asarray(s_root)
+    w = np.asarray(weight, np.float64)
+    w_rot = np.broadcast_to(w.reshape(w.shape + (1,) * (m_rot.ndim - 1 - w.ndim)), m_rot.shape[:-1])
+    w_root = w.reshape(w.shape + (1,) * (m_root.ndim - w.ndim))
+    rot = slerp_pairs(s_rot, m_rot, w_rot).astype(s_rot.dtype)
+    root = (s_root + w_root * (np.asarray(m_root, np.float64) - s_root)).astype(s_root.dtype)
+    same_r = (m_rot == s_rot).all(-1, keepdims=True)
+    same_p = m_root == s_root
+    return np.where(same_r, s_rot, rot), np.where(same_p, s_root, root)
+
+
+def apply(decision: TrustDecision, model_fill: Motion | None, spline_fill: Motion | None) -> Motion:
+    """The decided fill: the model's, the spline's, or their blend (:func:`blend_arrays`).
+    The fill not needed may be None (``"model"`` needs no spline fill, ``"spline"`` no model
+    fill). Keys are bitwise those of the inputs (both fills keep them)."""
+    if decision.choice not in CHOICES:
+        raise ValueError(f"unknown trust choice {decision.choice!r} (one of {', '.join(CHOICES)})")
+    if decision.choice == "model" or (decision.choice == "blend" and decision.weight >= 1.0):
+        if model_fill is None:
+            raise ValueError("the decision takes the model's fill, and none was given")
+        return model_fill
+    if spline_fill is None:
+        raise ValueError("the decision takes the spline's fill, and none was given")
+    if decision.choice == "spline" or decision.weight <= 0.0:
+        return spline_fill
+    if model_fill is None:
+        raise ValueError("a blend needs both fills")
+    rot, root = blend_arrays(
+        decision.weight,
+        model_fill.rotations,
+        model_fill.root_positions,
+        spline_fill.rotations,
+        spline_fill.root_positions,
+    )
+    return replace(spline_fill, rotations=rot, root_positions=root)
+
+
+def spline_fill(spline, motion: Motion, keys, joint_keys=None) -> Motion:
+    """The spline's fill of a shot; with partial keys (``joint_keys``, (K, J + 1)) through the
+    full keys, then each partial key's keyed channels matched as the model matches them
+    (:func:`pipeline.infer.post.match_keys`), so both fills hold the same keys."""
+    keys = np.asarray(keys, np.int64)
+    if joint_keys is None or np.asarray(joint_keys, bool).all():
+        return spline.fill(motion, np.unique(keys))
+    from pipeline.infer.post import match_keys
+
+    mask = np.asarray(joint_keys, bool)
+    out = spline.fill(motion, keys[mask.all(axis=1)])
+    q, r = match_keys(
+        out.rotations[None],
+        out.root_positions[None],
+        motion.rotations[keys][None],
+        motion.root_positions[keys][None],
+        keys,
+        mask,
+    )
+    return replace(out, rotations=np.asarray(q[0]), root_positions=np.asarray(r[0]))
+
+
+class TrustedInbetweener:
+    """A model that checks itself against the spline on every shot before filling it.
+
+    ``trust``: ``"auto"`` (probe, then the model, the spline or a blend), ``"model"`` or
+    ``"spline"`` (no probes: that one's fill). Same ``fill`` interface, skeleton, frame rate,
+    name and hash as ``model``; ``last_decision`` is the :class:`TrustDecision` of the latest
+    ``fill`` (``.to_json()`` for a layer attribute).
+    """
+
+    def __init__(self, model, spline=None, trust: str = "auto"):
+        if trust not in TRUST_MODES:
+            raise ValueError(f"unknown trust {trust!r} (one of {', '.join(TRUST_MODES)})")
+        if spline is None:
+            from pipeline.infer.spline import SplineInbetweener
+
+            spline = SplineInbetweener(model.skeleton)
+        self.model, self.spline, self.trust = model, spline, trust
+        self.name = model.name
+        self.model_hash = model.model_hash
+        self.fps = model.fps
+        self.skeleton = model.skeleton
+        caps = getattr(model, "capabilities", None)
+        if caps is not None:
+            # One shot at a time (no fill_batch), on the model's skeleton.
+            fields = {k: False for k in ("batch", "any_rig") if hasattr(caps, k)}
+            self.capabilities = replace(caps, **fields)
+        self.last_decision: TrustDecision | None = None
+
+    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, **kw) -> Motion:
+        keys = np.asarray(keys, np.int64)
+        extra = dict(kw)
+        if joint_keys is not None:
+            extra["joint_keys"] = joint_keys
+        if dna is not None:
+            extra["dna"] = dna
+        full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
+        if self.trust == "model":
+            d = TrustDecision(
+                "model", 1.0, None, None, [], "trust=model: the model, unchecked", None, "model"
+            )
+        elif self.trust == "spline":
+            d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
+        else:
+            d = decide(self.model, self.spline, motion, full)
+        m = self.model.fill(motion, keys, seed=seed, **extra) if d.weight > 0.0 else None
+        s = spline_fill(self.spline, motion, keys, joint_keys) if d.weight < 1.0 else None
+        self.last_decision = d
+        return apply(d, m, s)
+
+
+def trusted(inbetweener, trust: str = "auto"):
+    """``inbetweener`` wrapped in a :class:`TrustedInbetweener` when it is a network (what the
+    fill layer calls once, on what ``load_inbetweener`` gave it); the spline and interpolation
+    (hash ``"none"``) come back as they are: they have nothing to decide."""
+    if isinstance(inbetweener, TrustedInbetweener) or getattr(inbetweener, "model_hash", "none") == "none":
+        return inbetweener
+    return TrustedInbetweener(inbetweener, trust=trust)
