@@ -37,8 +37,25 @@ def register(app: typer.Typer) -> None:
             "up axis, units, extra joints), filled through USD; --limit clips (default 8).",
         ),
         keys_every: int = typer.Option(10, "--keys-every", help="Key spacing of the --rig-variants shots."),
+        speed: bool = typer.Option(
+            False,
+            "--speed",
+            help="Fill speed: a 4096-frame fill of the model (--methods, default 'default') against "
+            "the core's sgemm peak (pipeline/bench/speed.py; TWEEN_SPEED_FRAMES, TWEEN_SPEED_REPEATS).",
+        ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
+        if speed:
+            import os
+
+            from pipeline.bench.speed import run_speed
+
+            picked = [m.strip() for m in methods.split(",")]
+            picked = [m for m in picked if m and m not in ("zero", "interp", "model")]
+            frames = int(os.environ.get("TWEEN_SPEED_FRAMES", "4096"))
+            repeats = int(os.environ.get("TWEEN_SPEED_REPEATS", "5"))
+            typer.echo(run_speed(picked[0] if picked else "default", frames, repeats, out))
+            return
         from pipeline.bench.run import run_bench
 
         names = [m.strip() for m in methods.split(",") if m.strip()]
