@@ -78,8 +78,13 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
             out_root = out_root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
     out_rot = batch_quat_mul(batch_rotvec_to_quat(corr), batch_quat_normalize(rot))
 
+    unique = len(np.unique(keys)) == K
+
     def put_keys(out_rot):
         # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
+        if unique:  # (all at once; with a key given twice the last one wins, as in the loop)
+            out_rot[:, keys] = np.where(mask[None, :, :J, None], key_rot, out_rot[:, keys])
+            return
         for i, k in enumerate(keys):
             out_rot[:, k, mask[i, :J]] = key_rot[:, i, mask[i, :J]]
 
@@ -193,7 +198,13 @@ def lock_feet(
     keys = np.asarray(keys)
     ankles = [leg[2] for leg in legs]
     gq, gp = fk(rot.astype(np.float64), root, skeleton.parents, skeleton.offsets, joints=ankles)
-    dist_key = np.min(np.abs(np.arange(N)[:, None] - keys[None]), axis=1)
+    # Frames to the nearest key (the keys on either side of each frame; keys sorted).
+    order = np.sort(keys)
+    at = np.searchsorted(order, np.arange(N))
+    dist_key = np.minimum(
+        np.abs(np.arange(N) - order[np.clip(at, 0, len(order) - 1)]),
+        np.abs(np.arange(N) - order[np.clip(at - 1, 0, len(order) - 1)]),
+    )
     key_fade = np.clip(dist_key / ramp, 0, 1)
     outside = np.zeros(N, bool)
     outside[: keys[0]] = True

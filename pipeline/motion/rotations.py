@@ -257,21 +257,25 @@ def batch_matrix_to_quat(m: np.ndarray) -> np.ndarray:
     largest of the diagonal and the trace picks the formula, so the same sign comes out).
     Not for matrices that scipy would first orthogonalise by SVD or reject (det <= 0)."""
     m = np.asarray(m, np.float64)
-    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
-    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
-    tr = m00 + m11 + m22
-    choice = np.argmax(np.stack([m00, m11, m22, tr], -1), axis=-1)
-    cases = (
-        (1 - tr + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
-        (m10 + m01, 1 - tr + 2 * m11, m21 + m12, m02 - m20),
-        (m20 + m02, m21 + m12, 1 - tr + 2 * m22, m10 - m01),
-        (m21 - m12, m02 - m20, m10 - m01, 1 + tr),
-    )
-    q = np.empty(m.shape[:-2] + (4,))
-    for c in range(4):
-        q[..., c] = np.choose(choice, [case[c] for case in cases])
-    return batch_quat_normalize(q)
+    lead = m.shape[:-2]
+    m = m.reshape(-1, 9)
+    tr = m[:, 0] + m[:, 4] + m[:, 8]
+    choice = np.argmax(np.stack([m[:, 0], m[:, 4], m[:, 8], tr], -1), axis=-1)
+    q = np.empty((len(m), 4))
+    for c in np.unique(choice):  # each case on its own rows (mostly the trace's)
+        rows = np.flatnonzero(choice == c)
+        mc, t = m[rows].T, tr[rows]
+        m00, m01, m02, m10, m11, m12, m20, m21, m22 = mc
+        q[rows] = np.stack(
+            (
+                (1 - t + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
+                (m10 + m01, 1 - t + 2 * m11, m21 + m12, m02 - m20),
+                (m20 + m02, m21 + m12, 1 - t + 2 * m22, m10 - m01),
+                (m21 - m12, m02 - m20, m10 - m01, 1 + t),
+            )[c],
+            -1,
+        )
+    return batch_quat_normalize(q).reshape(lead + (4,))
 
 
 def batch_quat_continuity(q: np.ndarray, axis: int = 0) -> np.ndarray:
