@@ -245,7 +245,10 @@ def build_features(
     if noise_schedule:
         latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
-    key_rot = np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)  # the nearest key's pose
+    if (nearest[:, :J] == nearest[:, :1]).all():  # the nearest key's pose (one key set: a gather)
+        key_rot = crot[:, nearest[:, 0]]
+    else:
+        key_rot = np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)
     feats = np.concatenate(
         [
             batch_quat_to_6d(irot).reshape(B, N, J * 6),

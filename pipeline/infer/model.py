@@ -32,7 +32,7 @@ from pipeline.infer.features import (
 )
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import batch_matrix_to_quat, quat_normalize, sixd_to_matrix, slerp_pairs
+from pipeline.motion.rotations import batch_matrix_to_quat, batch_sixd_to_matrix, quat_normalize, slerp_pairs
 
 # Fills up to CHUNK_FRAMES model frames (4.5 min at 30 fps) run as one window, exactly as
 # they always did; longer ones go through windows of about CHUNK_CORE frames each (plus the
@@ -414,9 +414,11 @@ class OnnxInbetweener:
         if euler:
             ang = np.pi * np.tanh(o[..., :R].reshape(-1, 3).astype(np.float64))
             delta = Rotation.from_euler(EULER_ORDER, ang).as_matrix().reshape(B, -1, J, 3, 3)
-            mats = sixd_to_matrix(base[..., :J6].reshape(B, -1, J, 6).astype(np.float64)) @ delta
+            mats = batch_sixd_to_matrix(base[..., :J6].reshape(B, -1, J, 6).astype(np.float64)) @ delta
         else:
-            mats = sixd_to_matrix((base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64))
+            mats = batch_sixd_to_matrix(
+                (base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64)
+            )
         q = batch_matrix_to_quat(mats)
         croot = (base[..., J6:] + o[..., R : R + 3]).astype(np.float64) * ROOT_SCALE
         contacts = _sigmoid(o[..., R + 3 : R + 7])

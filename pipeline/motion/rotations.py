@@ -246,9 +246,36 @@ def batch_quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def batch_quat_to_6d(q: np.ndarray) -> np.ndarray:
-    """``quat_to_6d`` (the first two matrix columns) without the scipy round trip."""
-    m = batch_quat_to_matrix(q)
-    return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+    """``quat_to_6d`` (the first two matrix columns) without the scipy round trip: the six
+    entries of :func:`batch_quat_to_matrix` it keeps, by the same formulas."""
+    q = batch_quat_normalize(q)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    out = np.empty(q.shape[:-1] + (6,))
+    out[..., 0] = x2 - y2 - z2 + w2  # m00
+    out[..., 1] = 2 * (x * y + z * w)  # m10
+    out[..., 2] = 2 * (x * z - y * w)  # m20
+    out[..., 3] = 2 * (x * y - z * w)  # m01
+    out[..., 4] = -x2 + y2 - z2 + w2  # m11
+    out[..., 5] = 2 * (y * z + x * w)  # m21
+    return out
+
+
+def batch_sixd_to_matrix(d6: np.ndarray) -> np.ndarray:
+    """:func:`sixd_to_matrix`, bitwise the same, with its norms, dot and cross product
+    written out per component."""
+    d6 = np.asarray(d6)
+    a1, a2 = d6[..., :3], d6[..., 3:]
+    b1 = a1 / np.sqrt(_dot(a1, a1))[..., None]
+    b2 = a2 - _dot(b1, a2)[..., None] * b1
+    b2 = b2 / np.sqrt(_dot(b2, b2))[..., None]
+    m = np.empty(d6.shape[:-1] + (3, 3), np.result_type(d6, np.float32))
+    m[..., :, 0] = b1
+    m[..., :, 1] = b2
+    m[..., 0, 2] = b1[..., 1] * b2[..., 2] - b1[..., 2] * b2[..., 1]
+    m[..., 1, 2] = b1[..., 2] * b2[..., 0] - b1[..., 0] * b2[..., 2]
+    m[..., 2, 2] = b1[..., 0] * b2[..., 1] - b1[..., 1] * b2[..., 0]
+    return m
 
 
 def batch_matrix_to_quat(m: np.ndarray) -> np.ndarray:
