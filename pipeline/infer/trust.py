@@ -27,7 +27,7 @@ linearly and every joint's local rotation by SLERP (:func:`apply`). Keys stay bi
 
 :class:`TrustedInbetweener` wraps a model in the same ``fill`` interface and keeps
 ``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record.
-The constants were tuned on train-split windows (``pipeline/bench/trust.py``, docs/trust.md).
+How the constants were chosen, and what they give on the benchmark: docs/trust.md.
 """
 
 from __future__ import annotations

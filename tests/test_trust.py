@@ -1,0 +1,194 @@
+"""The trusted fill (pipeline/infer/trust.py): probes from the keys, the decision, overrides,
+blends, exact keys, JSON decisions and the cost bound."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pipeline.data.skeletons import bandai_skeleton
+from pipeline.infer import trust
+from pipeline.infer.spline import SplineInbetweener
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.clip import Motion
+
+SKEL = bandai_skeleton()
+PROTOCOL_KEYS = np.r_[np.arange(10), 40]  # 10 context frames, a 30-frame transition
+
+
+class StandIn:
+    """A model stand-in with the batch interface; counts its calls and the frames it fills.
+
+    ``mode``: "oracle" returns its input (the test passes the true motion in every frame, so
+    it is exact at the left-out keys); "noise" returns random poses between the keys."""
+
+    name, model_hash, fps = "stand-in", "stand-in-hash", 30.0
+
+    def __init__(self, mode: str, seed: int = 0):
+        self.mode, self.skeleton = mode, SKEL
+        self.rng = np.random.default_rng(seed)
+        self.calls, self.frames = 0, []
+
+    def fill_batch(self, rot, root, keys):
+        self.calls += 1
+        self.frames.append(rot.shape[1])
+        rot, root = np.array(rot), np.array(root)
+        if self.mode == "noise":
+            free = np.setdiff1d(np.arange(rot.shape[1]), keys)
+            n = rot.shape[0] * len(free) * rot.shape[2]
+            q = Rotation.random(n, random_state=int(self.rng.integers(1 << 31))).as_quat()
+            rot[:, free] = q.reshape(rot.shape[0], len(free), rot.shape[2], 4)
+            root[:, free] += self.rng.normal(scale=20.0, size=root[:, free].shape)
+        return rot.astype(np.float32), root.astype(np.float32)
+
+    def fill(self, motion, keys, seed=0, **kw):
+        r, p = self.fill_batch(motion.rotations[None], motion.root_positions[None], np.asarray(keys))
+        return replace(motion, rotations=r[0], root_positions=p[0])
+
+
+@pytest.fixture(scope="module")
+def walk(bandai_clip) -> Motion:
+    m = read_bvh(bandai_clip).continuous().slice(100, 141)
+    return Motion(SKEL, m.rotations, m.root_positions, 30.0)
+
+
+def keys_equal(out: Motion, motion: Motion, keys) -> bool:
+    return np.array_equal(out.rotations[keys], motion.rotations[keys]) and np.array_equal(
+        out.root_positions[keys], motion.root_positions[keys]
+    )
+
+
+def test_probe_plan_leaves_interior_keys_out_in_local_windows():
+    for keys in (PROTOCOL_KEYS, np.r_[np.arange(10), 15], np.arange(0, 3000, 10), np.array([0, 17, 40])):
+        probes = trust.probe_plan(keys)
+        assert 1 <= len(probes) <= trust.MAX_PROBES
+        for p in probes:
+            assert set(p.kept).isdisjoint(p.left_out) and set(p.kept) | set(p.left_out) <= set(keys.tolist())
+            assert keys[0] not in p.left_out and keys[-1] not in p.left_out
+            assert p.kept[0] < p.left_out[0] and p.left_out[-1] < p.kept[-1]
+            assert p.lo == p.kept[0] and p.hi == p.kept[-1]
+            assert p.hi - p.lo <= 3 * p.gap + 3  # local: no further than the hole's gap each side
+            assert p.gap >= trust.MIN_GAP
+    # The protocol's layout: holes in the context run, and the context's end joined to the gap.
+    kinds = [p.kind for p in trust.probe_plan(PROTOCOL_KEYS)]
+    assert kinds.count("run") == 3 and kinds.count("gap") == 1
+    assert trust.probe_plan([0, 30]) == []
+
+
+def test_cost_bound_probe_count_and_window_size(walk):
+    long = Motion(SKEL, np.repeat(walk.rotations, 60, 0), np.repeat(walk.root_positions, 60, 0), 30.0)
+    keys = np.arange(0, len(long), 8)
+    model = StandIn("oracle")
+    d = trust.decide(model, SplineInbetweener(), long, keys)
+    assert model.calls == len(d.probes) <= trust.MAX_PROBES
+    assert max(model.frames) <= 3 * 15 + 3  # local windows, not the 2,460-frame shot
+
+
+def test_picks_the_model_that_fills_well_and_the_spline_over_garbage(walk):
+    spline = SplineInbetweener()
+    good = trust.decide(StandIn("oracle"), spline, walk, PROTOCOL_KEYS)
+    assert good.choice == "model" and good.weight == 1.0
+    assert good.model_error_cm < 1e-6 < good.spline_error_cm
+    bad = trust.decide(StandIn("noise"), spline, walk, PROTOCOL_KEYS)
+    assert bad.choice == "spline" and bad.weight == 0.0
+    assert bad.model_error_cm > 10 * bad.spline_error_cm
+    assert len(bad.probes) == len(trust.probe_plan(PROTOCOL_KEYS)) and bad.reason
+
+
+def test_trusted_fill_follows_the_decision_and_keeps_keys_bitwise(walk):
+    spline = SplineInbetweener()
+    for mode, choice in (("oracle", "model"), ("noise", "spline")):
+        model = StandIn(mode)
+        inb = trust.TrustedInbetweener(model, spline)
+        out = inb.fill(walk, PROTOCOL_KEYS)
+        assert inb.last_decision.choice == choice
+        assert keys_equal(out, walk, PROTOCOL_KEYS)
+        if choice == "spline":
+            ref = spline.fill(walk, PROTOCOL_KEYS)
+            assert np.array_equal(out.rotations, ref.rotations)
+    assert inb.name == "stand-in" and inb.model_hash == "stand-in-hash" and inb.skeleton is SKEL
+
+
+def test_overrides_run_no_probe(walk):
+    spline = SplineInbetweener()
+    model = StandIn("noise", seed=3)
+    out = trust.TrustedInbetweener(model, spline, trust="model").fill(walk, PROTOCOL_KEYS)
+    assert model.calls == 1  # the fill itself, no probes
+    ref = StandIn("noise", seed=3).fill(walk, PROTOCOL_KEYS)
+    assert np.array_equal(out.rotations, ref.rotations)
+    model = StandIn("oracle")
+    inb = trust.TrustedInbetweener(model, spline, trust="spline")
+    out = inb.fill(walk, PROTOCOL_KEYS)
+    assert model.calls == 0 and inb.last_decision.choice == "spline" and inb.last_decision.weight == 0.0
+    assert np.array_equal(out.rotations, spline.fill(walk, PROTOCOL_KEYS).rotations)
+    with pytest.raises(ValueError, match="unknown trust"):
+        trust.TrustedInbetweener(model, spline, trust="maybe")
+
+
+def test_blend_weight_bounds_and_exact_keys(walk):
+    for score in np.linspace(-5, 5, 41):
+        assert 0.0 <= trust.weight_of(score) <= 1.0
+    assert trust.weight_of(-5) == 0.0 and trust.weight_of(5) == 1.0
+    assert trust.weight_of(trust.THRESHOLD) == pytest.approx(0.5)
+    # One probe cannot flip the model: a single probe's score is shrunk toward the model.
+    assert trust.shrunk_score(np.array([trust.THRESHOLD - 0.3])) > trust.THRESHOLD - 0.3
+    spline = SplineInbetweener()
+    s = spline.fill(walk, PROTOCOL_KEYS)
+    m = StandIn("noise").fill(walk, PROTOCOL_KEYS)
+    ends = {}
+    for w in (0.0, 0.3, 0.7, 1.0):
+        d = trust.TrustDecision("blend", w, None, None)
+        out = trust.apply(d, m, s)
+        assert keys_equal(out, walk, PROTOCOL_KEYS)
+        assert np.allclose(np.linalg.norm(out.rotations, axis=-1), 1.0, atol=1e-5)
+        ends[w] = out
+    assert ends[0.0] is s and ends[1.0] is m
+    # The root moves linearly between the two fills.
+    mid = trust.apply(trust.TrustDecision("blend", 0.3, None, None), m, s).root_positions
+    assert np.allclose(mid, s.root_positions + 0.3 * (m.root_positions - s.root_positions), atol=1e-4)
+    with pytest.raises(ValueError):
+        trust.apply(trust.TrustDecision("spline", 0.0, None, None), m, None)
+
+
+def test_decisions_are_json(walk):
+    spline = SplineInbetweener()
+    for model, mode in ((StandIn("oracle"), "auto"), (StandIn("noise"), "auto"), (StandIn("noise"), "model")):
+        inb = trust.TrustedInbetweener(model, spline, trust=mode)
+        inb.fill(walk, PROTOCOL_KEYS)
+        text = json.dumps(inb.last_decision.to_json(), allow_nan=False)
+        back = json.loads(text)
+        assert back["choice"] in trust.CHOICES and 0.0 <= back["weight"] <= 1.0
+        assert isinstance(back["reason"], str) and back["trust"] == mode
+    two = trust.decide(StandIn("oracle"), spline, walk, [0, 40])  # two keys: nothing to probe
+    assert two.choice == "model" and two.probes == [] and json.dumps(two.to_json(), allow_nan=False)
+
+
+def test_partial_keys_reach_the_model_and_the_spline_holds_them(walk):
+    keys = np.array([0, 10, 20, 30, 40])
+    mask = np.ones((len(keys), len(SKEL) + 1), bool)
+    mask[2, 5:] = False  # key 20 sets the first five joints only
+    out = trust.spline_fill(SplineInbetweener(), walk, keys, mask)
+    assert np.allclose(out.rotations[20, :5], walk.rotations[20, :5], atol=1e-6)
+    assert keys_equal(out, walk, keys[[0, 1, 3, 4]])
+    d = trust.TrustedInbetweener(StandIn("noise"), SplineInbetweener())
+    d.fill(walk, keys, joint_keys=mask)
+    # Probes use the four full keys only.
+    assert all(20 not in p["left_out"] for p in d.last_decision.probes)
+
+
+def test_shipped_model_on_an_eval_walk_keeps_keys_and_records_its_decision(walk):
+    from pipeline.infer.api import load_inbetweener
+
+    model = load_inbetweener("default")
+    if getattr(model, "model_hash", "none") == "none":
+        pytest.skip("no shipped model")
+    inb = trust.trusted(model)
+    assert isinstance(inb, trust.TrustedInbetweener) and trust.trusted(inb) is inb
+    out = inb.fill(walk, PROTOCOL_KEYS)
+    d = inb.last_decision
+    assert keys_equal(out, walk, PROTOCOL_KEYS) and len(d.probes) == 4
+    assert d.choice == "model", d.reason  # an eval walk: the network's own ground
+    json.dumps(d.to_json(), allow_nan=False)
+    assert trust.trusted(SplineInbetweener()).name == "spline"
