@@ -12,7 +12,7 @@ setup(
     package_data={
         "usd_schemas": ["*.usda", "*/resources/*.json", "*/resources/*.usda", "*/*.usda"],
         "pipeline.data": ["*.json"],
-        "pipeline.usd": ["*.json"],
+        "pipeline.adapt": ["*.json"],
     },
     include_package_data=True,
     install_requires=[
@@ -36,5 +36,17 @@ setup(
         "train": ["torch==2.13.0", "roma>=1.5", "onnx>=1.16", "onnxscript>=0.2"],
         "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3"],
     },
-    entry_points={"console_scripts": ["tween=pipeline.cli:main"]},
+    entry_points={
+        "console_scripts": ["tween=pipeline.cli:main"],
+        # The CLI's commands: each package registers its own, so the core imports neither
+        # the farm nor the renderer (pipeline/cli.py reads this group).
+        "tween.commands": [
+            "bench = pipeline.bench.cli:register",
+            "fill = pipeline.fill.cli:register",
+            "train = pipeline.train.cli:register",
+            "farm = workers.cli:register",
+            "render = render.cli:register",
+            "rig = pipeline.rig.cli:register",
+        ],
+    },
 )

@@ -31,18 +31,23 @@ def _root() -> None:
     """Neural motion in-betweening for UsdSkel shots."""
 
 
-def _register() -> None:
-    # Command modules import their heavy dependencies inside the commands, so `tween --help`
-    # and `tween fill` never import torch.
-    from pipeline.bench import cli as bench_cli
-    from pipeline.rig import cli as rig_cli
-    from pipeline.train import cli as train_cli
-    from pipeline.usd import cli as usd_cli
-    from render import cli as render_cli
-    from workers import cli as workers_cli
+#: The entry-point group whose ``register(app)`` functions add the commands (setup.py).
+COMMANDS = "tween.commands"
 
-    for mod in (bench_cli, usd_cli, train_cli, workers_cli, render_cli, rig_cli):
-        mod.register(app)
+
+def _register() -> None:
+    # Each package's command module is named in setup.py's entry points, so this core
+    # imports neither the farm nor the renderer; the modules import their heavy
+    # dependencies inside the commands (`tween --help` and `tween fill` never import torch).
+    from importlib.metadata import entry_points
+
+    found = {ep.name: ep for ep in entry_points(group=COMMANDS)}
+    if not found:
+        raise SystemExit("tween: error: no commands installed (pip install -e . registers them)")
+    for name in ("bench", "fill", "train", "farm", "render", "rig", *sorted(found)):
+        ep = found.pop(name, None)
+        if ep is not None:
+            ep.load()(app)
 
 
 _register()

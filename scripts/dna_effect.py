@@ -23,7 +23,7 @@ import json
 import numpy as np
 
 from pipeline.bench import metrics
-from pipeline.bench.protocol import (
+from pipeline.data.protocol import (
     CONTEXT,
     TEST_STRIDE,
     TEST_WINDOW,

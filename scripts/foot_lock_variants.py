@@ -15,7 +15,7 @@ import sys
 import numpy as np
 
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.bench.protocol import CONTEXT, global_positions, position_stats
+from pipeline.data.protocol import CONTEXT, global_positions, position_stats
 from pipeline.bench.ratios import cell, ratio_cell
 from pipeline.bench.run import evaluate
 from pipeline.bench.selection import EVERY, train_windows

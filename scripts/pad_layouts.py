@@ -19,7 +19,7 @@ import sys
 
 from pipeline.bench.heldout import cmu_windows
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.bench.protocol import position_stats
+from pipeline.data.protocol import position_stats
 from pipeline.bench.ratios import cell, ratio_cell
 from pipeline.bench.run import evaluate, test_windows
 from pipeline.bench.selection import EVERY, train_windows

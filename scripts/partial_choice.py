@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pipeline.bench.methods import inbetweener_method, interpolation
 from pipeline.bench.partial import evaluate_partial, fill_interp, json_ready, markdown, model_fill
-from pipeline.bench.protocol import position_stats
+from pipeline.data.protocol import position_stats
 from pipeline.bench.ratios import cell, ratios
 from pipeline.bench.run import evaluate
 from pipeline.bench.selection import train_windows

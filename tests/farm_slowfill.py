@@ -7,7 +7,7 @@ which host to kill) and then sleeps ``TWEEN_TEST_FILL_DELAY`` seconds before the
 import os
 import time
 
-from pipeline import fill
+from pipeline.fill import api as fill
 
 _real_fill_take = fill.fill_take
 

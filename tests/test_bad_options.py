@@ -214,7 +214,7 @@ def test_redact_url():
 
 def test_shot_fixture_is_valid(tmp_path, shot_bytes):
     """The cases fail on their options, not on the shot: the same shot opens and plans."""
-    from pipeline.usd.plan import make_plan
+    from pipeline.fill.plan import make_plan
 
     shot = tmp_path / "s.usda"
     shot.write_bytes(shot_bytes)

@@ -434,7 +434,7 @@ def _bounded(fn):
 @pytest.mark.parametrize("name,keys,range_,match", OPTIONS, ids=[c[0] for c in OPTIONS])
 def test_bad_keys_and_range(name, keys, range_, match, base, tmp_path, capfd):
     """Through fill_shot / the CLI. Options that are bad whatever the shot are refused by
-    FillOptions.check() before the shot is opened (pipeline/fill.py): that line names the
+    FillOptions.check() before the shot is opened (pipeline/fill/api.py): that line names the
     option, not the shot; a check against the stage names both."""
     shot, digest, listing = _prepare(tmp_path, base, None)
     if name in CLI:
@@ -451,7 +451,7 @@ def test_bad_keys_and_range(name, keys, range_, match, base, tmp_path, capfd):
 def test_bad_keys_and_range_against_the_stage(name, keys, range_, match, base, tmp_path, capfd):
     """make_plan parses the options with the stage at hand: every line names the shot and
     the option, ranges are checked against the stage range before they are expanded."""
-    from pipeline.usd.plan import make_plan
+    from pipeline.fill.plan import make_plan
 
     shot, digest, listing = _prepare(tmp_path, base, None)
 

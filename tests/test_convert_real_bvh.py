@@ -264,7 +264,7 @@ def test_joint_names_are_deterministic_unique_and_keep_valid_names():
 
 def test_rest_pose_falls_back_when_reference_pose_is_not_finite(tmp_path, monkeypatch):
     """Whatever the reference pose does with zero-length bones, the rest pose is finite."""
-    import pipeline.usd.retarget as retarget
+    import pipeline.adapt.retarget as retarget
     from pipeline.motion.bvh import read_bvh
     from pipeline.usd.convert import rest_pose
 

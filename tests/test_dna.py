@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.bench.protocol import yaw_quat
+from pipeline.data.protocol import yaw_quat
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.dna import dna_poses, n_dna_channels, representative_frames
 from pipeline.motion.bvh import read_bvh
@@ -78,7 +78,7 @@ def test_reference_take_reads_bvh_and_usd_and_names_a_bad_file(bandai_clip, tmp_
     from pipeline.errors import ShotError
     from pipeline.motion.clip import Motion
     from pipeline.usd.convert import write_shot
-    from pipeline.usd.reference import reference_take
+    from pipeline.fill.reference import reference_take
 
     take = reference_take(bandai_clip)
     assert len(take.skeleton) == len(SKEL) and len(take) > 30

@@ -38,7 +38,7 @@ import os
 if os.environ.get("TWEEN_TEST_SLOW_FILL"):
     import farm_slowfill  # noqa: F401
 if os.environ.get("TWEEN_TEST_FAIL_TAKE"):
-    from pipeline import fill as _f
+    from pipeline.fill import api as _f
     from pipeline.errors import ShotError
     def _fail(shot, *a, **k):
         raise ShotError(shot, "refused by the test")

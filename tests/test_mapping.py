@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from usd_fixtures import CMU_CLIP, ELEPHANT
 
-from pipeline.usd.conventions import CONVENTIONS
-from pipeline.usd.mapping import (
+from pipeline.adapt.conventions import CONVENTIONS
+from pipeline.adapt.mapping import (
     LIMBS,
     MODEL_JOINTS,
     REQUIRED,
@@ -374,7 +374,7 @@ def test_chain_and_shared_joint_checks():
 
 
 def test_conventions_are_well_formed():
-    from pipeline.usd.mapping import _compiled
+    from pipeline.adapt.mapping import _compiled
 
     centre = {m for m in MODEL_JOINTS if m.rpartition("_")[2] not in "LR"}
     for name, c in CONVENTIONS.items():

@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.bench import metrics
 from pipeline.bench.methods import interpolation, zero_velocity
-from pipeline.bench.protocol import facing, global_positions, normalize_windows, window_starts
+from pipeline.data.protocol import facing, global_positions, normalize_windows, window_starts
 from pipeline.data.skeletons import bandai_skeleton
 
 RNG = np.random.default_rng(0)

@@ -76,7 +76,7 @@ def test_canonical_frame_puts_first_key_at_origin_facing_x():
     keys = np.array([0, 20, 40])
     _, ctx = build_features(m.rotations[None, :41], m.root_positions[None, :41], keys, SKEL)
     assert np.allclose(ctx["croot"][0, 0, [0, 2]], 0, atol=1e-4)
-    from pipeline.bench.protocol import facing
+    from pipeline.data.protocol import facing
 
     _, pos = fk(ctx["crot"][:, 0], ctx["croot"][:, 0], SKEL.parents, SKEL.offsets)
     assert np.allclose(facing(pos, SKEL)[0], [1, 0, 0], atol=1e-5)

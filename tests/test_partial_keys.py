@@ -293,8 +293,8 @@ def test_usd_keyed_joints_make_per_joint_partial_keys(tmp_path):
     from usd_fixtures import ANIM, FILLED, samples
 
     from pipeline.fill import FillOptions, fill_shot
-    from pipeline.usd.plan import make_plan
-    from pipeline.usd.solve import key_channels, rig_key_channels
+    from pipeline.fill.plan import make_plan
+    from pipeline.fill.solve import key_channels, rig_key_channels
 
     legs = [n for n in SKEL.names if "Leg" in n or "Foot" in n or "Toes" in n]
     shot, tokens = _shot_with_keyed_joints(tmp_path, {1031.0: ["Hips", *legs], 1041.0: []})
@@ -344,8 +344,8 @@ def test_retarget_keys_a_model_joint_only_when_every_rig_joint_it_reads_is_keyed
     sys.path.insert(0, str(Path(__file__).parent))
     from usd_fixtures import cmu_shot
 
-    from pipeline.usd.plan import make_plan
-    from pipeline.usd.retarget import MODEL_JOINTS
+    from pipeline.fill.plan import make_plan
+    from pipeline.adapt.retarget import MODEL_JOINTS
 
     cp = make_plan(str(cmu_shot(tmp_path / "cmu.usda")), None, None, None, 30.0).chars[0]
     rt, parents = cp.retarget, cp.char.parents

@@ -11,7 +11,7 @@ import pytest
 from test_rig_store import NAMES, OFFSETS, PARENTS, write_rig
 from usd_fixtures import ELEPHANT, bandai_shot, tree_hashes
 
-from pipeline import fill
+from pipeline.fill import api as fill
 from pipeline.errors import TweenError
 from pipeline.fill import FillOptions, fill_shot, validate_shot
 from pipeline.motion.clip import Motion
@@ -268,7 +268,7 @@ def test_skeleton_space_agrees_with_the_rig_source(tmp_path):
     """The fill reads a character's up axis and unit exactly as training read the clip."""
     from pipeline.rig.source import load_rig_source
     from pipeline.usd.read import read_shot
-    from pipeline.usd.rigmap import skeleton_space
+    from pipeline.adapt.rigmap import skeleton_space
 
     z = creature_shot(tmp_path / "z.usda", T=5, up_axis="Z")  # Z-up stage, SkelRoot rotated +90° about X
     for path, skel in ((z, None), (ELEPHANT, "/SoC_ElephantWithMonochord/Object/Elefant/_skel")):
@@ -308,7 +308,7 @@ def test_retrained_model_is_reloaded_and_a_broken_one_is_one_line(tmp_path, mode
 def test_rigmap_up_axis_and_units_round_trip():
     from pipeline.motion.rotations import quat_apply
     from pipeline.rig.store import RigModelInfo
-    from pipeline.usd.rigmap import RigMap
+    from pipeline.adapt.rigmap import RigMap
 
     info = RigModelInfo(Path("."), "m", "h", 30.0, NAMES, np.array(PARENTS), OFFSETS, "Y", 0.01, {})
     from pipeline.motion.rotations import matrix_to_quat, quat_mul

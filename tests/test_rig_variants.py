@@ -51,9 +51,9 @@ def test_the_canonical_reference_alone_was_not_rig_independent(clip, tmp_path):
     retargeter did before) changes what the network sees; the model-frames check is what
     removes the difference."""
     from pipeline.motion.rotations import quat_inv, quat_mul
-    from pipeline.usd.plan import make_plan
+    from pipeline.fill.plan import make_plan
     from pipeline.usd.read import anim_values, to_skeleton_order
-    from pipeline.usd.retarget import reference_pose
+    from pipeline.adapt.retarget import reference_pose
 
     # The rest pose older conversions wrote: the canonical pose of the clip's first frame.
     rig = rv.variant(rv.model_rig_of(clip), "names:mixamo")

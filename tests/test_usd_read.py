@@ -8,7 +8,7 @@ from usd_fixtures import CMU_CLIP, ELEPHANT, FIGURE, SIMPLE
 
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.bvh import read_bvh
-from pipeline.usd.mapping import MODEL_JOINTS, MappingError, map_joints
+from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.usd.read import anim_values, read_shot
 
 
@@ -76,7 +76,7 @@ def test_mapping_override_file(tmp_path):
                              "LowerArm_R": "arm_joint_R_2", "Hand_R": "arm_joint_R_3", "UpperLeg_L": "leg_joint_L_1",
                              "LowerLeg_L": "leg_joint_L_2", "Foot_L": "leg_joint_L_3", "UpperLeg_R": "leg_joint_R_1",
                              "LowerLeg_R": "leg_joint_R_2", "Foot_R": "leg_joint_R_3"}))  # fmt: skip
-    from pipeline.usd.mapping import load_override
+    from pipeline.adapt.mapping import load_override
 
     m = map_joints(c.joints, c.parents, load_override(f))
     assert c.names[m["Chest"]] == "torso_joint_3" and c.names[m["Neck"]] == "neck_joint_1"

@@ -12,10 +12,10 @@ from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
 from pipeline.motion.skeleton import Skeleton
-from pipeline.usd.mapping import map_joints
+from pipeline.adapt.mapping import map_joints
 from pipeline.usd.read import anim_values, read_shot
-from pipeline.usd.retarget import Retarget
-from pipeline.usd.solve import to_skeleton_order
+from pipeline.adapt.retarget import Retarget
+from pipeline.fill.solve import to_skeleton_order
 
 MIXAMO = {"Hips": "Hips", "Spine": "Spine", "Chest": "Spine2", "Neck": "Neck", "Head": "Head"}
 for _s, _side in (("L", "Left"), ("R", "Right")):
@@ -46,7 +46,7 @@ def test_rig_with_other_rest_orientations_units_and_up_axis_maps_exactly(tmp_pat
     m = Motion(rig, rot, src.root_positions * 0.01, 30, "reframed")
     path = write_shot(m, tmp_path / "rig.usda", keys_every=10, up_axis="Z")
     # Rest/bind pose: the model's own standing pose, on the rotated frames.
-    stand = json.loads(open("pipeline/usd/bandai_stand.json").read())["rotations_xyzw"]
+    stand = json.loads(open("pipeline/adapt/bandai_stand.json").read())["rotations_xyzw"]
     q_st = _reframe(np.array([stand[n] for n in sk.names]), sk.parents, R)
     stage = Usd.Stage.Open(str(path))
     skel = stage.GetPrimAtPath("/World/Character/Skel")

@@ -35,7 +35,7 @@ def thread_env(concurrency: int) -> dict[str, str]:
 
 def get_inbetweener(name: str = "default"):
     """The process's in-betweener for ``name``, loaded on first use and kept (pipeline.fill caches it)."""
-    from pipeline import fill
+    from pipeline.fill import api as fill
 
     return fill._model(name)
 

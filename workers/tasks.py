@@ -106,7 +106,7 @@ def _check(shot: str, opts: dict, job: dict) -> None:
 @app.task(name="tween.validate", base=FarmTask, bind=True)
 def validate(self, shot: str, opts: dict, job: dict) -> dict:
     """Refuses paths outside the shot roots, then checks the shot can be filled."""
-    from pipeline import fill
+    from pipeline.fill import api as fill
 
     with _sorted_errors(shot):
         _check(shot, opts, job)
@@ -117,7 +117,7 @@ def validate(self, shot: str, opts: dict, job: dict) -> dict:
 @app.task(name="tween.fill_take", base=FarmTask, bind=True)
 def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
     """Fills one take; returns the path of its .npz under the job's work folder."""
-    from pipeline import fill
+    from pipeline.fill import api as fill
 
     with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)
@@ -128,7 +128,7 @@ def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
 @app.task(name="tween.write_layer", base=FarmTask, bind=True)
 def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -> dict:
     """The chord body: writes the filled layer (and review layer) from every take."""
-    from pipeline import fill
+    from pipeline.fill import api as fill
 
     with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)

@@ -80,7 +80,7 @@ def register(app: typer.Typer) -> None:
 
         if partial_keys:
             from pipeline.bench.partial import run_partial_bench
-            from pipeline.bench.protocol import position_stats
+            from pipeline.data.protocol import position_stats
             from pipeline.bench.run import test_windows
             from pipeline.data.cache import load_split
 

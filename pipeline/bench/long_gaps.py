@@ -26,7 +26,7 @@ MIN_SECONDS = 10.0
 
 def cmu_on_model_skeleton(path: Path, fps: float = 30.0) -> Motion:
     """A CMU/iClone take retargeted onto the model skeleton via a converted USD shot."""
-    from pipeline.usd.reference import reference_take
+    from pipeline.fill.reference import reference_take
 
     return reference_take(path, fps)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.bench import metrics
-from pipeline.bench.protocol import CONTEXT, global_positions
+from pipeline.data.protocol import CONTEXT, global_positions
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import interpolate
 

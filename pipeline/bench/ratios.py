@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
-from pipeline.bench.protocol import TRANSITIONS
+from pipeline.data.protocol import TRANSITIONS
 
 #: The metrics of the card's ratio rows, in its column order.
 CARD_METRICS = ("L2P", "L2Q", "NPSS", "skate")

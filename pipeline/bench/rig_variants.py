@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
-from pipeline.usd.mapping import MODEL_JOINTS
+from pipeline.adapt.mapping import MODEL_JOINTS
 
 # Model joint → rig joint name, per convention (side written as {s}: L/R, or a word below).
 _LR = {"L": ("L", "l", "Left", "left"), "R": ("R", "r", "Right", "right")}
@@ -338,7 +338,7 @@ def network_input(shot: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
     """What the human model receives for the shot's one character at its keys: model-ordered
     local rotations (K, 21, 4), root positions (K, 3) in the canonical frame, and the
     reference the retargeter chose."""
-    from pipeline.usd.plan import make_plan
+    from pipeline.fill.plan import make_plan
     from pipeline.usd.read import anim_values, to_skeleton_order
 
     plan = make_plan(str(shot), None, None, None, 30.0)

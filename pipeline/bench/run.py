@@ -11,7 +11,7 @@ import numpy as np
 
 from pipeline.bench import metrics
 from pipeline.bench.methods import Method, resolve
-from pipeline.bench.protocol import (
+from pipeline.data.protocol import (
     CONTEXT,
     TEST_STRIDE,
     TEST_WINDOW,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.bench.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
+from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 
 #: Every how many train clips a window set takes one (the scripts' default).
 EVERY = 4

@@ -24,7 +24,7 @@ def n_dna_channels(n_joints: int) -> int:
 
 def dna_poses(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
     """(R, J, 4) local rotations and (R, 3) roots -> (3 (J − 1), R) network input."""
-    from pipeline.bench.protocol import facing_turn
+    from pipeline.data.protocol import facing_turn
 
     _, pos = fk(np.asarray(rot, np.float64), np.asarray(root, np.float64), skeleton.parents, skeleton.offsets)
     q = facing_turn(pos, skeleton)

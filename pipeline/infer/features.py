@@ -95,7 +95,7 @@ def key_neighbours(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def canonical_transform(rot_key: np.ndarray, root_key: np.ndarray, skeleton) -> tuple[np.ndarray, np.ndarray]:
     """(yaw quaternion (B, 4), offset (B, 3)) taking the given key pose to origin, facing +X."""
-    from pipeline.bench.protocol import facing_turn
+    from pipeline.data.protocol import facing_turn
 
     _, pos = fk(rot_key, root_key, skeleton.parents, skeleton.offsets)
     q = facing_turn(pos, skeleton)

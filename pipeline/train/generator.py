@@ -424,7 +424,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         print(f"resumed {ckpt} at step {step}", file=sys.stderr)
     pos_w = torch.ones(len(skel), 3)
     if cfg.pos_zscore:
-        from pipeline.bench.protocol import position_stats
+        from pipeline.data.protocol import position_stats
 
         # Per-coordinate weights 10 cm / std: a coordinate that varies little (a joint's
         # height) counts as much as its spread says, as in the benchmark's L2P.

@@ -21,7 +21,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401
 from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
-from pipeline.usd.mapping import MODEL_JOINTS, MappingError, map_joints
+from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 
 SOURCE_NAMES_ATTR = "tween:sourceJointNames"
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -68,7 +68,7 @@ def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     whose mapped joints sit on top of each other, like the CMU rig's zero-length
     ``LowerBack`` above ``Hips``, gives a reference pose that is not finite)."""
     from pipeline.data.skeletons import bandai_skeleton
-    from pipeline.usd.retarget import model_rest, reference_pose
+    from pipeline.adapt.retarget import model_rest, reference_pose
 
     skel = motion.skeleton
     local = motion.rotations[0].astype(np.float64)
@@ -79,7 +79,7 @@ def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     if skel.names == model.names and np.array_equal(skel.parents, model.parents):
         # The model skeleton itself: its own canonical T-pose, the same for every clip, so a
         # copy of the shot re-oriented or renamed by another tool still carries the model's
-        # frames in its rest pose (pipeline.usd.retarget.model_rest).
+        # frames in its rest pose (pipeline.adapt.retarget.model_rest).
         g = model_rest()
         local = np.array(
             [g[j] if q < 0 else quat_mul(quat_inv(g[q]), g[j]) for j, q in enumerate(skel.parents)]

@@ -1,6 +1,6 @@
 """Mapping a rig's joints onto the model skeleton's 21 joints.
 
-The rig's names are read against every naming convention in ``pipeline.usd.conventions``
+The rig's names are read against every naming convention in ``pipeline.adapt.conventions``
 (the model skeleton's own Bandai names, Character Creator, Mixamo, HumanIK, UE5 Mannequin,
 Rigify, DAZ/Poser, CMU, 3ds Max Biped), one data entry each; the convention that explains the
 most joints names them. Then a JSON override file ``{"<model joint>": "<rig joint name or
@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pipeline.usd.conventions import CONVENTIONS
+from pipeline.adapt.conventions import CONVENTIONS
 
 MODEL_JOINTS = (
     "Hips", "Spine", "Chest", "Neck", "Head",

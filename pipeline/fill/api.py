@@ -165,7 +165,7 @@ def _human(opts: FillOptions):
 
 
 def _plan(shot: str, opts: FillOptions, human):
-    from pipeline.usd.plan import RIG_AUTO, RIG_OFF, make_plan
+    from pipeline.fill.plan import RIG_AUTO, RIG_OFF, make_plan
 
     opts.check()
     rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
@@ -182,7 +182,7 @@ def dna_motion(opts: FillOptions, fps: float):
     from dataclasses import replace
 
     from pipeline.infer.dna import MAX_POSES, representative_frames
-    from pipeline.usd.reference import reference_take
+    from pipeline.fill.reference import reference_take
 
     if not 1 <= opts.dna_poses <= MAX_POSES:
         raise TweenError(f"dna_poses must be 1 to {MAX_POSES}, not {opts.dna_poses}")
@@ -262,7 +262,7 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
 
 def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     """Fills every character for take ``take`` (seed = opts.seed + take) into an .npz."""
-    from pipeline.usd.solve import fill_character
+    from pipeline.fill.solve import fill_character
 
     human = _human(opts)
     plan = _plan(shot, opts, human)

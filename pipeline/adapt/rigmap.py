@@ -42,7 +42,7 @@ def up_fix(src: str, dst: str) -> np.ndarray:
 
 
 class RigMap:
-    """Same interface as :class:`pipeline.usd.retarget.Retarget`: skeleton-ordered locals of
+    """Same interface as :class:`pipeline.adapt.retarget.Retarget`: skeleton-ordered locals of
     the character ↔ the rig model's joint order and space."""
 
     def __init__(self, char, info, perm: np.ndarray, up_axis: str, meters_per_unit: float):

@@ -1,7 +1,7 @@
 """Rig naming conventions the joint mapping reads without a mapping file, as plain data.
 
 Each entry of ``CONVENTIONS`` is one convention (the dict's order breaks ties, see
-``pipeline.usd.mapping``):
+``pipeline.adapt.mapping``):
 
 - ``label``: its name in messages.
 - ``prefixes``: what may precede every name (``mixamorig:``); a name matches with or without it.
