@@ -48,5 +48,17 @@ setup(
             "render = render.cli:register",
             "rig = pipeline.rig.cli:register",
         ],
+        # Model families by kind (pipeline.infer.api's registry): the in-betweener class of a
+        # model.json / rig.json kind, called with its folder; folderless ones under every name.
+        "tween.models": ["generator-onnx = pipeline.infer.model:OnnxInbetweener"],
+        "tween.rig_models": [
+            "rig-ganimator-onnx = pipeline.rig.infer:RigInbetweener",
+            "rig = pipeline.rig.infer:RigInbetweener",  # rig.json files written before kinds had names
+        ],
+        "tween.builtin_models": [
+            "interpolation = pipeline.infer.interp:InterpolationInbetweener",
+            "spline = pipeline.infer.spline:SplineInbetweener",
+        ],
+        "tween.model_aliases": ["interp = interpolation"],
     },
 )

@@ -4,11 +4,11 @@ import numpy as np
 from typer.testing import CliRunner
 from usd_fixtures import ANIM, BANDAI_CLIP, CMU_CLIP, bandai_shot
 
-from pipeline.motion.bvh import read_bvh
 from pipeline.adapt.mapping import map_joints
-from pipeline.usd.read import anim_values, read_shot
 from pipeline.adapt.retarget import Retarget
 from pipeline.fill.solve import to_skeleton_order
+from pipeline.motion.bvh import read_bvh
+from pipeline.usd.read import anim_values, read_shot
 
 
 def _motion_from_shot(path):

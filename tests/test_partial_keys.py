@@ -344,8 +344,8 @@ def test_retarget_keys_a_model_joint_only_when_every_rig_joint_it_reads_is_keyed
     sys.path.insert(0, str(Path(__file__).parent))
     from usd_fixtures import cmu_shot
 
-    from pipeline.fill.plan import make_plan
     from pipeline.adapt.retarget import MODEL_JOINTS
+    from pipeline.fill.plan import make_plan
 
     cp = make_plan(str(cmu_shot(tmp_path / "cmu.usda")), None, None, None, 30.0).chars[0]
     rt, parents = cp.retarget, cp.char.parents

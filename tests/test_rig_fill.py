@@ -11,9 +11,9 @@ import pytest
 from test_rig_store import NAMES, OFFSETS, PARENTS, write_rig
 from usd_fixtures import ELEPHANT, bandai_shot, tree_hashes
 
-from pipeline.fill import api as fill
 from pipeline.errors import TweenError
 from pipeline.fill import FillOptions, fill_shot, validate_shot
+from pipeline.fill import api as fill
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import euler_to_quat
 from pipeline.motion.skeleton import Skeleton
@@ -92,7 +92,7 @@ def models(tmp_path, monkeypatch):
     """An empty models root of its own (with the shipped human model linked in) and the fake rig model class."""
     root = tmp_path / "models"
     root.mkdir()
-    shipped = Path(fill.__file__).resolve().parents[1] / "models" / "default"
+    shipped = Path(fill.__file__).resolve().parents[2] / "models" / "default"
     if shipped.is_dir():
         (root / "default").symlink_to(shipped)
     monkeypatch.setenv("TWEEN_MODELS", str(root))
@@ -266,9 +266,9 @@ def test_forced_rig_model_by_folder_and_human_shot_unaffected(tmp_path, models):
 
 def test_skeleton_space_agrees_with_the_rig_source(tmp_path):
     """The fill reads a character's up axis and unit exactly as training read the clip."""
+    from pipeline.adapt.rigmap import skeleton_space
     from pipeline.rig.source import load_rig_source
     from pipeline.usd.read import read_shot
-    from pipeline.adapt.rigmap import skeleton_space
 
     z = creature_shot(tmp_path / "z.usda", T=5, up_axis="Z")  # Z-up stage, SkelRoot rotated +90° about X
     for path, skel in ((z, None), (ELEPHANT, "/SoC_ElephantWithMonochord/Object/Elefant/_skel")):
@@ -306,9 +306,9 @@ def test_retrained_model_is_reloaded_and_a_broken_one_is_one_line(tmp_path, mode
 
 
 def test_rigmap_up_axis_and_units_round_trip():
+    from pipeline.adapt.rigmap import RigMap
     from pipeline.motion.rotations import quat_apply
     from pipeline.rig.store import RigModelInfo
-    from pipeline.adapt.rigmap import RigMap
 
     info = RigModelInfo(Path("."), "m", "h", 30.0, NAMES, np.array(PARENTS), OFFSETS, "Y", 0.01, {})
     from pipeline.motion.rotations import matrix_to_quat, quat_mul
@@ -456,7 +456,7 @@ def test_shipped_elephant_model_fills_the_elephant(tmp_path, monkeypatch):
 
     monkeypatch.delenv("TWEEN_MODELS", raising=False)
     fill._MODELS.clear()
-    shipped = Path(fill.__file__).resolve().parents[1] / "models" / "elephant"
+    shipped = Path(fill.__file__).resolve().parents[2] / "models" / "elephant"
     info = read_rig_json(shipped)
     anim = "/SoC_ElephantWithMonochord/Object/Elefant/_anim"
     before = tree_hashes(ELEPHANT.parent)

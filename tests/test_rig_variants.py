@@ -50,10 +50,10 @@ def test_the_canonical_reference_alone_was_not_rig_independent(clip, tmp_path):
     """Mapping a renamed copy through the canonical reference of its rest pose (all the
     retargeter did before) changes what the network sees; the model-frames check is what
     removes the difference."""
-    from pipeline.motion.rotations import quat_inv, quat_mul
-    from pipeline.fill.plan import make_plan
-    from pipeline.usd.read import anim_values, to_skeleton_order
     from pipeline.adapt.retarget import reference_pose
+    from pipeline.fill.plan import make_plan
+    from pipeline.motion.rotations import quat_inv, quat_mul
+    from pipeline.usd.read import anim_values, to_skeleton_order
 
     # The rest pose older conversions wrote: the canonical pose of the clip's first frame.
     rig = rv.variant(rv.model_rig_of(clip), "names:mixamo")

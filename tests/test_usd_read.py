@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from usd_fixtures import CMU_CLIP, ELEPHANT, FIGURE, SIMPLE
 
+from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.bvh import read_bvh
-from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.usd.read import anim_values, read_shot
 
 

@@ -6,16 +6,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from usd_fixtures import BANDAI_CLIP, bandai_shot, cmu_shot, samples
 
+from pipeline.adapt.mapping import map_joints
+from pipeline.adapt.retarget import Retarget
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.fill import FillOptions, fill_shot, validate_shot
+from pipeline.fill.solve import to_skeleton_order
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
 from pipeline.motion.skeleton import Skeleton
-from pipeline.adapt.mapping import map_joints
 from pipeline.usd.read import anim_values, read_shot
-from pipeline.adapt.retarget import Retarget
-from pipeline.fill.solve import to_skeleton_order
 
 MIXAMO = {"Hips": "Hips", "Spine": "Spine", "Chest": "Spine2", "Neck": "Neck", "Head": "Head"}
 for _s, _side in (("L", "Left"), ("R", "Right")):

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.adapt.mapping import MODEL_JOINTS, MappingError
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.rotations import matrix_to_quat, quat_apply, quat_inv, quat_mul, quat_normalize
-from pipeline.adapt.mapping import MODEL_JOINTS, MappingError
 
 UP, LEFT, FWD = np.eye(3)[1], np.eye(3)[0], np.eye(3)[2]
 # Next mapped joint along each model bone (first one present wins); absent: inherit the parent's correction.

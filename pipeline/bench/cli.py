@@ -80,9 +80,9 @@ def register(app: typer.Typer) -> None:
 
         if partial_keys:
             from pipeline.bench.partial import run_partial_bench
-            from pipeline.data.protocol import position_stats
             from pipeline.bench.run import test_windows
             from pipeline.data.cache import load_split
+            from pipeline.data.protocol import position_stats
 
             mean, std = position_stats(load_split("train"))
             rots, roots = test_windows(limit, mirrored, posture, source)

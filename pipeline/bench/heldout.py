@@ -12,8 +12,8 @@ import sys
 
 import numpy as np
 
-from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 from pipeline.data.cache import cache_dir
+from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 from pipeline.data.split import shared_data_dir
 
 VERSION = 1

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.adapt.mapping import MODEL_JOINTS
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
-from pipeline.adapt.mapping import MODEL_JOINTS
 
 # Model joint → rig joint name, per convention (side written as {s}: L/R, or a word below).
 _LR = {"L": ("L", "l", "Left", "left"), "R": ("R", "r", "Right", "right")}

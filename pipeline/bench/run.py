@@ -11,6 +11,7 @@ import numpy as np
 
 from pipeline.bench import metrics
 from pipeline.bench.methods import Method, resolve
+from pipeline.data.cache import load_split
 from pipeline.data.protocol import (
     CONTEXT,
     TEST_STRIDE,
@@ -22,7 +23,6 @@ from pipeline.data.protocol import (
     position_stats,
     window_starts,
 )
-from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.motion.augment import posture_offsets

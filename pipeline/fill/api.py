@@ -181,8 +181,8 @@ def dna_motion(opts: FillOptions, fps: float):
         return None
     from dataclasses import replace
 
-    from pipeline.infer.dna import MAX_POSES, representative_frames
     from pipeline.fill.reference import reference_take
+    from pipeline.infer.dna import MAX_POSES, representative_frames
 
     if not 1 <= opts.dna_poses <= MAX_POSES:
         raise TweenError(f"dna_poses must be 1 to {MAX_POSES}, not {opts.dna_poses}")

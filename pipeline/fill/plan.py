@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.errors import ShotError, TweenError
-from pipeline.usd.keys import merge_times, parse_keys, parse_range
 from pipeline.adapt.mapping import REQUIRED, MappingError, load_override, map_joints
-from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 from pipeline.adapt.retarget import Retarget
 from pipeline.adapt.rigmap import OwnRig, RigMap, skeleton_space
+from pipeline.errors import ShotError, TweenError
+from pipeline.usd.keys import merge_times, parse_keys, parse_range
+from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 
 #: The most model frames one character's keys may span (the in-betweener fills them all).
 MAX_MODEL_FRAMES = 1_000_000

@@ -18,9 +18,8 @@ from pipeline.motion.clip import Motion
 
 def _usd_take(path: Path, fps: float, name: str) -> Motion:
     from pipeline.adapt.mapping import map_joints
-    from pipeline.usd.read import anim_values, read_shot
     from pipeline.adapt.retarget import Retarget
-    from pipeline.fill.solve import to_skeleton_order
+    from pipeline.usd.read import anim_values, read_shot, to_skeleton_order
 
     shot = read_shot(path)
     c = shot.characters[0]

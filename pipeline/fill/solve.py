@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
+from pipeline.fill.plan import CharPlan, Plan
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
-from pipeline.fill.plan import CharPlan, Plan
 from pipeline.usd.read import TIME_EPS, anim_values, to_skeleton_order
-from pipeline.adapt.rigmap import OwnRig
 
 # Shot frames a fill turns back onto the rig at once (fill_character).
 SOLVE_BLOCK = 8192

@@ -170,13 +170,15 @@ def folder_kind(folder: str | Path, file: str = MODEL_FILE) -> str:
     """The ``"kind"`` in ``folder``/``file``; a model.json without one is ``DEFAULT_KIND``.
     An unreadable file is a one-line TweenError naming it."""
     folder = Path(folder)
-    if file == RIG_FILE:
-        from pipeline.rig.store import read_rig_json
-
-        return read_rig_json(folder).meta["kind"]
     from pipeline.infer.model import ModelFolderError, read_model_json
 
     path = folder / file
+    if file == RIG_FILE:  # the rig model's own loader checks the rest of the file
+        try:
+            kind = json.loads(path.read_text(encoding="utf-8")).get("kind", "rig")
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError) as e:
+            raise ModelFolderError(f"{path}: cannot read: {e}") from None
+        return kind if isinstance(kind, str) else "rig"
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError):
@@ -247,36 +249,35 @@ def _folder_without_json(name: str):
     return None
 
 
-# -- the built-in families --------------------------------------------------------------------
-def _interpolation(folder):
-    from pipeline.infer.interp import InterpolationInbetweener
-
-    return InterpolationInbetweener()
-
-
-def _spline(folder):
-    from pipeline.infer.spline import SplineInbetweener
-
-    return SplineInbetweener()
+# -- the installed families ---------------------------------------------------------------
+#: Entry-point groups (setup.py) naming each family's in-betweener class by kind: called with
+#: the model folder (model.json or rig.json kinds) or with nothing (folderless kinds, whose
+#: every entry name loads it). The packages declare their own families there, so this module
+#: imports none of them (a per-rig model sits above the in-betweeners).
+GROUPS = {"tween.models": MODEL_FILE, "tween.rig_models": RIG_FILE, "tween.builtin_models": None}
+#: Other names of folderless kinds (``interp = interpolation``).
+ALIASES = "tween.model_aliases"
 
 
-def _generator_onnx(folder):
-    from pipeline.infer.model import OnnxInbetweener
+def _installed() -> None:
+    from importlib.metadata import entry_points
 
-    return OnnxInbetweener(folder)
+    aliases: dict[str, list[str]] = {}
+    for ep in entry_points(group=ALIASES):
+        aliases.setdefault(ep.value, []).append(ep.name)
+    for group, file in GROUPS.items():
+        for ep in entry_points(group=group):
+
+            def loader(folder, ep=ep):
+                cls = ep.load()
+                return cls() if folder is None else cls(folder)
+
+            register(
+                ep.name, loader, file=file, names=tuple(aliases.get(ep.name, ())) if file is None else ()
+            )
 
 
-def _rig_ganimator_onnx(folder):
-    from pipeline.rig.infer import RigInbetweener
-
-    return RigInbetweener(folder)
-
-
-register("interpolation", _interpolation, file=None, names=("interp",))
-register("spline", _spline, file=None)
-register("generator-onnx", _generator_onnx)
-register("rig-ganimator-onnx", _rig_ganimator_onnx, file=RIG_FILE)
-register("rig", _rig_ganimator_onnx, file=RIG_FILE)  # rig.json files written before kinds had names
+_installed()
 
 
 __all__ = [

@@ -86,7 +86,7 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
         step = np.ones(1)
     rot, tr, _ = anim_values(shot.stage, char, times)
     # Skeleton order; joints the animation does not list keep their rest pose.
-    from pipeline.fill.solve import to_skeleton_order
+    from pipeline.usd.read import to_skeleton_order
 
     rot, tr = to_skeleton_order(char, rot, tr)
     up = _up_in_skeleton(shot.up_axis, char.skel_to_world)

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401
+from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
-from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 
 SOURCE_NAMES_ATTR = "tween:sourceJointNames"
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -67,8 +67,8 @@ def rest_pose(motion: Motion) -> tuple[np.ndarray, np.ndarray]:
     The first frame is also the fallback when the canonical pose cannot be built (a rig
     whose mapped joints sit on top of each other, like the CMU rig's zero-length
     ``LowerBack`` above ``Hips``, gives a reference pose that is not finite)."""
-    from pipeline.data.skeletons import bandai_skeleton
     from pipeline.adapt.retarget import model_rest, reference_pose
+    from pipeline.data.skeletons import bandai_skeleton
 
     skel = motion.skeleton
     local = motion.rotations[0].astype(np.float64)

@@ -1,0 +1,125 @@
+"""The architecture of the README, as a test: packages import only downward.
+
+Read from the code's own imports (module level and inside functions alike), by AST.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Layer of each package, bottom up; a package imports only packages on lower layers.
+LAYERS = {
+    "pipeline.errors": 0,
+    "usd_schemas": 0,
+    "pipeline.motion": 1,  # skeletons, clips, rotations, FK, BVH
+    "pipeline.data": 2,  # the split, clip caches, the model skeleton, the protocol's windows
+    "pipeline.infer": 3,  # in-betweeners at fill time: numpy + onnxruntime, never torch
+    "pipeline.adapt": 3,  # rig adaptation on plain rig values: mapping, retargeting (no USD)
+    "pipeline.usd": 4,  # USD I/O (beside the in-betweeners; the rest pose of a converted rig)
+    "pipeline.models": 5,  # the torch networks
+    "pipeline.rig": 5,  # per-rig models: their training, ONNX in-betweener and store
+    "pipeline.train": 6,  # training and export of the networks
+    "pipeline.fill": 7,  # fill orchestration above USD I/O, adaptation and every model
+    "pipeline.bench": 8,
+    "render": 8,  # reads composed USD only
+    "workers": 9,  # the farm: runs the fill API and the renderer
+    "pipeline.cli": 10,  # the CLI on top; its commands come from entry points
+}
+#: Modules allowed one import across their layer's rule, and why.
+EXCEPTIONS = {
+    ("render.bench", "pipeline.fill"): "the render benchmark fills its own shot before timing the review",
+}
+HEAVY_FOR_INFER = ("torch", "roma")
+
+
+def _package(module: str) -> str:
+    parts = module.split(".")
+    if parts[0] == "pipeline" and len(parts) > 1:
+        return ".".join(parts[:2])
+    return parts[0]
+
+
+def _modules():
+    for top in ("pipeline", "workers", "render", "usd_schemas"):
+        for path in sorted((ROOT / top).rglob("*.py")):
+            mod = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            yield mod, path
+
+
+def _imports(path: Path):
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node.lineno
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            yield node.module, node.lineno
+            if node.module == "pipeline":  # from pipeline import fill
+                for a in node.names:
+                    yield f"pipeline.{a.name}", node.lineno
+
+
+def _project_edges():
+    for mod, path in _modules():
+        for name, line in _imports(path):
+            if name.split(".")[0] in ("pipeline", "workers", "render", "usd_schemas") and name != "pipeline":
+                yield mod, _package(mod), _package(name), f"{path.relative_to(ROOT)}:{line} imports {name}"
+
+
+def test_every_package_has_a_layer():
+    missing = {_package(m) for m, _ in _modules()} - set(LAYERS) - {"pipeline"}
+    assert not missing, f"packages without a layer in tests/test_layers.py: {sorted(missing)}"
+
+
+def test_imports_only_run_downward():
+    bad = []
+    for mod, src, dst, where in _project_edges():
+        if src == dst or (mod, dst) in EXCEPTIONS or src == "pipeline":
+            continue
+        if LAYERS[dst] >= LAYERS[src]:
+            bad.append(f"{where} ({src}, layer {LAYERS[src]} -> {dst}, layer {LAYERS[dst]})")
+    assert not bad, "imports that do not run downward:\n" + "\n".join(bad)
+
+
+def test_no_package_cycles():
+    graph: dict[str, set[str]] = {}
+    for _, src, dst, _ in _project_edges():
+        if src != dst:
+            graph.setdefault(src, set()).add(dst)
+
+    def reach(a, seen):
+        for b in graph.get(a, ()):
+            if b not in seen:
+                seen.add(b)
+                reach(b, seen)
+        return seen
+
+    cycles = [p for p in graph if p in reach(p, set())]
+    assert not cycles, f"packages in an import cycle: {cycles}"
+
+
+@pytest.mark.parametrize("package", ["pipeline.infer", "pipeline.adapt", "pipeline.usd", "pipeline.fill"])
+def test_fill_time_packages_never_import_torch(package):
+    hits = [f"{p.relative_to(ROOT)}:{ln} imports {n}" for m, p in _modules() if _package(m) == package
+            for n, ln in _imports(p) if n.split(".")[0] in HEAVY_FOR_INFER]  # fmt: skip
+    assert not hits, hits
+
+
+def test_rig_adaptation_has_no_usd_in_it():
+    hits = [f"{p.relative_to(ROOT)}:{ln} imports {n}" for m, p in _modules() if _package(m) == "pipeline.adapt"
+            for n, ln in _imports(p) if n.split(".")[0] == "pxr" or _package(n) == "pipeline.usd"]  # fmt: skip
+    assert not hits, hits
+
+
+def test_render_reads_composed_usd_only():
+    """The renderer reads USD (and the shared character reader), never the fill or a model."""
+    allowed = {"pipeline.errors", "pipeline.motion", "pipeline.data", "pipeline.usd", "render", "usd_schemas"}
+    hits = [where for mod, src, dst, where in _project_edges()
+            if src == "render" and dst not in allowed and (mod, dst) not in EXCEPTIONS]  # fmt: skip
+    assert not hits, hits
+
+
+def test_core_cli_imports_neither_farm_nor_renderer():
+    names = {n for n, _ in _imports(ROOT / "pipeline" / "cli.py")}
+    assert not {n for n in names if n.split(".")[0] in ("workers", "render")}, names
