@@ -13,9 +13,9 @@ import sys
 from pathlib import Path
 
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.data.protocol import TRANSITIONS, position_stats
 from pipeline.bench.run import evaluate, markdown, test_windows
 from pipeline.data.cache import load_split
+from pipeline.data.protocol import TRANSITIONS, position_stats
 from pipeline.infer.model import OnnxInbetweener
 
 

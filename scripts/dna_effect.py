@@ -23,6 +23,7 @@ import json
 import numpy as np
 
 from pipeline.bench import metrics
+from pipeline.data.cache import load_split
 from pipeline.data.protocol import (
     CONTEXT,
     TEST_STRIDE,
@@ -31,7 +32,6 @@ from pipeline.data.protocol import (
     normalize_windows,
     position_stats,
 )
-from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.model import OnnxInbetweener, take_latent

@@ -15,11 +15,11 @@ import sys
 import numpy as np
 
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.data.protocol import CONTEXT, global_positions, position_stats
 from pipeline.bench.ratios import cell, ratio_cell
 from pipeline.bench.run import evaluate
 from pipeline.bench.selection import EVERY, train_windows
 from pipeline.data.cache import load_split
+from pipeline.data.protocol import CONTEXT, global_positions, position_stats
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
 from pipeline.infer.model import OnnxInbetweener
 

@@ -19,11 +19,11 @@ import sys
 
 from pipeline.bench.heldout import cmu_windows
 from pipeline.bench.methods import inbetweener_method, interpolation
-from pipeline.data.protocol import position_stats
 from pipeline.bench.ratios import cell, ratio_cell
 from pipeline.bench.run import evaluate, test_windows
 from pipeline.bench.selection import EVERY, train_windows
 from pipeline.data.cache import load_split
+from pipeline.data.protocol import position_stats
 from pipeline.infer.model import OnnxInbetweener
 
 # (layout, pad_tail, min_window): the next multiple of 32 first, then longer windows.

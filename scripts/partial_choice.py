@@ -19,11 +19,11 @@ from pathlib import Path
 
 from pipeline.bench.methods import inbetweener_method, interpolation
 from pipeline.bench.partial import evaluate_partial, fill_interp, json_ready, markdown, model_fill
-from pipeline.data.protocol import position_stats
 from pipeline.bench.ratios import cell, ratios
 from pipeline.bench.run import evaluate
 from pipeline.bench.selection import train_windows
 from pipeline.data.cache import load_split
+from pipeline.data.protocol import position_stats
 from pipeline.infer.model import OnnxInbetweener
 
 
