@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.bench.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
+from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
 from pipeline.infer import trust
 
 SOURCES = ("eval", "cmu", "posture30", "mirrored")
