@@ -140,7 +140,7 @@ def converted_review(clip: Path, work: Path, frames: int = 60, key_step: int = 1
                      name: str = "sh010") -> tuple[str, list[int]]:  # fmt: skip
     """Converts ``clip`` to a shot keyed every ``key_step`` frames and fills it with the
     interpolation model; returns (review root layer, key frame numbers)."""
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
     from pipeline.usd.convert import write_shot
 
     motion = read_bvh(clip).slice(0, frames)

@@ -22,7 +22,7 @@ import pytest
 from usd_fixtures import ANIM, bandai_shot
 
 from pipeline.errors import ShotError, TweenError
-from pipeline.fill import FillOptions, fill_shot
+from pipeline.fill.api import FillOptions, fill_shot
 
 SKEL = ANIM.rsplit("/", 1)[0]
 NAN, INF = float("nan"), float("inf")

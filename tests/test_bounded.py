@@ -61,7 +61,7 @@ def model():
 MEASURE = """
 import resource, subprocess, sys
 fill = (
-    "import sys; from pipeline.fill import FillOptions, fill_shot; "
+    "import sys; from pipeline.fill.api import FillOptions, fill_shot; "
     "fill_shot(sys.argv[1], FillOptions(model='default', out_dir=sys.argv[2]))"
 )
 subprocess.run([sys.executable, "-c", fill, sys.argv[1], sys.argv[2]], check=True)
@@ -182,7 +182,7 @@ def test_long_gaps_and_partial_keys_go_through_windows(model):
 def test_solve_blocks_and_key_channels_are_exact(tmp_path, monkeypatch):
     """fill_character turning frames back onto the rig in blocks of 7 gives the fill of one
     block, bitwise; the keys' channel test without a keys x samples table is the same test."""
-    from pipeline.fill import FillOptions, fill_take, load_take, solve
+    from pipeline.fill.api import FillOptions, fill_take, load_take, solve
 
     shot = long_shot(tmp_path / "s.usda", 300, keys_every=9)
     ref = load_take(fill_take(str(shot), FillOptions(model="default"), 0, str(tmp_path / "a")))
@@ -326,7 +326,7 @@ def _broken_folder(tmp_path: Path, make) -> Path:
 
 @pytest.mark.parametrize("case", list(BROKEN))
 def test_a_broken_model_folder_is_one_line_naming_the_file(tmp_path, case):
-    from pipeline.fill import _MODELS, _model
+    from pipeline.fill.api import _MODELS, _model
 
     make, name, says = BROKEN[case]
     folder = _broken_folder(tmp_path, make)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from usd_fixtures import ANIM, FILLED, bandai_shot, tree_hashes
 
-from pipeline.fill import FillOptions, fill_shot
+from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.usd import dailies
 
 VARIANT = "/World{tweenTake=take%d}Character/Skel/Anim_tween"

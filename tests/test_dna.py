@@ -107,7 +107,7 @@ def test_fill_with_a_dna_steers_the_take_and_is_recorded(tiny_dna_model, bandai_
     from usd_fixtures import FILLED, bandai_shot, samples
 
     from pipeline.errors import TweenError
-    from pipeline.fill import FillOptions, fill_shot, validate_shot
+    from pipeline.fill.api import FillOptions, fill_shot, validate_shot
 
     shot = bandai_shot(tmp_path / "shot.usda", frames=61, keys_every=20)
     before = Path(shot).read_bytes()

@@ -114,9 +114,10 @@ def test_rig_training_has_its_own_app_queue_and_limits(tmp_path):
     assert rig["visibility_timeout"] == s.train_rig_visibility_timeout > 3600 > fill["visibility_timeout"]
 
 
-def test_train_rig_job_arguments_and_progress_parsing():
+def test_train_rig_job_arguments_and_progress_meta():
+    from pipeline.rig.progress import Progress
     from workers.errors import JobError
-    from workers.rig_tasks import parse_progress, train_args
+    from workers.rig_tasks import progress_meta, train_args
 
     args = train_args(
         "/s/clip.usda", "/m/x", {"schedule": "tiny", "seed": 3, "skeleton": "/W/Skel", "iters": None}
@@ -125,13 +126,11 @@ def test_train_rig_job_arguments_and_progress_parsing():
                     "--seed", "3"]  # fmt: skip
     with pytest.raises(JobError, match="unknown train-rig option"):
         train_args("/s/clip.usda", "/m/x", {"rm": "-rf"})
-    text = (
-        "levels 1-2/5:  50%|█████     | 15/30 [00:01<00:01, 9.9it/s, d=0.1]\r"
-        "levels 1-2/5: 100%|██████████| 30/30 [00:03<00:00, 9.9it/s]\n"
-        "levels 3-4/5:  10%|█         | 3/30 [00:00<00:03, 9.9it/s]\r"
-    )
-    assert parse_progress(text) == {"levels": "3-4/5", "iteration": 3, "iterations": 30, "fraction": 0.44}
-    assert parse_progress("loading clip\n") is None
+    rec = Progress("levels 3-4/5", 33, 60, {"d": 0.1}, 1.0, 2.0, stage_step=3, stage_steps=30,
+                   group_levels=(3, 4), n_levels=5)  # fmt: skip
+    meta = progress_meta(rec)
+    assert (meta["levels"], meta["iteration"], meta["iterations"], meta["fraction"]) == ("3-4/5", 3, 30, 0.55)
+    assert meta["loss"] == {"d": 0.1} and meta["step"] == 33
 
 
 def test_train_rig_task_reports_progress_and_stops_the_trainer_at_the_soft_limit(tmp_path, monkeypatch):
@@ -149,13 +148,18 @@ def test_train_rig_task_reports_progress_and_stops_the_trainer_at_the_soft_limit
     pidfile = tmp_path / "pid"
     script = (
         "import os, sys, time\n"
+        "from pipeline.rig.progress import JsonLinesWriter, Progress\n"
         f"open({str(pidfile)!r}, 'w').write(str(os.getpid()))\n"
+        "out = JsonLinesWriter(os.fdopen(int(sys.argv[1]), 'w'))\n"
         "for i in range(1, 31):\n"
-        "    sys.stderr.write(f'\\rlevels 1-2/4: {100 * i // 30:3d}%|##| {i}/30 [00:00<00:00]')\n"
-        "    sys.stderr.flush(); time.sleep(0.02)\n"
+        "    out(Progress('levels 1-2/4', i, 60, {}, 0.0, None, stage_step=i, stage_steps=30,\n"
+        "                 group_levels=(1, 2), n_levels=4))\n"
+        "    time.sleep(0.02)\n"
         "time.sleep(60)\n"
     )
-    monkeypatch.setattr(rt, "command", lambda *a: [sys.executable, "-c", script])
+    monkeypatch.setattr(
+        rt, "command", lambda *a, progress_fd=None: [sys.executable, "-c", script, str(progress_fd)]
+    )
     monkeypatch.setattr(rt, "check_paths", lambda *a: None)
     updates = []
     monkeypatch.setattr(rt.train_rig, "update_state", lambda state, meta: updates.append((state, meta)))

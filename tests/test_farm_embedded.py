@@ -73,7 +73,7 @@ def test_embedded_fill_without_any_broker(tmp_path):
     assert layer.parent == shot.parent and layer.is_file()
     assert shot.read_bytes() == before  # the user's shot is never modified
     # The same values as filling in process.
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
 
     direct = fill_shot(str(copy_shot(shot, tmp_path / "direct", "demo")), FillOptions(takes=2, seed=3))
     samples = layer_samples(layer)

@@ -62,7 +62,7 @@ def farm(tmp_path_factory):
         pool.start(concurrency=1)
         pool.start(concurrency=1)
         pool.wait_ready()
-        from pipeline.fill import FillOptions, fill_shot
+        from pipeline.fill.api import FillOptions, fill_shot
 
         ref_dir = tmp_path_factory.mktemp("reference")
         ref_shot = copy_shot(example_shot(), ref_dir, "ref")
@@ -211,7 +211,7 @@ def test_host_killed_mid_fill_is_taken_over(farm, tmp_path):
         assert {p.name for p in (folder / "out").iterdir()} == written
         samples = layer_samples(state.result["layer"])
         direct_dir = tmp_path / "direct"
-        from pipeline.fill import FillOptions, fill_shot
+        from pipeline.fill.api import FillOptions, fill_shot
 
         direct = fill_shot(
             str(copy_shot(shot, direct_dir, "fault")), FillOptions(takes=1, seed=7, out_dir=str(direct_dir))

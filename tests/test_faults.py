@@ -24,7 +24,7 @@ import pytest
 from redis_server import REPO, copy_shot, example_shot
 
 from pipeline.errors import TweenError
-from pipeline.fill import FillOptions, fill_shot, fill_take
+from pipeline.fill.api import FillOptions, fill_shot, fill_take
 from pipeline.usd import write
 from pipeline.usd.write import _HOST, pid_alive
 

@@ -232,7 +232,7 @@ def test_usd_rotations_and_translations_sampled_apart_are_partial_keys(tmp_path)
     from pxr import Usd
     from usd_fixtures import ANIM, FILLED, bandai_shot, samples
 
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
 
     shot = bandai_shot(tmp_path / "apart.usda", frames=61, keys_every=5)
     stage = Usd.Stage.Open(str(shot))
@@ -292,7 +292,7 @@ def test_usd_keyed_joints_make_per_joint_partial_keys(tmp_path):
     from pxr import Usd
     from usd_fixtures import ANIM, FILLED, samples
 
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
     from pipeline.fill.plan import make_plan
     from pipeline.fill.solve import key_channels, rig_key_channels
 

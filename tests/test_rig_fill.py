@@ -12,8 +12,8 @@ from test_rig_store import NAMES, OFFSETS, PARENTS, write_rig
 from usd_fixtures import ELEPHANT, bandai_shot, tree_hashes
 
 from pipeline.errors import TweenError
-from pipeline.fill import FillOptions, fill_shot, validate_shot
 from pipeline.fill import api as fill
+from pipeline.fill.api import FillOptions, fill_shot, validate_shot
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import euler_to_quat
 from pipeline.motion.skeleton import Skeleton

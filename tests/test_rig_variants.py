@@ -7,7 +7,7 @@ import pytest
 from usd_fixtures import BANDAI_CLIP
 
 from pipeline.bench import rig_variants as rv
-from pipeline.fill import FillOptions, fill_shot
+from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
 
 

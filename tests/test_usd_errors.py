@@ -9,7 +9,7 @@ import pytest
 from usd_fixtures import ANIM, ELEPHANT, FIGURE, SIMPLE, bandai_shot, tree_hashes
 
 from pipeline.errors import ShotError, TweenError
-from pipeline.fill import FillOptions, fill_shot
+from pipeline.fill.api import FillOptions, fill_shot
 
 
 def _edit(shot, fn):

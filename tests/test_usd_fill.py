@@ -5,7 +5,7 @@ import pytest
 from usd_fixtures import ANIM, BANDAI_CLIP, FILLED, bandai_shot, cmu_shot, samples, tree_hashes
 
 from pipeline.errors import ShotError
-from pipeline.fill import FillOptions, fill_shot, fill_take, validate_shot, write_layers
+from pipeline.fill.api import FillOptions, fill_shot, fill_take, validate_shot, write_layers
 from pipeline.infer.interp import interpolate_keys
 from pipeline.motion.bvh import read_bvh
 

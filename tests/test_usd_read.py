@@ -108,7 +108,7 @@ def test_usdz_figure_fills_with_a_mapping_file_and_read_only_folder_is_refused(t
     from usd_fixtures import samples, tree_hashes
 
     from pipeline.errors import ShotError
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
 
     f = _figure_roles(tmp_path)
     published = tmp_path / "published"

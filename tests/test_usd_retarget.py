@@ -9,7 +9,7 @@ from usd_fixtures import BANDAI_CLIP, bandai_shot, cmu_shot, samples
 from pipeline.adapt.mapping import map_joints
 from pipeline.adapt.retarget import Retarget
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.fill import FillOptions, fill_shot, validate_shot
+from pipeline.fill.api import FillOptions, fill_shot, validate_shot
 from pipeline.fill.solve import to_skeleton_order
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import Motion

@@ -73,7 +73,7 @@ def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, ou
     prefix = f"tween-bench-{work.name}:"
     env = dict(os.environ, TWEEN_KEY_PREFIX=prefix, TWEEN_QUEUE=f"{prefix}fill", TWEEN_SHOT_ROOTS=str(work))
     configure(app, load_settings(env))
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
 
     try:
         src = work / "src"

@@ -9,41 +9,17 @@ from pathlib import Path
 
 import typer
 
-_FILL_OPTS = dict(
-    # No typer min/max: FillOptions.check() gives the one-line messages (typer's is a box).
-    takes=typer.Option(1, "--takes", help="Takes (variations) per shot, 1 to 64."),
-    seed=typer.Option(0, "--seed", help="Seed of the first take."),
-    keys=typer.Option(
-        None, "--keys", help="Key frames to use, e.g. '1001,1012,1030' (default: the shot's keys)."
-    ),
-    range_=typer.Option(None, "--range", help="Frame range to fill, e.g. 1001-1048."),
-    model=typer.Option(
-        "default",
-        "--model",
-        help="default (a stored rig model when one fits the character, else the human model), interp, "
-        "or a model name/folder (a rig model is then used for every character that fits it).",
-    ),
-    out_dir=typer.Option(None, "--out-dir", help="Folder for the layers (default: beside each shot)."),
-    fmt=typer.Option("usda", "--format", help="Layer format: usda or usdc."),
-    mapping=typer.Option(None, "--mapping", help="Joint mapping file (default: built in)."),
-    dna=typer.Option(
-        None, "--dna", help="Motion DNA: a reference take (USD or BVH) whose poses steer the fill."
-    ),
-    dna_poses=typer.Option(4, "--dna-poses", help="Representative poses taken from --dna, 1 to 8."),
-)
+from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 
 
-def _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna=None, dna_poses=4) -> dict:
-    """The job's options, checked (one line naming the option) before anything is sent."""
-    from pipeline.fill import FillOptions
+def _opts(opts) -> dict:
+    """The job's options, checked (one line naming the option) before anything is sent, as
+    the farm payload."""
+    from dataclasses import asdict
 
-    kw = dict(keys=keys, range=range_, takes=takes, seed=seed, model=model, out_dir=out_dir, fmt=fmt,
-              mapping=mapping, dna=dna, dna_poses=dna_poses)  # fmt: skip
-    kw = {k: str(v) if isinstance(v, Path) else v for k, v in kw.items()}
-    FillOptions(**{k: v for k, v in kw.items() if v is not None}).check()
     from workers.jobs import make_opts
 
-    return make_opts(**kw)
+    return make_opts(**asdict(opts.check()))
 
 
 def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:
@@ -103,21 +79,13 @@ def _report(states) -> int:
 
 def register(app: typer.Typer) -> None:
     @app.command()
+    @with_fill_options
     def fill(
         shots: list[Path] = typer.Argument(..., help="USD shot files (.usda/.usdc/.usd)."),
-        takes: int = _FILL_OPTS["takes"],
-        seed: int = _FILL_OPTS["seed"],
-        keys: str = _FILL_OPTS["keys"],
-        range_: str = _FILL_OPTS["range_"],
-        model: str = _FILL_OPTS["model"],
-        out_dir: Path = _FILL_OPTS["out_dir"],
-        fmt: str = _FILL_OPTS["fmt"],
-        mapping: Path = _FILL_OPTS["mapping"],
-        dna: Path = _FILL_OPTS["dna"],
-        dna_poses: int = _FILL_OPTS["dna_poses"],
         render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
         concurrency: int = typer.Option(2, "-c", "--concurrency", help="Embedded worker processes."),
         progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars on stderr."),
+        opts: FillOptions = None,
     ):
         """Fill shots through the farm and wait; prints where the layers (and renders) are.
 
@@ -125,7 +93,8 @@ def register(app: typer.Typer) -> None:
         embedded farm: a local worker on a SQLite broker, started and stopped here.
         """
         # The options first: a bad one is refused before Celery is even imported.
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
+        takes = opts.takes
+        opts = _opts(opts)
         _int_opt("--concurrency", concurrency, 1, 256)
         from workers import jobs
         from workers.app import app as celery_app
@@ -146,32 +115,23 @@ def register(app: typer.Typer) -> None:
         from workers.embedded import EmbeddedWorker
 
         roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
-        roots += [opts[k] for k in ("out_dir",) if opts.get(k)]
-        for key in ("mapping", "dna"):
+        for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
             if opts.get(key):
-                roots.append(os.path.dirname(opts[key]))
+                roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
         with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
             ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
             code = _report(jobs.wait(ids, progress=progress, alive=w.alive))
         raise typer.Exit(code)
 
     @app.command()
+    @with_fill_options
     def submit(
         shots: list[Path] = typer.Argument(..., help="USD shot files, on storage every worker sees."),
-        takes: int = _FILL_OPTS["takes"],
-        seed: int = _FILL_OPTS["seed"],
-        keys: str = _FILL_OPTS["keys"],
-        range_: str = _FILL_OPTS["range_"],
-        model: str = _FILL_OPTS["model"],
-        out_dir: Path = _FILL_OPTS["out_dir"],
-        fmt: str = _FILL_OPTS["fmt"],
-        mapping: Path = _FILL_OPTS["mapping"],
-        dna: Path = _FILL_OPTS["dna"],
-        dna_poses: int = _FILL_OPTS["dna_poses"],
         render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
+        opts: FillOptions = None,
     ):
         """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
-        opts = _opts(takes, seed, keys, range_, model, out_dir, fmt, mapping, dna, dna_poses)
+        opts = _opts(opts)
         from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
@@ -311,7 +271,7 @@ def register(app: typer.Typer) -> None:
         import re
 
         from pipeline.errors import TweenError
-        from pipeline.fill import MAX_SEED
+        from pipeline.fill.api import MAX_SEED
         from pipeline.rig.source import parse_frames
 
         if schedule not in ("tiny", "reduced", "paper"):

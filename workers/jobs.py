@@ -108,10 +108,10 @@ def make_opts(**kw) -> dict:
     """FillOptions as the JSON dict that travels in messages (paths made absolute)."""
     from dataclasses import asdict
 
-    from pipeline.fill import FillOptions
+    from pipeline.fill.options import PATH_FIELDS, FillOptions
 
     opts = asdict(FillOptions(**{k: v for k, v in kw.items() if v is not None}))
-    for key in ("out_dir", "mapping", "review_layer", "dna"):
+    for key in PATH_FIELDS:
         if opts.get(key):
             opts[key] = os.path.abspath(opts[key])
     return opts

@@ -38,7 +38,9 @@ def check_under_roots(path: str, roots: Iterable[str], what: str = "path") -> st
 def job_paths(shot: str, opts: dict, work_dir: str | None = None) -> dict[str, str]:
     """The paths a job reads or writes, by role."""
     paths = {"shot": shot}
-    for key in ("out_dir", "mapping", "review_layer", "dna"):
+    from pipeline.fill.options import PATH_FIELDS
+
+    for key in PATH_FIELDS:
         if opts.get(key):
             paths[key] = opts[key]
     if work_dir:

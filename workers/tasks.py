@@ -94,7 +94,7 @@ class FarmTask(Task):
 
 
 def _opts(opts: dict):
-    from pipeline.fill import FillOptions
+    from pipeline.fill.api import FillOptions
 
     return FillOptions(**opts)
 

@@ -372,7 +372,7 @@ def filled_positions(review: str, rig: Rig) -> np.ndarray:
 
 
 def _fill(shot: Path, model: str, out: Path) -> str:
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
 
     return fill_shot(str(shot), FillOptions(model=model, out_dir=str(out)))["review"]
 

@@ -18,95 +18,22 @@ import os
 import shutil
 import sys
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.errors import ShotError, TweenError
 
-
-@dataclass
-class FillOptions:
-    """JSON-serialisable (``asdict``): it travels in Celery messages."""
-
-    keys: str | None = None  # "1001,1012,1030" or "1001-1100x8"; None = authored samples / tween:keyTimes
-    range: str | None = None  # "1010-1050"; None = whole key span
-    takes: int = 1
-    seed: int = 0
-    model: str = "default"  # default (rig model if one fits, else human), interp, or a model name/folder
-    out_dir: str | None = None  # default: beside the shot
-    fmt: str = "usda"  # or "usdc"
-    mapping: str | None = None  # JSON joint-mapping override file
-    review_layer: str | None = None  # root layer to add the fill to instead of a new review layer
-    dna: str | None = None  # motion DNA: a reference take (USD or BVH) whose poses the fill should hold
-    dna_poses: int = 4  # representative poses taken from it
-
-    def check(self) -> FillOptions:
-        """Raises TweenError (one line naming the option) unless every field is valid;
-        cheap (reads no file, loads no model), so it runs before anything else."""
-        check_fill_options(self)
-        return self
-
-
-#: Takes per shot: each is a full fill (and a variant of the layer), so a typo such as
-#: ``--takes 10000`` is refused rather than queued.
-MAX_TAKES = 64
-#: The seed of take k is ``seed + k``; it is stored in the layer's ``tween:seed`` (a USD
-#: int, 32 bits), so every take's seed is within 0 .. 2**31 - 1.
-MAX_SEED = 2**31 - 1
-FORMATS = ("usda", "usdc")
-#: pipeline.infer.dna.MAX_POSES, not imported for the check (that module pulls in scipy).
-MAX_DNA_POSES = 8
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int | np.integer) and not isinstance(v, bool)
-
-
-def _opt_path(opt: str, v) -> None:
-    if v is None:
-        return
-    if not isinstance(v, str | os.PathLike) or not str(v).strip() or "\0" in str(v):
-        raise TweenError(f"{opt} {v!r}: expected a file or folder path")
-
-
-def check_fill_options(opts: FillOptions) -> None:
-    """Validates every field of ``opts``; the messages name the command-line options."""
-    import math
-
-    from pipeline.usd.keys import parse_keys, parse_range
-
-    if not _is_int(opts.takes) or not 1 <= opts.takes <= MAX_TAKES:
-        raise TweenError(f"--takes {opts.takes!r}: must be a whole number from 1 to {MAX_TAKES}")
-    if not _is_int(opts.seed) or opts.seed < 0:
-        raise TweenError(f"--seed {opts.seed!r}: must be a whole number, 0 or more")
-    if opts.seed + opts.takes - 1 > MAX_SEED:
-        last = f" (take {opts.takes - 1} uses seed {opts.seed + opts.takes - 1})" if opts.takes > 1 else ""
-        raise TweenError(
-            f"--seed {opts.seed}: every take's seed (seed + take) must be at most 2**31-1 = {MAX_SEED}{last}"
-        )
-    if opts.fmt not in FORMATS:
-        raise TweenError(f"--format {opts.fmt!r}: must be usda or usdc")
-    if not _is_int(opts.dna_poses) or not 1 <= opts.dna_poses <= MAX_DNA_POSES:
-        raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_DNA_POSES}")
-    if not isinstance(opts.model, str) or not opts.model.strip():
-        raise TweenError(f"--model {opts.model!r}: expected default, interp, or a model name or folder")
-    if opts.keys is not None:
-        if not isinstance(opts.keys, str):
-            raise TweenError(f"--keys {opts.keys!r}: expected key time codes, e.g. 1001,1012,1030")
-        times = parse_keys(opts.keys)
-        if not np.isfinite(times).all():
-            raise TweenError(f"--keys {opts.keys!r}: key time codes must be finite numbers")
-    if opts.range is not None:
-        if not isinstance(opts.range, str):
-            raise TweenError(f"--range {opts.range!r}: expected START-END, e.g. 1010-1050")
-        if not all(math.isfinite(t) for t in parse_range(opts.range)):
-            raise TweenError(f"--range {opts.range!r}: time codes must be finite numbers")
-    for opt, v in (("--out-dir", opts.out_dir), ("--mapping", opts.mapping), ("--review-layer", opts.review_layer),
-                   ("--dna", opts.dna)):  # fmt: skip
-        _opt_path(opt, v)
-
+# The options are declared once in pipeline.fill.options; these names are the API's too.
+from pipeline.fill.options import (  # noqa: F401
+    FORMATS,
+    MAX_DNA_POSES,
+    MAX_SEED,
+    MAX_TAKES,
+    FillOptions,
+    check_fill_options,
+)
 
 _MODELS: dict[tuple[int, str], object] = {}
 

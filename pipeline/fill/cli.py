@@ -13,6 +13,8 @@ from pathlib import Path
 
 import typer
 
+from pipeline.fill.options import FillOptions, with_fill_options
+
 
 def register(app: typer.Typer) -> None:
     """Adds this package's commands to ``app``."""
@@ -100,48 +102,15 @@ def register(app: typer.Typer) -> None:
         typer.echo(path)
 
     @app.command("fill-local")
+    @with_fill_options
     def fill_local(
         shot: Path = typer.Argument(..., help="USD shot."),
-        keys: str = typer.Option(None, "--keys", help="Key time codes: '1001,1012,1030' or '1001-1100x8'."),
-        range_: str = typer.Option(None, "--range", help="Time codes to fill, e.g. 1010-1050."),
-        takes: int = typer.Option(1, "--takes", min=1, help="Takes (variations)."),
-        seed: int = typer.Option(0, "--seed", help="Seed of the first take."),
-        model: str = typer.Option(
-            "default",
-            "--model",
-            help="default (a stored rig model when one fits the character, else the human model), "
-            "interp, or a model name/folder.",
-        ),
-        out: Path = typer.Option(
-            None, "--out", "--out-dir", help="Folder for the layers (default: beside the shot)."
-        ),
-        fmt: str = typer.Option("usda", "--format", help="Fill layer format: usda or usdc."),
-        mapping: Path = typer.Option(None, "--mapping", help="JSON joint-mapping override."),
-        review_layer: Path = typer.Option(
-            None, "--review-layer", help="Add the fill to this root layer instead."
-        ),
         job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
-        dna: Path = typer.Option(
-            None, "--dna", help="Motion DNA: a reference take (USD or BVH) whose poses steer the fill."
-        ),
-        dna_poses: int = typer.Option(4, "--dna-poses", min=1, max=8, help="Poses taken from --dna."),
+        opts: FillOptions = None,
     ):
         """Fill a shot in this process and print the result as JSON."""
-        from pipeline.fill import FillOptions, fill_shot
+        from pipeline.fill.api import fill_shot
 
-        opts = FillOptions(
-            keys=keys,
-            range=range_,
-            takes=takes,
-            seed=seed,
-            model=model,
-            out_dir=str(out) if out else None,
-            fmt=fmt,
-            mapping=str(mapping) if mapping else None,
-            review_layer=str(review_layer) if review_layer else None,
-            dna=str(dna) if dna else None,
-            dna_poses=dna_poses,
-        )
         result = fill_shot(str(shot), opts, job_id=job_id)
         print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
         typer.echo(json.dumps(result, indent=1))
