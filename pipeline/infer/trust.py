@@ -183,11 +183,7 @@ def probe_plan(keys, max_probes: int = MAX_PROBES) -> list[Probe]:
 
 def _fill_windows(inb, rots: np.ndarray, roots: np.ndarray, keys: np.ndarray, skeleton):
     """(N, T, J, 4), (N, T, 3) windows sharing ``keys`` filled by ``inb`` (seed 0)."""
-    caps = getattr(inb, "capabilities", None)
-    batch = getattr(caps, "batch", None)
-    if batch is None:
-        batch = hasattr(inb, "fill_batch")
-    if batch:
+    if inb.capabilities.batch:
         out_r, out_p = [], []
         for s in range(0, len(rots), BATCH):
             r, p = inb.fill_batch(rots[s : s + BATCH], roots[s : s + BATCH], keys)
@@ -389,11 +385,8 @@ class TrustedInbetweener:
         self.model_hash = model.model_hash
         self.fps = model.fps
         self.skeleton = model.skeleton
-        caps = getattr(model, "capabilities", None)
-        if caps is not None:
-            # One shot at a time (no fill_batch), on the model's skeleton.
-            fields = {k: False for k in ("batch", "any_rig") if hasattr(caps, k)}
-            self.capabilities = replace(caps, **fields)
+        # One shot at a time (no fill_batch), on the model's skeleton.
+        self.capabilities = replace(model.capabilities, batch=False, any_rig=False)
         self.last_decision: TrustDecision | None = None
 
     def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, **kw) -> Motion:
@@ -421,7 +414,7 @@ class TrustedInbetweener:
 def trusted(inbetweener, trust: str = "auto"):
     """``inbetweener`` wrapped in a :class:`TrustedInbetweener` when it is a network (what the
     fill layer calls once, on what ``load_inbetweener`` gave it); the spline and interpolation
-    (hash ``"none"``) come back as they are: they have nothing to decide."""
-    if isinstance(inbetweener, TrustedInbetweener) or getattr(inbetweener, "model_hash", "none") == "none":
+    (``capabilities.any_rig``) come back as they are: they have nothing to decide."""
+    if isinstance(inbetweener, TrustedInbetweener) or inbetweener.capabilities.any_rig:
         return inbetweener
     return TrustedInbetweener(inbetweener, trust=trust)
