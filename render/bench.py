@@ -27,7 +27,7 @@ def bench(
     framing: str = "follow",
 ) -> dict:
     from pipeline.data.split import shared_data_dir
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
     from pipeline.motion.bvh import read_bvh
     from pipeline.usd.convert import write_shot
     from render.gl import renderer_name

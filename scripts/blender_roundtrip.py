@@ -96,7 +96,7 @@ def _positions(path: str):
 def measure(out: Path) -> dict:
     import numpy as np
 
-    from pipeline.fill import FillOptions, fill_shot
+    from pipeline.fill.api import FillOptions, fill_shot
     from pipeline.usd.read import read_shot
 
     truth, times, joints = _positions(str(out / "truth.usda"))
