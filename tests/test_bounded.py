@@ -182,7 +182,8 @@ def test_long_gaps_and_partial_keys_go_through_windows(model):
 def test_solve_blocks_and_key_channels_are_exact(tmp_path, monkeypatch):
     """fill_character turning frames back onto the rig in blocks of 7 gives the fill of one
     block, bitwise; the keys' channel test without a keys x samples table is the same test."""
-    from pipeline.fill.api import FillOptions, fill_take, load_take, solve
+    from pipeline.fill import solve
+    from pipeline.fill.api import FillOptions, fill_take, load_take
 
     shot = long_shot(tmp_path / "s.usda", 300, keys_every=9)
     ref = load_take(fill_take(str(shot), FillOptions(model="default"), 0, str(tmp_path / "a")))

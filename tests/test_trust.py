@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer import trust
+from pipeline.infer.api import Capabilities
 from pipeline.infer.spline import SplineInbetweener
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import Motion
@@ -25,6 +26,7 @@ class StandIn:
     it is exact at the left-out keys); "noise" returns random poses between the keys."""
 
     name, model_hash, fps = "stand-in", "stand-in-hash", 30.0
+    capabilities = Capabilities(partial_keys=True, dna=False, batch=True, any_rig=False)
 
     def __init__(self, mode: str, seed: int = 0):
         self.mode, self.skeleton = mode, SKEL
