@@ -14,6 +14,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.data.cache import cache_root
 from pipeline.errors import TweenError
 
 
@@ -41,9 +42,8 @@ def url_passwords(url: str) -> list[str]:
 
 
 def cache_dir(env=None) -> Path:
-    """``$TWEEN_CACHE`` or ``~/.cache/usd-tween`` (same rule as :mod:`pipeline.data.cache`)."""
-    env = os.environ if env is None else env
-    return Path(env.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
+    """The cache root (:func:`pipeline.data.cache.cache_root`: one rule for every cache)."""
+    return cache_root(env)
 
 
 def config_file(env=None) -> Path:
