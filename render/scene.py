@@ -332,7 +332,7 @@ def open_shot(
     name: str | None = None,
 ) -> Shot:
     """Opens ``stage_path`` (never writing to it), selects the take and finds the animated skeletons."""
-    from pxr import Usd, UsdGeom, UsdSkel
+    from pxr import Usd, UsdGeom
 
     if not Path(stage_path).exists():
         raise ShotError(stage_path, "no such file")
@@ -346,38 +346,29 @@ def open_shot(
     take_name = _select_take(stage, stage_path, take)
     world = _stage_to_metres_yup(stage)
 
-    cache = UsdSkel.Cache()
+    from pipeline.usd.read import bound_skeletons  # pxr (and the TweenAPI plugin)
+
+    # The fill's own character reader: SkelRoots (instance proxies included) and skeletons
+    # outside any SkelRoot that bind an animation (Blender's mesh-less armatures).
     chars: list[Character] = []
     props: list = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdSkel.Root):
-            continue
-        root = UsdSkel.Root(prim)
-        cache.Populate(root, Usd.PrimDefaultPredicate)
-        bound = {
-            str(b.GetSkeleton().GetPath()): list(b.GetSkinningTargets())
-            for b in cache.ComputeSkelBindings(root, Usd.PrimDefaultPredicate)
-        }
-        n_before = len(chars)
-        for sprim in Usd.PrimRange(prim):
-            if not sprim.IsA(UsdSkel.Skeleton):
-                continue
-            skel = UsdSkel.Skeleton(sprim)
-            query = cache.GetSkelQuery(skel)
-            if not query:
-                continue
-            c = _character(stage, stage_path, skel, query, bound.get(str(sprim.GetPath()), []), world)
-            if c is not None:
-                chars.append(c)
-        if len(chars) > n_before:
-            # Unskinned meshes beside an animated character (an instrument's base, a prop) are drawn
-            # as they are, so the performance is seen in its setting.
-            skinned = {str(q.GetPrim().GetPath()) for qs in bound.values() for q in qs}
-            props.extend(
-                m for m in Usd.PrimRange(prim)
-                if m.IsA(UsdGeom.Mesh) and str(m.GetPath()) not in skinned
-                and UsdGeom.Imageable(m).ComputeVisibility() != UsdGeom.Tokens.invisible
-            )  # fmt: skip
+    by_root: dict[str, list] = {}
+    for b in bound_skeletons(stage, stage_path):
+        c = _character(stage, stage_path, b.skeleton, b.query, b.skinned, world)
+        if c is not None:
+            chars.append(c)
+            if b.root is not None:
+                by_root.setdefault(str(b.root.GetPath()), [b.root, set()])[1].update(
+                    str(q.GetPrim().GetPath()) for q in b.skinned
+                )
+    # Unskinned meshes beside an animated character (an instrument's base, a prop) are drawn
+    # as they are, so the performance is seen in its setting.
+    for root, skinned in by_root.values():
+        props.extend(
+            m for m in Usd.PrimRange(root)
+            if m.IsA(UsdGeom.Mesh) and str(m.GetPath()) not in skinned
+            and UsdGeom.Imageable(m).ComputeVisibility() != UsdGeom.Tokens.invisible
+        )  # fmt: skip
     if not chars:
         raise ShotError(
             stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"

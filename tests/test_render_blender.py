@@ -169,3 +169,18 @@ def test_key_ring_is_at_the_character(blender_shot, tmp_path):
     head_x = xs[ys <= ys.min() + 3].mean()  # a standing figure's head is above its hips
     ring_x = np.nonzero(ring)[1].mean()
     assert abs(ring_x - head_x) < 0.05 * img.shape[1], (ring_x, head_x)
+
+
+def test_a_skeleton_outside_any_skelroot_is_reviewed(tmp_path):
+    """Blender exports an armature without a mesh as a Skeleton under plain Xforms; the
+    review finds it through the fill's own character reader (pipeline.usd.read)."""
+    from pxr import Usd, UsdSkel
+
+    shot = build_blender_shot(tmp_path / "armature.usda", frames=12)
+    stage = Usd.Stage.Open(str(shot["path"]))
+    prim = stage.GetPrimAtPath("/root/Armature")
+    prim.SetTypeName("Xform")
+    prim.RemoveAPI(UsdSkel.BindingAPI)
+    stage.GetRootLayer().Save()
+    s = open_shot(str(shot["path"]))
+    assert len(s.characters) == 1 and len(s.times) == 12

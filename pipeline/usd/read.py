@@ -320,51 +320,68 @@ def read_shot(path: str | Path) -> Shot:
         return _read_shot(path)
 
 
+@dataclass
+class BoundSkeleton:
+    """A skeleton with a bound animation, as UsdSkel resolves it."""
+
+    root: object | None  # its SkelRoot prim; None outside any (Blender's mesh-less armature)
+    skeleton: object  # UsdSkel.Skeleton
+    query: object  # UsdSkel.SkelQuery (its GetAnimQuery() is the animation)
+    skinned: list  # UsdSkel.SkinningQuery of each mesh bound to it
+
+
+def bound_skeletons(stage, path: str) -> list[BoundSkeleton]:
+    """Every skeleton of ``stage`` with a bound animation: the one character reader of the
+    fill and the review. Under SkelRoots first (instance proxies included, so a character
+    inside an instance is found), then skeletons outside any SkelRoot that bind an
+    animation themselves. A skeleton meant to be animated whose joints make no hierarchy is
+    a ShotError (UsdSkel only warns, and drops it)."""
+    from pxr import Usd, UsdSkel
+
+    pred = Usd.TraverseInstanceProxies()
+    cache = UsdSkel.Cache()
+    out: list[BoundSkeleton] = []
+    seen: set[str] = set()
+
+    def add(root, prim, skinned) -> None:
+        skel = UsdSkel.Skeleton(prim)
+        check_topology(path, str(prim.GetPath()), [str(t) for t in (skel.GetJointsAttr().Get() or [])])
+        query = cache.GetSkelQuery(skel)
+        if query and query.GetAnimQuery():
+            seen.add(str(prim.GetPath()))
+            out.append(BoundSkeleton(root, skel, query, skinned.get(str(prim.GetPath()), [])))
+
+    for prim in stage.Traverse(pred):
+        if not prim.IsA(UsdSkel.Root):
+            continue
+        root = UsdSkel.Root(prim)
+        cache.Populate(root, pred)
+        skinned = {
+            str(b.GetSkeleton().GetPath()): list(b.GetSkinningTargets())
+            for b in cache.ComputeSkelBindings(root, pred)
+        }
+        for sub in Usd.PrimRange(prim, pred):
+            if sub.IsA(UsdSkel.Skeleton) and str(sub.GetPath()) not in seen:
+                if UsdSkel.BindingAPI(sub).GetInheritedAnimationSource():
+                    add(prim, sub, skinned)
+    for prim in stage.Traverse(pred):
+        if prim.IsA(UsdSkel.Skeleton) and str(prim.GetPath()) not in seen:
+            if UsdSkel.BindingAPI(prim).GetAnimationSource():
+                add(None, prim, {})
+    return out
+
+
 def _read_shot(path: str) -> Shot:
-    from pxr import Usd, UsdGeom, UsdSkel
+    from pxr import UsdGeom
 
     stage = open_stage(path)
     tcps = _check_rate(path, stage)
     if stage.HasAuthoredTimeCodeRange():
         _check_span(path, stage.GetStartTimeCode(), stage.GetEndTimeCode(), "the stage range")
-    cache = UsdSkel.Cache()
-    chars: list[Character] = []
-    seen: set[str] = set()
-    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
-        if not prim.IsA(UsdSkel.Root):
-            continue
-        cache.Populate(UsdSkel.Root(prim), Usd.TraverseInstanceProxies())
-        for sub in Usd.PrimRange(prim, Usd.TraverseInstanceProxies()):
-            if not sub.IsA(UsdSkel.Skeleton) or str(sub.GetPath()) in seen:
-                continue
-            skel = UsdSkel.Skeleton(sub)
-            if UsdSkel.BindingAPI(sub).GetInheritedAnimationSource():
-                # A skeleton meant to be animated: its joints must make a hierarchy (UsdSkel
-                # only warns, and drops it from the cache).
-                joints = [str(t) for t in (skel.GetJointsAttr().Get() or [])]
-                check_topology(path, str(sub.GetPath()), joints)
-            skelq = cache.GetSkelQuery(skel)
-            if not skelq:
-                continue
-            animq = skelq.GetAnimQuery()
-            if not animq:
-                continue
-            seen.add(str(sub.GetPath()))
-            chars.append(_character(path, stage, skel, skelq, animq))
-    # A skeleton with a bound animation outside any SkelRoot: what Blender exports for an
-    # armature with no skinned mesh (a BVH import). UsdSkel still resolves its animation.
-    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
-        if not prim.IsA(UsdSkel.Skeleton) or str(prim.GetPath()) in seen:
-            continue
-        if not UsdSkel.BindingAPI(prim).GetAnimationSource():
-            continue
-        skel = UsdSkel.Skeleton(prim)
-        check_topology(path, str(prim.GetPath()), [str(t) for t in (skel.GetJointsAttr().Get() or [])])
-        skelq = cache.GetSkelQuery(skel)
-        animq = skelq.GetAnimQuery() if skelq else None
-        if animq:
-            seen.add(str(prim.GetPath()))
-            chars.append(_character(path, stage, skel, skelq, animq))
+    chars = [
+        _character(path, stage, b.skeleton, b.query, b.query.GetAnimQuery())
+        for b in bound_skeletons(stage, path)
+    ]
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
     up = str(UsdGeom.GetStageUpAxis(stage))
