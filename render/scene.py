@@ -16,13 +16,14 @@ import numpy as np
 
 from pipeline.errors import ShotError
 from render import mannequin
+from usd_schemas import tokens
 
-TAKE_VARIANT_SET = "tweenTake"
+TAKE_VARIANT_SET = tokens.TAKE_VARIANT_SET
 FACT_ATTRS = {
-    "model": "tween:model",
-    "model_hash": "tween:modelHash",
-    "take": "tween:take",
-    "seed": "tween:seed",
+    "model": tokens.MODEL,
+    "model_hash": tokens.MODEL_HASH,
+    "take": tokens.TAKE,
+    "seed": tokens.SEED,
 }
 
 
@@ -291,7 +292,7 @@ def _character(stage, path, skel, query, skinning, world) -> Character | None:
     if not anim or not anim.GetPrim():
         return None
     aprim = anim.GetPrim()
-    keys = _attr(aprim, "tween:keyTimes")
+    keys = _attr(aprim, tokens.KEY_TIMES)
     if keys is None:
         from pxr import UsdSkel
 

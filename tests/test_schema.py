@@ -69,3 +69,23 @@ def test_tokens_module_is_generated_from_the_schema():
 
     assert Path(tokens.__file__).read_text() == generate.tokens_source()
     assert tokens.KEY_TIMES == "tween:keyTimes" and tokens.TAKE_VARIANT_SET == "tweenTake"
+
+
+def test_no_tween_name_is_spelled_outside_the_tokens_module():
+    """Every tween:* USD name (and the take variant set) comes from usd_schemas.tokens;
+    render/output.py's image metadata keys are OpenImageIO attributes, not USD."""
+    import ast
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    pattern = re.compile(r"^(tween:[A-Za-z]+|tweenTake|TweenAPI)$")
+    hits = []
+    for top in ("pipeline", "render", "workers"):
+        for path in root.joinpath(top).rglob("*.py"):
+            if path.name == "output.py" and path.parent.name == "render":
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and pattern.match(node.value):
+                    hits.append(f"{path.relative_to(root)}:{node.lineno} {node.value!r}")
+    assert not hits, hits

@@ -22,8 +22,9 @@ import pipeline.usd  # noqa: F401
 from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
+from usd_schemas import tokens
 
-SOURCE_NAMES_ATTR = "tween:sourceJointNames"
+SOURCE_NAMES_ATTR = tokens.SOURCE_JOINT_NAMES
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _NOT_IDENT = re.compile(r"[^A-Za-z0-9_]+")
 

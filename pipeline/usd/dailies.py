@@ -25,17 +25,18 @@ from pathlib import Path
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import write
+from usd_schemas import tokens
 
 SUFFIX = "_tween"
 ANIM_ATTRS = ("rotations", "translations", "scales")
 #: Provenance attributes of the fill's animation copied onto the published one.
-_PROVENANCE = ("tween:keyTimes", "tween:model", "tween:modelHash", "tween:jobId", "tween:createdAt")
+_PROVENANCE = (tokens.KEY_TIMES, tokens.MODEL, tokens.MODEL_HASH, tokens.JOB_ID, tokens.CREATED_AT)
 _DECISION = {
-    "status": ("tween:reviewStatus", "Token"),
-    "take": ("tween:approvedTake", "Int"),
-    "by": ("tween:approvedBy", "String"),
-    "at": ("tween:approvedAt", "String"),
-    "note": ("tween:approvalNote", "String"),
+    "status": (tokens.REVIEW_STATUS, "Token"),
+    "take": (tokens.APPROVED_TAKE, "Int"),
+    "by": (tokens.APPROVED_BY, "String"),
+    "at": (tokens.APPROVED_AT, "String"),
+    "note": (tokens.APPROVAL_NOTE, "String"),
 }
 
 
@@ -62,7 +63,7 @@ def _open(path: Path, what: str = "fill layer"):
 
 def _roots(layer) -> list:
     """The root prim specs that carry the review state (``tween:reviewStatus``)."""
-    return [p for p in layer.rootPrims if "tween:reviewStatus" in p.attributes]
+    return [p for p in layer.rootPrims if tokens.REVIEW_STATUS in p.attributes]
 
 
 def _animations(layer) -> list:
@@ -90,7 +91,7 @@ def _takes(layer) -> list[int]:
         names = set.intersection(*({v.name for v in s.variants} for s in sets))
         return sorted(int(n[4:]) for n in names if re.fullmatch(r"take\d+", n))
     takes = {
-        int(a.attributes["tween:take"].default) for a in _animations(layer) if "tween:take" in a.attributes
+        int(a.attributes[tokens.TAKE].default) for a in _animations(layer) if tokens.TAKE in a.attributes
     }
     return sorted(takes) or [0]
 
@@ -99,7 +100,7 @@ def _read_decision(layer) -> dict | None:
     """The decision authored on the layer's review roots; None while pending."""
     for r in _roots(layer):
         attrs = r.attributes
-        status = attrs["tween:reviewStatus"].default
+        status = attrs[tokens.REVIEW_STATUS].default
         if not status or status == "pending":
             continue
         out = {"status": str(status)}
@@ -413,7 +414,7 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
         with Sdf.ChangeBlock():
             for spec, vpath, orig in anims:
                 dst = Sdf.CreatePrimInLayer(layer, orig)  # an over, and overs above it
-                write._apply_api(dst, "TweenAPI")
+                write._apply_api(dst, tokens.API)
                 joints = spec.attributes.get("joints")
                 if joints is not None and joints.default is not None:
                     write._attr(dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True)
@@ -421,10 +422,10 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
                     a = spec.attributes.get(name)
                     if a is not None and a.default is not None:
                         write._attr(dst, name, a.typeName, a.default)
-                write._attr(dst, "tween:take", Sdf.ValueTypeNames.Int, take)
-                seed = src.GetAttributeAtPath(vpath.AppendProperty("tween:seed"))
+                write._attr(dst, tokens.TAKE, Sdf.ValueTypeNames.Int, take)
+                seed = src.GetAttributeAtPath(vpath.AppendProperty(tokens.SEED))
                 if seed is not None and seed.default is not None:
-                    write._attr(dst, "tween:seed", Sdf.ValueTypeNames.Int, seed.default)
+                    write._attr(dst, tokens.SEED, Sdf.ValueTypeNames.Int, seed.default)
                 for name in ANIM_ATTRS:
                     a = src.GetAttributeAtPath(vpath.AppendProperty(name)) or spec.attributes.get(name)
                     if a is None:

@@ -24,6 +24,7 @@ from pipeline.errors import ShotError
 from pipeline.motion.rotations import matrix_to_quat
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
+from usd_schemas import tokens
 
 TIME_EPS = 1e-4  # time codes closer than this are the same frame (real files carry 3023.000157…)
 QUAT_EPS = 1e-6  # a rotation quaternion shorter than this is no rotation (a zeroed key)
@@ -236,7 +237,7 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     trans_times = anim.GetTranslationsAttr().GetTimeSamples()
     times = sorted(set(rot_times) | set(trans_times))
     override = None
-    kt = anim_prim.GetAttribute("tween:keyTimes")
+    kt = anim_prim.GetAttribute(tokens.KEY_TIMES)
     if kt and kt.HasAuthoredValue():
         override = np.array(kt.Get(), np.float64)
         if not np.isfinite(override).all():
@@ -276,20 +277,20 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
 
 def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
     """{time: animation joints keyed there} from tween:keyedJoints, or None when not authored."""
-    attr = anim_prim.GetAttribute("tween:keyedJoints")
+    attr = anim_prim.GetAttribute(tokens.KEYED_JOINTS)
     if not attr or not attr.GetNumTimeSamples():
         return None
     known, out = set(anim_joints), {}
     for t in attr.GetTimeSamples():
-        tokens = tuple(str(x) for x in (attr.Get(t) or []))
-        bad = [x for x in tokens if x not in known]
+        names = tuple(str(x) for x in (attr.Get(t) or []))
+        bad = [x for x in names if x not in known]
         if bad:
             raise ShotError(
                 shot_path,
                 f"tween:keyedJoints at time {t:g} names {bad[0]!r}, not a joint of the animation",
                 anim_path,
             )
-        out[float(t)] = tokens
+        out[float(t)] = names
     return out
 
 

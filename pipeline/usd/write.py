@@ -24,8 +24,9 @@ import numpy as np
 
 import pipeline.usd  # noqa: F401
 from pipeline.errors import ShotError, TweenError
+from usd_schemas import tokens
 
-VARIANT_SET = "tweenTake"
+VARIANT_SET = tokens.TAKE_VARIANT_SET
 
 # --- temp files, dead writers, full disks ---------------------------------------------------
 #
@@ -239,9 +240,9 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
         roots = sorted({"/" + c["anim"].strip("/").split("/")[0] for c in chars})
         for r in roots:
             rs = Sdf.CreatePrimInLayer(layer, r)
-            _apply_api(rs, "TweenAPI")
-            _attr(rs, "tween:reviewStatus", Sdf.ValueTypeNames.Token, "pending")
-            _attr(rs, "tween:approvedTake", Sdf.ValueTypeNames.Int, -1)
+            _apply_api(rs, tokens.API)
+            _attr(rs, tokens.REVIEW_STATUS, Sdf.ValueTypeNames.Token, "pending")
+            _attr(rs, tokens.APPROVED_TAKE, Sdf.ValueTypeNames.Int, -1)
             if many:
                 vset = Sdf.VariantSetSpec(rs, VARIANT_SET)
                 for tk in takes:
@@ -260,20 +261,20 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
             spec = Sdf.CreatePrimInLayer(layer, filled)
             spec.specifier = Sdf.SpecifierDef
             spec.typeName = "SkelAnimation"
-            _apply_api(spec, "TweenAPI")
+            _apply_api(spec, tokens.API)
             _attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True)
-            _attr(spec, "tween:keyTimes", Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
+            _attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
             # Each character's own model (a rig model or the human one).
-            for name, val in (("model", c.get("model", meta["model"])),
-                              ("modelHash", c.get("model_hash", meta["model_hash"])),
-                              ("jobId", meta["job_id"]), ("createdAt", meta["created_at"])):  # fmt: skip
-                _attr(spec, f"tween:{name}", Sdf.ValueTypeNames.String, val)
+            for name, val in ((tokens.MODEL, c.get("model", meta["model"])),
+                              (tokens.MODEL_HASH, c.get("model_hash", meta["model_hash"])),
+                              (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
+                _attr(spec, name, Sdf.ValueTypeNames.String, val)
             # How the rig reached the model: the reference pose and the model joints it lacks.
             rt = c.get("retarget")
             if rt:
-                _attr(spec, "tween:retargetReference", Sdf.ValueTypeNames.String, rt["reference"])
+                _attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
                 _attr(
-                    spec, "tween:missingJoints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
+                    spec, tokens.MISSING_JOINTS, Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
                 )
             # Blend shape weights are the animator's: copied as authored.
             for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
@@ -293,8 +294,8 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                     vspec = Sdf.CreatePrimInLayer(layer, vroot.AppendPath(rel_path))
                 else:
                     vspec = spec
-                _attr(vspec, "tween:seed", Sdf.ValueTypeNames.Int, int(tk["seed"]))
-                _attr(vspec, "tween:take", Sdf.ValueTypeNames.Int, int(tk["take"]))
+                _attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
+                _attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
                 _author_samples(layer, vspec, data)
 
 
