@@ -169,6 +169,15 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     return summary
 
 
+def trust_line(d: dict) -> str:
+    """One line for people of a trust decision (pipeline.infer.trust.TrustDecision.to_json)."""
+    line = f"trust {d['choice']} (model weight {d['weight']:.2f}"
+    if d.get("model_error_cm") is not None:
+        line += (f"; at {len(d.get('probes') or [])} probe(s) of the shot's own keys the model is "
+                 f"{d['model_error_cm']:.2f} cm off, the spline {d['spline_error_cm']:.2f} cm")  # fmt: skip
+    return line + ")"
+
+
 def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
     """Hash of every layer file the shot uses, the options that change values, the take, and
     the model hash of every character's model."""
@@ -180,7 +189,7 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
         h.update(Path(opts.mapping).read_bytes())
     if opts.dna:
         h.update(Path(opts.dna).read_bytes())
-    d = {k: v for k, v in asdict(opts).items() if k in ("keys", "range", "seed", "model", "mapping")}
+    d = {k: v for k, v in asdict(opts).items() if k in ("keys", "range", "seed", "model", "mapping", "trust")}
     if opts.dna:  # takes without a DNA keep the digests they had
         d.update(dna=opts.dna, dna_poses=opts.dna_poses)
     h.update(json.dumps([os.path.realpath(shot), d, take, model_hash], sort_keys=True).encode())
@@ -206,14 +215,17 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     chars = []
     dna = dna_motion(opts, float(inbs[0].fps))
     for i, (cp, inb) in enumerate(zip(plan.chars, inbs, strict=True)):
-        data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna)
+        data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna, trust=opts.trust)
+        decision = data.pop("trust")
+        if decision is not None and take == 0:
+            print(f"tween: {shot} {cp.char.anim_path}: {trust_line(decision)}", file=sys.stderr)
         for k, v in data.items():
             arrays[f"c{i}_{k}"] = v
         c = cp.char
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
                       "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
                       "model_kind": "rig" if cp.model else "human",
-                      "retarget": cp.retarget_info()})  # fmt: skip
+                      "retarget": cp.retarget_info(), "trust": decision})  # fmt: skip
     meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
             "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
             "chars": chars}  # fmt: skip
@@ -281,7 +293,10 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
     if "dna" in takes[0]:
         meta["dna"] = takes[0]["dna"]
-    return write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
+    result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
+    # Per character: how far the human model was trusted against the spline (None: not asked).
+    result["trust"] = {c["anim"]: c.get("trust") for c in takes[0]["chars"]}
+    return result
 
 
 def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:

@@ -62,6 +62,12 @@ class FillOptions:
         path="file",
     )
     dna_poses: int = _opt(4, "--dna-poses", help="Representative poses taken from --dna, 1 to 8.")
+    trust: str = _opt(
+        "auto",
+        "--trust",
+        help="How far the human model is trusted against the spline through the keys: auto (decided "
+        "per character from the shot's own keys, recorded in the layer), model, or spline.",
+    )
 
     def check(self) -> FillOptions:
         """Raises TweenError (one line naming the option) unless every field is valid;
@@ -77,6 +83,8 @@ MAX_TAKES = 64
 #: int, 32 bits), so every take's seed is within 0 .. 2**31 - 1.
 MAX_SEED = 2**31 - 1
 FORMATS = ("usda", "usdc")
+#: pipeline.infer.trust.TRUST_MODES, not imported for the check (that module pulls in scipy).
+TRUST_MODES = ("auto", "model", "spline")
 #: pipeline.infer.dna.MAX_POSES, not imported for the check (that module pulls in scipy).
 MAX_DNA_POSES = 8
 
@@ -109,6 +117,8 @@ def check_fill_options(opts: FillOptions) -> None:
         )
     if opts.fmt not in FORMATS:
         raise TweenError(f"--format {opts.fmt!r}: must be usda or usdc")
+    if opts.trust not in TRUST_MODES:
+        raise TweenError(f"--trust {opts.trust!r}: must be one of {', '.join(TRUST_MODES)}")
     if not _is_int(opts.dna_poses) or not 1 <= opts.dna_poses <= MAX_DNA_POSES:
         raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_DNA_POSES}")
     if not isinstance(opts.model, str) or not opts.model.strip():

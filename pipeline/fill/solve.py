@@ -8,6 +8,7 @@ import numpy as np
 from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
 from pipeline.fill.plan import CharPlan, Plan
+from pipeline.infer.trust import TrustedInbetweener, trusted
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
@@ -83,10 +84,15 @@ def key_channels(cp: CharPlan, rig_keys: tuple[np.ndarray, np.ndarray] | None) -
     return None if mask.all() else mask
 
 
-def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[str, np.ndarray]:
+def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto") -> dict:
     """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
-    Motion of representative poses for a model that takes a motion DNA."""
+    Motion of representative poses for a model that takes a motion DNA; ``trust``: how far
+    the human model is trusted against the spline (pipeline.infer.trust), decided per
+    character and returned under ``"trust"`` (None where nothing was decided: a rig model,
+    or interpolation and the spline on the character's own rig)."""
     shot, c = plan.shot, cp.char
+    if cp.model is None and not isinstance(cp.retarget, OwnRig):
+        inb = trusted(inb, trust)
     k = cp.keys
     rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
     loc_k, root_k = cp.retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
@@ -150,7 +156,9 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None) -> dict[s
     r2, t2, s2 = anim_values(shot.stage, c, outside)
     times = np.concatenate([inside, outside])
     order = np.argsort(times, kind="stable")
+    decision = inb.last_decision if isinstance(inb, TrustedInbetweener) else None
     return {
+        "trust": None if decision is None else decision.to_json(),
         "times": times[order],
         "rot": np.concatenate([rot, r2])[order],
         "trans": np.concatenate([tr, t2])[order],

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime
 import errno
+import json
 import os
 import re
 import shutil
@@ -270,6 +271,11 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                               (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
                 _attr(spec, name, Sdf.ValueTypeNames.String, val)
             # How the rig reached the model: the reference pose and the model joints it lacks.
+            tr = c.get("trust")
+            if tr:  # how far the human model was trusted against the spline, and why
+                _attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
+                _attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
+                _attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
             rt = c.get("retarget")
             if rt:
                 _attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
