@@ -1,11 +1,16 @@
 """Shared fixtures: where the real data lives, and a per-session cache folder."""
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
 
 from pipeline.data.split import shared_data_dir
+
+# The tests mirror the package tree (tests/usd/, tests/fill/, …); the shared fixture modules
+# (usd_fixtures, render_fixtures, …) stay here, beside this file.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 DATA = shared_data_dir()
 

@@ -26,7 +26,7 @@ from pipeline.fill.api import FillOptions, fill_shot
 
 SKEL = ANIM.rsplit("/", 1)[0]
 NAN, INF = float("nan"), float("inf")
-ROOT = Path(__file__).parents[1]
+ROOT = Path(__file__).parents[2]
 
 
 @pytest.fixture(scope="module")

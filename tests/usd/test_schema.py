@@ -78,7 +78,7 @@ def test_no_tween_name_is_spelled_outside_the_tokens_module():
     import re
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     pattern = re.compile(r"^(tween:[A-Za-z]+|tweenTake|TweenAPI)$")
     hits = []
     for top in ("pipeline", "render", "workers"):

@@ -25,7 +25,7 @@ from pipeline.train.recipe import (  # noqa: E402
     train_flags,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = sorted(p.stem for p in RECIPES.glob("*.toml"))
 
 

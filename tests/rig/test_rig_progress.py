@@ -18,7 +18,7 @@ from test_rig_core import walk
 
 from pipeline.rig.progress import JsonLinesReader, JsonLinesWriter, Progress, ProgressBar
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ITERS = 4
 FIELDS = [f.name for f in dataclasses.fields(Progress)]
 

@@ -15,7 +15,7 @@ from pipeline.motion.rotations import euler_to_quat
 from pipeline.motion.skeleton import Skeleton
 from pipeline.rig.topology import neighbourhoods
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # hips, spine, head, left hip/knee/ankle, right hip/knee/ankle (cm, Y-up)
 PARENTS = [-1, 0, 1, 0, 3, 4, 0, 6, 7]
 NAMES = ["hips", "spine", "head", "l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle"]
@@ -233,7 +233,7 @@ def test_synthesize_seeds_and_length(tiny_model):
 def test_fill_never_imports_torch(tiny_model):
     code = (
         "import sys, numpy as np\n"
-        "sys.path.insert(0, 'tests')\n"
+        "sys.path.insert(0, 'tests/rig')\n"
         "from test_rig_core import walk\n"
         "from pipeline.rig.infer import RigInbetweener\n"
         f"inb = RigInbetweener({str(tiny_model[2])!r})\n"

@@ -13,7 +13,7 @@ from usd_fixtures import cmu_shot
 from pipeline.errors import TweenError
 from pipeline.fill.api import FillOptions, fill_shot
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "sh010_walk.usda"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
 ANIM = "/World/Walker/Skel/Anim"
 
 

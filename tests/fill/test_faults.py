@@ -28,7 +28,7 @@ from pipeline.fill.api import FillOptions, fill_shot, fill_take
 from pipeline.usd import write
 from pipeline.usd.write import _HOST, pid_alive
 
-TESTS = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
 STEM = "sh010_walk"
 
 # Loaded by every Python process of a test run: slow fills (farm_slowfill) and a writer that

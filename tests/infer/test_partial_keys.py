@@ -228,7 +228,7 @@ def test_usd_rotations_and_translations_sampled_apart_are_partial_keys(tmp_path)
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from pxr import Usd
     from usd_fixtures import ANIM, FILLED, bandai_shot, samples
 
@@ -267,7 +267,7 @@ def _shot_with_keyed_joints(tmp_path, keyed: dict[float, list[str]]):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from pxr import Sdf, Usd, Vt
     from usd_fixtures import ANIM, bandai_shot
 
@@ -288,7 +288,7 @@ def test_usd_keyed_joints_make_per_joint_partial_keys(tmp_path):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from pxr import Usd
     from usd_fixtures import ANIM, FILLED, samples
 
@@ -341,7 +341,7 @@ def test_retarget_keys_a_model_joint_only_when_every_rig_joint_it_reads_is_keyed
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from usd_fixtures import cmu_shot
 
     from pipeline.adapt.retarget import MODEL_JOINTS

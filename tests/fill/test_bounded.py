@@ -23,8 +23,8 @@ from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_inv, quat_mul
 
-REPO = Path(__file__).resolve().parents[1]
-TESTS = Path(__file__).resolve().parent
+REPO = Path(__file__).resolve().parents[2]
+TESTS = Path(__file__).resolve().parents[1]
 DEFAULT = REPO / "models" / "default"
 
 

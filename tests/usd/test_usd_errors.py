@@ -97,7 +97,7 @@ def test_joint_count_mismatch(tmp_path):
 
 def test_real_rigs_the_model_cannot_map_are_refused(tmp_path):
     before = tree_hashes(ELEPHANT.parent)
-    human = str(Path(__file__).parents[1] / "models" / "default")  # the human model, no rig models
+    human = str(Path(__file__).parents[2] / "models" / "default")  # the human model, no rig models
     msg = _fails(
         ELEPHANT,
         tmp_path / "o",

@@ -28,7 +28,7 @@ from pipeline.infer.model import OnnxInbetweener
 from pipeline.infer.spline import SplineInbetweener
 from pipeline.rig.infer import RigInbetweener
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 MODELS = REPO / "models"
 
 

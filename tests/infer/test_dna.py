@@ -102,7 +102,7 @@ def test_fill_with_a_dna_steers_the_take_and_is_recorded(tiny_dna_model, bandai_
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).parents[1]))
     from pxr import Sdf, Usd
     from usd_fixtures import FILLED, bandai_shot, samples
 

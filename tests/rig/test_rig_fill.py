@@ -214,7 +214,7 @@ def test_human_and_rig_characters_in_one_shot_each_get_their_model(tmp_path, mod
     res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o2")))
     assert res["models"] == {CREATURE_ANIM: "interpolation", "/World/Character/Skel/Anim": "interpolation"}
     # Forcing the human model leaves the creature without a model: skipped with the hint.
-    human_folder = str(Path(__file__).parents[1] / "models" / "default")
+    human_folder = str(Path(__file__).parents[2] / "models" / "default")
     res = fill_shot(str(shot), FillOptions(model=human_folder, out_dir=str(tmp_path / "o3")))
     assert list(res["models"]) == ["/World/Character/Skel/Anim"]
 
