@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
+from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 
 
 def _opts(opts) -> dict:
@@ -247,6 +248,7 @@ def register(app: typer.Typer) -> None:
         celery_app.worker_main(argv)
 
     @app.command("submit-train-rig")
+    @with_train_rig_options
     def submit_train_rig(
         source: Path = typer.Argument(
             ..., help="The reference clip: a USD shot or a BVH, on shared storage."
@@ -254,34 +256,12 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(
             ..., "--out", help="Model folder (e.g. models/<rig>); resubmitting resumes."
         ),
-        skeleton: str = typer.Option(None, "--skeleton", help="USD: the Skeleton prim path."),
-        frames: str = typer.Option(None, "--frames", help="START:STOP frame indices of the clip."),
-        schedule: str = typer.Option("reduced", "--schedule", help="tiny, reduced or paper."),
-        iters: int = typer.Option(
-            None, "--iters", help="Iterations per group of levels (overrides the schedule)."
-        ),
-        seed: int = typer.Option(0, "--seed"),
-        threads: int = typer.Option(1, "--threads", help="torch threads on the worker."),
-        device: str = typer.Option("cpu", "--device", help="cpu or cuda (on the worker)."),
-        name: str = typer.Option(None, "--name", help="Model name (default: the --out folder's name)."),
         wait: bool = typer.Option(False, "--wait", help="Wait with a progress bar; print the model folder."),
+        opts: TrainRigOptions = None,
     ):
         """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
         prints the job id (`tween status ID` shows its progress)."""
-        import re
-
-        from pipeline.errors import TweenError
-        from pipeline.fill.api import MAX_SEED
-        from pipeline.rig.source import parse_frames
-
-        if schedule not in ("tiny", "reduced", "paper"):
-            raise TweenError(f"--schedule {schedule!r}: must be tiny, reduced or paper")
-        _int_opt("--iters", iters, 1, 10_000_000)
-        _int_opt("--seed", seed, 0, MAX_SEED)
-        _int_opt("--threads", threads, 1, 256)
-        if not re.fullmatch(r"cpu|cuda(:\d+)?", device):
-            raise TweenError(f"--device {device!r}: must be cpu or cuda (cuda:N)")
-        parse_frames(frames)
+        opts = opts.check().as_job()
         from workers import jobs
         from workers.app import check_farm, farm_errors, rig_app
 
@@ -291,8 +271,6 @@ def register(app: typer.Typer) -> None:
         if not source.is_file():
             _err(f"{source}: no such file")
             raise typer.Exit(2)
-        opts = dict(skeleton=skeleton, frames=frames, schedule=schedule, iters=iters, seed=seed, threads=threads,
-                    device=device, name=name)  # fmt: skip
         check_farm(rig_app)
         with farm_errors(rig_app):
             job_id = jobs.submit_train_rig(str(source), str(out), opts)

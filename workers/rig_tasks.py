@@ -24,6 +24,7 @@ from dataclasses import asdict
 
 from celery.exceptions import SoftTimeLimitExceeded
 
+from pipeline.rig.options import FLAGS, command_args
 from pipeline.rig.progress import JsonLinesReader, Progress
 from workers import paths as jobpaths
 from workers.app import rig_app
@@ -31,35 +32,19 @@ from workers.errors import JobError
 
 PROGRESS = "PROGRESS"
 #: ``tween train-rig`` options a job may carry (name → CLI flag); anything else is refused.
-OPTIONS = {
-    "skeleton": "--skeleton",
-    "frames": "--frames",
-    "fps": "--fps",
-    "schedule": "--schedule",
-    "iters": "--iters",
-    "ratio": "--ratio",
-    "contacts": "--contacts",
-    "seed": "--seed",
-    "threads": "--threads",
-    "device": "--device",
-    "licence": "--licence",
-    "name": "--name",
-}
+#: A job's option names and their ``tween train-rig`` flags (declared in pipeline.rig.options).
+OPTIONS = FLAGS
 #: Least seconds between two state updates (the backend is written at most this often).
 UPDATE_EVERY = 0.2
 
 
 def train_args(source: str, out: str, options: dict) -> list[str]:
     """The ``tween train-rig`` command line of a job (options checked)."""
-    unknown = sorted(set(options) - set(OPTIONS))
-    if unknown:
-        raise JobError(f"{source}: unknown train-rig option(s): {', '.join(unknown)}")
-    args = ["train-rig", str(source), "--out", str(out)]
-    for key, flag in OPTIONS.items():
-        v = options.get(key)
-        if v is not None and v != "":
-            args += [flag, str(v)]
-    return args
+    try:
+        flags = command_args(options)
+    except ValueError as e:
+        raise JobError(f"{source}: {e}") from None
+    return ["train-rig", str(source), "--out", str(out), *flags]
 
 
 def command(source: str, out: str, options: dict, progress_fd: int | None = None) -> list[str]:

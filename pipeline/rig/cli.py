@@ -6,9 +6,12 @@ from pathlib import Path
 
 import typer
 
+from pipeline.rig.options import TrainRigOptions, with_train_rig_options
+
 
 def register(app: typer.Typer) -> None:
     @app.command("train-rig")
+    @with_train_rig_options
     def train_rig(
         source: Path = typer.Argument(
             ..., help="The reference clip: a USD shot or a BVH (.bvh/.bvh.gz), or an .npz from rig-extract."
@@ -16,33 +19,6 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(
             ..., "--out", help="Model folder (checkpoints in OUT/checkpoints; re-running resumes)."
         ),
-        skeleton: str = typer.Option(
-            None, help="USD: the Skeleton prim path (default: the one with most joints)."
-        ),
-        frames: str = typer.Option(
-            None, help="START:STOP frame indices of the clip to learn (stop exclusive)."
-        ),
-        fps: float = typer.Option(
-            None, help="Training frame rate (default: 30 for faster sources, else the source's)."
-        ),
-        schedule: str = typer.Option(
-            "reduced", help="reduced (about 1 h on 2 cores), paper (15k iterations/group), tiny (tests)."
-        ),
-        iters: int = typer.Option(None, help="Iterations per group of levels (overrides the schedule)."),
-        ratio: float = typer.Option(None, help="Coarsest level length ÷ clip length (default 1/5)."),
-        contacts: str = typer.Option(
-            None, help="Comma-separated contact joints (default: joints that touch the floor)."
-        ),
-        seed: int = typer.Option(0),
-        threads: int = typer.Option(1, help="torch threads; 1 is fastest on 2 shared cores."),
-        device: str = typer.Option("cpu", help="cpu or cuda."),
-        licence: str = typer.Option(
-            None, help="The clip's licence, for the model card (default: guessed from the path)."
-        ),
-        credit: str = typer.Option(
-            None, help="Attribution for the model card (default: known assets' credit)."
-        ),
-        name: str = typer.Option(None, help="Model name (default: the --out folder's name)."),
         checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
         no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
         progress_fd: int = typer.Option(
@@ -52,27 +28,29 @@ def register(app: typer.Typer) -> None:
             help="Write progress records as JSON lines to this open file descriptor instead of a bar "
             "on stderr (the farm's channel; pipeline.rig.progress).",
         ),
+        opts: TrainRigOptions = None,
     ):
         """Train a per-rig GANimator on one clip, then export it (ONNX per level + rig.json + card)."""
         from pipeline.rig.source import parse_frames
         from pipeline.rig.train import TrainConfig
 
+        o = opts.check()
         cfg = TrainConfig(
             source=str(source),
             out=str(out),
-            skeleton=skeleton,
-            frames=parse_frames(frames),
-            fps=fps,
-            schedule=schedule,
-            iters=iters,
-            ratio=ratio,
-            contacts=[c.strip() for c in contacts.split(",") if c.strip()] if contacts else None,
-            seed=seed,
-            threads=threads,
-            device=device,
-            licence=licence or _guess_licence(source),
-            credit=credit or _guess_credit(source),
-            name=name or out.resolve().name,
+            skeleton=o.skeleton,
+            frames=parse_frames(o.frames),
+            fps=o.fps,
+            schedule=o.schedule,
+            iters=o.iters,
+            ratio=o.ratio,
+            contacts=[c.strip() for c in o.contacts.split(",") if c.strip()] if o.contacts else None,
+            seed=o.seed,
+            threads=o.threads,
+            device=o.device,
+            licence=o.licence or _guess_licence(source),
+            credit=o.credit or _guess_credit(source),
+            name=o.name or out.resolve().name,
             checkpoints=str(checkpoints) if checkpoints else None,
         )
         tr = _train_shown(cfg, progress_fd)

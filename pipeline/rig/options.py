@@ -1,0 +1,124 @@
+"""The options of a per-rig training, each declared once.
+
+A :class:`TrainRigOptions` field carries its flag and help: ``tween train-rig`` (in this
+process) and ``tween submit-train-rig`` (the farm) offer the same options
+(:func:`with_train_rig_options`), and the farm task turns a job's options back into the
+``tween train-rig`` command line from the same fields (:func:`command_args`).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import asdict, dataclass, field, fields
+
+from pipeline.errors import TweenError
+
+SCHEDULES = ("tiny", "reduced", "paper")
+MAX_SEED = 2**31 - 1
+
+
+def _opt(default, flag: str, help: str):
+    return field(default=default, metadata={"flag": flag, "help": help})
+
+
+@dataclass
+class TrainRigOptions:
+    """How a rig model is trained from its clip (JSON-serialisable: it travels to the farm)."""
+
+    skeleton: str | None = _opt(
+        None, "--skeleton", "USD: the Skeleton prim path (default: the one with most joints)."
+    )
+    frames: str | None = _opt(
+        None, "--frames", "START:STOP frame indices of the clip to learn (stop exclusive)."
+    )
+    fps: float | None = _opt(
+        None, "--fps", "Training frame rate (default: 30 for faster sources, else the source's)."
+    )
+    schedule: str = _opt(
+        "reduced", "--schedule", "reduced (about 1 h on 2 cores), paper (15k iterations/group), tiny (tests)."
+    )
+    iters: int | None = _opt(None, "--iters", "Iterations per group of levels (overrides the schedule).")
+    ratio: float | None = _opt(None, "--ratio", "Coarsest level length ÷ clip length (default 1/5).")
+    contacts: str | None = _opt(
+        None, "--contacts", "Comma-separated contact joints (default: joints that touch the floor)."
+    )
+    seed: int = _opt(0, "--seed", "Training seed.")
+    threads: int = _opt(1, "--threads", "torch threads; 1 is fastest on 2 shared cores.")
+    device: str = _opt("cpu", "--device", "cpu or cuda (cuda:N).")
+    licence: str | None = _opt(
+        None, "--licence", "The clip's licence, for the model card (default: guessed)."
+    )
+    credit: str | None = _opt(
+        None, "--credit", "Attribution for the model card (default: known assets' credit)."
+    )
+    name: str | None = _opt(None, "--name", "Model name (default: the --out folder's name).")
+
+    def check(self) -> TrainRigOptions:
+        """Raises TweenError (one line naming the option) unless every field is valid."""
+        from pipeline.rig.source import parse_frames
+
+        if self.schedule not in SCHEDULES:
+            raise TweenError(
+                f"--schedule {self.schedule!r}: must be {', '.join(SCHEDULES[:-1])} or {SCHEDULES[-1]}"
+            )
+        for opt, v, lo, hi in (("--iters", self.iters, 1, 10_000_000), ("--seed", self.seed, 0, MAX_SEED),
+                               ("--threads", self.threads, 1, 256)):  # fmt: skip
+            if v is not None and not (isinstance(v, int) and lo <= v <= hi):
+                raise TweenError(f"{opt} {v}: must be from {lo} to {hi}")
+        if not re.fullmatch(r"cpu|cuda(:\d+)?", str(self.device)):
+            raise TweenError(f"--device {self.device!r}: must be cpu or cuda (cuda:N)")
+        parse_frames(self.frames)
+        return self
+
+    def as_job(self) -> dict:
+        """The options a farm job carries (the ones set)."""
+        return {k: v for k, v in asdict(self).items() if v is not None and v != ""}
+
+
+#: option name → its ``tween train-rig`` flag.
+FLAGS: dict[str, str] = {f.name: f.metadata["flag"] for f in fields(TrainRigOptions)}
+
+
+def command_args(options: dict) -> list[str]:
+    """The ``tween train-rig`` flags of a job's options (unknown names are a ValueError)."""
+    unknown = sorted(set(options) - set(FLAGS))
+    if unknown:
+        raise ValueError(f"unknown train-rig option(s): {', '.join(unknown)}")
+    args: list[str] = []
+    for key, flag in FLAGS.items():
+        v = options.get(key)
+        if v is not None and v != "":
+            args += [flag, str(v)]
+    return args
+
+
+def with_train_rig_options(command):
+    """The typer command ``command`` with every TrainRigOptions field as an option; it takes
+    them as one ``opts: TrainRigOptions`` keyword (unchecked: it calls ``opts.check()``)."""
+    import functools
+    import inspect
+    import typing
+
+    import typer
+
+    sig = inspect.signature(command)
+    hints = typing.get_type_hints(TrainRigOptions)
+    added = [
+        inspect.Parameter(
+            f.name,
+            inspect.Parameter.KEYWORD_ONLY,
+            default=typer.Option(f.default, f.metadata["flag"], help=f.metadata["help"]),
+            annotation=hints[f.name],
+        )
+        for f in fields(TrainRigOptions)
+    ]
+    own = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for n, p in sig.parameters.items() if n != "opts"]
+
+    @functools.wraps(command)
+    def run(**kw):
+        opts = TrainRigOptions(**{f.name: kw.pop(f.name) for f in fields(TrainRigOptions)})
+        return command(opts=opts, **kw)
+
+    # The positional argument (the clip) first, then --out, then these options.
+    run.__signature__ = sig.replace(parameters=own[:2] + added + own[2:])
+    return run
