@@ -10,7 +10,12 @@ from pipeline.data.split import shared_data_dir
 
 # The tests mirror the package tree (tests/usd/, tests/fill/, …); the shared fixture modules
 # (usd_fixtures, render_fixtures, …) stay here, beside this file.
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# Some test modules reuse another's builders (test_farm_rig uses test_rig_fill's): every
+# folder of the tree is on the path too (test module names are unique across it).
+_HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(_HERE)] + sorted(
+    str(d) for d in _HERE.iterdir() if d.is_dir() and not d.name.startswith((".", "_"))
+)
 
 DATA = shared_data_dir()
 
