@@ -15,6 +15,8 @@ try:  # typer 0.2x carries its own copy of click
 except ImportError:  # older typer uses click itself
     from click.exceptions import BadParameter, ClickException, UsageError
 
+from importlib.metadata import entry_points
+
 from pipeline.errors import TweenError
 
 app = typer.Typer(
@@ -39,7 +41,6 @@ def _register() -> None:
     # Each package's command module is named in setup.py's entry points, so this core
     # imports neither the farm nor the renderer; the modules import their heavy
     # dependencies inside the commands (`tween --help` and `tween fill` never import torch).
-    from importlib.metadata import entry_points
 
     found = {ep.name: ep for ep in entry_points(group=COMMANDS)}
     if not found:

@@ -16,6 +16,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from pipeline.data.split import shared_data_dir
+from pipeline.fill.api import FillOptions, fill_shot
+from render.gl import renderer_name
+from render.review import render_review
+
 CLIP = "bandai_namco/dataset-1/dataset-1_dance-short_normal_001.bvh.gz"
 
 
@@ -26,12 +31,8 @@ def bench(
     side_by_side: bool = False,
     framing: str = "follow",
 ) -> dict:
-    from pipeline.data.split import shared_data_dir
-    from pipeline.fill.api import FillOptions, fill_shot
     from pipeline.motion.bvh import read_bvh
     from pipeline.usd.convert import write_shot
-    from render.gl import renderer_name
-    from render.review import render_review
 
     with tempfile.TemporaryDirectory(prefix="tween-bench-render-") as work:
         motion = read_bvh(shared_data_dir() / CLIP).slice(0, frames)

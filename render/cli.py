@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 import math
 import re
+from pathlib import Path
 
 import typer
 
 from pipeline.errors import TweenError
+from render.review import render_review
+from render.scene import list_takes
 
 #: Frame sides: H.264 (yuv420p) needs even sides, the renderer at least 16; 7680 is 8K UHD.
 MIN_SIDE, MAX_SIDE = 16, 7680
@@ -81,7 +84,6 @@ def review(
     frames: str = typer.Option(None, "--frames", help="Render only time codes START:END."),
 ) -> None:
     """Renders review media for a filled shot: H.264 MP4, numbered frames, contact sheet."""
-    from pathlib import Path
 
     # Every option is checked here, before anything is imported, read or written.
     w, h = _size(size)
@@ -95,8 +97,6 @@ def review(
         raise TweenError(f"--framing {framing!r}: must be follow or fixed (and agree with --camera {camera})")
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
-    from render.review import render_review
-    from render.scene import list_takes
 
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
     takes = [take]

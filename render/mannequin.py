@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from render.geometry import Geometry
+
 _SEG = 12  # around the axis
 _RINGS = 4  # per hemisphere
 
@@ -52,7 +54,6 @@ class Mannequin:
         return pts[0], nrm[0]
 
     def geometry(self):
-        from render.scene import Geometry
 
         return Geometry(self.tris, self.n_points, len(self.joints), self.frame, smooth=True)
 

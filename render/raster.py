@@ -3,11 +3,13 @@ and key markers, the characters (and optional key ghosts), into a 4x MSAA buffer
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from render import shaders
+from render.geometry import Geometry
 from render.gl import RenderError, context
-from render.scene import Geometry
 
 CLAY = (0.62, 0.50, 0.38)  # linear albedo of the filled character
 BLOCKING_CLAY = (0.40, 0.47, 0.60)  # the stepped-keys character, so the panels cannot be confused
@@ -20,7 +22,6 @@ def _gil_free_finish(ctx):
     """``glFinish`` called through ctypes, which lets go of the GIL while llvmpipe's threads
     rasterise (moderngl holds it for the whole wait), so the review's writer thread can burn
     in, encode and write the previous frames meanwhile. Falls back to ``ctx.finish``."""
-    import ctypes
 
     try:
         egl = ctypes.CDLL("libEGL.so.1")

@@ -2,21 +2,26 @@
 
 from __future__ import annotations
 
+import queue
 import shutil
 import sys
 import tempfile
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
+from render.geometry import Geometry
 from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, thumbnail, write_frame
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import Geometry, Shot, evaluate, open_shot
+from render.scene import Shot, evaluate, open_shot
 from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
@@ -37,9 +42,6 @@ class FrameWriter:
     """
 
     def __init__(self, shape, handle, depth: int = QUEUE_FRAMES, frame_threads: int = 0):
-        import queue
-        import threading
-        from concurrent.futures import ThreadPoolExecutor
 
         self.handle, self.error, self.cancelled = handle, None, False
         self.free: queue.Queue = queue.Queue()
@@ -83,7 +85,6 @@ class FrameWriter:
             raise self.error
 
     def buffer(self) -> np.ndarray:
-        import queue
 
         while True:
             self._check()
@@ -270,8 +271,6 @@ def render_review(
         colorspace = "lin_rec709" if exr else "sRGB"
         it = range(T)
         if progress:
-            from tqdm import tqdm
-
             it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
         tcs = shot.timecodes()
 

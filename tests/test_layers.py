@@ -123,3 +123,66 @@ def test_render_reads_composed_usd_only():
 def test_core_cli_imports_neither_farm_nor_renderer():
     names = {n for n, _ in _imports(ROOT / "pipeline" / "cli.py")}
     assert not {n for n in names if n.split(".")[0] in ("workers", "render")}, names
+
+
+#: Libraries worth deferring to the function that needs them: torch and its helpers (training),
+#: USD, onnxruntime, GL and the media libraries (render), the farm's (slow to import, absent
+#: on a host that only fills), scipy (a quarter second, off the CLI's start-up path).
+DEFERRED = {"torch", "roma", "onnx", "onnxscript", "pxr", "onnxruntime", "moderngl", "OpenImageIO", "av",
+            "opentimelineio", "celery", "kombu", "redis", "amqp", "sqlalchemy", "billiard", "scipy", "bpy",
+            "threadpoolctl", "jinja2"}  # fmt: skip
+
+
+def _top_imports(path: Path) -> list[str]:
+    out = []
+    for node in ast.parse(path.read_text()).body:
+        for n in ast.walk(node) if isinstance(node, (ast.If, ast.Try)) else [node]:
+            if isinstance(n, ast.Import):
+                out += [a.name for a in n.names]
+            elif isinstance(n, ast.ImportFrom) and n.module and not n.level:
+                out += [n.module] + [f"{n.module}.{a.name}" for a in n.names]
+    return out
+
+
+def _pulls_deferred(module: str, modules: dict, seen: set) -> bool:
+    """Whether importing ``module`` imports a DEFERRED library (through its own module-level
+    imports, its packages' and theirs; pipeline.usd registers the USD plugin on import)."""
+    if module in seen or module not in modules:
+        return False
+    seen.add(module)
+    if module == "pipeline.usd":
+        return True
+    parts = module.split(".")
+    names = _top_imports(modules[module]) + [".".join(parts[:i]) for i in range(1, len(parts))]
+    for n in names:
+        if n.split(".")[0] in DEFERRED:
+            return True
+        target = next((c for c in (".".join(n.split(".")[:i]) for i in range(len(n.split(".")), 0, -1))
+                       if c in modules), None)  # fmt: skip
+        if target and _pulls_deferred(target, modules, seen):
+            return True
+    return False
+
+
+def test_function_local_imports_only_defer_heavy_libraries():
+    modules = dict(_modules())
+    bad = []
+    for mod, path in modules.items():
+        tree = ast.parse(path.read_text())
+        for fn in ast.walk(tree):
+            if not isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            optional = {id(n) for t in ast.walk(fn) if isinstance(t, ast.Try)
+                        and any("ImportError" in ast.dump(h) for h in t.handlers) for n in ast.walk(t)}  # fmt: skip
+            for node in ast.walk(fn):
+                if not isinstance(node, ast.Import | ast.ImportFrom) or id(node) in optional:
+                    continue
+                name = node.module if isinstance(node, ast.ImportFrom) else node.names[0].name
+                if not name or getattr(node, "level", 0) or name.split(".")[0] in DEFERRED:
+                    continue
+                target = next((c for c in (".".join(name.split(".")[:i]) for i in range(len(name.split(".")), 0, -1))
+                               if c in modules), None)  # fmt: skip
+                if target is not None and (target == mod or _pulls_deferred(target, modules, set())):
+                    continue
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno} imports {name} inside {fn.name}()")
+    assert not bad, "function-local imports that defer nothing heavy:\n" + "\n".join(bad)

@@ -7,6 +7,7 @@ CMake placeholders it leaves in plugInfo.json, which a codeless schema does not 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -47,7 +48,6 @@ def _attributes() -> list[str]:
 def tokens_source() -> str:
     """The text of tokens.py: a constant per schema attribute (``tween:keyTimes`` ->
     ``KEY_TIMES``), the schema's name and the take variant set."""
-    import re
 
     lines = [
         '"""Every ``tween:*`` name the project authors or reads, generated from ``tween/schema.usda``',

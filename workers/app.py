@@ -11,6 +11,7 @@ key prefix (``<prefix>rig:``), time limits and visibility timeout.
 
 from __future__ import annotations
 
+import time
 from contextlib import contextmanager
 
 from celery import Celery
@@ -151,7 +152,6 @@ def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
     url = celery_app.conf.result_backend
     if not str(url).startswith(("redis://", "rediss://")):
         return
-    import time
 
     deadline = time.monotonic() + timeout / 2  # redis-py retries each ping a few times itself
     while True:

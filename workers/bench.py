@@ -18,6 +18,8 @@ import uuid
 from pathlib import Path
 
 from pipeline.errors import TweenError
+from pipeline.fill.api import FillOptions, fill_shot
+from workers import jobs
 
 
 def _start_workers(n: int, env: dict, log_dir: Path, tag: str) -> list[subprocess.Popen]:
@@ -55,7 +57,6 @@ def _wait_ready(app, n: int, tag: str, timeout: float = 120) -> None:
 
 
 def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, out: Path) -> dict:
-    from workers import jobs
     from workers.app import app, configure
     from workers.settings import cache_dir, load_settings
 
@@ -73,7 +74,6 @@ def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, ou
     prefix = f"tween-bench-{work.name}:"
     env = dict(os.environ, TWEEN_KEY_PREFIX=prefix, TWEEN_QUEUE=f"{prefix}fill", TWEEN_SHOT_ROOTS=str(work))
     configure(app, load_settings(env))
-    from pipeline.fill.api import FillOptions, fill_shot
 
     try:
         src = work / "src"

@@ -5,18 +5,21 @@ from __future__ import annotations
 import json
 import os
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import typer
 
+from pipeline.errors import TweenError
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
+from workers import jobs
+from workers.runtime import thread_env
 
 
 def _opts(opts) -> dict:
     """The job's options, checked (one line naming the option) before anything is sent, as
     the farm payload."""
-    from dataclasses import asdict
 
     from workers.jobs import make_opts
 
@@ -25,7 +28,6 @@ def _opts(opts) -> dict:
 
 def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:
     """A whole-number option within lo..hi, or one line naming it."""
-    from pipeline.errors import TweenError
 
     if value is not None and not lo <= value <= hi:
         raise TweenError(f"{opt} {value}: must be from {lo} to {hi}")
@@ -97,7 +99,6 @@ def register(app: typer.Typer) -> None:
         takes = opts.takes
         opts = _opts(opts)
         _int_opt("--concurrency", concurrency, 1, 256)
-        from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
 
@@ -133,7 +134,6 @@ def register(app: typer.Typer) -> None:
     ):
         """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
         opts = _opts(opts)
-        from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
 
@@ -153,7 +153,6 @@ def register(app: typer.Typer) -> None:
         as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
     ):
         """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
-        from workers import jobs
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
 
@@ -210,8 +209,6 @@ def register(app: typer.Typer) -> None:
         include: list[str] = typer.Option([], "--include", "-I", help="Extra modules to import."),
     ):
         """Run a Celery worker for the farm (several may run per host and across hosts)."""
-        from pipeline.errors import TweenError
-        from workers.runtime import thread_env
 
         _int_opt("--concurrency", concurrency, 1, 256)
         levels = ("debug", "info", "warning", "error", "critical", "fatal")
@@ -262,7 +259,6 @@ def register(app: typer.Typer) -> None:
         """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
         prints the job id (`tween status ID` shows its progress)."""
         opts = opts.check().as_job()
-        from workers import jobs
         from workers.app import check_farm, farm_errors, rig_app
 
         if rig_app.conf.tween.embedded:
@@ -294,7 +290,6 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(Path("bench_results") / "farm.json", "--out"),
     ):
         """Shots per minute with 1 and 2 workers, and Celery's overhead against a direct fill."""
-        from pipeline.errors import TweenError
         from workers.bench import run_bench_farm
 
         _int_opt("--shots", shots, 1, 100_000)

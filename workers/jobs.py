@@ -11,11 +11,15 @@ from __future__ import annotations
 import os
 import time
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from celery import chain, chord, group
 from celery import states as cstates
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from pipeline.fill.options import PATH_FIELDS, FillOptions
+from pipeline.usd.write import clean_dead_temps
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app
 from workers.limits import failure_message
@@ -77,7 +81,6 @@ def missing_dirs(path: str | None) -> list[str]:
 
 def clean_dead_work(shot: str, opts: dict) -> None:
     """Removes the work folders of embedded jobs whose client has died (killed mid-job)."""
-    from pipeline.usd.write import clean_dead_temps
 
     work = os.path.join(opts.get("out_dir") or os.path.dirname(shot), ".tween-work")
     if os.path.isdir(work):
@@ -106,9 +109,6 @@ def build(shot: str, opts: dict, job: dict, queue: str):
 
 def make_opts(**kw) -> dict:
     """FillOptions as the JSON dict that travels in messages (paths made absolute)."""
-    from dataclasses import asdict
-
-    from pipeline.fill.options import PATH_FIELDS, FillOptions
 
     opts = asdict(FillOptions(**{k: v for k, v in kw.items() if v is not None}))
     for key in PATH_FIELDS:
@@ -224,8 +224,6 @@ def wait(
     ``alive`` is called each poll and may raise (the embedded launcher uses it to stop
     waiting when its worker died).
     """
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     t0 = time.monotonic()
     states = {j: state(j) for j in job_ids}
@@ -310,9 +308,6 @@ def train_rig_state(job_id: str) -> JobState:
 
 def wait_train_rig(job_id: str, *, progress: bool = True, poll: float = 1.0, timeout=None) -> JobState:
     """Polls one training job until it finishes; a progress bar (overall fraction) on stderr."""
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
     t0 = time.monotonic()
     cols = (
         TextColumn("{task.description}"),

@@ -11,6 +11,7 @@ import os
 from collections.abc import Iterable
 
 from pipeline.errors import TweenError
+from pipeline.fill.options import PATH_FIELDS
 
 
 class PathRefused(TweenError):
@@ -38,7 +39,6 @@ def check_under_roots(path: str, roots: Iterable[str], what: str = "path") -> st
 def job_paths(shot: str, opts: dict, work_dir: str | None = None) -> dict[str, str]:
     """The paths a job reads or writes, by role."""
     paths = {"shot": shot}
-    from pipeline.fill.options import PATH_FIELDS
 
     for key in PATH_FIELDS:
         if opts.get(key):

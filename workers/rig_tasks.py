@@ -26,6 +26,7 @@ from celery.exceptions import SoftTimeLimitExceeded
 
 from pipeline.rig.options import FLAGS, command_args
 from pipeline.rig.progress import JsonLinesReader, Progress
+from pipeline.rig.store import read_rig_json
 from workers import paths as jobpaths
 from workers.app import rig_app
 from workers.errors import JobError
@@ -154,8 +155,6 @@ def run_train_rig(task, source: str, out: str, options: dict) -> dict:
     if last is not None:
         result["progress"] = dict(progress_meta(last), fraction=1.0)
     try:
-        from pipeline.rig.store import read_rig_json
-
         info = read_rig_json(out)
         result.update(model=info.name, model_hash=info.hash, fps=info.fps, joints=len(info.names))
     except Exception as e:  # trained with no_export, or the export failed: say so

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import signal
 import sys
 import threading
 import time
+
+from pipeline.fill import api as fill
 
 #: Set by the embedded launcher in its worker's environment: the pid of the `tween fill`
 #: client. A worker with it dies with that client (the embedded farm is the client's own).
@@ -35,7 +38,6 @@ def thread_env(concurrency: int) -> dict[str, str]:
 
 def get_inbetweener(name: str = "default"):
     """The process's in-betweener for ``name``, loaded on first use and kept (pipeline.fill caches it)."""
-    from pipeline.fill import api as fill
 
     return fill._model(name)
 
@@ -45,8 +47,6 @@ def init_process() -> None:
     try:
         get_inbetweener(os.environ.get("TWEEN_WORKER_MODEL", "default"))
     except Exception as e:  # a missing model must not kill the pool; the task reports it
-        import sys
-
         print(f"tween worker: model not preloaded: {e}", file=sys.stderr)
 
 
@@ -60,8 +60,6 @@ def set_pdeathsig(sig: int = signal.SIGKILL) -> bool:
     if not sys.platform.startswith("linux"):
         return False
     try:
-        import ctypes
-
         libc = ctypes.CDLL(None, use_errno=True)
         return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
     except (OSError, AttributeError):

@@ -13,6 +13,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import unquote
 
 from pipeline.data.cache import cache_root
 from pipeline.errors import TweenError
@@ -35,7 +36,6 @@ def redact_url(url: str) -> str:
 
 def url_passwords(url: str) -> list[str]:
     """The passwords in ``url`` (to scrub them out of error texts that might repeat them)."""
-    from urllib.parse import unquote
 
     found = [m["pw"] for m in _USERINFO.finditer(str(url))] + [m["pw"] for m in _QUERY_PW.finditer(str(url))]
     return sorted({v for p in found if p for v in (p, unquote(p))}, key=len, reverse=True)

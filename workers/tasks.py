@@ -17,6 +17,9 @@ from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
 from celery.signals import worker_init, worker_process_init
 
+from pipeline.errors import TweenError
+from pipeline.fill import api as fill
+from pipeline.fill.api import FillOptions
 from workers import paths as jobpaths
 from workers import runtime
 from workers.app import app
@@ -43,7 +46,6 @@ TRANSIENT_ERRNOS = {
 @contextmanager
 def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] = ()):
     """Turns exceptions into TransientError (retried) or JobError (final, JSON-safe message)."""
-    from pipeline.errors import TweenError
 
     try:
         yield
@@ -94,7 +96,6 @@ class FarmTask(Task):
 
 
 def _opts(opts: dict):
-    from pipeline.fill.api import FillOptions
 
     return FillOptions(**opts)
 
@@ -106,7 +107,6 @@ def _check(shot: str, opts: dict, job: dict) -> None:
 @app.task(name="tween.validate", base=FarmTask, bind=True)
 def validate(self, shot: str, opts: dict, job: dict) -> dict:
     """Refuses paths outside the shot roots, then checks the shot can be filled."""
-    from pipeline.fill import api as fill
 
     with _sorted_errors(shot):
         _check(shot, opts, job)
@@ -117,7 +117,6 @@ def validate(self, shot: str, opts: dict, job: dict) -> dict:
 @app.task(name="tween.fill_take", base=FarmTask, bind=True)
 def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
     """Fills one take; returns the path of its .npz under the job's work folder."""
-    from pipeline.fill import api as fill
 
     with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)
@@ -128,7 +127,6 @@ def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
 @app.task(name="tween.write_layer", base=FarmTask, bind=True)
 def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -> dict:
     """The chord body: writes the filled layer (and review layer) from every take."""
-    from pipeline.fill import api as fill
 
     with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
         _check(shot, opts, job)

@@ -1,9 +1,11 @@
 """``tween bench``: the in-betweening benchmark of PROTOCOL.md."""
 
+import os
 from pathlib import Path
 
 import typer
 
+from pipeline.bench.speed import run_speed
 from pipeline.errors import TweenError
 
 
@@ -46,10 +48,6 @@ def register(app: typer.Typer) -> None:
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
         if speed:
-            import os
-
-            from pipeline.bench.speed import run_speed
-
             picked = [m.strip() for m in methods.split(",")]
             picked = [m for m in picked if m and m not in ("zero", "interp", "model")]
             frames = int(os.environ.get("TWEEN_SPEED_FRAMES", "4096"))

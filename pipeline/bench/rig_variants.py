@@ -21,6 +21,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.adapt.mapping import MODEL_JOINTS
+from pipeline.data.split import list_clips
+from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
 
@@ -372,7 +374,6 @@ def filled_positions(review: str, rig: Rig) -> np.ndarray:
 
 
 def _fill(shot: Path, model: str, out: Path) -> str:
-    from pipeline.fill.api import FillOptions, fill_shot
 
     return fill_shot(str(shot), FillOptions(model=model, out_dir=str(out)))["review"]
 
@@ -452,7 +453,6 @@ def _markdown(res: dict, methods) -> str:
 def bench_clips(n: int = 8, frames: int = 241) -> list[Motion]:
     """``n`` eval clips spread evenly over the split's sorted file list (so several actions
     and styles), each cut to its first ``frames`` frames."""
-    from pipeline.data.split import list_clips
     from pipeline.motion.bvh import read_bvh
 
     files = list_clips("eval")

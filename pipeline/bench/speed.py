@@ -31,6 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.data.split import shared_data_dir
+from pipeline.errors import TweenError
+
 _PEAK_CODE = r"""
 import json, sys, time
 import numpy as np
@@ -134,7 +137,6 @@ def demo_shot(frames: int, keys_every: int = 10):
 
     J = len(bandai_skeleton())
     try:
-        from pipeline.data.split import shared_data_dir
         from pipeline.motion.bvh import read_bvh
 
         clip = shared_data_dir() / "bandai_namco" / "dataset-2" / "dataset-2_walk_active_002.bvh.gz"
@@ -249,8 +251,6 @@ def run_speed(
 
     folder = find_model(model_name)
     if folder is None:
-        from pipeline.errors import TweenError
-
         raise TweenError(f"model {model_name!r} not found")
     peak = sgemm_peak(peak_n, repeats)
     gen_path = folder / json.loads((folder / "model.json").read_text())["files"]["generator"]

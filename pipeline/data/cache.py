@@ -12,6 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.data.split import list_clips
+from pipeline.errors import MotionFormatError
 from pipeline.motion.bvh import read_bvh
 
 CACHE_VERSION = 1
@@ -61,7 +62,6 @@ def load_split(split: str, limit: int | None = None, root: Path | None = None) -
 def load_folder(folder: Path, skeleton=None) -> ClipSet:
     """A studio's own clips: every BVH under ``folder``, all on the model skeleton's joints."""
     from pipeline.data.skeletons import bandai_skeleton
-    from pipeline.errors import MotionFormatError
 
     files = sorted(p for p in Path(folder).rglob("*") if p.name.endswith((".bvh", ".bvh.gz")))
     if not files:

@@ -9,9 +9,11 @@ with it, so it is written here. The result is an ordinary :class:`ClipSet`.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import lzma
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -83,8 +85,6 @@ def load_pack(path: str | Path) -> ClipSet:
 
 def main() -> None:
     """``python -m pipeline.data.pack OUT`` packs the train split (with its checksum printed)."""
-    import hashlib
-    import sys
 
     from pipeline.data.cache import load_split
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
+from tqdm import tqdm
 
 from pipeline.data.cache import ClipSet, cache_dir
 from pipeline.data.skeletons import bandai_skeleton
@@ -83,9 +86,6 @@ def position_stats(train: ClipSet, skeleton=None) -> tuple[np.ndarray, np.ndarra
     if key.exists():
         z = np.load(key)
         return z["mean"], z["std"]
-    import sys
-
-    from tqdm import tqdm
 
     rots, roots = cut_windows(train, STATS_WINDOW, STATS_STRIDE)
     chunks = []

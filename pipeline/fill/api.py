@@ -18,7 +18,7 @@ import os
 import shutil
 import sys
 import tempfile
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,9 @@ from pipeline.fill.options import (  # noqa: F401
     FillOptions,
     check_fill_options,
 )
+from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
+from pipeline.usd import write
+from pipeline.usd.write import check_out_dir, clean_dead_temps, owner_tag, write_error
 
 _MODELS: dict[tuple[int, str], object] = {}
 
@@ -49,7 +52,6 @@ def rig_folder(name: str) -> str | None:
     """The rig model folder ``name`` refers to (a folder with rig.json, or one under the
     models root), or None when it is not a rig model."""
     from pipeline.infer.api import builtin_names
-    from pipeline.rig.store import is_rig_folder, models_root
 
     if name == "default" or name in builtin_names():
         return None
@@ -68,8 +70,6 @@ def _model(name: str):
     folder = rig_folder(name)
     key = (os.getpid(), name)
     if folder:
-        from pipeline.rig.store import read_rig_json
-
         # A rig model retrained in place (a new hash) is reloaded, not served stale.
         key = (os.getpid(), folder, read_rig_json(folder).hash)
     if key not in _MODELS:
@@ -106,7 +106,6 @@ def dna_motion(opts: FillOptions, fps: float):
     """The job's motion DNA: ``dna_poses`` representative poses of the reference take, or None."""
     if not opts.dna:
         return None
-    from dataclasses import replace
 
     from pipeline.fill.reference import reference_take
     from pipeline.infer.dna import MAX_POSES, representative_frames
@@ -139,7 +138,6 @@ def _joined(values) -> str:
 def validate_shot(shot: str, opts: FillOptions) -> dict:
     """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled,
     with the model of each character under ``models``."""
-    from pipeline.usd.write import check_out_dir
 
     opts.check()  # before any model is loaded
     human = _human(opts)
@@ -239,7 +237,6 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
 def _save_take(out: Path, arrays: dict) -> None:
     """Writes the take atomically (a temp named after this process, then a rename); a full
     disk is one line naming the take; the temps of dead writers in the folder go first."""
-    from pipeline.usd.write import clean_dead_temps, owner_tag, write_error
 
     tmp = None
     try:
@@ -273,7 +270,6 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     """Writes the versioned fill layer (+ tweenTake variants when takes > 1) and the review
     root layer; returns {"layer", "review", "version", "takes", "model", "model_hash"}.
     Idempotent per ``job_id``."""
-    from pipeline.usd import write
     from pipeline.usd.read import open_stage
 
     out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
@@ -305,7 +301,6 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     The takes go to a folder of the system temp folder named after this process
     (``tween-take.<pid>@<host>.<rand>.tmp``); those of runs that died are removed first.
     """
-    from pipeline.usd.write import clean_dead_temps, owner_tag, write_error
 
     summary = validate_shot(shot, opts)
     base = tempfile.gettempdir()

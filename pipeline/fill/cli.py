@@ -8,12 +8,18 @@ fill in this process, for debugging.
 from __future__ import annotations
 
 import json
+import math
+import re
 import sys
 from pathlib import Path
 
 import typer
 
+from pipeline.errors import TweenError
+from pipeline.fill.api import fill_shot
 from pipeline.fill.options import FillOptions, with_fill_options
+from pipeline.usd.dailies import approve as approve_take
+from pipeline.usd.dailies import publish as publish_take
 
 
 def register(app: typer.Typer) -> None:
@@ -31,12 +37,9 @@ def register(app: typer.Typer) -> None:
         name: str = typer.Option("Character", "--name", help="Name of the SkelRoot prim."),
     ):
         """BVH → UsdSkel shot with a skinned box mannequin."""
-        import math
-        import re
 
         from pxr import Sdf, Tf
 
-        from pipeline.errors import TweenError
         from pipeline.motion.bvh import read_bvh
         from pipeline.usd.convert import write_shot
 
@@ -109,7 +112,6 @@ def register(app: typer.Typer) -> None:
         opts: FillOptions = None,
     ):
         """Fill a shot in this process and print the result as JSON."""
-        from pipeline.fill.api import fill_shot
 
         result = fill_shot(str(shot), opts, job_id=job_id)
         print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
@@ -125,7 +127,6 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Dailies: record the approval of a take in a new fill layer version (and review layer)."""
-        from pipeline.usd.dailies import approve as approve_take
 
         r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None)
         print(f"tween: approved take {r['take']} of {r['of']} -> {r['layer']}", file=sys.stderr)
@@ -143,7 +144,6 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
-        from pipeline.usd.dailies import publish as publish_take
 
         r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
         print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)

@@ -9,12 +9,18 @@ makes those absolute in its payload and checks them against the shot roots
 
 from __future__ import annotations
 
+import functools
+import inspect
+import math
 import os
+import typing
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+import typer
 
 from pipeline.errors import TweenError
+from pipeline.usd.keys import parse_keys, parse_range
 
 
 def _opt(default, *flags: str, help: str, path: str | None = None):
@@ -102,9 +108,6 @@ def _opt_path(opt: str, v) -> None:
 
 def check_fill_options(opts: FillOptions) -> None:
     """Validates every field of ``opts``; the messages name the command-line options."""
-    import math
-
-    from pipeline.usd.keys import parse_keys, parse_range
 
     if not _is_int(opts.takes) or not 1 <= opts.takes <= MAX_TAKES:
         raise TweenError(f"--takes {opts.takes!r}: must be a whole number from 1 to {MAX_TAKES}")
@@ -149,11 +152,6 @@ def with_fill_options(command):
     """The typer command ``command`` with every FillOptions field as an option; the command
     takes them as one ``opts: FillOptions`` keyword (unchecked: it calls ``opts.check()``
     first, so a bad one is one line naming the option)."""
-    import functools
-    import inspect
-    import typing
-
-    import typer
 
     sig = inspect.signature(command)
     hints = typing.get_type_hints(FillOptions)

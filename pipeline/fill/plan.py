@@ -16,6 +16,8 @@ from pipeline.adapt.mapping import REQUIRED, MappingError, load_override, map_jo
 from pipeline.adapt.retarget import Retarget
 from pipeline.adapt.rigmap import OwnRig, RigMap, skeleton_space
 from pipeline.errors import ShotError, TweenError
+from pipeline.rig import store
+from pipeline.rig.store import no_model_hint
 from pipeline.usd.keys import merge_times, parse_keys, parse_range
 from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 
@@ -84,7 +86,6 @@ def _keys_for(shot: Shot, char: Character, want: np.ndarray | None) -> np.ndarra
 
 def _rig_for(shot: Shot, c: Character, rig: str):
     """(RigMap, folder) for ``c`` on a rig model, or (None, why not) when none fits."""
-    from pipeline.rig import store
 
     up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
     if not up:
@@ -181,8 +182,6 @@ def make_plan(
                 limbs = {r for r in REQUIRED if r not in ("Hips", "Head")}
                 creature = why.startswith("not a humanoid") or limbs <= set(e.unplaced)
                 if rig == RIG_AUTO and creature:
-                    from pipeline.rig.store import no_model_hint
-
                     why += "; " + no_model_hint(path, c.skel_path, c.names)
                 refused.append((c.skel_path, why))
                 continue

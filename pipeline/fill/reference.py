@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.adapt.mapping import map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import ShotError
 from pipeline.motion.clip import Motion
 
 
 def _usd_take(path: Path, fps: float, name: str) -> Motion:
-    from pipeline.adapt.mapping import map_joints
     from pipeline.adapt.retarget import Retarget
     from pipeline.usd.read import anim_values, read_shot, to_skeleton_order
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import ClassVar, Protocol, runtime_checkable
 
@@ -260,7 +261,6 @@ ALIASES = "tween.model_aliases"
 
 
 def _installed() -> None:
-    from importlib.metadata import entry_points
 
     aliases: dict[str, list[str]] = {}
     for ep in entry_points(group=ALIASES):

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import typer
 
+from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
+from pipeline.rig.progress import JsonLinesWriter, ProgressBar
 
 
 def register(app: typer.Typer) -> None:
@@ -78,10 +82,7 @@ def register(app: typer.Typer) -> None:
 def _train_shown(cfg, progress_fd: int | None):
     """Runs ``train(cfg)`` with its progress records shown: a bar per group of levels on stderr,
     or JSON lines on ``progress_fd`` for a reader such as the farm's task."""
-    import os
-    import sys
 
-    from pipeline.rig.progress import JsonLinesWriter, ProgressBar
     from pipeline.rig.train import train
 
     if progress_fd is None:
@@ -90,8 +91,6 @@ def _train_shown(cfg, progress_fd: int | None):
         try:
             show = JsonLinesWriter(os.fdopen(progress_fd, "w", buffering=1))
         except OSError as e:
-            from pipeline.errors import TweenError
-
             raise TweenError(f"--progress-fd {progress_fd}: {e.strerror}") from None
     with show:
         return train(cfg, on_progress=show)
@@ -122,9 +121,6 @@ def _guess_licence(source: Path) -> str:
 def main() -> None:
     """``python -m pipeline.rig.cli`` — these commands alone, for hosts without the farm,
     renderer or usd-core (e.g. a GPU box training from an .npz)."""
-    import sys
-
-    from pipeline.errors import TweenError
 
     app = typer.Typer(
         name="tween-rig", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False

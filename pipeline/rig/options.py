@@ -8,8 +8,13 @@ process) and ``tween submit-train-rig`` (the farm) offer the same options
 
 from __future__ import annotations
 
+import functools
+import inspect
 import re
+import typing
 from dataclasses import asdict, dataclass, field, fields
+
+import typer
 
 from pipeline.errors import TweenError
 
@@ -95,11 +100,6 @@ def command_args(options: dict) -> list[str]:
 def with_train_rig_options(command):
     """The typer command ``command`` with every TrainRigOptions field as an option; it takes
     them as one ``opts: TrainRigOptions`` keyword (unchecked: it calls ``opts.check()``)."""
-    import functools
-    import inspect
-    import typing
-
-    import typer
 
     sig = inspect.signature(command)
     hints = typing.get_type_hints(TrainRigOptions)

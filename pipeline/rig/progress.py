@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import IO
+
+from tqdm import tqdm
 
 
 @dataclass(frozen=True)
@@ -86,7 +89,6 @@ class ProgressBar:
     """
 
     def __init__(self, file: IO | None = None, disable: bool = False):
-        import sys
 
         self.file = file if file is not None else sys.stderr
         self.disable = disable
@@ -94,7 +96,6 @@ class ProgressBar:
         self._stage: str | None = None
 
     def __call__(self, p: Progress) -> None:
-        from tqdm import tqdm
 
         if p.stage != self._stage:
             self.close()

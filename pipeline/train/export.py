@@ -7,8 +7,10 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 import torch
 
+from pipeline.data.split import list_clips
 from pipeline.infer.dna import n_dna_channels
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.path import PathConfig, PathPredictor
@@ -146,7 +148,6 @@ def model_hash(out_dir: Path, meta: dict) -> str:
 
 def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     """Max |onnxruntime − torch| over random and real inputs, for every exported network."""
-    import numpy as np
     import onnxruntime as ort
 
     from pipeline.data.skeletons import bandai_skeleton
@@ -159,8 +160,6 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     skel = bandai_skeleton()
     inputs = [rng.normal(size=(2, gen.in_channels, 96)).astype(np.float32)]
     try:
-        from pipeline.data.split import list_clips
-
         m = read_bvh(list_clips("eval")[0]).continuous()
         n = (len(m) // gcfg.multiple) * gcfg.multiple
         keys = np.arange(0, n, 8)

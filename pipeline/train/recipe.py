@@ -52,6 +52,9 @@ from typing import Any
 
 import typer
 
+from pipeline.errors import TweenError
+from pipeline.train.commands import export_command
+
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 EXPLICIT = ("out", "path_steps", "recipe", "from_stage", "dry_run")  # flags that are not TrainConfig's
 RESERVED = ("--out", "--init", "--recipe", "--from-stage", "--dry-run", "--data-pack")  # not in stage args
@@ -210,8 +213,6 @@ def _train(ctx: typer.Context, **values) -> None:
         rec = load_recipe(recipe)
         run_recipe(rec, out or Path("runs") / rec.name, from_stage, dry_run, overrides)
     except RecipeError as e:
-        from pipeline.errors import TweenError
-
         raise TweenError(str(e)) from None
 
 
@@ -458,8 +459,6 @@ def check_recipe(rec: Recipe, overrides: list[str] = (), out: Path | None = None
             msg = e.format_message() if hasattr(e, "format_message") else str(e)
             raise RecipeError(f"{rec.source}: stage {s.name}: {msg}") from None
     if rec.export is not None:
-        from pipeline.train.cli import export_command
-
         try:
             export_command().make_context("export", export_args(rec, out))
         except Exception as e:
@@ -561,7 +560,6 @@ def run_recipe(
     if len(steps) == 2:
         shutil.copyfile(src, dst)
     say(steps[-1])
-    from pipeline.train.cli import export_command
 
     export_command().main(args, prog_name="tween export", standalone_mode=False)
     return model

@@ -22,6 +22,7 @@ import pipeline.usd  # noqa: F401
 from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
+from pipeline.usd.write import clean_dead_temps, saving, temp_path
 from usd_schemas import tokens
 
 SOURCE_NAMES_ATTR = tokens.SOURCE_JOINT_NAMES
@@ -143,7 +144,6 @@ def write_shot(
         keys.append(T - 1)
     # Atomic: a temp named after this process (those of dead writers are removed), renamed
     # over ``out``; a full disk is one line naming ``out`` and leaves nothing behind.
-    from pipeline.usd.write import clean_dead_temps, saving, temp_path
 
     tmp = temp_path(out)
     clean_dead_temps(out.parent, quiet=True)

@@ -25,6 +25,7 @@ from pathlib import Path
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import write
+from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
 
 SUFFIX = "_tween"
@@ -46,8 +47,6 @@ _DECISION = {
 def _open(path: Path, what: str = "fill layer"):
     """The layer at ``path``, opened anonymously (never saved back), or a one-line error."""
     from pxr import Sdf, Tf
-
-    from pipeline.usd.diagnostics import error_text, usd_diagnostics
 
     if not os.access(path, os.R_OK):
         raise TweenError(f"{path}: cannot read the {what}: permission denied")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime
 import errno
+import fcntl
 import json
 import os
 import re
@@ -370,7 +371,6 @@ def folder_lock(shot: str, out: Path, stem: str, created: list[Path]):
     ``out``. The lock file is removed when released; a waiter that then holds a removed file's
     lock sees its inode gone from the folder and locks the new file instead.
     """
-    import fcntl
 
     lock = out / f".{stem}.tween.lock"
     while True:

@@ -55,7 +55,7 @@ def test_recipe_parses_and_every_stage_is_valid_cli(name):
             assert cfg.init == f"runs/{rec.name}/{s.init}/generator.pt"
     # The export's inference settings are those the shipped model.json holds.
     meta = json.loads((ROOT / rec.model / "model.json").read_text())
-    from pipeline.train.cli import export_command
+    from pipeline.train.commands import export_command
 
     ctx = export_command().make_context("export", ["run", "--out", "x", *rec.export.args])
     for key in ("root", "pad", "pad_tail", "min_window", "feet_anchor", "feet_orient"):

@@ -86,6 +86,10 @@ def test_no_tween_name_is_spelled_outside_the_tokens_module():
             if path.name == "output.py" and path.parent.name == "render":
                 continue
             for node in ast.walk(ast.parse(path.read_text())):
-                if isinstance(node, ast.Constant) and isinstance(node.value, str) and pattern.match(node.value):
+                if (
+                    isinstance(node, ast.Constant)
+                    and isinstance(node.value, str)
+                    and pattern.match(node.value)
+                ):
                     hits.append(f"{path.relative_to(root)}:{node.lineno} {node.value!r}")
     assert not hits, hits

@@ -1,0 +1,45 @@
+"""``tween export`` as a command of its own: registered by the CLI (pipeline/train/cli.py)
+and run in process by the recipe runner (pipeline/train/recipe.py)."""
+
+from functools import cache
+from pathlib import Path
+
+import typer
+
+
+def export(
+    run: Path = typer.Argument(..., help="Run folder written by `tween train`."),
+    out: Path = typer.Option(..., help="Model folder to write (ONNX files + model.json)."),
+    name: str = typer.Option(None, help="Model name (default: the folder name)."),
+    root: str = typer.Option("generator", help="Root path source at inference: generator or path."),
+    pad: str = typer.Option(
+        "hold-key", help="Pad layout at inference: hold-key (the last padded frame a key), end, front."
+    ),
+    pad_tail: int = typer.Option(16, help="Frames held after the last key at least, when padding."),
+    min_window: int = typer.Option(64, help="Shortest padded window, frames."),
+    feet_anchor: bool = typer.Option(True, help="Lock contacts that hold a key at the key's foot position."),
+    feet_orient: bool = typer.Option(True, help="Locked feet hold their orientation too (toes stay put)."),
+):
+    """Export both networks to ONNX and check onnxruntime against torch."""
+    from pipeline.train.export import export as do_export
+    from pipeline.train.export import verify
+
+    settings = {
+        "root": root,
+        "pad": pad,
+        "pad_tail": pad_tail,
+        "min_window": min_window,
+        "feet_anchor": feet_anchor,
+        "feet_orient": feet_orient,
+    }
+    meta = do_export(run, out, name or out.name, settings)
+    err = verify(run, out)
+    typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")
+
+
+@cache
+def export_command():
+    """`tween export` as a click command of its own (the recipe runner calls it in process)."""
+    sub = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+    sub.command("export")(export)
+    return typer.main.get_command(sub)
