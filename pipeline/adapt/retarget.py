@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.mapping import MODEL_JOINTS, MappingError
+from pipeline.adapt.rig import Rig
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.rotations import matrix_to_quat, quat_apply, quat_inv, quat_mul, quat_normalize
 
@@ -244,7 +245,7 @@ class Retarget:
 
     def __init__(
         self,
-        char,
+        char: Rig,
         roles: dict[str, int],
         up_axis: str,
         meters_per_unit: float,

@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.adapt.rig import Rig
 from pipeline.motion.rotations import matrix_to_quat, quat_inv, quat_mul
 
 _Z_TO_Y = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # (x, y, z) Z-up → (x, z, -y) Y-up
 
 
-def skeleton_space(char, stage_up: str, stage_mpu: float) -> tuple[str, float]:
+def skeleton_space(char: Rig, stage_up: str, stage_mpu: float) -> tuple[str, float]:
     """(up axis "Y"/"Z" or "" when it is X or down, metres per unit) of ``char``'s skeleton
     space: the stage's up axis through the skeleton's world rotation, and the stage unit
     times the skeleton's world scale (the same rule as the rig model's source clip)."""
@@ -45,7 +46,7 @@ class RigMap:
     """Same interface as :class:`pipeline.adapt.retarget.Retarget`: skeleton-ordered locals of
     the character ↔ the rig model's joint order and space."""
 
-    def __init__(self, char, info, perm: np.ndarray, up_axis: str, meters_per_unit: float):
+    def __init__(self, char: Rig, info, perm: np.ndarray, up_axis: str, meters_per_unit: float):
         """``up_axis``/``meters_per_unit``: the character's skeleton space (:func:`skeleton_space`)."""
         self.char, self.info = char, info
         self.perm = np.asarray(perm, np.int64)  # perm[m] = skeleton index of model joint m
@@ -92,7 +93,7 @@ class OwnRig:
 
     reference = "own rig"
 
-    def __init__(self, char):
+    def __init__(self, char: Rig):
         from pipeline.motion.skeleton import Skeleton
 
         self.char = char

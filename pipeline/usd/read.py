@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
+from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
 from pipeline.motion.rotations import matrix_to_quat
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
@@ -31,20 +32,14 @@ QUAT_EPS = 1e-6  # a rotation quaternion shorter than this is no rotation (a zer
 
 
 @dataclass
-class Character:
-    """One animated skeleton of a shot."""
+class Character(Rig):
+    """One animated skeleton of a shot: its rig (pipeline.adapt.rig.Rig: joints, rest and bind
+    poses, the rest pose from restTransforms, the bind pose the FK of rest when not
+    authored, skel_to_world at the start time) and where its animation lives."""
 
     shot: str
     skel_path: str
     anim_path: str
-    joints: tuple[str, ...]  # skeleton joint tokens ("Hips/Spine")
-    names: tuple[str, ...]  # leaf names
-    parents: np.ndarray  # (J,)
-    rest_rot: np.ndarray  # (J, 4) local, from restTransforms
-    rest_trans: np.ndarray  # (J, 3)
-    bind_rot: np.ndarray  # (J, 4) skel-space bind pose (FK of rest when not authored)
-    bind_pos: np.ndarray  # (J, 3)
-    skel_to_world: np.ndarray  # (4, 4) column convention, at the start time
     anim_joints: tuple[str, ...]
     anim_index: np.ndarray  # (Ja,) skeleton index of each animation joint
     sample_times: np.ndarray  # authored samples of rotations ∪ translations
