@@ -148,7 +148,9 @@ def interpolate(rot, root, keys, joint_keys=None):
         w = np.where(nxt > prev, (idx - prev) / np.maximum(nxt - prev, 1), 0.0)
         nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
         joints = cols[cols < J]
-        if len(joints):
+        if len(joints) == J:  # every joint (the usual case): no gather of the joint axis
+            out[:] = batch_slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])
+        elif len(joints):
             out[:, :, joints] = batch_slerp_pairs(
                 rot[:, prev][:, :, joints], rot[:, nxt][:, :, joints], w[None, :, None]
             )
@@ -161,6 +163,9 @@ def key_groups(joint_keys: np.ndarray):
     """(keys, columns) for each distinct key set of a (K, J + 1) mask: the indices into the
     keys that key those columns. Columns sharing a key set (usually all of them) are handled
     together."""
+    if joint_keys.size and joint_keys.all():  # full keys: one group, without np.unique's sort
+        yield np.arange(joint_keys.shape[0]), np.arange(joint_keys.shape[1])
+        return
     patterns, which = np.unique(joint_keys.T, axis=0, return_inverse=True)
     for p, pattern in enumerate(patterns):
         yield np.flatnonzero(pattern), np.flatnonzero(which.ravel() == p)
@@ -246,14 +251,15 @@ def build_features(
         latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
     if (nearest[:, :J] == nearest[:, :1]).all():  # the nearest key's pose (one key set: a gather)
-        key_rot = crot[:, nearest[:, 0]]
+        # 6D of the key frames only, then gathered: the same element-wise arithmetic.
+        key_6d = batch_quat_to_6d(crot[:, keys])[:, np.searchsorted(keys, nearest[:, 0])]
     else:
-        key_rot = np.take_along_axis(crot, nearest[None, :, :J, None], axis=1)
+        key_6d = batch_quat_to_6d(np.take_along_axis(crot, nearest[None, :, :J, None], axis=1))
     feats = np.concatenate(
         [
             batch_quat_to_6d(irot).reshape(B, N, J * 6),
             iroot / ROOT_SCALE,
-            batch_quat_to_6d(key_rot).reshape(B, N, J * 6),
+            key_6d.reshape(B, N, J * 6),
             croot[:, nearest[:, J]] / ROOT_SCALE,
             np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
             np.broadcast_to(latent, (B, N, NOISE_CHANNELS)),

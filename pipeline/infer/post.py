@@ -73,7 +73,10 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
         ip, inx = at[ip], at[inx]
         joints = cols[cols < J]
         w = s[None, :, None, None]
-        corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
+        if len(joints) == J:  # every joint (the usual case): no gather of the joint axis
+            corr[:] = (1 - w) * rv[:, ip] + w * rv[:, inx]
+        else:
+            corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
         if J in cols:
             out_root = out_root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
     out_rot = batch_quat_mul(batch_rotvec_to_quat(corr), batch_quat_normalize(rot))
