@@ -25,6 +25,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from pipeline.infer.folder import ModelFolderError, models_root, read_model_json
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
@@ -158,7 +159,6 @@ def model_folder(name: str | Path) -> tuple[Path, str] | None:
     """(folder, file) of the model folder ``name`` refers to (the folder itself, else the
     folder of that name under the models root) and the JSON file it holds, or None. A
     model.json anywhere wins over a rig.json."""
-    from pipeline.infer.model import models_root
 
     for file in (MODEL_FILE, RIG_FILE):
         for cand in (Path(name), models_root() / name):
@@ -171,7 +171,6 @@ def folder_kind(folder: str | Path, file: str = MODEL_FILE) -> str:
     """The ``"kind"`` in ``folder``/``file``; a model.json without one is ``DEFAULT_KIND``.
     An unreadable file is a one-line TweenError naming it."""
     folder = Path(folder)
-    from pipeline.infer.model import ModelFolderError, read_model_json
 
     path = folder / file
     if file == RIG_FILE:  # the rig model's own loader checks the rest of the file
@@ -195,7 +194,6 @@ def folder_kind(folder: str | Path, file: str = MODEL_FILE) -> str:
 
 def load_folder(folder: str | Path, file: str | None = None) -> Inbetweener:
     """The in-betweener of a model folder, by the kind its model.json or rig.json declares."""
-    from pipeline.infer.model import ModelFolderError
 
     folder = Path(folder)
     if file is None:
@@ -223,8 +221,6 @@ def load_model(name_or_folder: str | Path = "default") -> Inbetweener:
     if found is None:
         broken = _folder_without_json(name)
         if broken is not None:  # its ONNX files are there, model.json is not: a broken model
-            from pipeline.infer.model import read_model_json
-
             read_model_json(broken)  # ModelFolderError: "<folder>/model.json: missing (...)"
         if name == "default":
             return load_model("interpolation")
@@ -239,7 +235,6 @@ load_inbetweener = load_model
 def _folder_without_json(name: str):
     """The model folder ``name`` refers to when it holds .onnx files but no model.json (and is
     no per-rig model, which has rig.json instead), else None."""
-    from pipeline.infer.model import models_root
 
     for cand in (Path(name), models_root() / name):
         try:

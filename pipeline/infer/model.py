@@ -5,7 +5,6 @@ No torch here. Sessions are created lazily, once per process (after a Celery for
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -14,7 +13,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
-from pipeline.errors import TweenError
 from pipeline.infer.api import Capabilities
 from pipeline.infer.dna import dna_poses, n_dna_channels
 from pipeline.infer.features import (
@@ -30,6 +28,13 @@ from pipeline.infer.features import (
     n_input_channels,
     path_inputs,
 )
+from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, where callers find it)
+    ModelFolderError,
+    check_onnx_file,
+    find_model,
+    models_root,
+    read_model_json,
+)
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import batch_matrix_to_quat, batch_sixd_to_matrix, quat_normalize, slerp_pairs
@@ -40,151 +45,6 @@ from pipeline.motion.rotations import batch_matrix_to_quat, batch_sixd_to_matrix
 # and not by the shot (OnnxInbetweener.chunk_plan).
 CHUNK_FRAMES = 8192
 CHUNK_CORE = 2048
-
-
-def models_root() -> Path:
-    env = os.environ.get("TWEEN_MODELS")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "models"
-
-
-def find_model(name: str) -> Path | None:
-    p = Path(name)
-    if (p / "model.json").exists():
-        return p
-    cand = models_root() / name
-    return cand if (cand / "model.json").exists() else None
-
-
-class ModelFolderError(TweenError, ValueError):
-    """A model folder that cannot be used: one line naming the file and what is wrong."""
-
-
-# model.json: the keys every model has, and the types of those the farm reads.
-_NUMBER = (int, float)
-_REQUIRED = {"name": str, "hash": str, "fps": _NUMBER, "multiple": int, "files": dict}
-_OPTIONAL = {
-    "root": str,
-    "pad": str,
-    "pad_tail": int,
-    "min_window": int,
-    "max_gap": int,
-    "receptive_field": int,
-    "mirror_average": bool,
-    "feet_anchor": bool,
-    "feet_orient": bool,
-    "generator": dict,
-    "kind": str,
-}
-_TYPE_NAMES = {
-    str: "a string",
-    int: "an integer",
-    bool: "true or false",
-    dict: "an object",
-    _NUMBER: "a number",
-}
-
-
-def _json_type(v) -> str:
-    return {dict: "an object", list: "an array", str: "a string", bool: "a boolean", type(None): "null"}.get(
-        type(v), "a number"
-    )
-
-
-def read_model_json(folder: str | Path) -> dict:
-    """``folder``/model.json, checked: readable JSON, an object with every required key of
-    the right type; or ModelFolderError naming the file."""
-    path = Path(folder) / "model.json"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ModelFolderError(
-            f"{path}: missing (a model folder holds model.json beside its .onnx files)"
-        ) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ModelFolderError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ModelFolderError(
-            f"{path}: not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
-        ) from None
-    if not isinstance(meta, dict):
-        raise ModelFolderError(f"{path}: expected a JSON object, found {_json_type(meta)}")
-    missing = [k for k in _REQUIRED if k not in meta]
-    if missing:
-        raise ModelFolderError(f"{path}: missing key(s) {', '.join(repr(k) for k in missing)}")
-    for key, want in (*_REQUIRED.items(), *_OPTIONAL.items()):
-        if key not in meta:
-            continue
-        v = meta[key]
-        # JSON true/false are not numbers here, and 30.0 is not an integer.
-        if (isinstance(v, bool) and want is not bool) or not isinstance(v, want):
-            raise ModelFolderError(f"{path}: {key!r} must be {_TYPE_NAMES[want]}, not {_json_type(v)}")
-    for key in ("fps", "multiple", "max_gap", "receptive_field"):
-        if key in meta and not meta[key] > 0:
-            raise ModelFolderError(f"{path}: {key!r} must be positive, not {meta[key]!r}")
-    for key in ("pad_tail", "min_window"):
-        if meta.get(key, 0) < 0:
-            raise ModelFolderError(f"{path}: {key!r} must be 0 or more, not {meta[key]!r}")
-    files = meta["files"]
-    if not isinstance(files.get("generator"), str) or not files["generator"]:
-        raise ModelFolderError(f"{path}: 'files' must name the generator's ONNX file ('generator': \"...\")")
-    for role, name in files.items():
-        if not isinstance(name, str) or not name:
-            raise ModelFolderError(f"{path}: files.{role} must be a file name, not {_json_type(name)}")
-    rotation = meta.get("generator", {}).get("rotation", "6d")
-    if rotation not in ("6d", "euler"):
-        raise ModelFolderError(f'{path}: generator.rotation must be "6d" or "euler", not {rotation!r}')
-    return meta
-
-
-def check_onnx_file(path: Path) -> None:
-    """ModelFolderError unless ``path`` is there, non-empty, and reads as a whole ONNX model:
-    its top-level protobuf fields (an ONNX ModelProto) all fit in the file and include the
-    graph. Cheap (it seeks over the graph), so a truncated or empty file is named at load
-    time instead of failing inside onnxruntime on the first fill."""
-    try:
-        size = path.stat().st_size
-        f = path.open("rb")
-    except FileNotFoundError:
-        raise ModelFolderError(f"{path}: missing (named in model.json's 'files')") from None
-    except OSError as e:
-        raise ModelFolderError(f"{path}: cannot read: {e.strerror or e}") from None
-    if size == 0:
-        f.close()
-        raise ModelFolderError(f"{path}: empty file (not an ONNX model)")
-    bad = f"{path}: truncated or not an ONNX model ({size} bytes)"
-
-    def varint() -> int:
-        out = shift = 0
-        while True:
-            b = f.read(1)
-            if not b or shift > 63:
-                raise ModelFolderError(bad)
-            out |= (b[0] & 0x7F) << shift
-            shift += 7
-            if b[0] < 0x80:
-                return out
-
-    graph = False
-    with f:
-        while f.tell() < size:
-            tag = varint()
-            field, wire = tag >> 3, tag & 7
-            if field == 0:
-                raise ModelFolderError(bad)
-            if wire == 0:
-                varint()
-            elif wire in (1, 2, 5):
-                n = {1: 8, 5: 4}.get(wire) or varint()
-                if f.tell() + n > size:
-                    raise ModelFolderError(bad)
-                f.seek(n, os.SEEK_CUR)
-                graph |= field == 7 and wire == 2  # ModelProto.graph
-            else:
-                raise ModelFolderError(bad)
-    if not graph:
-        raise ModelFolderError(f"{path}: not an ONNX model (no graph in its {size} bytes)")
 
 
 def ort_session(path: str | Path):
