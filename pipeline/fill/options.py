@@ -9,23 +9,20 @@ makes those absolute in its payload and checks them against the shot roots
 
 from __future__ import annotations
 
-import functools
-import inspect
 import math
 import os
-import typing
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
-import typer
 
 from pipeline.errors import TweenError
+from pipeline.options import option, with_options
 from pipeline.usd.keys import parse_keys, parse_range
 
 
 def _opt(default, *flags: str, help: str, path: str | None = None):
     """A FillOptions field: its default, CLI flags, help, and path role ("dir", "file")."""
-    return field(default=default, metadata={"flags": flags, "help": help, "path": path})
+    return option(default, *flags, help=help, path=path)
 
 
 @dataclass
@@ -148,28 +145,5 @@ PATH_FIELDS: dict[str, str] = {
 }
 
 
-def with_fill_options(command):
-    """The typer command ``command`` with every FillOptions field as an option; the command
-    takes them as one ``opts: FillOptions`` keyword (unchecked: it calls ``opts.check()``
-    first, so a bad one is one line naming the option)."""
-
-    sig = inspect.signature(command)
-    hints = typing.get_type_hints(FillOptions)
-    added = [
-        inspect.Parameter(
-            f.name,
-            inspect.Parameter.KEYWORD_ONLY,
-            default=typer.Option(f.default, *f.metadata["flags"], help=f.metadata["help"]),
-            annotation=hints[f.name],
-        )
-        for f in fields(FillOptions)
-    ]
-    own = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for n, p in sig.parameters.items() if n != "opts"]
-
-    @functools.wraps(command)
-    def run(**kw):
-        opts = FillOptions(**{f.name: kw.pop(f.name) for f in fields(FillOptions)})
-        return command(opts=opts, **kw)
-
-    run.__signature__ = sig.replace(parameters=own[:1] + added + own[1:])
-    return run
+#: The typer command with every FillOptions field as an option (``opts: FillOptions``).
+with_fill_options = with_options(FillOptions)

@@ -8,22 +8,18 @@ process) and ``tween submit-train-rig`` (the farm) offer the same options
 
 from __future__ import annotations
 
-import functools
-import inspect
 import re
-import typing
-from dataclasses import asdict, dataclass, field, fields
-
-import typer
+from dataclasses import asdict, dataclass, fields
 
 from pipeline.errors import TweenError
+from pipeline.options import option, with_options
 
 SCHEDULES = ("tiny", "reduced", "paper")
 MAX_SEED = 2**31 - 1
 
 
 def _opt(default, flag: str, help: str):
-    return field(default=default, metadata={"flag": flag, "help": help})
+    return option(default, flag, help=help)
 
 
 @dataclass
@@ -81,7 +77,7 @@ class TrainRigOptions:
 
 
 #: option name → its ``tween train-rig`` flag.
-FLAGS: dict[str, str] = {f.name: f.metadata["flag"] for f in fields(TrainRigOptions)}
+FLAGS: dict[str, str] = {f.name: f.metadata["flags"][0] for f in fields(TrainRigOptions)}
 
 
 def command_args(options: dict) -> list[str]:
@@ -97,28 +93,6 @@ def command_args(options: dict) -> list[str]:
     return args
 
 
-def with_train_rig_options(command):
-    """The typer command ``command`` with every TrainRigOptions field as an option; it takes
-    them as one ``opts: TrainRigOptions`` keyword (unchecked: it calls ``opts.check()``)."""
-
-    sig = inspect.signature(command)
-    hints = typing.get_type_hints(TrainRigOptions)
-    added = [
-        inspect.Parameter(
-            f.name,
-            inspect.Parameter.KEYWORD_ONLY,
-            default=typer.Option(f.default, f.metadata["flag"], help=f.metadata["help"]),
-            annotation=hints[f.name],
-        )
-        for f in fields(TrainRigOptions)
-    ]
-    own = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for n, p in sig.parameters.items() if n != "opts"]
-
-    @functools.wraps(command)
-    def run(**kw):
-        opts = TrainRigOptions(**{f.name: kw.pop(f.name) for f in fields(TrainRigOptions)})
-        return command(opts=opts, **kw)
-
-    # The positional argument (the clip) first, then --out, then these options.
-    run.__signature__ = sig.replace(parameters=own[:2] + added + own[2:])
-    return run
+#: The typer command with every TrainRigOptions field as an option (``opts:
+#: TrainRigOptions``), after the clip and ``--out``.
+with_train_rig_options = with_options(TrainRigOptions, lead=2)

@@ -1,0 +1,50 @@
+"""Options declared once, on a dataclass: each field carries its command-line flags and
+help, and :func:`with_options` gives a typer command one option per field. The fill
+(``pipeline.fill.options``) and per-rig training (``pipeline.rig.options``) declare theirs
+this way."""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import typing
+from dataclasses import field, fields
+
+import typer
+
+
+def option(default, *flags: str, help: str, **meta):
+    """A dataclass field that is a command-line option: its default, flags, help, and any
+    more ``meta`` (e.g. a path role) for the code that reads the fields."""
+    return field(default=default, metadata={"flags": flags, "help": help, **meta})
+
+
+def with_options(cls, lead: int = 1):
+    """A decorator: the typer command gets every field of the dataclass ``cls`` as an option
+    (after its first ``lead`` parameters) and takes them as one ``opts: cls`` keyword,
+    unchecked (the command checks them first, so a bad one is one line naming the option)."""
+    hints = typing.get_type_hints(cls)
+
+    def decorate(command):
+        sig = inspect.signature(command)
+        added = [
+            inspect.Parameter(
+                f.name,
+                inspect.Parameter.KEYWORD_ONLY,
+                default=typer.Option(f.default, *f.metadata["flags"], help=f.metadata["help"]),
+                annotation=hints[f.name],
+            )
+            for f in fields(cls)
+        ]
+        own = [
+            p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for n, p in sig.parameters.items() if n != "opts"
+        ]
+
+        @functools.wraps(command)
+        def run(**kw):
+            return command(opts=cls(**{f.name: kw.pop(f.name) for f in fields(cls)}), **kw)
+
+        run.__signature__ = sig.replace(parameters=own[:lead] + added + own[lead:])
+        return run
+
+    return decorate
