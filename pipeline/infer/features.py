@@ -33,7 +33,7 @@ from pipeline.motion.rotations import (
     batch_quat_mul,
     batch_quat_normalize,
     batch_quat_to_6d,
-    batch_slerp_pairs,
+    slerp_pairs,
 )
 
 TTA_FREQS = 8
@@ -149,9 +149,9 @@ def interpolate(rot, root, keys, joint_keys=None):
         nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
         joints = cols[cols < J]
         if len(joints) == J:  # every joint (the usual case): no gather of the joint axis
-            out[:] = batch_slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])
+            out[:] = slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])
         elif len(joints):
-            out[:, :, joints] = batch_slerp_pairs(
+            out[:, :, joints] = slerp_pairs(
                 rot[:, prev][:, :, joints], rot[:, nxt][:, :, joints], w[None, :, None]
             )
         if J in cols:

@@ -118,23 +118,6 @@ def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01)
     return slerp_pairs(q0[None], np.asarray(q1, np.float64)[None], w, lerp_eps)
 
 
-def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
-    """Elementwise SLERP: one weight per pair, ``w`` broadcastable to ``q0.shape[:-1]``."""
-    q0 = np.asarray(q0, np.float64)
-    q1 = np.asarray(q1, np.float64)
-    w = np.asarray(w, np.float64)[..., None]
-    dot = (q0 * q1).sum(-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    near = (1.0 - dot) < lerp_eps
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_t = np.where(near, 1.0, np.sin(theta))
-    s0 = np.where(near, 1.0 - w, np.sin((1.0 - w) * theta) / sin_t)
-    s1 = np.where(near, w, np.sin(w * theta) / sin_t)
-    out = s0 * q0 + s1 * q1
-    return quat_normalize(out)
-
-
 # --- Batched quaternion arithmetic in plain numpy -------------------------------------------
 # The helpers above build a scipy ``Rotation`` per call, which normalises its input, checks
 # it and allocates several intermediates; on the small per-joint arrays of FK, IK and key
@@ -327,9 +310,11 @@ def batch_quat_continuity(q: np.ndarray, axis: int = 0) -> np.ndarray:
     return np.moveaxis(q, 0, axis)
 
 
-def batch_slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
-    """:func:`slerp_pairs`, bitwise the same, with its dot products and norms summed
-    component by component (:func:`_dot`) instead of numpy's slow reduction over 4 items."""
+def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
+    """Elementwise SLERP: one weight per pair, ``w`` broadcastable to ``q0.shape[:-1]``.
+    Dot products and norms are summed component by component (:func:`_dot`, in the order of
+    numpy's ``(a * b).sum(-1)``, so the bits are those of that form) instead of numpy's slow
+    reduction over 4 items: it runs over every frame and joint of a fill."""
     q0 = np.asarray(q0, np.float64)
     q1 = np.asarray(q1, np.float64)
     w = np.asarray(w, np.float64)[..., None]
