@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pipeline.infer.api import fill_windows
 from pipeline.infer.interp import interpolate_between
 from pipeline.infer.spline import spline_keys
 
@@ -48,7 +49,6 @@ def spline(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
 def inbetweener_method(inbetweener, batch: int = 64) -> Method:
     """Adapts a product :class:`~pipeline.infer.api.Inbetweener` (keys = context + target):
     in batches through ``fill_batch`` when it declares ``capabilities.batch``, else clip by clip."""
-    from pipeline.motion.clip import Motion
 
     def run(ctx_rot, ctx_root, tgt_rot, tgt_root, T):
         n, c = ctx_rot.shape[:2]
@@ -56,20 +56,7 @@ def inbetweener_method(inbetweener, batch: int = 64) -> Method:
         rots = np.concatenate([ctx_rot, np.repeat(tgt_rot[:, None], T + 1, axis=1)], axis=1)
         roots = np.concatenate([ctx_root, np.repeat(tgt_root[:, None], T + 1, axis=1)], axis=1)
         keys = np.r_[np.arange(c), L - 1]
-        if inbetweener.capabilities.batch:
-            out_r, out_p = [], []
-            for s in range(0, n, batch):
-                r, p = inbetweener.fill_batch(rots[s : s + batch], roots[s : s + batch], keys)
-                out_r.append(r)
-                out_p.append(p)
-            r, p = np.concatenate(out_r), np.concatenate(out_p)
-        else:
-            res = [
-                inbetweener.fill(Motion(inbetweener.skeleton, rots[i], roots[i], 30.0), keys)
-                for i in range(n)
-            ]
-            r = np.stack([m.rotations for m in res])
-            p = np.stack([m.root_positions for m in res])
+        r, p = fill_windows(inbetweener, rots, roots, keys, batch, fps=30.0)
         return r[:, c : c + T], p[:, c : c + T]
 
     return run

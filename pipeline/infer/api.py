@@ -87,6 +87,25 @@ class BatchInbetweener(Inbetweener, Protocol):
         ...
 
 
+def fill_windows(inb, rots: np.ndarray, roots: np.ndarray, keys: np.ndarray, batch: int,
+                 skeleton=None, fps: float | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(N, T, J, 4) local rotations and (N, T, 3) roots of windows sharing ``keys``, filled by
+    ``inb`` (seed 0): ``batch`` windows a ``fill_batch`` call when it declares
+    ``capabilities.batch``, else one ``fill`` each on ``skeleton`` (default: its own) at
+    ``fps`` (default: its own)."""
+    if inb.capabilities.batch:
+        out_r, out_p = [], []
+        for s in range(0, len(rots), batch):
+            r, p = inb.fill_batch(rots[s : s + batch], roots[s : s + batch], keys)
+            out_r.append(np.asarray(r))
+            out_p.append(np.asarray(p))
+        return np.concatenate(out_r), np.concatenate(out_p)
+    skel = inb.skeleton if skeleton is None else skeleton
+    rate = float(inb.fps if fps is None else fps)
+    res = [inb.fill(Motion(skel, r, p, rate), keys) for r, p in zip(rots, roots, strict=True)]
+    return np.stack([m.rotations for m in res]), np.stack([m.root_positions for m in res])
+
+
 def refuse_extras(inb, joint_keys=None, dna=None) -> None:
     """ValueError when ``joint_keys`` or ``dna`` is given to an in-betweener that does not
     declare the capability (for ``fill`` implementations)."""

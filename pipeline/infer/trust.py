@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from pipeline.infer.api import fill_windows
 from pipeline.motion.clip import Motion
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import slerp_pairs
@@ -181,20 +182,6 @@ def probe_plan(keys, max_probes: int = MAX_PROBES) -> list[Probe]:
 # -- filling probes ----------------------------------------------------------------------------
 
 
-def _fill_windows(inb, rots: np.ndarray, roots: np.ndarray, keys: np.ndarray, skeleton):
-    """(N, T, J, 4), (N, T, 3) windows sharing ``keys`` filled by ``inb`` (seed 0)."""
-    if inb.capabilities.batch:
-        out_r, out_p = [], []
-        for s in range(0, len(rots), BATCH):
-            r, p = inb.fill_batch(rots[s : s + BATCH], roots[s : s + BATCH], keys)
-            out_r.append(np.asarray(r))
-            out_p.append(np.asarray(p))
-        return np.concatenate(out_r), np.concatenate(out_p)
-    fps = float(getattr(inb, "fps", 30.0))
-    res = [inb.fill(Motion(skeleton, r, p, fps), keys) for r, p in zip(rots, roots, strict=True)]
-    return np.stack([m.rotations for m in res]), np.stack([m.root_positions for m in res])
-
-
 def _errors_cm(skeleton, rot, root, true_rot, true_root) -> np.ndarray:
     """(N,) mean global joint-position error over frames and joints, in cm."""
     to_cm = 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))
@@ -225,8 +212,8 @@ def run_probes(model, spline, rots, roots, probes: list[Probe], skeleton=None, c
         kept = np.asarray(p.kept, np.int64) - p.lo
         out = np.asarray(p.left_out, np.int64) - p.lo
         true_r, true_p = w_rot[:, out], w_root[:, out]
-        m_r, m_p = _fill_windows(model, w_rot, w_root, kept, skel)
-        s_r, s_p = _fill_windows(spline, w_rot, w_root, kept, skel)
+        m_r, m_p = fill_windows(model, w_rot, w_root, kept, BATCH, skel)
+        s_r, s_p = fill_windows(spline, w_rot, w_root, kept, BATCH, skel)
         em[:, c] = _errors_cm(skel, m_r[:, out], m_p[:, out], true_r, true_p)
         es[:, c] = _errors_cm(skel, s_r[:, out], s_p[:, out], true_r, true_p)
         if cache is not None:
