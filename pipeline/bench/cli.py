@@ -27,7 +27,9 @@ def register(app: typer.Typer) -> None:
             0.0, help="Per-joint posture offsets up to this many degrees (robustness check)."
         ),
         source: str = typer.Option(
-            "eval", help="eval (the protocol), or cmu: the CMU takes retargeted (held-out source)."
+            "eval",
+            help="eval (the protocol), or cmu: the CMU takes retargeted (held-out source); "
+            "cmu:5,6,7: those CMU subjects only.",
         ),
         partial_keys: bool = typer.Option(
             False, "--partial-keys", help="One partial key (root / legs / upper body) inside each gap."
@@ -54,7 +56,10 @@ def register(app: typer.Typer) -> None:
             repeats = int(os.environ.get("TWEEN_SPEED_REPEATS", "5"))
             typer.echo(run_speed(picked[0] if picked else "default", frames, repeats, out))
             return
+        from pipeline.bench.heldout import parse_source
         from pipeline.bench.run import run_bench
+
+        parse_source(source)  # a bad --source is one line before anything runs
 
         names = [m.strip() for m in methods.split(",") if m.strip()]
         if rig_variants:

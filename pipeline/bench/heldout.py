@@ -15,16 +15,49 @@ import numpy as np
 from pipeline.data.cache import cache_dir
 from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 from pipeline.data.split import shared_data_dir
+from pipeline.errors import TweenError
 
 VERSION = 1
+SOURCES = ("eval", "cmu")  # the protocol's eval split; the CMU takes
 
 
-def cmu_windows() -> tuple[np.ndarray, np.ndarray]:
-    """(rotations (N, 65, J, 4), roots (N, 65, 3)), cached after the first call."""
-    files = sorted((shared_data_dir() / "cmu_iclone").glob("*.bvh.gz"))
+def parse_source(source: str) -> tuple[str, tuple[int, ...] | None]:
+    """``"cmu"`` -> ("cmu", None); ``"cmu:5,6,7"`` -> ("cmu", (5, 6, 7)): the CMU subjects to
+    take (a studio fine-tuned on subjects 1-3 is measured on 5-7); other sources as they are."""
+    name, colon, rest = source.partition(":")
+    if name not in SOURCES:
+        raise TweenError(f"source {source!r}: expected one of {', '.join(SOURCES)} (cmu:5,6,7: subjects)")
+    if not colon:
+        return source, None
+    if name != "cmu":
+        raise TweenError(f"source {source!r}: only cmu takes a subject list (cmu:5,6,7)")
+    try:
+        subjects = tuple(sorted({int(x) for x in rest.split(",") if x.strip()}))
+    except ValueError:
+        raise TweenError(f"source {source!r}: subjects must be numbers (cmu:5,6,7)") from None
+    if not subjects:
+        raise TweenError(f"source {source!r}: no subjects listed")
+    return name, subjects
+
+
+def cmu_files(subjects: tuple[int, ...] | None = None) -> list:
+    """The CMU takes (``NNN_TT.bvh.gz``), of the given subjects only when given."""
+    folder = shared_data_dir() / "cmu_iclone"
+    files = sorted(folder.glob("*.bvh.gz"))
+    if subjects is not None:
+        files = [f for f in files if f.name[:3].isdigit() and int(f.name[:3]) in subjects]
     if not files:
-        raise FileNotFoundError(f"no CMU takes under {shared_data_dir() / 'cmu_iclone'}")
-    cache = cache_dir() / f"cmu-windows-v{VERSION}-{len(files)}.npz"
+        which = "" if subjects is None else f" of subjects {', '.join(map(str, subjects))}"
+        raise FileNotFoundError(f"no CMU takes{which} under {folder}")
+    return files
+
+
+def cmu_windows(subjects: tuple[int, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(rotations (N, 65, J, 4), roots (N, 65, 3)), cached after the first call; ``subjects``:
+    those CMU subjects' takes only."""
+    files = cmu_files(subjects)
+    tag = "" if subjects is None else "-s" + "".join(map(str, subjects))
+    cache = cache_dir() / f"cmu-windows-v{VERSION}-{len(files)}{tag}.npz"
     if cache.exists():
         d = np.load(cache)
         return d["rots"], d["roots"]

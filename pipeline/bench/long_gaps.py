@@ -26,9 +26,9 @@ MIN_SECONDS = 10.0
 
 def cmu_on_model_skeleton(path: Path, fps: float = 30.0) -> Motion:
     """A CMU/iClone take retargeted onto the model skeleton via a converted USD shot."""
-    from pipeline.fill.reference import reference_take
+    from pipeline.usd.take import model_take
 
-    return reference_take(path, fps)
+    return model_take(path, fps)
 
 
 def long_takes(limit: int | None = None) -> list[tuple[str, Motion]]:

@@ -38,15 +38,16 @@ def test_windows(
     ``mirrored``: each window's left/right mirror image instead, a robustness check outside
     the protocol (the actors' handedness and gait asymmetries are reversed; the mirror keeps
     the window centred and facing +X at frame 9, so the protocol's normalisation still holds).
-    ``source="cmu"``: windows of the CMU takes instead (``pipeline.bench.heldout``).
+    ``source="cmu"``: windows of the CMU takes instead (``pipeline.bench.heldout``);
+    ``"cmu:5,6,7"``: of those CMU subjects only.
     ``posture``: every window's joints get constant offsets of up to this many degrees (fixed
     seed), as a rig set up differently from the actors' would carry them; the windows are
     normalised again afterwards. Also outside the protocol.
     """
-    if source == "cmu":
-        from pipeline.bench.heldout import cmu_windows
+    if source.partition(":")[0] == "cmu":
+        from pipeline.bench.heldout import cmu_windows, parse_source
 
-        rots, roots = cmu_windows()
+        rots, roots = cmu_windows(parse_source(source)[1])
     elif source == "eval":
         clips = load_split("eval", limit=limit)
         if not any(len(window_starts(n, TEST_WINDOW, TEST_STRIDE)) for n in clips.lengths):
@@ -56,7 +57,7 @@ def test_windows(
             )
         rots, roots = normalize_windows(*cut_windows(clips, TEST_WINDOW, TEST_STRIDE))
     else:
-        raise ValueError(f"unknown window source {source!r} (eval or cmu)")
+        raise ValueError(f"unknown window source {source!r} (eval, cmu or cmu:SUBJECTS)")
     if mirrored:
         m = bandai_mirror()
         rots = m.rotations(rots, bandai_skeleton().parents).astype(rots.dtype)

@@ -12,7 +12,6 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.data.split import list_clips
-from pipeline.errors import MotionFormatError
 from pipeline.motion.bvh import read_bvh
 
 CACHE_VERSION = 1
@@ -59,25 +58,14 @@ def load_split(split: str, limit: int | None = None, root: Path | None = None) -
     return load_files(files, split)
 
 
-def load_folder(folder: Path, skeleton=None) -> ClipSet:
-    """A studio's own clips: every BVH under ``folder``, all on the model skeleton's joints."""
-    from pipeline.data.skeletons import bandai_skeleton
-
-    files = sorted(p for p in Path(folder).rglob("*") if p.name.endswith((".bvh", ".bvh.gz")))
-    if not files:
-        raise MotionFormatError(folder, None, "no .bvh or .bvh.gz files in this folder")
-    want = (skeleton or bandai_skeleton()).names
-    for f in files:
-        names = read_bvh(f).skeleton.names
-        if names != want:
-            raise MotionFormatError(
-                f, None, f"skeleton has joints {names[:4]}..., the model needs {want[:4]}..."
-            )
-    return load_files(files, "folder")
-
-
-def load_files(files: list[Path], split: str) -> ClipSet:
-    key = hashlib.sha1(("\n".join(str(f) for f in files) + f"v{CACHE_VERSION}").encode()).hexdigest()[:12]
+def load_files(files: list[Path], split: str, read=None) -> ClipSet:
+    """``files`` as one ClipSet, cached under ``split``'s name. ``read`` (path -> Motion on the
+    model skeleton) defaults to the protocol's BVH reading; another reader names its own cache
+    (``split``) and gets the files' sizes and times in its key, as a studio's clips change."""
+    ident = "\n".join(str(f) for f in files)
+    if read is not None:
+        ident += "".join(f"|{f.stat().st_size}:{f.stat().st_mtime_ns}" for f in files)
+    key = hashlib.sha1((ident + f"v{CACHE_VERSION}").encode()).hexdigest()[:12]
     path = cache_dir() / f"clips-{split}-{len(files)}-{key}.npz"
     if path.exists():
         z = np.load(path, allow_pickle=False)
@@ -87,9 +75,13 @@ def load_files(files: list[Path], split: str) -> ClipSet:
     rots, roots, names, lengths = [], [], [], []
     fps = None
     for f in tqdm(
-        files, desc=f"reading {split} clips", file=sys.stderr, unit="clip", disable=len(files) < 50
+        files,
+        desc=f"reading {split} clips",
+        file=sys.stderr,
+        unit="clip",
+        disable=len(files) < (50 if read is None else 2),
     ):
-        m = read_bvh(f).continuous()
+        m = read_bvh(f).continuous() if read is None else read(f)
         fps = fps or m.fps
         rots.append(m.rotations)
         roots.append(m.root_positions)

@@ -107,12 +107,12 @@ def dna_motion(opts: FillOptions, fps: float):
     if not opts.dna:
         return None
 
-    from pipeline.fill.reference import reference_take
+    from pipeline.usd.take import model_take
     from pipeline.infer.dna import MAX_POSES, representative_frames
 
     if not 1 <= opts.dna_poses <= MAX_POSES:
         raise TweenError(f"dna_poses must be 1 to {MAX_POSES}, not {opts.dna_poses}")
-    take = reference_take(opts.dna, fps)
+    take = model_take(opts.dna, fps)
     idx = representative_frames(take.rotations, opts.dna_poses)
     return replace(take, rotations=take.rotations[idx], root_positions=take.root_positions[idx])
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
 from pathlib import Path
 
@@ -18,8 +18,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline.data.cache import load_folder, load_split
+from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
+from pipeline.errors import TweenError
 from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.features import (
     EULER_ORDER,
@@ -43,6 +44,7 @@ from pipeline.train.batches import (
     sample_keys,
 )
 from pipeline.train.keymatch import match_partial_keys, partial_match_weights
+from pipeline.usd.take import load_takes
 
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
 
@@ -89,9 +91,20 @@ class TrainConfig:
     checkpoint_minutes: float = _knob(3.0, "Minutes between checkpoints (a run resumes from its last one).")
     limit_clips: int | None = _knob(None, "Use only the first N train clips (smoke tests).")
     data: str | None = _knob(
-        None, "A folder of your own BVH clips (model skeleton) instead of Bandai train.", path=True
+        None,
+        "A folder of your own takes instead of Bandai train: BVH or USD of any humanoid rig, "
+        "mapped and retargeted onto the model skeleton as a fill does.",
+        path=True,
     )
-    init: str | None = _knob(None, "Continue from this generator checkpoint's weights.", path=True)
+    data_include: str | None = _knob(
+        None, "With --data: only the takes whose file names match these comma-separated globs."
+    )
+    init: str | None = _knob(
+        None,
+        "Continue from these weights: a generator checkpoint, or a model folder (its "
+        "torch/generator.pt; e.g. models/default). The network's shape comes from it.",
+        path=True,
+    )
     pos_zscore: bool = _knob(False, "Weigh position errors by 1/std per coordinate (train statistics).")
     data_pack: str | None = _knob(
         None, "Train split packed by `python -m pipeline.data.pack` (hosts without ../shared).", path=True
@@ -191,6 +204,37 @@ def decode(
         mats = sixd_to_matrix_t(base[..., :J6].reshape(B, N, n_joints, 6)) @ delta
     root = (base[..., J6:] + o[..., R : R + 3]) * ROOT_SCALE
     return mats, root, o[..., R + 3 : R + 7]
+
+
+def init_checkpoint(init: str) -> Path:
+    """``--init`` as a checkpoint file: a model folder gives its ``torch/generator.pt``, a run
+    folder its ``generator.pt``."""
+    p = Path(init)
+    if p.is_dir():
+        for c in (p / "torch" / "generator.pt", p / "generator.pt"):
+            if c.is_file():
+                return c
+        raise TweenError(f"{p}: --init folder holds no torch/generator.pt or generator.pt")
+    if not p.is_file():
+        raise TweenError(f"{p}: --init checkpoint not found")
+    return p
+
+
+# Add-on modules a run may give a network it continues (each starts from zero beside the
+# trained weights); every other field of the network's shape is the checkpoint's.
+ADDONS = ("key_mask", "key_adapter", "dna", "noise_schedule", "full_timing")
+
+
+def inherit_model(given: GeneratorConfig, saved: dict | None) -> GeneratorConfig:
+    """The network a run continuing a checkpoint trains: the checkpoint's (``saved``, its
+    config's "model"), with the add-ons the run's flags ask for switched on as well."""
+    if not saved:
+        return given
+    names = {f.name for f in fields(GeneratorConfig)}
+    kw = {k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in names}
+    for k in ADDONS:
+        kw[k] = max(kw.get(k, getattr(given, k)), getattr(given, k))
+    return GeneratorConfig(**kw)
 
 
 def make_discriminator(cfg: TrainConfig, dev=None):
@@ -375,13 +419,26 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
 
         clips = load_pack(cfg.data_pack)
     else:
-        clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
+        clips = (
+            load_takes(cfg.data, cfg.data_include) if cfg.data else load_split("train", limit=cfg.limit_clips)
+        )
+    short = [n for n in cfg.lengths if not (clips.lengths >= n).any()]
+    if short:
+        where = cfg.data or "the train split"
+        raise TweenError(
+            f"{where}: no take of {max(short)} frames (at 30 fps) for --lengths {max(short)}; "
+            f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"
+        )
+    init = None
+    if cfg.init:
+        state = torch.load(init_checkpoint(cfg.init), weights_only=False, map_location=dev)
+        init = state["model"]
+        cfg = replace(cfg, model=inherit_model(cfg.model, state.get("config", {}).get("model")))
     model = Generator(cfg.model).to(dev)
     # Weights an --init checkpoint lacks (a DNA encoder, key mask or adapter added to it) start
     # from scratch beside trained ones: Adam moves every weight by about the learning rate a
     # step, so they get a larger one to catch up. Continuing a model that has them already
     # treats them as trained.
-    init = torch.load(cfg.init, weights_only=False, map_location=dev)["model"] if cfg.init else None
     fresh = {n for n, _ in model.named_parameters() if init is not None and n not in init}
     trainable = dict(model.named_parameters())
     if cfg.freeze:
@@ -403,7 +460,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         opt,
         max_lr=[g["lr"] for g in groups],
         total_steps=cfg.steps,
-        pct_start=max(0.05, 3 / cfg.steps),
+        pct_start=min(max(0.05, 3 / cfg.steps), 0.5),  # (runs of under 6 steps: a smoke test)
     )
     ckpt = out_dir / "generator.pt"
     step, elapsed = 0, 0.0
@@ -428,7 +485,8 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
 
         # Per-coordinate weights 10 cm / std: a coordinate that varies little (a joint's
         # height) counts as much as its spread says, as in the benchmark's L2P.
-        _, std = position_stats(clips if cfg.data_pack else load_split("train"))
+        # A studio's own takes weigh by their own spread (they need not come with Bandai's).
+        _, std = position_stats(clips if cfg.data_pack or cfg.data else load_split("train"))
         pos_w = torch.from_numpy(POS_SCALE / std.reshape(len(skel), 3)).float()
     pos_w = pos_w.to(dev)
     log = (out_dir / "train_log.jsonl").open("a")

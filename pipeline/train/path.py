@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline.data.cache import load_folder, load_split
+from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform, path_inputs
 from pipeline.models.path import PathConfig, PathPredictor
@@ -30,7 +30,8 @@ class PathTrainConfig:
     seed: int = 0
     threads: int = 2
     limit_clips: int | None = None
-    data: str | None = None  # a folder of the studio's own clips instead of the Bandai train split
+    data: str | None = None  # a folder of the studio's own takes instead of the Bandai train split
+    data_include: str | None = None  # file-name globs under ``data``
     model: PathConfig = field(default_factory=PathConfig)
 
 
@@ -55,7 +56,12 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     skel = bandai_skeleton()
-    clips = load_folder(Path(cfg.data)) if cfg.data else load_split("train", limit=cfg.limit_clips)
+    if cfg.data:
+        from pipeline.usd.take import load_takes
+
+        clips = load_takes(cfg.data, cfg.data_include)
+    else:
+        clips = load_split("train", limit=cfg.limit_clips)
     model = PathPredictor(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)

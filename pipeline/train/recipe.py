@@ -175,7 +175,7 @@ def configs(values: dict):
         cfg = TrainConfig(**kw, model=GeneratorConfig(**model))
     except ValueError as e:
         raise typer.BadParameter(str(e)) from None
-    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data")}
+    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include")}
     return cfg, PathTrainConfig(steps=values["path_steps"], **common)
 
 

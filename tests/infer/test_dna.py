@@ -76,7 +76,7 @@ def tiny_dna_model(tmp_path_factory):
 
 def test_reference_take_reads_bvh_and_usd_and_names_a_bad_file(bandai_clip, tmp_path):
     from pipeline.errors import ShotError
-    from pipeline.fill.reference import reference_take
+    from pipeline.usd.take import model_take as reference_take
     from pipeline.motion.clip import Motion
     from pipeline.usd.convert import write_shot
 

@@ -1,0 +1,101 @@
+"""A take of any humanoid rig on the model skeleton, the way a shot reaches the model.
+
+A USD file's first animated character (the same reading, joint mapping and retargeting as
+a shot's), or a BVH file, converted to a USD take first so that it goes the same way. The
+source of a motion DNA (``tween fill --dna``), of a studio's own clips for fine-tuning
+(``tween train --data``) and of the held-out CMU windows of the bench.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.adapt.mapping import map_joints
+from pipeline.data.skeletons import bandai_skeleton
+from pipeline.errors import ShotError
+from pipeline.motion.clip import Motion
+
+
+def _usd_take(path: Path, fps: float, name: str) -> Motion:
+    from pipeline.adapt.retarget import Retarget
+    from pipeline.usd.read import anim_values, read_shot, to_skeleton_order
+
+    shot = read_shot(path)
+    c = shot.characters[0]
+    rt = Retarget(c, map_joints(c.joints, c.parents), shot.up_axis, shot.meters_per_unit)
+    times = np.arange(shot.start, shot.end + 1e-6, shot.tcps / fps)
+    if len(times) < 2:
+        raise ShotError(path, "the take has fewer than two frames")
+    rot, tr = to_skeleton_order(c, *anim_values(shot.stage, c, times)[:2])
+    q, root = rt.to_model(rot, tr)
+    return Motion(bandai_skeleton(), q, root, fps, name).continuous()
+
+
+def model_take(path: str | Path, fps: float = 30.0) -> Motion:
+    """The take in ``path`` (.usd/.usda/.usdc, or .bvh/.bvh.gz) on the model skeleton."""
+    path = Path(path)
+    if not path.is_file():
+        raise ShotError(path, "no such take file")
+    if path.name.endswith((".bvh", ".bvh.gz")):
+        from pipeline.motion.bvh import read_bvh
+        from pipeline.usd.convert import write_shot
+
+        try:
+            m = read_bvh(path)
+        except (ValueError, IndexError, OSError) as e:
+            raise ShotError(path, f"cannot read the BVH: {e}") from None
+        with tempfile.TemporaryDirectory() as tmp:
+            return _usd_take(write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name)
+    return _usd_take(path, fps, path.name)
+
+
+TAKE_SUFFIXES = (".bvh", ".bvh.gz", ".usd", ".usda", ".usdc", ".usdz")
+
+
+def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
+    """The BVH and USD takes under ``folder`` (recursively), sorted; with ``include``
+    (comma-separated file-name globs, e.g. ``"001_*,002_*"``) only the names that match one."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ShotError(folder, "no such folder of takes")
+    folder = folder.resolve()  # one cache for a folder, however it is named
+    pats = [p.strip() for p in (include or "").split(",") if p.strip()]
+    files = sorted(
+        p
+        for p in folder.rglob("*")
+        if p.is_file()
+        and p.name.lower().endswith(TAKE_SUFFIXES)
+        and (not pats or any(fnmatch.fnmatch(p.name, q) for q in pats))
+    )
+    if not files:
+        what = f"matching {include!r}" if pats else "(" + ", ".join(TAKE_SUFFIXES) + ")"
+        raise ShotError(folder, f"no BVH or USD takes {what} in this folder")
+    return files
+
+
+def _studio_take(path: Path) -> Motion:
+    """A take as the model trains on it: 30 fps on the model skeleton, quaternions continuous.
+    BVH already on the model skeleton is read as the protocol reads it (exactly); any other
+    rig goes through :func:`model_take`, the fill's own mapping and retargeting."""
+    if path.name.endswith((".bvh", ".bvh.gz")):
+        from pipeline.motion.bvh import read_bvh
+
+        try:
+            m = read_bvh(path)
+        except (ValueError, IndexError, OSError) as e:
+            raise ShotError(path, f"cannot read the BVH: {e}") from None
+        if m.skeleton.names == bandai_skeleton().names and abs(m.fps - 30.0) < 1e-3:
+            return m.continuous()
+    return model_take(path, 30.0)
+
+
+def load_takes(folder: str | Path, include: str | None = None):
+    """A studio's own takes (``take_files``) on the model skeleton, as a cached ClipSet: what
+    ``tween train --data FOLDER`` trains on."""
+    from pipeline.data.cache import load_files
+
+    return load_files(take_files(folder, include), "takes", read=_studio_take)

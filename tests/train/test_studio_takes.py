@@ -1,0 +1,106 @@
+"""A studio's own takes for fine-tuning (`tween train --data FOLDER --init MODEL`): any
+humanoid rig, BVH or USD, mapped and retargeted as the fill does; the network's shape from
+the checkpoint it continues."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from pipeline.data.skeletons import bandai_skeleton
+from pipeline.errors import ShotError, TweenError
+from pipeline.motion.bvh import read_bvh
+from pipeline.usd.take import load_takes, model_take, take_files
+
+CMU_TAKE = "002_02.bvh.gz"  # a short walk on the 100-joint Character Creator rig, 60 fps (74 frames at 30)
+SHORT_TAKE = "002_03.bvh.gz"  # 43 frames at 30 fps: shorter than any training window
+
+
+@pytest.fixture
+def takes(data_dir, bandai_clip, tmp_path):
+    folder = tmp_path / "takes"
+    (folder / "sub").mkdir(parents=True)
+    shutil.copy(data_dir / "cmu_iclone" / CMU_TAKE, folder / "sub" / CMU_TAKE)
+    shutil.copy(bandai_clip, folder / bandai_clip.name)
+    (folder / "notes.txt").write_text("not a take")
+    return folder
+
+
+def test_takes_of_any_rig_come_on_the_model_skeleton_at_30_fps(takes, bandai_clip, monkeypatch, tmp_path):
+    monkeypatch.setenv("TWEEN_CACHE", str(tmp_path / "cache"))
+    files = take_files(takes)
+    assert [f.name for f in files] == [bandai_clip.name, CMU_TAKE]  # recursive, takes only
+    cs = load_takes(takes)
+    assert cs.fps == 30.0 and cs.rotations.shape[1:] == (len(bandai_skeleton()), 4)
+    # The model skeleton's own BVH is read exactly as the protocol reads it ...
+    own = read_bvh(bandai_clip).continuous()
+    rot, root = cs.clip(0)
+    assert np.array_equal(rot, own.rotations) and np.array_equal(root, own.root_positions)
+    # ... another rig goes the fill's way: 60 fps resampled to 30, retargeted onto the model.
+    cmu = model_take(takes / "sub" / CMU_TAKE)
+    src = read_bvh(takes / "sub" / CMU_TAKE)
+    assert abs(len(cmu) - len(src) / 2) <= 1
+    rot, root = cs.clip(1)
+    np.testing.assert_allclose(rot, cmu.rotations, atol=1e-6)
+    np.testing.assert_allclose(root, cmu.root_positions, atol=1e-4)
+    # Cached: a second call reads no file; a changed take is read again.
+    monkeypatch.setattr("pipeline.usd.take.model_take", lambda *a, **k: pytest.fail("read again"))
+    again = load_takes(str(takes) + "/")
+    assert np.array_equal(again.rotations, cs.rotations)
+    assert len(load_takes(takes, include="dataset-*")) == 1  # another file set, its own cache
+
+
+def test_include_picks_takes_by_name_and_bad_folders_are_named(takes, tmp_path):
+    assert [f.name for f in take_files(takes, "00*, nothing*")] == [CMU_TAKE]
+    with pytest.raises(ShotError, match="no BVH or USD takes matching"):
+        take_files(takes, "999_*")
+    with pytest.raises(ShotError, match="no such folder"):
+        take_files(tmp_path / "missing")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ShotError, match=str(empty)):
+        take_files(empty)
+
+
+def test_a_take_that_is_no_motion_is_one_clear_error(tmp_path):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n")
+    with pytest.raises(TweenError, match="bad.bvh.*truncated"):
+        load_takes(tmp_path)
+
+
+def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_path, monkeypatch, capsys):
+    torch = pytest.importorskip("torch")
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    monkeypatch.setenv("TWEEN_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    opts = ["--path-steps", "0", "--steps", "6", "--batch", "4", "--lengths", "64", "--adv-start", "-1"]
+    args = ["train", "--data", str(takes), "--data-include", "00*", "--init", "models/default", *opts]
+    res = CliRunner().invoke(app, [*args, "--out", str(out)], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    base = torch.load("models/default/torch/generator.pt", weights_only=False)
+    run = torch.load(out / "generator.pt", weights_only=False)
+    assert run["config"]["model"] == base["config"]["model"]  # the adapter came with it
+    assert run["config"]["data_include"] == "00*" and run["step"] == 6
+    moved = [k for k in base["model"] if not torch.equal(base["model"][k], run["model"][k])]
+    assert moved and set(run["model"]) == set(base["model"])  # continued, every weight kept
+    # Takes too short for a training window, and a folder with no checkpoint: one line each.
+    from pipeline.cli import main
+
+    short = tmp_path / "short"
+    short.mkdir()
+    shutil.copy(data_dir / "cmu_iclone" / SHORT_TAKE, short / SHORT_TAKE)
+    empty = tmp_path / "no_model"
+    empty.mkdir()
+    for argv, want in (
+        (["train", "--data", str(short), *opts], "the longest is 43: give longer takes"),
+        (["train", "--data", str(takes), "--init", str(empty), *opts], "holds no torch/generator.pt"),
+    ):
+        with pytest.raises(SystemExit) as ex:
+            main([*argv, "--out", str(tmp_path / "r")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert ex.value.code == 2 and want in err[-1] and err[-1].startswith("tween: error: "), err
+        assert not (tmp_path / "r" / "generator.pt").exists()
