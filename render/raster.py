@@ -1,5 +1,13 @@
 """The per-frame rasteriser: background, grid ground with the characters' shadow, root trajectory
-and key markers, the characters (and optional key ghosts), into a 4x MSAA buffer read back as RGB."""
+and key markers, the characters (and optional key ghosts), read back as RGBA.
+
+The background and the ground are single-sampled (nothing in them has an edge that MSAA would
+smooth: the ground's grid lines are filtered in the shader and its rim is faded out, so each
+of their pixels is what the 4 samples of the MSAA buffer held); the trajectory, key marks and
+characters go into the 4x MSAA buffer with premultiplied alpha, only inside the screen
+rectangle they cover, which is then resolved and laid over them (``shaders.COMPOSITE_FS``).
+On llvmpipe the frame's cost follows the samples written, so this is about half the work of
+drawing everything multisampled."""
 
 from __future__ import annotations
 
@@ -39,7 +47,7 @@ class MeshSet:
     """GPU buffers for a list of geometries; ``upload(i)`` writes frame ``i``'s points."""
 
     def __init__(self, ctx, mesh_prog, shadow_prog, geoms: list[Geometry]):
-        self.geoms, self.items = geoms, []
+        self.geoms, self.items, self._all = geoms, [], None
         for g in geoms:
             vbo = ctx.buffer(reserve=g.n_points * 12, dynamic=True)
             ibo = ctx.buffer(np.ascontiguousarray(g.tris, np.int32).tobytes())
@@ -58,12 +66,24 @@ class MeshSet:
     def n_frames(self) -> int:
         return self.geoms[0].n_frames if self.geoms else 0
 
-    def upload(self, i: int) -> None:
+    def upload(self, i: int) -> list[np.ndarray]:
+        """Writes frame ``i`` and returns its points (one (N, 3) array per geometry)."""
+        points = []
         for g, vbo, nbo, _, _ in self.items:
             pts, nrm = g.frame(i)
             vbo.write(np.ascontiguousarray(pts, np.float32))
             if nbo is not None:
                 nbo.write(np.ascontiguousarray(nrm, np.float32))
+            points.append(pts)
+        return points
+
+    def all_points(self) -> np.ndarray:
+        """Every frame's points, (n, 3) (for the few frames of the key ghosts)."""
+        if self._all is None:
+            self._all = np.concatenate(
+                [np.asarray(g.frame(i)[0], np.float64) for g in self.geoms for i in range(g.n_frames)]
+            ).reshape(-1, 3)
+        return self._all
 
     def draw(self, prog, shadow=False):
         for g, _, _, vao, svao in self.items:
@@ -117,6 +137,29 @@ def _discs(centers: np.ndarray, y: float, r_in: float, r_out: float, t: np.ndarr
     return np.stack([pts[:, 0], np.full(len(pts), y), pts[:, 1], tt], 1).astype(np.float32)
 
 
+def screen_rect(vp: np.ndarray, viewport, points: list[np.ndarray], pad: int = 2):
+    """The scissor rectangle (x, y, w, h, GL window pixels) inside ``viewport`` that holds every
+    triangle with corners in ``points`` (world (N, 3) arrays) under the view-projection ``vp``
+    (4x4, column vectors); None when nothing is on screen. A triangle whose corners are all in
+    front of the eye projects inside their projections' box; when one is not, the whole viewport."""
+    pts = np.concatenate([np.asarray(p, np.float64).reshape(-1, 3) for p in points])
+    x0, y0, vw, vh = viewport
+    if not len(pts):
+        return None
+    m = np.asarray(vp, np.float64)
+    clip = pts @ m[:, :3].T + m[:, 3]
+    wc = clip[:, 3]
+    if not np.all(wc > 1e-9):
+        return tuple(int(v) for v in viewport)
+    sx = x0 + (clip[:, 0] / wc + 1.0) * 0.5 * vw
+    sy = y0 + (clip[:, 1] / wc + 1.0) * 0.5 * vh
+    lx, hx = max(int(np.floor(sx.min())) - pad, x0), min(int(np.ceil(sx.max())) + pad, x0 + vw)
+    ly, hy = max(int(np.floor(sy.min())) - pad, y0), min(int(np.ceil(sy.max())) + pad, y0 + vh)
+    if hx <= lx or hy <= ly:
+        return None
+    return lx, ly, hx - lx, hy - ly
+
+
 class Renderer:
     """Renders frames of ``size`` (w, h) split into ``panels`` side by side."""
 
@@ -131,11 +174,12 @@ class Renderer:
         self.size, self.panels = (w, h), panels
         max_samples = ctx.info.get("GL_MAX_SAMPLES", 4)
         samples = min(samples, max_samples)
+        self.samples = samples
+        self.layer = ctx.texture((w, h), 4, samples=samples)
         self.msaa = ctx.framebuffer(
-            color_attachments=[ctx.renderbuffer((w, h), 4, samples=samples)],
-            depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples),
+            color_attachments=[self.layer], depth_attachment=ctx.depth_renderbuffer((w, h), samples=samples)
         )
-        self.resolved = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), 4)])
+        self.image = ctx.framebuffer(color_attachments=[ctx.renderbuffer((w, h), 4)])
         self.mask_tex = ctx.texture((w, h), 1, dtype="f1")
         self.mask_fbo = ctx.framebuffer(color_attachments=[self.mask_tex])
         self.bg = ctx.program(vertex_shader=shaders.BACKGROUND_VS, fragment_shader=shaders.BACKGROUND_FS)
@@ -144,6 +188,10 @@ class Renderer:
         self.shadow = ctx.program(vertex_shader=shaders.SHADOW_VS, fragment_shader=shaders.SHADOW_FS)
         self.ground = ctx.program(vertex_shader=shaders.GROUND_VS, fragment_shader=shaders.GROUND_FS)
         self.flat = ctx.program(vertex_shader=shaders.FLAT_VS, fragment_shader=shaders.FLAT_FS)
+        self.composite = ctx.program(
+            vertex_shader=shaders.BACKGROUND_VS, fragment_shader=shaders.COMPOSITE_FS
+        )
+        self.composite_vao = ctx.vertex_array(self.composite, [])
         self._owned = []
         self.out = np.empty((h, w, 4), np.uint8)  # RGBA: the GL-native read is 10x faster than RGB
         self._finish = _gil_free_finish(ctx)
@@ -190,6 +238,10 @@ class Renderer:
         self.path_vao = self._flat_vao(np.concatenate(tri) if tri else None)
         self.keymark_vao = self._flat_vao(np.concatenate(marks) if marks else None)
         self.roots = roots
+        # the corners of every static overlay triangle: what bounds them on screen
+        self.overlay_points = np.concatenate([np.zeros((0, 3))] + [t[:, :3] for t in tri + marks]).astype(
+            np.float64
+        )
 
     def _flat_vao(self, data):
         if data is None or not len(data):
@@ -215,17 +267,12 @@ class Renderer:
         mgl, ctx = self.mgl, self.ctx
         w, h = self.size
         pw = w // self.panels
-        self.msaa.use()
-        # Depth only: the background pass covers every sample of every panel (no blending), so
-        # clearing the colour too is wasted fill on llvmpipe (the image is the same).
-        self.msaa.color_mask = (False, False, False, False)
-        self.msaa.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
-        self.msaa.color_mask = (True, True, True, True)
         for k, (cam, ms, color) in enumerate(zip(cameras, sets, colors, strict=True)):
             vp_rect = (k * pw, 0, pw, h)
-            vp = cam.view_proj(frame).T.copy()
+            vp32 = cam.view_proj(frame)
+            vp = vp32.T.copy()
             eye = cam.eye(frame)
-            ms.upload(frame)
+            points = ms.upload(frame)
             # 1. the shadow mask: characters projected along the key light
             self.mask_fbo.use()
             self.mask_fbo.viewport = vp_rect
@@ -235,9 +282,9 @@ class Renderer:
             self.shadow["key_dir"].value = tuple(KEY_DIR)
             self.shadow["ground_y"].value = self.ground_y
             ms.draw(self.shadow, shadow=True)
-            # 2. background, ground (with the mask), trajectory, markers
-            self.msaa.use()
-            self.msaa.viewport = vp_rect
+            # 2. background and ground (with the mask), single-sampled into the image
+            self.image.use()
+            self.image.viewport = vp_rect
             self.bg["viewport"].value = tuple(float(v) for v in vp_rect)
             self.bg_vao.render(mgl.TRIANGLES, vertices=3)
             ctx.enable(mgl.BLEND)
@@ -249,6 +296,31 @@ class Renderer:
             self.ground["cell"].value = self.cell
             self.ground["shadow_mask"].value = 0
             self.ground_vao.render()
+            # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
+            # premultiplied, inside the rectangle they cover
+            ring = None
+            if is_key:
+                ring = _discs(
+                    np.array([r[frame] for r in self.roots]),
+                    self.ground_y + self.height * 0.006,
+                    self.height * 0.16,
+                    self.height * 0.19,
+                    np.zeros(len(self.roots)),
+                    seg=48,
+                )
+            covered = [self.overlay_points, *points]
+            if ring is not None:
+                covered.append(ring[:, :3])
+            if ghosts is not None:
+                covered.append(ghosts.all_points())
+            rect = screen_rect(vp32, vp_rect, covered)
+            if rect is None:
+                continue
+            self.msaa.use()
+            self.msaa.viewport = vp_rect
+            self.msaa.scissor = rect
+            self.msaa.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
+            ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA, mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
             self.flat["vp"].write(vp)
             self.flat["current"].value = float(frame)
             if self.path_vao is not None:
@@ -259,20 +331,11 @@ class Renderer:
                 self.flat["color_past"].value = (1.0, 0.45, 0.15, 1.0)
                 self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
                 self.keymark_vao.render()
-            if is_key:
-                ring = _discs(
-                    np.array([r[frame] for r in self.roots]),
-                    self.ground_y + self.height * 0.006,
-                    self.height * 0.16,
-                    self.height * 0.19,
-                    np.zeros(len(self.roots)),
-                    seg=48,
-                )
+            if ring is not None:
                 rvao = self._flat_vao(ring)
                 self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
                 rvao.render()
                 self._release_last(2)
-            # 3. characters, then translucent key ghosts
             ctx.enable(mgl.DEPTH_TEST)
             ctx.disable(mgl.BLEND)
             m = self.mesh
@@ -294,11 +357,21 @@ class Renderer:
                     ghosts.upload(i)
                     ghosts.draw(m)
                 self.msaa.depth_mask = True
+            self.msaa.scissor = None
+            # 4. the rectangle resolved and laid over the background
+            ctx.disable(mgl.DEPTH_TEST)
+            ctx.enable(mgl.BLEND)
+            ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
+            self.image.use()
+            self.image.scissor = rect
+            self.layer.use(1)
+            self.composite["layer"].value = 1
+            self.composite["samples"].value = self.samples
+            self.composite_vao.render(mgl.TRIANGLES, vertices=3)
+            self.image.scissor = None
         out = self.out if out is None else out
         self._finish()  # the frame's rasterisation, waited for without the GIL
-        ctx.copy_framebuffer(self.resolved, self.msaa)
-        self._finish()  # the MSAA resolve, likewise
-        self.resolved.read_into(out, components=4, alignment=1)
+        self.image.read_into(out, components=4, alignment=1)
         return out
 
     def _release_last(self, n):
@@ -312,7 +385,10 @@ class Renderer:
         self._owned.clear()
         for o in (
             self.msaa,
-            self.resolved,
+            self.layer,
+            self.image,
+            self.composite_vao,
+            self.composite,
             self.mask_fbo,
             self.mask_tex,
             self.bg_vao,

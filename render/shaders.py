@@ -114,3 +114,18 @@ uniform float current;
 in float v_t;
 out vec4 color;
 void main() { color = v_t <= current + 0.5 ? color_past : color_future; }"""
+
+# The characters and overlays are drawn into the 4x MSAA buffer over transparent black with
+# premultiplied alpha, and only in the screen rectangle they cover; this pass resolves that
+# rectangle (the mean of the 4 samples, as the blit) and lays it over the single-sampled
+# background and ground (blend ONE, ONE_MINUS_SRC_ALPHA, scissored to the rectangle).
+COMPOSITE_FS = """#version 330
+uniform sampler2DMS layer;
+uniform int samples;
+out vec4 color;
+void main() {
+    ivec2 q = ivec2(gl_FragCoord.xy);
+    vec4 sum = vec4(0.0);
+    for (int s = 0; s < samples; s++) sum += texelFetch(layer, q, s);
+    color = sum / float(samples);
+}"""
