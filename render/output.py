@@ -88,10 +88,17 @@ def contact_sheet(
 
 
 def thumbnail(rgb: np.ndarray, factor: int = 2) -> np.ndarray:
-    """Box-filtered 1/``factor`` copy (numpy: OIIO's filtered resize costs ~180 ms at 960x540)."""
+    """Box-filtered 1/``factor`` copy (numpy: OIIO's filtered resize costs ~180 ms at 960x540):
+    the floor of each block's mean, summed over strided views (a reshape and ``sum(axis=(1, 3))``
+    gives the same pixels at 15x the time)."""
     h, w = (rgb.shape[0] // factor) * factor, (rgb.shape[1] // factor) * factor
-    blocks = rgb[:h, :w, :3].reshape(h // factor, factor, w // factor, factor, 3).astype(np.uint16)
-    return (blocks.sum(axis=(1, 3)) // (factor * factor)).astype(np.uint8)
+    src = rgb[:h, :w, :3]
+    acc = src[::factor, ::factor].astype(np.uint16)
+    for dy in range(factor):
+        for dx in range(factor):
+            if dy or dx:
+                acc += src[dy::factor, dx::factor]
+    return (acc // (factor * factor)).astype(np.uint8)
 
 
 class Movie:
@@ -103,7 +110,7 @@ class Movie:
         size: tuple[int, int],
         fps: float | Fraction,
         comment: str = "",
-        preset: str = "superfast",
+        preset: str = "ultrafast",
     ):
         import av
 
@@ -117,10 +124,17 @@ class Movie:
             raise RenderError(f"{path}: cannot start the H.264 encoder: {e}") from None
         self.stream.width, self.stream.height = w, h
         self.stream.pix_fmt = "yuv420p"
-        # superfast + crf 20: dailies quality at a speed that keeps up with the rasteriser on 2 cores
-        # (veryfast halves the file size but costs ~10 ms a frame at 960x540 here).
+        # crf 20, ultrafast with CABAC and the deblocking filter put back (tune animation's 1:1):
+        # on the 300-frame bench review half the CPU of superfast (1.85 s against 3.6 s, one
+        # thread, 3.1 MB against 2.9 MB) at the same fidelity (luma PSNR against the rendered
+        # frames 50.0 dB against 49.8 dB: clay and gradients are easy to code; what ultrafast
+        # gives up is search effort, not quality at a set crf). No B-frames: Main profile
+        # 4:2:0, which every player decodes. One thread: the encoder already runs beside the
+        # render loop (the review's writer thread), and slice threads cost CPU and bits.
         self.stream.options = {"preset": preset, "crf": "20", "tune": "animation"}
-        self.stream.codec_context.thread_count = 0
+        if preset == "ultrafast":
+            self.stream.options = {**self.stream.options, "x264-params": "cabac=1:deblock=1,1"}
+        self.stream.codec_context.thread_count = 1
         if comment:
             self.box.metadata["comment"] = comment
         self.n = 0

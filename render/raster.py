@@ -282,6 +282,9 @@ class Renderer:
             self.shadow["key_dir"].value = tuple(KEY_DIR)
             self.shadow["ground_y"].value = self.ground_y
             ms.draw(self.shadow, shadow=True)
+            # llvmpipe waits for a texture's drawing before it is sampled, inside the draw call
+            # and holding the GIL; waited for here instead, without it (as the two below)
+            self._finish()
             # 2. background and ground (with the mask), single-sampled into the image
             self.image.use()
             self.image.viewport = vp_rect
@@ -316,6 +319,7 @@ class Renderer:
             rect = screen_rect(vp32, vp_rect, covered)
             if rect is None:
                 continue
+            self._finish()
             self.msaa.use()
             self.msaa.viewport = vp_rect
             self.msaa.scissor = rect
@@ -359,6 +363,7 @@ class Renderer:
                 self.msaa.depth_mask = True
             self.msaa.scissor = None
             # 4. the rectangle resolved and laid over the background
+            self._finish()
             ctx.disable(mgl.DEPTH_TEST)
             ctx.enable(mgl.BLEND)
             ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
