@@ -1,0 +1,117 @@
+"""The render loop's speed-ups keep what a frame shows (issue 20, item 4).
+
+The characters, trajectory and key marks are drawn multisampled only inside the screen
+rectangle they cover (``raster.screen_rect``): drawing the whole frame that way must give the
+same pixels. The writer thread (``review.FrameWriter``) hands every frame to its handler in
+order, and an error there surfaces once, in the render loop."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from render_fixtures import converted_review
+
+from render import raster
+from render.review import FrameWriter, _materialise, plan_review
+from render.scene import evaluate
+
+SIZE = (320, 180)
+
+
+@pytest.fixture(scope="module")
+def stage(tmp_path_factory, bandai_clip):
+    work = tmp_path_factory.mktemp("speed")
+    return converted_review(bandai_clip, work, frames=40, key_step=10, takes=1)[0]
+
+
+def _frames(plan, frames, ghosts=False):
+    r = raster.Renderer(plan.size, panels=len(plan.panels))
+    try:
+        is_key = plan.shot.is_key()
+        r.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, np.nonzero(is_key)[0])
+        sets = [r.mesh_set(g) for g in plan.panels]
+        gs = None
+        if ghosts:
+            gs = r.mesh_set([_materialise(g) for g in evaluate(plan.shot, plan.shot.key_times[:3])[0]])
+        colors = [raster.BLOCKING_CLAY, raster.CLAY][-len(plan.panels) :]
+        cams = [plan.camera] * len(plan.panels)
+        return [r.render(i, cams, sets, colors, bool(is_key[i]), gs).copy() for i in frames]
+    finally:
+        r.release()
+
+
+@pytest.mark.parametrize("side_by_side", [False, True])
+def test_layer_rectangle_changes_no_pixel(stage, monkeypatch, side_by_side):
+    plan = plan_review(stage, size=SIZE, side_by_side=side_by_side)
+    frames = [0, 10, 17, 39]  # key frames (ring, badge) and in-betweens
+    # the rectangle does cut: the character is a small part of the frame
+    rect = raster.screen_rect(plan.camera.view_proj(0), (0, 0, *SIZE), [plan.panels[0][0].frame(0)[0]])
+    assert rect is not None and rect[2] * rect[3] < 0.5 * SIZE[0] * SIZE[1]
+    cut = _frames(plan, frames, ghosts=side_by_side)
+    monkeypatch.setattr(raster, "screen_rect", lambda vp, viewport, points, pad=2: tuple(viewport))
+    whole = _frames(plan, frames, ghosts=side_by_side)
+    for a, b in zip(cut, whole, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_screen_rect_edges():
+    from render.camera import Camera
+
+    cam = Camera(np.array([-0.5, 0.0, -0.5]), np.array([0.5, 1.8, 0.5]), 16 / 9, 10, "front")
+    vp, view = cam.view_proj(0), (0, 0, 320, 180)
+    x, y, w, h = raster.screen_rect(vp, view, [np.array([[0.0, 0.9, 0.0]])])
+    assert 150 < x < 170 and 80 < y < 100 and 4 <= w <= 5 and 4 <= h <= 5  # one point, padded by 2 px
+    behind = cam.eye(0) + (cam.eye(0) - cam.target_at(0))  # behind the eye: the whole viewport
+    assert raster.screen_rect(vp, view, [np.array([[0.0, 0.9, 0.0], behind])]) == view
+    far_left = cam.target_at(0) + np.array([-100.0, 0.0, 0.0])
+    assert raster.screen_rect(vp, view, [far_left[None]]) is None
+    assert raster.screen_rect(vp, view, [np.zeros((0, 3))]) is None
+
+
+def test_frame_writer_in_order():
+    seen, threads = [], set()
+
+    def handle(i, buf, save):
+        seen.append((i, int(buf[0, 0, 0])))
+        threads.add(threading.current_thread().name)
+
+    w = FrameWriter((4, 4, 4), handle, depth=2)
+    for i in range(50):
+        buf = w.buffer()
+        buf[...] = i
+        w.put(i, buf)
+    w.close()
+    assert seen == [(i, i) for i in range(50)]
+    assert threads == {"review-writer"}
+
+
+def test_frame_writer_error_surfaces_once():
+    handled = []
+
+    def handle(i, buf, save):
+        if i == 7:
+            raise OSError("disk full")
+        handled.append(i)
+
+    w = FrameWriter((4, 4, 4), handle, depth=2)
+    with pytest.raises(OSError, match="disk full"):
+        for i in range(200):
+            w.put(i, w.buffer())
+        w.close()
+    w.abort()
+    assert handled == list(range(7))  # nothing after the failed frame is encoded
+
+
+def test_frame_writer_save_errors_surface(tmp_path):
+    def write(i):
+        if i == 3:
+            raise ValueError(f"frame {i}: cannot write")
+
+    w = FrameWriter((2, 2, 4), lambda i, buf, save: save(write, i), depth=2, frame_threads=2)
+    with pytest.raises(ValueError, match="frame 3"):
+        for i in range(10):
+            w.put(i, w.buffer())
+        w.close()
+    w.abort()
