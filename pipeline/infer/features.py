@@ -33,7 +33,7 @@ from pipeline.motion.rotations import (
     batch_quat_mul,
     batch_quat_normalize,
     batch_quat_to_6d,
-    slerp_pairs,
+    slerp_frames,
 )
 
 TTA_FREQS = 8
@@ -124,6 +124,15 @@ def invert_transform(rot, root, q, off):
 
 def tta_embedding(d: np.ndarray) -> np.ndarray:
     """Sinusoidal embedding of frame distances (..., ) -> (..., 2 * TTA_FREQS)."""
+    d = np.asarray(d)
+    if d.ndim == 1 and len(d) > 64:  # frame distances repeat: each distinct one once, gathered
+        u, inv = np.unique(d, return_inverse=True)
+        if len(u) < len(d) // 2:
+            return _tta(u)[inv]
+    return _tta(d)
+
+
+def _tta(d: np.ndarray) -> np.ndarray:
     freqs = np.pi / (MAX_TTA ** (np.arange(TTA_FREQS) / TTA_FREQS))
     a = d[..., None] * freqs
     return np.concatenate([np.sin(a), np.cos(a)], axis=-1)
@@ -148,12 +157,11 @@ def interpolate(rot, root, keys, joint_keys=None):
         w = np.where(nxt > prev, (idx - prev) / np.maximum(nxt - prev, 1), 0.0)
         nearest[:, cols] = np.where(idx - prev <= nxt - idx, prev, nxt)[:, None]
         joints = cols[cols < J]
+        # (slerp_frames: the SLERP of slerp_pairs, each gap's terms computed once.)
         if len(joints) == J:  # every joint (the usual case): no gather of the joint axis
-            out[:] = slerp_pairs(rot[:, prev], rot[:, nxt], w[None, :, None])
+            out[:] = slerp_frames(rot, prev, nxt, w)
         elif len(joints):
-            out[:, :, joints] = slerp_pairs(
-                rot[:, prev][:, :, joints], rot[:, nxt][:, :, joints], w[None, :, None]
-            )
+            out[:, :, joints] = slerp_frames(rot[:, :, joints], prev, nxt, w)
         if J in cols:
             ipos[:] = (1 - w)[None, :, None] * root[:, prev] + w[None, :, None] * root[:, nxt]
     return out, ipos, nearest
@@ -250,27 +258,35 @@ def build_features(
     if noise_schedule:
         latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
+    # Written straight into the network's (B, C, N) float32 layout, group by group (each
+    # value cast from float64 as the concatenated float64 array's cast did: the same bits).
+    n_mask = (J + 1) * key_mask
+    feats = np.empty((B, 2 * (J * 6 + 3) + per_frame.shape[-1] + NOISE_CHANNELS + n_mask, N), np.float32)
+    by_frame = feats.transpose(0, 2, 1)  # (B, N, C) view
+
+    def sixd(lo):  # (B, N, J, 6) view of the J * 6 channels from ``lo``
+        return feats[:, lo : lo + J * 6].reshape(B, J, 6, N).transpose(0, 3, 1, 2)
+
+    batch_quat_to_6d(irot, out=sixd(0))
+    at = J * 6
+    by_frame[..., at : at + 3] = iroot / ROOT_SCALE
+    at += 3
     if (nearest[:, :J] == nearest[:, :1]).all():  # the nearest key's pose (one key set: a gather)
         # 6D of the key frames only, then gathered: the same element-wise arithmetic.
-        key_6d = batch_quat_to_6d(crot[:, keys])[:, np.searchsorted(keys, nearest[:, 0])]
+        sixd(at)[:] = batch_quat_to_6d(crot[:, keys])[:, np.searchsorted(keys, nearest[:, 0])]
     else:
-        key_6d = batch_quat_to_6d(np.take_along_axis(crot, nearest[None, :, :J, None], axis=1))
-    feats = np.concatenate(
-        [
-            batch_quat_to_6d(irot).reshape(B, N, J * 6),
-            iroot / ROOT_SCALE,
-            key_6d.reshape(B, N, J * 6),
-            croot[:, nearest[:, J]] / ROOT_SCALE,
-            np.broadcast_to(per_frame, (B, N, per_frame.shape[-1])),
-            np.broadcast_to(latent, (B, N, NOISE_CHANNELS)),
-            np.broadcast_to(key_mask_channels(N, keys, joint_keys, J), (B, N, J + 1))[
-                ..., : (J + 1) * key_mask
-            ],
-        ],
-        axis=-1,
-    )
+        batch_quat_to_6d(np.take_along_axis(crot, nearest[None, :, :J, None], axis=1), out=sixd(at))
+    at += J * 6
+    by_frame[..., at : at + 3] = croot[:, nearest[:, J]] / ROOT_SCALE
+    at += 3
+    by_frame[..., at : at + per_frame.shape[-1]] = per_frame
+    at += per_frame.shape[-1]
+    by_frame[..., at : at + NOISE_CHANNELS] = latent
+    at += NOISE_CHANNELS
+    if key_mask:
+        by_frame[..., at:] = key_mask_channels(N, keys, joint_keys, J)
     ctx = {"q": q, "off": off, "irot": irot, "iroot": iroot, "crot": crot, "croot": croot}
-    return np.ascontiguousarray(feats.transpose(0, 2, 1), np.float32), ctx
+    return feats, ctx
 
 
 def key_mask_channels(n: int, keys, joint_keys, n_joints: int) -> np.ndarray:

@@ -37,7 +37,13 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
 )
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import batch_matrix_to_quat, batch_sixd_to_matrix, quat_normalize, slerp_pairs
+from pipeline.motion.rotations import (
+    batch_matrix_to_quat,
+    batch_sixd_to_matrix,
+    batch_sixd_to_quat,
+    quat_normalize,
+    slerp_pairs,
+)
 
 # Fills up to CHUNK_FRAMES model frames (4.5 min at 30 fps) run as one window, exactly as
 # they always did; longer ones go through windows of about CHUNK_CORE frames each (plus the
@@ -275,11 +281,14 @@ class OnnxInbetweener:
             ang = np.pi * np.tanh(o[..., :R].reshape(-1, 3).astype(np.float64))
             delta = Rotation.from_euler(EULER_ORDER, ang).as_matrix().reshape(B, -1, J, 3, 3)
             mats = batch_sixd_to_matrix(base[..., :J6].reshape(B, -1, J, 6).astype(np.float64)) @ delta
+            q = batch_matrix_to_quat(mats)
         else:
-            mats = batch_sixd_to_matrix(
-                (base[..., :J6] + o[..., :J6]).reshape(B, -1, J, 6).astype(np.float64)
-            )
-        q = batch_matrix_to_quat(mats)
+            # 6D straight to quaternions (no 3x3 matrices in between; bitwise the same as
+            # through them), on the network's (B, C, N) layout: one row of frames per channel.
+            n = out.shape[-1]
+            d6 = (feats[:, :J6] if gcfg.get("residual", True) else np.zeros_like(feats[:, :J6])) + out[:, :J6]
+            q = np.empty((B, n, J, 4))
+            batch_sixd_to_quat(d6.reshape(B, J, 6, n), axis=2, out=q.transpose(0, 2, 1, 3))
         croot = (base[..., J6:] + o[..., R : R + 3]).astype(np.float64) * ROOT_SCALE
         contacts = _sigmoid(o[..., R + 3 : R + 7])
         if self.root_mode == "path" and "path" in self.meta["files"]:

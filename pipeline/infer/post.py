@@ -3,8 +3,9 @@
 All in numpy, on motions of the model skeleton. Quaternion products, rotations of vectors,
 rotation vectors and FK are batched float64 array arithmetic (``batch_*`` in
 ``pipeline.motion.rotations``, ``pipeline.motion.fk``): a scipy ``Rotation`` built per call
-cost more than the arithmetic on these small arrays. scipy stays for the average of a
-contact's foot orientations and the slerp along held keys (see :func:`lock_feet`).
+cost more than the arithmetic on these small arrays; the average of a contact's foot
+orientations and the slerp along held keys are written out the same way (:func:`_mean_rotation`,
+:func:`_slerp_keys`).
 - :func:`match_keys` — the residual at each key (rotation vector per joint, vector for the
   root) is spread over the frames between neighbouring keys with smoothstep weights, so key
   frames equal the input exactly and the correction has zero velocity at keys (no pop).
@@ -18,11 +19,11 @@ contact's foot orientations and the slerp along held keys (see :func:`lock_feet`
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.infer.features import key_groups
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import (
+    BLOCK,
     batch_quat_apply,
     batch_quat_conj,
     batch_quat_continuity,
@@ -66,20 +67,33 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     delta = batch_quat_mul(batch_quat_normalize(key_rot), inv)
     rv = batch_quat_to_rotvec(batch_quat_normalize(delta))
     dr = key_root.astype(np.float64) - root[:, keys]
-    corr = np.empty((B, N, J, 3))
+    corr = None
     out_root = np.asarray(root, np.float64).copy()
-    for at, cols in key_groups(mask):
+    groups = list(key_groups(mask))
+    for at, cols in groups:
         ip, inx, s = key_weights(N, keys[at])
         ip, inx = at[ip], at[inx]
         joints = cols[cols < J]
         w = s[None, :, None, None]
-        if len(joints) == J:  # every joint (the usual case): no gather of the joint axis
-            corr[:] = (1 - w) * rv[:, ip] + w * rv[:, inx]
+        if len(joints) == J:  # every joint (the usual case): the correction is made in blocks
+            spread = ip, inx, w
         else:
+            corr = np.empty((B, N, J, 3)) if corr is None else corr
             corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
         if J in cols:
             out_root = out_root + (1 - s)[None, :, None] * dr[:, ip] + s[None, :, None] * dr[:, inx]
-    out_rot = batch_quat_mul(batch_rotvec_to_quat(corr), batch_quat_normalize(rot))
+    # The corrected rotations over blocks of frames: the correction's rotation vectors, their
+    # quaternions and the product, element-wise as over the whole shot, in the cache.
+    out_rot = np.empty((B, N, J, 4))
+    step = max(1, BLOCK // (B * J))
+    for f0 in range(0, N, step):
+        f = slice(f0, f0 + step)
+        if corr is None:
+            ip, inx, w = spread
+            c = (1 - w[:, f]) * rv[:, ip[f]] + w[:, f] * rv[:, inx[f]]
+        else:
+            c = corr[:, f]
+        out_rot[:, f] = batch_quat_mul(batch_rotvec_to_quat(c), batch_quat_normalize(rot[:, f]))
 
     unique = len(np.unique(keys)) == K
 
@@ -97,7 +111,7 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     out_root[:, : keys[0]] = key_root[:, :1]
     out_rot[:, keys[-1] + 1 :] = key_rot[:, -1:]
     out_root[:, keys[-1] + 1 :] = key_root[:, -1:]
-    out_rot = batch_quat_continuity(out_rot, axis=1)
+    out_rot = batch_quat_continuity(out_rot, axis=1, copy=False)
     put_keys(out_rot)  # continuity may have flipped a key's sign; keep its value
     return out_rot.astype(np.float32), out_root.astype(np.float32)
 
@@ -136,12 +150,14 @@ def _rot_between(u, v):
     return batch_rotvec_to_quat(axis * ang)
 
 
-def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
+def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None, posed=None):
     """Move the ankle of ``leg`` = (hip, knee, ankle, toe) toward ``targets`` (N, 3) by ``weight`` (N,).
 
     Changes the local rotations of hip, knee and ankle only, so bone lengths never change.
     The ankle keeps its world orientation, or with ``orient`` (N, 4 world quaternions) turns
-    toward it by the same weight. ``rot`` (N, J, 4) local, ``root`` (N, 3).
+    toward it by the same weight. ``rot`` (N, J, 4) local, ``root`` (N, 3). ``posed``: the
+    caller's FK of ``rot`` (global rotations, positions over all N frames, float64) where it
+    has it for the ankle and its ancestors; otherwise it is computed here.
     """
     hip, knee, ankle, _ = leg
     sel = weight > 1e-4
@@ -149,7 +165,12 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
         return rot
     rot = rot.copy()
     parent = skeleton.parents[hip]
-    gq, gp = fk(rot[sel].astype(np.float64), root[sel], skeleton.parents, skeleton.offsets, joints=[ankle])
+    if posed is None:
+        gq, gp = fk(
+            rot[sel].astype(np.float64), root[sel], skeleton.parents, skeleton.offsets, joints=[ankle]
+        )
+    else:
+        gq, gp = posed[0][sel], posed[1][sel]
     a, b, c = gp[:, hip], gp[:, knee], gp[:, ankle]
     t = c + weight[sel, None] * (targets[sel] - c)
     lab = np.linalg.norm(b - a, axis=-1)
@@ -184,6 +205,34 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None):
     return rot
 
 
+# The held foot orientations: scipy's ``Slerp`` and ``Rotation.mean`` did these, one pair of
+# Rotation objects per contact; on a contact's few frames the objects' set-up and checks
+# cost more than the arithmetic, so they are written out on arrays here (the same formulas:
+# equal to scipy's to ~1e-16, so a fill moves by at most a float32 rounding).
+
+
+def _slerp_keys(q: np.ndarray, times: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Unit quaternions (len(at), 4) of key rotations ``q`` (K, 4) at sorted ``times`` (K,),
+    interpolated at ``at`` (within the times), as ``scipy...Slerp(times, q)(at).as_quat()``:
+    from each key, its rotation vector to the next scaled by the time since."""
+    q = batch_quat_normalize(q)
+    if len(q) == 1:
+        return np.repeat(q, len(at), 0)
+    step = batch_quat_to_rotvec(batch_quat_mul(batch_quat_conj(q[:-1]), q[1:]))
+    i = np.searchsorted(times, at) - 1
+    i[at == times[0]] = 0
+    alpha = (at - times[i]) / np.diff(times)[i]
+    return batch_quat_mul(q[i], batch_rotvec_to_quat(step[i] * alpha[:, None]))
+
+
+def _mean_rotation(q: np.ndarray) -> np.ndarray:
+    """The mean rotation (4,) of unit quaternions (n, 4), as scipy's ``Rotation.mean()``: the
+    eigenvector of the largest eigenvalue of the mean of q q^T (either sign: the same
+    rotation, and two_bone_ik takes the shorter turn to it either way)."""
+    q = batch_quat_normalize(q)
+    return np.linalg.eigh(q.T @ q / len(q))[1][:, -1]
+
+
 def lock_feet(
     rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False, orient: bool = False
 ):
@@ -213,6 +262,7 @@ def lock_feet(
     outside[: keys[0]] = True
     outside[keys[-1] + 1 :] = True
     out = rot.copy()
+    moved: set[int] = set()  # joints an earlier leg's IK changed
     for li, leg in enumerate(legs):
         ankle = leg[2]
         weight = np.zeros(N)
@@ -234,20 +284,24 @@ def lock_feet(
                 ramp_in[frames >= held[0]] = 1.0
                 ramp_out[frames <= held[-1]] = 1.0
                 if orient:
-                    key_rot = Rotation.from_quat(gq[held, ankle])
-                    inside = np.clip(frames, held[0], held[-1])
-                    turn[s0:s1] = (
-                        Slerp(held, key_rot)(inside) if len(held) > 1 else key_rot[np.zeros_like(frames)]
-                    ).as_quat()
+                    turn[s0:s1] = _slerp_keys(gq[held, ankle], held, np.clip(frames, held[0], held[-1]))
             else:
                 lock = gp[s0:s1, ankle].mean(0)
                 targets[s0:s1, 0] = lock[0]
                 targets[s0:s1, 2] = lock[2]
                 if orient:
-                    turn[s0:s1] = Rotation.from_quat(gq[s0:s1, ankle]).mean().as_quat()
+                    turn[s0:s1] = _mean_rotation(gq[s0:s1, ankle])
             weight[s0:s1] = _smoothstep(np.minimum(ramp_in, ramp_out))
         fade[keys[(keys >= 0) & (keys < N)]] = 0.0  # callers may pass keys outside the clip
         fade[outside] = 0.0
         weight *= _smoothstep(fade)
-        out = two_bone_ik(out, root, skeleton, leg, targets, weight, turn)
+        # The FK above still holds for this leg unless an earlier leg's IK moved one of its
+        # ankle's ancestors (FK is frame by frame, so it is the same as FK of those frames).
+        chain, j = set(), ankle
+        while j >= 0:
+            chain.add(j)
+            j = skeleton.parents[j]
+        posed = None if chain & moved else (gq, gp)
+        out = two_bone_ik(out, root, skeleton, leg, targets, weight, turn, posed)
+        moved.update(leg[:3])
     return out.astype(np.float32)

@@ -8,6 +8,9 @@ continuity) are ones scipy has no batched form for.
 
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -126,6 +129,58 @@ def slerp(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01)
 # not normalise their inputs: callers pass unit quaternions (see :func:`batch_quat_normalize`).
 
 
+# Blocks: a fill's arrays are (frames x joints) quaternions, ~86k for 4096 frames, and one
+# element-wise formula here is tens of numpy operations, each writing a temporary of that
+# size (0.7 MB in float64). Run over the whole array those temporaries do not stay in the
+# core's caches and each is fresh memory (page faults); run over blocks of about BLOCK
+# elements they do, which made these functions about twice as fast. Every function so
+# blocked is element-wise over its leading axes, so a block's bits are the whole array's.
+BLOCK = 8192
+
+
+def _block_slices(lead: tuple[int, ...]):
+    """Index tuples covering the leading shape ``lead`` in blocks of about BLOCK elements:
+    the trailing axes that fit whole, and steps along the next one."""
+    inner, k = 1, len(lead)
+    while k > 0 and inner * lead[k - 1] <= BLOCK:
+        k -= 1
+        inner *= lead[k]
+    if k == 0:
+        yield ()
+        return
+    k -= 1
+    step = max(1, BLOCK // inner)
+    for idx in np.ndindex(*lead[:k]):
+        for s in range(0, lead[k], step):
+            yield idx + (slice(s, s + step),)
+
+
+def _blockwise(tails: tuple[int, ...], out_tail: tuple[int, ...]):
+    """Run an element-wise function of arrays (with ``tails`` trailing component axes each,
+    leading axes broadcasting) over blocks of the leading shape (see BLOCK), into one
+    float64 result (..., *out_tail); ``out=`` gives that result's array (may be a view)."""
+
+    def deco(fn):
+        @functools.wraps(fn)
+        def run(*args, out=None, **kw):
+            arrays, rest = [np.asarray(a) for a in args[: len(tails)]], args[len(tails) :]
+            lead = np.broadcast_shapes(*(a.shape[: a.ndim - t] for a, t in zip(arrays, tails, strict=True)))
+            if out is None and math.prod(lead) <= 2 * BLOCK:
+                return fn(*arrays, *rest, **kw)
+            full = [
+                np.broadcast_to(a, lead + a.shape[a.ndim - t :]) for a, t in zip(arrays, tails, strict=True)
+            ]
+            if out is None:
+                out = np.empty(lead + out_tail)
+            for sl in _block_slices(lead):
+                out[sl] = fn(*(a[sl] for a in full), *rest, **kw)
+            return out
+
+        return run
+
+    return deco
+
+
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot products over the last axis, summed left to right as numpy's ``(a * b).sum(-1)``
     sums a short axis (so bitwise the same), without its slow reduction over 3 or 4 items."""
@@ -135,12 +190,14 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+@_blockwise((1,), (4,))
 def batch_quat_normalize(q: np.ndarray) -> np.ndarray:
     """q / |q| in float64, as scipy's ``Rotation.from_quat`` normalises."""
     q = np.asarray(q, np.float64)
     return q / np.sqrt(_dot(q, q))[..., None]
 
 
+@_blockwise((1, 1), (4,))
 def batch_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product a * b of unit quaternions (..., 4), broadcasting: ``quat_mul``
     without the normalisation of its inputs."""
@@ -163,6 +220,7 @@ def batch_quat_conj(q: np.ndarray) -> np.ndarray:
     return out
 
 
+@_blockwise((1, 1), (3,))
 def batch_quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors v (..., 3) by unit quaternions q (..., 4), broadcasting:
     v + 2w (u × v) + 2 u × (u × v) with u the vector part."""
@@ -180,6 +238,7 @@ def batch_quat_apply(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+@_blockwise((1,), (3,))
 def batch_quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vectors of unit quaternions (..., 4) -> (..., 3), as scipy's ``as_rotvec``
     (the w >= 0 cover, a Taylor series below 1e-3 rad)."""
@@ -194,6 +253,7 @@ def batch_quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     return scale[..., None] * u
 
 
+@_blockwise((1,), (4,))
 def batch_rotvec_to_quat(rv: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) of rotation vectors (..., 3), as scipy's ``from_rotvec``."""
     rv = np.asarray(rv, np.float64)
@@ -208,6 +268,7 @@ def batch_rotvec_to_quat(rv: np.ndarray) -> np.ndarray:
     return out
 
 
+@_blockwise((1,), (3, 3))
 def batch_quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of quaternions (..., 4), normalised first as scipy's
     ``Rotation.from_quat(q).as_matrix()``."""
@@ -228,6 +289,7 @@ def batch_quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return m
 
 
+@_blockwise((1,), (6,))
 def batch_quat_to_6d(q: np.ndarray) -> np.ndarray:
     """``quat_to_6d`` (the first two matrix columns) without the scipy round trip: the six
     entries of :func:`batch_quat_to_matrix` it keeps, by the same formulas."""
@@ -261,6 +323,47 @@ def batch_sixd_to_matrix(d6: np.ndarray) -> np.ndarray:
     return m
 
 
+def _quat_of_matrix_entries(m00, m01, m02, m10, m11, m12, m20, m21, m22):
+    """Unit quaternion components (x, y, z, w) of rotation matrices given entry by entry
+    (arrays of one shape), by scipy's ``from_matrix`` case analysis: the largest of the
+    diagonal and the trace picks the formula (the first on ties), then q / |q|.
+
+    Every row is first computed by the trace's formula (the usual case: rotations under
+    about 120 degrees), without a gather; only the rows where the trace is not the strict
+    largest go through the case analysis again. Each row gets the same element-wise
+    arithmetic as one case analysis over all rows, so the bits are those of that form."""
+    tr = m00 + m11
+    tr += m22
+    x, y, z = m21 - m12, m02 - m20, m10 - m01
+    w = tr + 1
+    other = ~((tr > m00) & (tr > m11) & (tr > m22))  # (a NaN is never the trace's case)
+    if other.any():
+        e = [a[other] for a in (m00, m01, m02, m10, m11, m12, m20, m21, m22)]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = e
+        t = tr[other]
+        choice = np.argmax(np.stack([e00, e11, e22, t], -1), axis=-1)
+        cases = (
+            lambda: (1 - t + 2 * e00, e10 + e01, e20 + e02, e21 - e12),
+            lambda: (e10 + e01, 1 - t + 2 * e11, e21 + e12, e02 - e20),
+            lambda: (e20 + e02, e21 + e12, 1 - t + 2 * e22, e10 - e01),
+            lambda: (e21 - e12, e02 - e20, e10 - e01, 1 + t),
+        )
+        fixed = [np.empty(len(t)) for _ in range(4)]
+        for c in np.unique(choice):
+            rows = choice == c
+            for comp, val in zip(fixed, cases[c](), strict=True):
+                comp[rows] = val[rows]
+        for comp, val in zip((x, y, z, w), fixed, strict=True):
+            comp[other] = val
+    n = x * x
+    n += y * y
+    n += z * z
+    n += w * w
+    np.sqrt(n, out=n)
+    return x / n, y / n, z / n, w / n
+
+
+@_blockwise((2,), (4,))
 def batch_matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) of rotation matrices (..., 3, 3) that are orthonormal (to
     1e-12, as Gram–Schmidt's are), by the case analysis scipy's ``from_matrix`` uses (the
@@ -268,48 +371,80 @@ def batch_matrix_to_quat(m: np.ndarray) -> np.ndarray:
     Not for matrices that scipy would first orthogonalise by SVD or reject (det <= 0)."""
     m = np.asarray(m, np.float64)
     lead = m.shape[:-2]
-    m = m.reshape(-1, 9)
-    tr = m[:, 0] + m[:, 4] + m[:, 8]
-    choice = np.argmax(np.stack([m[:, 0], m[:, 4], m[:, 8], tr], -1), axis=-1)
-    q = np.empty((len(m), 4))
-    for c in np.unique(choice):  # each case on its own rows (mostly the trace's)
-        rows = np.flatnonzero(choice == c)
-        mc, t = m[rows].T, tr[rows]
-        m00, m01, m02, m10, m11, m12, m20, m21, m22 = mc
-        q[rows] = np.stack(
-            (
-                (1 - t + 2 * m00, m10 + m01, m20 + m02, m21 - m12),
-                (m10 + m01, 1 - t + 2 * m11, m21 + m12, m02 - m20),
-                (m20 + m02, m21 + m12, 1 - t + 2 * m22, m10 - m01),
-                (m21 - m12, m02 - m20, m10 - m01, 1 + t),
-            )[c],
-            -1,
-        )
-    return batch_quat_normalize(q).reshape(lead + (4,))
+    f = m.reshape(-1, 9)
+    comps = _quat_of_matrix_entries(*(f[:, i] for i in range(9)))
+    q = np.empty((len(f), 4))
+    for i, c in enumerate(comps):
+        q[:, i] = c
+    return q.reshape(lead + (4,))
 
 
-def batch_quat_continuity(q: np.ndarray, axis: int = 0) -> np.ndarray:
+def batch_sixd_to_quat(d6: np.ndarray, axis: int = -1, out: np.ndarray | None = None) -> np.ndarray:
+    """Unit quaternions (..., 4) of 6D rotations with their six components along ``axis``:
+    ``batch_matrix_to_quat(batch_sixd_to_matrix(d6))`` bitwise, without the 3x3 matrices in
+    between. It decodes every frame and joint a network predicts, so ``axis`` may be the
+    network's channel axis (each component then one contiguous row of frames), and ``out``
+    (..., 4) may be a view of another layout to write to."""
+    return _sixd_to_quat(np.moveaxis(np.asarray(d6), axis, -1), out=out)
+
+
+@_blockwise((1,), (4,))
+def _sixd_to_quat(d6: np.ndarray) -> np.ndarray:
+    c = np.moveaxis(np.asarray(d6, np.float64), -1, 0)
+    a1x, a1y, a1z, a2x, a2y, a2z = c
+    n = a1x * a1x
+    n += a1y * a1y
+    n += a1z * a1z
+    np.sqrt(n, out=n)
+    b1x, b1y, b1z = a1x / n, a1y / n, a1z / n
+    d = b1x * a2x
+    d += b1y * a2y
+    d += b1z * a2z
+    b2x, b2y, b2z = a2x - d * b1x, a2y - d * b1y, a2z - d * b1z
+    n = b2x * b2x
+    n += b2y * b2y
+    n += b2z * b2z
+    np.sqrt(n, out=n)
+    b2x /= n
+    b2y /= n
+    b2z /= n
+    m02 = b1y * b2z - b1z * b2y
+    m12 = b1z * b2x - b1x * b2z
+    m22 = b1x * b2y - b1y * b2x
+    comps = _quat_of_matrix_entries(b1x, b2x, m02, b1y, b2y, m12, b1z, b2z, m22)
+    q = np.empty((4,) + c.shape[1:])
+    for i, comp in enumerate(comps):
+        q[i] = comp
+    return np.moveaxis(q, 0, -1)
+
+
+def batch_quat_continuity(q: np.ndarray, axis: int = 0, copy: bool = True) -> np.ndarray:
     """:func:`quat_continuity` without its loop over samples, bitwise the same. The loop
     flips sample t when its dot product with sample t - 1 as flipped is negative; that dot is
     the unflipped one, d_t, times t - 1's sign. So a negative d_t flips t relative to t - 1,
     a positive one keeps t - 1's sign, and a zero (or NaN) one leaves t unflipped: the signs
-    are the running parity of negative dots since the last such restart."""
-    q = np.moveaxis(np.array(q, copy=True), axis, 0)
+    are the running parity of negative dots since the last such restart. With ``copy``
+    False a float array ``q`` is flipped in place (and returned)."""
+    q = np.moveaxis(np.array(q, copy=True) if copy else np.asarray(q), axis, 0)
     if q.shape[0] < 2:
         return np.moveaxis(q, 0, axis)
     d = _dot(q[1:], q[:-1])  # (T - 1, ...): the dot of each sample with the one before
-    neg = np.concatenate([np.zeros((1,) + d.shape[1:], bool), d < 0])
-    reset = np.concatenate([np.ones((1,) + d.shape[1:], bool), ~((d < 0) | (d > 0))])
-    parity = np.cumsum(neg, axis=0)
-    # The parity at the latest reset at or before each sample (a reset sample is unflipped).
-    idx = np.where(reset, np.arange(len(q)).reshape((-1,) + (1,) * (d.ndim - 1)), 0)
-    last = np.maximum.accumulate(idx, axis=0)
-    base = np.take_along_axis(parity, last, axis=0)
-    flip = (parity - base) % 2 == 1
-    q[flip] *= -1
+    neg = np.empty((len(q),) + d.shape[1:], bool)
+    neg[0] = False
+    np.less(d, 0, out=neg[1:])
+    parity = np.logical_xor.accumulate(neg, axis=0)  # odd count of negative dots so far
+    restart = ~((d < 0) | (d > 0))  # (a zero or NaN dot: sample t + 1 unflipped)
+    if restart.any():
+        reset = np.concatenate([np.ones((1,) + d.shape[1:], bool), restart])
+        # The parity at the latest reset at or before each sample (a reset sample is unflipped).
+        idx = np.where(reset, np.arange(len(q)).reshape((-1,) + (1,) * (d.ndim - 1)), 0)
+        last = np.maximum.accumulate(idx, axis=0)
+        parity ^= np.take_along_axis(parity, last, axis=0)
+    np.negative(q, out=q, where=parity[..., None])
     return np.moveaxis(q, 0, axis)
 
 
+@_blockwise((1, 1, 0), (4,))
 def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
     """Elementwise SLERP: one weight per pair, ``w`` broadcastable to ``q0.shape[:-1]``.
     Dot products and norms are summed component by component (:func:`_dot`, in the order of
@@ -328,3 +463,39 @@ def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float =
     s1 = np.where(near, w, np.sin(w * theta) / sin_t)
     out = s0 * q0 + s1 * q1
     return out / np.sqrt(_dot(out, out))[..., None]
+
+
+def slerp_frames(
+    q: np.ndarray, i0: np.ndarray, i1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01
+) -> np.ndarray:
+    """SLERP between frames of one array: (B, N', ..., 4) from q (B, N, ..., 4), frame t
+    between frames ``i0[t]`` and ``i1[t]`` at weight ``w[t]`` (all (N',)). Bitwise
+    ``slerp_pairs(q[:, i0], q[:, i1], w[None, :, None...])``, but the terms of a pair of
+    frames (the dot product, the sign flip, the angle and its sine) are computed once per
+    distinct pair, not once per frame: between keys every frame of a gap shares its pair.
+    The frames then run in blocks (see BLOCK), gathering their pair's terms."""
+    q = np.asarray(q, np.float64)
+    i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
+    w = np.asarray(w, np.float64)
+    pairs, inv = np.unique(i0 * q.shape[1] + i1, return_inverse=True)
+    q0, q1 = q[:, pairs // q.shape[1]], q[:, pairs % q.shape[1]]
+    dot = _dot(q0, q1)[..., None]
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    near = (1.0 - dot) < lerp_eps
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin_t = np.where(near, 1.0, np.sin(theta))
+    out = np.empty((len(q), len(i0)) + q.shape[2:])
+    tail = (1,) * (q.ndim - 2)
+    step = max(1, BLOCK // max(1, math.prod(q.shape[2:-1]) * len(q)))
+    for s in range(0, len(i0), step):
+        at = inv[s : s + step]
+        wb = w[s : s + step].reshape((1, -1) + tail)
+        nb, tb, sb = near[:, at], theta[:, at], sin_t[:, at]
+        s0 = np.where(nb, 1.0 - wb, np.sin((1.0 - wb) * tb) / sb)
+        s1 = np.where(nb, wb, np.sin(wb * tb) / sb)
+        o = s0 * q0[:, at]
+        o += s1 * q1[:, at]
+        o /= np.sqrt(_dot(o, o))[..., None]
+        out[:, s : s + step] = o
+    return out
