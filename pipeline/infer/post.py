@@ -67,17 +67,16 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     delta = batch_quat_mul(batch_quat_normalize(key_rot), inv)
     rv = batch_quat_to_rotvec(batch_quat_normalize(delta))
     dr = key_root.astype(np.float64) - root[:, keys]
-    corr = None
+    corr = spread = None
     out_root = np.asarray(root, np.float64).copy()
-    groups = list(key_groups(mask))
-    for at, cols in groups:
+    for at, cols in key_groups(mask):
         ip, inx, s = key_weights(N, keys[at])
         ip, inx = at[ip], at[inx]
         joints = cols[cols < J]
         w = s[None, :, None, None]
         if len(joints) == J:  # every joint (the usual case): the correction is made in blocks
             spread = ip, inx, w
-        else:
+        elif len(joints):
             corr = np.empty((B, N, J, 3)) if corr is None else corr
             corr[:, :, joints] = (1 - w) * rv[:, ip][:, :, joints] + w * rv[:, inx][:, :, joints]
         if J in cols:
@@ -88,7 +87,7 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     step = max(1, BLOCK // (B * J))
     for f0 in range(0, N, step):
         f = slice(f0, f0 + step)
-        if corr is None:
+        if spread is not None:
             ip, inx, w = spread
             c = (1 - w[:, f]) * rv[:, ip[f]] + w[:, f] * rv[:, inx[f]]
         else:
@@ -96,9 +95,13 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
         out_rot[:, f] = batch_quat_mul(batch_rotvec_to_quat(c), batch_quat_normalize(rot[:, f]))
 
     unique = len(np.unique(keys)) == K
+    full = bool(mask[:, :J].all())
 
     def put_keys(out_rot):
         # Keys bitwise: the inputs' own values, not a round trip through rotation vectors.
+        if unique and full:  # (every joint keyed at every key: the keys' values as they are)
+            out_rot[:, keys] = key_rot
+            return
         if unique:  # (all at once; with a key given twice the last one wins, as in the loop)
             out_rot[:, keys] = np.where(mask[None, :, :J, None], key_rot, out_rot[:, keys])
             return

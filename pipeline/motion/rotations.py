@@ -247,9 +247,11 @@ def batch_quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     u = q[..., :3]
     angle = 2 * np.arctan2(np.sqrt(_dot(u, u)), q[..., 3])
     small = angle <= 1e-3
-    a2 = angle * angle
     with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(small, 2 + a2 / 12 + 7 * a2 * a2 / 2880, angle / np.sin(angle / 2))
+        scale = angle / np.sin(angle / 2)
+    if small.any():  # (the series only where some angle needs it: the same selection)
+        a2 = angle * angle
+        scale = np.where(small, 2 + a2 / 12 + 7 * a2 * a2 / 2880, scale)
     return scale[..., None] * u
 
 
@@ -259,12 +261,16 @@ def batch_rotvec_to_quat(rv: np.ndarray) -> np.ndarray:
     rv = np.asarray(rv, np.float64)
     angle = np.sqrt(_dot(rv, rv))
     small = angle <= 1e-3
-    a2 = angle * angle
+    half = angle / 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(small, 0.5 - a2 / 48 + a2 * a2 / 3840, np.sin(angle / 2) / angle)
+        scale = np.sin(half)
+        scale /= angle
+    if small.any():  # (the series only where some angle needs it: the same selection)
+        a2 = angle * angle
+        scale = np.where(small, 0.5 - a2 / 48 + a2 * a2 / 3840, scale)
     out = np.empty(rv.shape[:-1] + (4,))
-    out[..., :3] = rv * scale[..., None]
-    out[..., 3] = np.cos(angle / 2)
+    np.multiply(rv, scale[..., None], out=out[..., :3])
+    np.cos(half, out=out[..., 3])
     return out
 
 
@@ -323,38 +329,46 @@ def batch_sixd_to_matrix(d6: np.ndarray) -> np.ndarray:
     return m
 
 
-def _quat_of_matrix_entries(m00, m01, m02, m10, m11, m12, m20, m21, m22):
-    """Unit quaternion components (x, y, z, w) of rotation matrices given entry by entry
-    (arrays of one shape), by scipy's ``from_matrix`` case analysis: the largest of the
-    diagonal and the trace picks the formula (the first on ties), then q / |q|.
+def _matrix_case(c: int, m00, m01, m02, m10, m11, m12, m20, m21, m22, t):
+    """scipy's ``from_matrix`` formula ``c`` (0-2: that diagonal entry is the largest, 3: the
+    trace): the quaternion (x, y, z, w) before normalisation."""
+    if c == 0:
+        return 1 - t + 2 * m00, m10 + m01, m20 + m02, m21 - m12
+    if c == 1:
+        return m10 + m01, 1 - t + 2 * m11, m21 + m12, m02 - m20
+    if c == 2:
+        return m20 + m02, m21 + m12, 1 - t + 2 * m22, m10 - m01
+    return m21 - m12, m02 - m20, m10 - m01, 1 + t
 
-    Every row is first computed by the trace's formula (the usual case: rotations under
-    about 120 degrees), without a gather; only the rows where the trace is not the strict
-    largest go through the case analysis again. Each row gets the same element-wise
-    arithmetic as one case analysis over all rows, so the bits are those of that form."""
+
+def _quat_of_matrix_entries(*m):
+    """Unit quaternion components (x, y, z, w) of rotation matrices given entry by entry
+    (nine arrays of one shape: m00, m01, ..., m22), by scipy's ``from_matrix`` case analysis:
+    the largest of the diagonal and the trace picks the formula (the first on ties), then
+    q / |q|.
+
+    The most common case is computed on every row, without a gather (on a block of one
+    joint's frames, usually the only case: the trace's for rotations under about 120
+    degrees, a diagonal's for a joint turned about half a turn); only the rows of other
+    cases are gathered and computed again. Each row gets the same element-wise arithmetic as
+    one case analysis over all rows, so the bits are those of that form."""
+    m00, m11, m22 = m[0], m[4], m[8]
     tr = m00 + m11
     tr += m22
-    x, y, z = m21 - m12, m02 - m20, m10 - m01
-    w = tr + 1
-    other = ~((tr > m00) & (tr > m11) & (tr > m22))  # (a NaN is never the trace's case)
-    if other.any():
-        e = [a[other] for a in (m00, m01, m02, m10, m11, m12, m20, m21, m22)]
-        e00, e01, e02, e10, e11, e12, e20, e21, e22 = e
-        t = tr[other]
-        choice = np.argmax(np.stack([e00, e11, e22, t], -1), axis=-1)
-        cases = (
-            lambda: (1 - t + 2 * e00, e10 + e01, e20 + e02, e21 - e12),
-            lambda: (e10 + e01, 1 - t + 2 * e11, e21 + e12, e02 - e20),
-            lambda: (e20 + e02, e21 + e12, 1 - t + 2 * e22, e10 - e01),
-            lambda: (e21 - e12, e02 - e20, e10 - e01, 1 + t),
-        )
-        fixed = [np.empty(len(t)) for _ in range(4)]
-        for c in np.unique(choice):
+    if ((tr > m00) & (tr > m11) & (tr > m22)).all():  # (a NaN is never the trace's case)
+        main, choice = 3, None
+    else:
+        choice = np.argmax(np.stack([m00, m11, m22, tr], -1), axis=-1)
+        count = np.bincount(choice.ravel(), minlength=4)
+        main = int(np.argmax(count))
+    x, y, z, w = (np.asarray(a, np.float64) for a in _matrix_case(main, *m, tr))  # (fresh arrays)
+    if choice is not None:
+        for c in np.flatnonzero(count):
+            if c == main:
+                continue
             rows = choice == c
-            for comp, val in zip(fixed, cases[c](), strict=True):
-                comp[rows] = val[rows]
-        for comp, val in zip((x, y, z, w), fixed, strict=True):
-            comp[other] = val
+            for comp, val in zip((x, y, z, w), _matrix_case(c, *(a[rows] for a in m), tr[rows]), strict=True):
+                comp[rows] = val
     n = x * x
     n += y * y
     n += z * z

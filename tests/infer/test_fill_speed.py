@@ -216,3 +216,49 @@ def test_bench_speed_prints_its_table(tmp_path):
     fl = rep["generator_flops_per_frame"]
     if fl["source"] == "ONNX graph":  # the model card's count, from the torch modules
         assert fl["total"] == 1707392.0 and fl["total"] - fl["adapter"] == pytest.approx(1.41e6, rel=0.01)
+
+
+def test_a_root_only_key_leaves_the_joints_as_without_it(clip, model):
+    """match_keys' blocked correction: a key of the root only spreads nothing on the joints
+    (their rotations are those of the same keys without it), whatever memory it reuses."""
+    rot, root = clip
+    keys = np.r_[np.arange(0, 149, 10), 149]
+    q, r, _ = model.raw(rot, root, keys)
+    mask = np.ones((len(keys), J + 1), bool)
+    mask[3, :J] = False
+    keep = np.arange(len(keys)) != 3
+    for _ in range(2):
+        mq, _ = post.match_keys(q, r, rot[:, keys], root[:, keys], keys, mask)
+        wq, _ = post.match_keys(q, r, rot[:, keys[keep]], root[:, keys[keep]], keys[keep])
+        assert np.array_equal(mq, wq)
+
+
+def test_blocked_and_per_pair_forms_are_bitwise_the_whole_array_forms():
+    """The blocks (rotations.BLOCK), the per-gap SLERP terms and the TTA sinusoids per
+    distinct distance change no bit."""
+    from pipeline.infer.features import _tta, key_neighbours, tta_embedding
+
+    q = RNG.normal(size=(1, 3000, J, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    keys = np.r_[np.arange(0, 2999, 7), 2999]
+    prev, nxt = key_neighbours(3000, keys)
+    w = np.where(nxt > prev, (np.arange(3000) - prev) / np.maximum(nxt - prev, 1), 0.0)
+    assert np.array_equal(
+        R.slerp_frames(q, prev, nxt, w), _slerp_reference(q[:, prev], q[:, nxt], w[None, :, None])
+    )
+    d6 = R.batch_quat_to_6d(q)
+    assert (
+        np.array_equal(d6, R.quat_to_6d(q.reshape(-1, 4)).reshape(d6.shape))
+        or np.abs(d6 - R.quat_to_6d(q.reshape(-1, 4)).reshape(d6.shape)).max() < 1e-12
+    )
+    via_matrix = R.batch_matrix_to_quat(R.batch_sixd_to_matrix(d6))
+    assert np.array_equal(R.batch_sixd_to_quat(d6), via_matrix)
+    channels = np.ascontiguousarray(np.moveaxis(d6, -1, 2))  # (1, N, 6, J): another layout
+    assert np.array_equal(R.batch_sixd_to_quat(channels, axis=2), via_matrix)
+    small = R.batch_quat_mul(q[:, :100], q[:, 100:200])
+    assert np.array_equal(
+        R.batch_quat_mul(q, q[:, ::-1])[:, :100], R.batch_quat_mul(q[:, :100], q[:, ::-1][:, :100])
+    )
+    assert small.shape == (1, 100, J, 4)
+    dist = (np.arange(4096) - key_neighbours(4096, np.r_[np.arange(0, 4095, 10), 4095])[0]).astype(np.float64)
+    assert np.array_equal(tta_embedding(dist), _tta(dist))
