@@ -247,18 +247,13 @@ def test_blocked_and_per_pair_forms_are_bitwise_the_whole_array_forms():
         R.slerp_frames(q, prev, nxt, w), _slerp_reference(q[:, prev], q[:, nxt], w[None, :, None])
     )
     d6 = R.batch_quat_to_6d(q)
-    assert (
-        np.array_equal(d6, R.quat_to_6d(q.reshape(-1, 4)).reshape(d6.shape))
-        or np.abs(d6 - R.quat_to_6d(q.reshape(-1, 4)).reshape(d6.shape)).max() < 1e-12
-    )
+    assert np.abs(d6 - R.quat_to_6d(q.reshape(-1, 4)).reshape(d6.shape)).max() < 1e-12
     via_matrix = R.batch_matrix_to_quat(R.batch_sixd_to_matrix(d6))
     assert np.array_equal(R.batch_sixd_to_quat(d6), via_matrix)
     channels = np.ascontiguousarray(np.moveaxis(d6, -1, 2))  # (1, N, 6, J): another layout
     assert np.array_equal(R.batch_sixd_to_quat(channels, axis=2), via_matrix)
-    small = R.batch_quat_mul(q[:, :100], q[:, 100:200])
     assert np.array_equal(
         R.batch_quat_mul(q, q[:, ::-1])[:, :100], R.batch_quat_mul(q[:, :100], q[:, ::-1][:, :100])
     )
-    assert small.shape == (1, 100, J, 4)
     dist = (np.arange(4096) - key_neighbours(4096, np.r_[np.arange(0, 4095, 10), 4095])[0]).astype(np.float64)
     assert np.array_equal(tta_embedding(dist), _tta(dist))
