@@ -35,6 +35,7 @@ class GeneratorConfig:
     key_adapter: bool = False  # partial keys as a side input beside the full-key input (features.py)
     rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     dna: int = 0  # width of the motion-DNA encoder (0: none); its vector joins the bottleneck
+    delta: bool = False  # see poses relative to the keys, not as they are (relative_to_keys)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -50,6 +51,18 @@ class GeneratorConfig:
         for d in self.bottleneck_dilations:
             rf += 2 * d * jump
         return rf
+
+
+def relative_to_keys(x: torch.Tensor, n_joints: int) -> torch.Tensor:
+    """The pose channels of the features (``pipeline/infer/features.py``) made relative, as
+    in the Δ-interpolator's delta mode: the baseline as its change since the window's first
+    frame (the first key: windows start on one, and the baseline holds it before), the dense
+    key copy as its offset from the baseline. A constant posture offset (a rig set up
+    otherwise, another actor's stance) then reaches the network as a small change of these
+    differences instead of a pose it never saw; timing and latent channels pass unchanged."""
+    c = n_joints * 6 + 3
+    base, key, rest = x[:, :c], x[:, c : 2 * c], x[:, 2 * c :]
+    return torch.cat([base - base[:, :, :1], key - base, rest], dim=1)
 
 
 class Generator(nn.Module):
@@ -110,7 +123,7 @@ class Generator(nn.Module):
         """(B, C, N) features -> (B, C_out, N); with a DNA encoder also (B, C_dna, R) poses and a
         (B, 1) weight per window (0: no DNA)."""
         main = x.shape[1] - self.n_mask - self.n_side
-        h = self.inp(x[:, :main])
+        h = self.inp(relative_to_keys(x[:, :main], self.cfg.n_joints) if self.cfg.delta else x[:, :main])
         if self.mask_in is not None:
             h = h + self.mask_in(x[:, main : main + self.n_mask])
         if self.adapter is not None:

@@ -21,6 +21,11 @@ VARIANTS = {
     "no_curriculum": {"gap_start": 90},
     "no_velocity_loss": {"w_vel": 0.0},
     "euler": {"model": {"rotation": "euler"}},  # range-constrained Euler delta instead of 6D
+    # Levers for shots the model never saw (issue 19): relative pose inputs, and augmentation
+    # with what other rigs and actors bring (posture offsets, mirror images), alone and together.
+    "delta": {"model": {"delta": True}},
+    "augment": {"posture": 30.0, "mirror": 0.5},
+    "delta_augment": {"model": {"delta": True}, "posture": 30.0, "mirror": 0.5},
 }
 
 

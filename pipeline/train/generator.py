@@ -162,6 +162,11 @@ class TrainConfig:
                     "Partial keys as a side input through a zero-start adapter; the main input is that "
                     "of the full keys alone (with --freeze, fills from full keys stay bit for bit).",
                 ),
+                "delta": (
+                    "delta",
+                    "Pose inputs relative to the keys (the Δ-interpolator's delta mode): the "
+                    "baseline as its change since the first key, the key copy as its offset from it.",
+                ),
                 "dna": (
                     "dna",
                     "Motion-DNA encoder width (0: none); new to an --init checkpoint, it starts at zero.",
