@@ -34,7 +34,7 @@ def _tween(*args, env=None):
 
 
 def test_every_shipped_model_has_a_recipe():
-    assert SHIPPED == ["tween-bandai-dna-v1", "tween-bandai-v5.3"]
+    assert SHIPPED == ["tween-bandai-dna-v1", "tween-bandai-v5.3", "tween-cmu-s123-ft"]
     for name in SHIPPED:
         rec = load_recipe(name)
         assert (ROOT / rec.model / "model.json").exists()
@@ -65,6 +65,10 @@ def test_recipe_parses_and_every_stage_is_valid_cli(name):
     # LSGAN start, gap weighting, measured seconds); stages 1-3 sum to its 6,324 s.
     cfgs = {s.name: c for s, (c, _) in zip(rec.stages, parsed, strict=True)}
     walls = {s.name: s.wall_s for s in rec.stages}
+    if "stages" not in meta:  # a one-stage model (a fine-tune): its own steps and seconds
+        last = rec.stages[-1].name
+        assert cfgs[last].steps == meta["train_steps"] and walls[last] == meta["train_seconds"]
+        return
     assert walls["s1"] + walls["s2"] + walls["s3"] == meta["stages"][0]["seconds"]
     for st in meta["stages"][1:]:
         n = st["stage"] if isinstance(st["stage"], int) else None
