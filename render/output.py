@@ -4,6 +4,8 @@ H.264 MP4 (yuv420p) through PyAV with raw frames piped in."""
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from fractions import Fraction
 from pathlib import Path
 
@@ -12,6 +14,59 @@ import numpy as np
 from render.gl import RenderError
 
 PNG_FILTER_NONE = 8  # libpng's PNG_FILTER_NONE flag (OIIO's "png:filter")
+PNG_LEVEL = 1  # zlib level of the numbered frames (see ``png_rows``)
+# What libpng (OIIO) writes for an sRGB image: the sRGB chunk and the gAMA/cHRM it implies.
+_SRGB_CHUNKS = (
+    (b"sRGB", b"\x03"),
+    (b"gAMA", struct.pack(">I", 45455)),
+    (b"cHRM", struct.pack(">8I", 31270, 32900, 64000, 33000, 30000, 60000, 15000, 6000)),
+)
+
+
+def png_rows(rgb: np.ndarray) -> np.ndarray:
+    """The PNG scanlines of ``rgb`` (h, w, 3 or 4: its RGB) uint8, each after its filter byte
+    (0: none): (h, 3w + 1) uint8, a new array (the caller's buffer can be reused at once)."""
+    h, w = rgb.shape[:2]
+    rows = np.empty((h, 3 * w + 1), np.uint8)
+    rows[:, 0] = 0
+    rows[:, 1:].reshape(h, w, 3)[...] = rgb[..., :3]
+    return rows
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))
+
+
+def write_png(path: str, rows: np.ndarray, meta: dict, level: int = PNG_LEVEL) -> None:
+    """Writes ``png_rows`` output as an 8-bit RGB PNG (sRGB chunk, ``meta`` as text), atomically.
+
+    zlib (the standard library's, which lets go of the GIL while it deflates) at ``level`` 1 on
+    unfiltered rows: on the bench's review frames 7 ms a frame against 24 ms for OIIO's
+    libpng at level 3 (no filter) and 18.5 ms at level 1, the same size as libpng's level 1
+    (0.13 MB) and the same pixels. Text is ``tEXt`` (``iTXt`` if it is not Latin-1), as OIIO
+    writes it, and reads back through OIIO as the same attributes."""
+    h, w1 = rows.shape
+    w = (w1 - 1) // 3
+    parts = [b"\x89PNG\r\n\x1a\n", _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))]
+    parts += [_chunk(k, v) for k, v in _SRGB_CHUNKS]
+    for k, v in meta.items():
+        if k == "oiio:ColorSpace":
+            continue  # the sRGB chunk says it (read back as oiio:ColorSpace)
+        key, text = str(k).encode("latin-1"), str(v)
+        try:
+            parts.append(_chunk(b"tEXt", key + b"\0" + text.encode("latin-1")))
+        except UnicodeEncodeError:
+            parts.append(_chunk(b"iTXt", key + b"\0\0\0\0\0" + text.encode("utf-8")))
+    parts += [_chunk(b"IDAT", zlib.compress(rows, level)), _chunk(b"IEND", b"")]
+    tmp = f"{path}.tmp{os.getpid()}.png"
+    try:
+        with open(tmp, "wb") as f:
+            f.write(b"".join(parts))
+        os.replace(tmp, path)
+    except OSError as e:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise RenderError(f"{path}: cannot write image: {e}") from None
 
 
 def frame_metadata(shot: str, take, facts: dict, frame: int, colorspace: str) -> dict:
@@ -27,21 +82,18 @@ def frame_metadata(shot: str, take, facts: dict, frame: int, colorspace: str) ->
 
 
 def write_frame(path: str, rgb: np.ndarray, meta: dict, exr: bool = False) -> None:
-    """Writes ``rgb`` (h, w, 3 or 4) uint8 sRGB as RGB PNG, or as half-float linear EXR, atomically."""
+    """Writes ``rgb`` (h, w, 3 or 4) uint8 sRGB as RGB PNG (``write_png``), or as half-float
+    linear EXR through OIIO, atomically."""
     import OpenImageIO as oiio
 
+    if not exr:
+        write_png(path, png_rows(rgb), meta)  # PNG keeps only text: ints are written as text
+        return
     buf = oiio.ImageBuf(np.ascontiguousarray(rgb[..., :3]))
-    if exr:
-        buf = oiio.ImageBufAlgo.colorconvert(buf, "sRGB", "lin_rec709")
-        buf.set_write_format(oiio.HALF)
-    else:
-        buf.specmod().attribute("png:compressionLevel", 3)  # zlib level 6 costs 3x the time for ~10% size
-        # No per-row filter search: half the time of libpng's adaptive filters, and smaller
-        # files on these renders (flat clay, gradients); the pixels are the same.
-        buf.specmod().attribute("png:filter", PNG_FILTER_NONE)
+    buf = oiio.ImageBufAlgo.colorconvert(buf, "sRGB", "lin_rec709")
+    buf.set_write_format(oiio.HALF)
     for k, v in meta.items():
-        # PNG keeps only text chunks (ints are dropped), EXR keeps typed attributes
-        buf.specmod().attribute(k, v if exr else str(v))
+        buf.specmod().attribute(k, v)  # EXR keeps typed attributes
     tmp = f"{path}.tmp{os.getpid()}{Path(path).suffix}"
     if not buf.write(tmp):
         raise RenderError(f"{path}: cannot write image: {buf.geterror()}")

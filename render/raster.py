@@ -227,6 +227,18 @@ class Renderer:
         self.ground_vao = self._own(
             ctx.vertex_array(self.ground, [(self._own(ctx.buffer(quad.tobytes())), "3f", "in_pos")])
         )
+        # what does not change from frame to frame is set once
+        self.shadow["key_dir"].value = tuple(KEY_DIR)
+        self.shadow["ground_y"].value = y
+        self.ground["center"].value = (float(c[0]), float(c[2]))
+        self.ground["radius"].value = r
+        self.ground["cell"].value = self.cell
+        self.ground["shadow_mask"].value = 0
+        m = self.mesh
+        m["key_dir"].value = tuple(KEY_DIR)
+        m["fill_dir"].value = tuple(FILL_DIR)
+        m["ground_y"].value = y
+        m["ao_height"].value = self.height * 0.25
         eps = self.height * 0.002
         w = self.height * 0.012
         tri = [_ribbon(rt, y + eps, w) for rt in roots if len(rt) > 1]
@@ -238,9 +250,28 @@ class Renderer:
         self.path_vao = self._flat_vao(np.concatenate(tri) if tri else None)
         self.keymark_vao = self._flat_vao(np.concatenate(marks) if marks else None)
         self.roots = roots
+        # every key frame's ring, made once into one buffer: frame -> (first vertex, count)
+        self.rings, self.ring_vao = {}, None
+        kf = [int(k) for k in np.asarray(key_frames).reshape(-1) if all(0 <= k < len(r) for r in roots)]
+        if kf and roots:
+            data = [self._ring(k) for k in kf]
+            first = np.cumsum([0] + [len(d) for d in data])
+            self.rings = {k: (int(first[n]), len(data[n]), data[n][:, :3]) for n, k in enumerate(kf)}
+            self.ring_vao = self._flat_vao(np.concatenate(data))
         # the corners of every static overlay triangle: what bounds them on screen
         self.overlay_points = np.concatenate([np.zeros((0, 3))] + [t[:, :3] for t in tri + marks]).astype(
             np.float64
+        )
+
+    def _ring(self, frame: int) -> np.ndarray:
+        """The KEY ring under the body joints at ``frame`` (flat triangles, t = 0)."""
+        return _discs(
+            np.array([r[frame] for r in self.roots]),
+            self.ground_y + self.height * 0.006,
+            self.height * 0.16,
+            self.height * 0.19,
+            np.zeros(len(self.roots)),
+            seg=48,
         )
 
     def _flat_vao(self, data):
@@ -279,8 +310,6 @@ class Renderer:
             self.mask_fbo.clear(0.0, viewport=vp_rect)
             ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
             self.shadow["vp"].write(vp)
-            self.shadow["key_dir"].value = tuple(KEY_DIR)
-            self.shadow["ground_y"].value = self.ground_y
             ms.draw(self.shadow, shadow=True)
             # llvmpipe waits for a texture's drawing before it is sampled, inside the draw call
             # and holding the GIL; waited for here instead, without it (as the two below)
@@ -294,32 +323,25 @@ class Renderer:
             ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
             self.mask_tex.use(0)
             self.ground["vp"].write(vp)
-            self.ground["center"].value = (float(self.center[0]), float(self.center[2]))
-            self.ground["radius"].value = self.radius
-            self.ground["cell"].value = self.cell
-            self.ground["shadow_mask"].value = 0
             self.ground_vao.render()
             # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
             # premultiplied, inside the rectangle they cover
             ring = None
             if is_key:
-                ring = _discs(
-                    np.array([r[frame] for r in self.roots]),
-                    self.ground_y + self.height * 0.006,
-                    self.height * 0.16,
-                    self.height * 0.19,
-                    np.zeros(len(self.roots)),
-                    seg=48,
-                )
+                ring = self.rings.get(int(frame))
+                if ring is None:  # a key frame set_stage was not told of
+                    data = self._ring(int(frame))
+                    ring = (None, len(data), data[:, :3], data)
             covered = [self.overlay_points, *points]
             if ring is not None:
-                covered.append(ring[:, :3])
+                covered.append(ring[2])
             if ghosts is not None:
                 covered.append(ghosts.all_points())
             rect = screen_rect(vp32, vp_rect, covered)
             if rect is None:
                 continue
-            self._finish()
+            if k:  # the layer was sampled by the previous panel's composite: waited for without the GIL
+                self._finish()
             self.msaa.use()
             self.msaa.viewport = vp_rect
             self.msaa.scissor = rect
@@ -336,19 +358,17 @@ class Renderer:
                 self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
                 self.keymark_vao.render()
             if ring is not None:
-                rvao = self._flat_vao(ring)
                 self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
-                rvao.render()
-                self._release_last(2)
+                if ring[0] is None:
+                    self._flat_vao(ring[3]).render()
+                    self._release_last(2)
+                else:
+                    self.ring_vao.render(first=ring[0], vertices=ring[1])
             ctx.enable(mgl.DEPTH_TEST)
             ctx.disable(mgl.BLEND)
             m = self.mesh
             m["vp"].write(vp)
             m["eye"].value = tuple(float(v) for v in eye)
-            m["key_dir"].value = tuple(KEY_DIR)
-            m["fill_dir"].value = tuple(FILL_DIR)
-            m["ground_y"].value = self.ground_y
-            m["ao_height"].value = self.height * 0.25
             m["base"].value = color
             m["alpha"].value = 1.0
             ms.draw(m)

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
 from render.geometry import Geometry
 from render.gl import RenderError
-from render.output import Movie, contact_sheet, frame_metadata, thumbnail, write_frame
+from render.output import Movie, contact_sheet, frame_metadata, png_rows, thumbnail, write_frame, write_png
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
 from render.scene import Shot, evaluate, open_shot
@@ -285,7 +285,10 @@ def render_review(
             if write_frames:
                 name = f"{stem}.{fno:04d}.{ext}"
                 meta = frame_metadata(shot.name, shot.take, shot.facts, fno, colorspace)
-                save(write_frame, str(tmp / name), np.ascontiguousarray(img[..., :3]), meta, exr)
+                if exr:
+                    save(write_frame, str(tmp / name), np.ascontiguousarray(img[..., :3]), meta, True)
+                else:  # the rows copied out of the recycled buffer here, deflated on a frame thread
+                    save(write_png, str(tmp / name), png_rows(img), meta)
                 frames.append(name)
 
         writer = FrameWriter((h, w, 4), finish_frame, frame_threads=FRAME_THREADS if write_frames else 0)

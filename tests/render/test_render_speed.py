@@ -115,3 +115,78 @@ def test_frame_writer_save_errors_surface(tmp_path):
             w.put(i, w.buffer())
         w.close()
     w.abort()
+
+
+def _oiio_png(tmp_path, rgb, level, filt):
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(np.ascontiguousarray(rgb))
+    buf.specmod().attribute("png:compressionLevel", level)
+    buf.specmod().attribute("png:filter", filt)
+    path = str(tmp_path / f"oiio{level}.png")
+    assert buf.write(path)
+    return path
+
+
+def test_png_writer_same_pixels_and_metadata(tmp_path, stage):
+    """The numbered frames' own PNG writer (stdlib zlib, level 1, unfiltered rows) against
+    OIIO's libpng: the same pixels (read back by OIIO and by ffmpeg through PyAV), the same
+    text attributes and colour space, and about the size of libpng's level 1."""
+    import os
+
+    import av
+    import OpenImageIO as oiio
+
+    from render.output import frame_metadata, png_rows, write_frame, write_png
+
+    plan = plan_review(stage, size=SIZE)
+    rgba = _frames(plan, [10])[0]
+    meta = frame_metadata("sh010 v001", 2, {"model": "interp", "model_hash": "0123abcd"}, 1011, "sRGB")
+    meta["tween:note"] = "approved — ✓"  # not Latin-1: iTXt
+    path = str(tmp_path / "f.1011.png")
+    write_frame(path, rgba, meta)
+    b = oiio.ImageBuf(path)
+    spec = b.spec()
+    assert (spec.width, spec.height, spec.nchannels, spec.format) == (*SIZE, 3, oiio.UINT8)
+    assert np.array_equal(b.get_pixels(oiio.UINT8), rgba[..., :3])
+    for k, v in meta.items():
+        if k != "oiio:ColorSpace":
+            assert spec.getattribute(k) == str(v), k
+    assert spec.getattribute("oiio:ColorSpace") in ("sRGB", "srgb_rec709_scene")
+    with av.open(path) as c:
+        assert np.array_equal(next(c.decode(video=0)).to_ndarray(format="rgb24"), rgba[..., :3])
+    ref = _oiio_png(tmp_path, rgba[..., :3], 1, 8)
+    assert os.path.getsize(path) < 1.15 * os.path.getsize(ref)
+    # the rows are a copy: the frame buffer can be reused before they are deflated
+    rows = png_rows(rgba)
+    rgba[...] = 0
+    write_png(str(tmp_path / "g.png"), rows, {})
+    assert np.array_equal(
+        oiio.ImageBuf(str(tmp_path / "g.png")).get_pixels(oiio.UINT8), b.get_pixels(oiio.UINT8)
+    )
+    assert not [f for f in os.listdir(tmp_path) if ".tmp" in f]
+
+
+def test_key_rings_made_once(stage, monkeypatch):
+    """Every key frame's ring is in one buffer made by ``set_stage``; a key frame it was not
+    told of is still drawn (made on the fly), with the same pixels."""
+    plan = plan_review(stage, size=SIZE)
+    is_key = plan.shot.is_key()
+    keys = np.nonzero(is_key)[0]
+    made = []
+    discs = raster._discs
+    monkeypatch.setattr(raster, "_discs", lambda *a, **k: made.append(1) or discs(*a, **k))
+    r = raster.Renderer(plan.size)
+    try:
+        r.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, keys)
+        sets = [r.mesh_set(g) for g in plan.panels]
+        n = len(made)
+        a = r.render(int(keys[1]), [plan.camera], sets, [raster.CLAY], True).copy()
+        assert len(made) == n  # nothing made per frame
+        r.rings.clear()
+        b = r.render(int(keys[1]), [plan.camera], sets, [raster.CLAY], True).copy()
+        assert len(made) == n + 1 and np.array_equal(a, b)
+        c = r.render(int(keys[1]), [plan.camera], sets, [raster.CLAY], False)
+        assert not np.array_equal(a, c)  # the ring is drawn
+    finally:
+        r.release()
