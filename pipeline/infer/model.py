@@ -35,6 +35,7 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     models_root,
     read_model_json,
 )
+from pipeline.infer.graph import cached_fast_graph
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import (
@@ -138,6 +139,16 @@ class OnnxInbetweener:
         self._sessions: dict[str, object] = {}
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
+    #: The generator runs as rewritten at load time for onnxruntime's NCHWc kernels (the
+    #: same weights, sums in another order; checked against the plain graph:
+    #: graph.fast_graph); False (or ``TWEEN_FAST_GRAPH=0``): the graph as exported.
+    fast_graph = os.environ.get("TWEEN_FAST_GRAPH", "1") != "0"
+
+    def _fast_session(self, graph):
+        """The session for a generator graph (file or bytes): its rewrite where there is one."""
+        fast = cached_fast_graph(graph) if self.fast_graph else None
+        return ort_session(graph if fast is None else fast)
+
     #: Fills without partial keys run the generator without its partial-key adapter (the
     #: same output, 0.30 MFLOP a frame less: features.adapter_free_graph); False: always the
     #: whole graph.
@@ -163,9 +174,13 @@ class OnnxInbetweener:
                 raise ModelFolderError(
                     f"{path}: not this model's {which} (inputs {names}, expected {want!r})"
                 )
+            fast = which == "generator" and self.fast_graph and cached_fast_graph(path)
+            if fast:  # the rewrite for onnxruntime's kernels (graph.fast_graph), checked
+                sess = ort_session(fast)
             graph = self.skip_adapter and which == "generator" and self._adapter_free_graph()
             if graph:  # fills without partial keys skip the adapter (features.adapter_free_graph)
-                sess = AdapterFreeSession(sess, graph, n_input_channels(len(self.skeleton)), ort_session)
+                width = n_input_channels(len(self.skeleton))
+                sess = AdapterFreeSession(sess, graph, width, self._fast_session)
             self._sessions[which] = sess
         return self._sessions[which]
 
