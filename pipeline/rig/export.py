@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.rig.source import portable_path
 from pipeline.rig.train import Trainer
 
 CARD = "MODEL_CARD.md"
@@ -108,7 +109,7 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
         "contact_joints": [names[j] for j in spec.contacts],
         "ik_joints": [names[j] for j in legs],
         "source": {
-            "path": str(cfg.source),
+            "path": portable_path(cfg.source),
             "clip": tr.motion.name,
             "skeleton": cfg.skeleton,
             "frames": list(cfg.frames) if cfg.frames else None,

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.data.split import shared_data_dir
 from pipeline.errors import TweenError
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
@@ -104,6 +105,25 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
 def _scale(char) -> float:
     """The skeleton's world scale (a scaled SkelRoot makes the units larger)."""
     return float(np.cbrt(abs(np.linalg.det(char.skel_to_world[:3, :3]))))
+
+
+SHARED = "shared:"  # a source path under the shared data folder, stored relative to it
+
+
+def portable_path(path: str | Path) -> str:
+    """``path`` as rig.json stores it: ``shared:<relative>`` under the shared data folder
+    (which each checkout finds beside it), else as given, so that a model folder made on
+    one machine names its clip on another."""
+    p = Path(path).resolve()
+    try:
+        return SHARED + p.relative_to(shared_data_dir().resolve()).as_posix()
+    except (ValueError, OSError):
+        return str(path)
+
+
+def stored_path(path: str) -> Path:
+    """The file a rig.json source path names (:func:`portable_path`'s inverse)."""
+    return shared_data_dir() / path[len(SHARED) :] if path.startswith(SHARED) else Path(path)
 
 
 def load_rig_source(

@@ -303,3 +303,21 @@ def test_bad_inputs_one_line_naming_the_file(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"tween: error: {tmp_path / 'gone.bvh'}: file not found"]
     assert not (tmp_path / "m").exists()
+
+
+def test_rig_json_names_a_shared_clip_relative_to_the_shared_folder(data_dir, tmp_path):
+    from pipeline.rig.source import portable_path, stored_path
+
+    clip = data_dir / "usd_assets" / "RiggedSimple"
+    first = sorted(p for p in clip.rglob("*") if p.is_file())[0]
+    stored = portable_path(first)
+    assert stored.startswith("shared:") and "/work" not in stored and str(data_dir) not in stored
+    assert stored_path(stored).resolve() == first.resolve()
+    other = tmp_path / "walk.bvh"
+    assert portable_path(other) == str(other) and stored_path(str(other)) == other
+    # The shipped creature model's clip resolves in any checkout with the shared data beside it.
+    import json
+    from pathlib import Path
+
+    meta = json.loads((Path(__file__).resolve().parents[2] / "models/elephant/rig.json").read_text())
+    assert stored_path(meta["source"]["path"]).is_file()

@@ -433,10 +433,10 @@ def test_tiny_rig_model_synthesises_and_scores(tiny_root):
     """The metrics on real model output: samples are finite, the clip scores itself perfectly."""
     from pipeline.rig import metrics
     from pipeline.rig.infer import RigInbetweener
-    from pipeline.rig.source import load_rig_source
+    from pipeline.rig.source import load_rig_source, stored_path
 
     inb = RigInbetweener(tiny_root / "creature")
-    clip = load_rig_source(inb.meta["source"]["path"])
+    clip = load_rig_source(stored_path(inb.meta["source"]["path"]))
     src = metrics.features(clip.rotations)
     sample = inb.synthesize(122, seed=1)
     assert len(sample) == 122 and sample.skeleton.names == clip.skeleton.names
