@@ -227,7 +227,20 @@ def init_checkpoint(init: str) -> Path:
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the
 # trained weights); every other field of the network's shape is the checkpoint's.
-ADDONS = ("key_mask", "key_adapter", "dna", "noise_schedule", "full_timing")
+ADDONS = ("key_mask", "key_adapter", "dna", "noise_schedule", "full_timing", "delta")
+
+
+def to_delta_inputs(weights: dict, n_joints: int) -> dict:
+    """An absolute-input checkpoint's weights for the same network in delta mode
+    (``GeneratorConfig.delta``): the input convolution reads the baseline B and the key copy
+    K as W_b·B + W_k·K; delta mode gives it B − B₀ and K − B, so with W_b' = W_b + W_k and
+    W_k' = W_k it computes the same up to the constant −(W_b + W_k)·B₀ (the first key's
+    pose, which is what delta mode withholds) and the window edges' padding. A continuation
+    thus starts next to the network it continues instead of from scratch."""
+    c = n_joints * 6 + 3
+    w = weights["inp.conv.weight"].clone()  # (width, C_in, k)
+    w[:, :c] = w[:, :c] + w[:, c : 2 * c]
+    return {**weights, "inp.conv.weight": w}
 
 
 def inherit_model(given: GeneratorConfig, saved: dict | None) -> GeneratorConfig:
@@ -438,7 +451,10 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     if cfg.init:
         state = torch.load(init_checkpoint(cfg.init), weights_only=False, map_location=dev)
         init = state["model"]
-        cfg = replace(cfg, model=inherit_model(cfg.model, state.get("config", {}).get("model")))
+        saved = state.get("config", {}).get("model") or {}
+        cfg = replace(cfg, model=inherit_model(cfg.model, saved))
+        if cfg.model.delta and not saved.get("delta", False):
+            init = to_delta_inputs(init, cfg.model.n_joints)
     model = Generator(cfg.model).to(dev)
     # Weights an --init checkpoint lacks (a DNA encoder, key mask or adapter added to it) start
     # from scratch beside trained ones: Adam moves every weight by about the learning rate a
