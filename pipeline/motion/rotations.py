@@ -398,14 +398,30 @@ def batch_sixd_to_quat(d6: np.ndarray, axis: int = -1, out: np.ndarray | None = 
     ``batch_matrix_to_quat(batch_sixd_to_matrix(d6))`` bitwise, without the 3x3 matrices in
     between. It decodes every frame and joint a network predicts, so ``axis`` may be the
     network's channel axis (each component then one contiguous row of frames), and ``out``
-    (..., 4) may be a view of another layout to write to."""
-    return _sixd_to_quat(np.moveaxis(np.asarray(d6), axis, -1), out=out)
+    (..., 4) may be a view of another layout to write to.
+
+    With the components on the second-to-last axis (..., 6, N), the rows are decoded as they
+    lie, a block of frames of the six rows at a time (contiguous rows, not strided columns:
+    the same arithmetic on each element)."""
+    d6 = np.asarray(d6)
+    if d6.ndim >= 2 and axis in (-2, d6.ndim - 2) and d6.shape[-2] == 6:
+        lead, n = d6.shape[:-2], d6.shape[-1]
+        if out is None:
+            out = np.empty(lead + (n, 4))
+        step = BLOCK
+        for idx in np.ndindex(*lead):
+            rows, dst = d6[idx], out[idx]
+            for s in range(0, n, step):
+                comps = _sixd_rows_to_quat(*rows[:, s : s + step].astype(np.float64))
+                for i, comp in enumerate(comps):
+                    dst[s : s + step, i] = comp
+        return out
+    return _sixd_to_quat(np.moveaxis(d6, axis, -1), out=out)
 
 
-@_blockwise((1,), (4,))
-def _sixd_to_quat(d6: np.ndarray) -> np.ndarray:
-    c = np.moveaxis(np.asarray(d6, np.float64), -1, 0)
-    a1x, a1y, a1z, a2x, a2y, a2z = c
+def _sixd_rows_to_quat(a1x, a1y, a1z, a2x, a2y, a2z):
+    """Quaternion components (x, y, z, w) of 6D rotations given component by component
+    (float64 arrays of one shape): Gram–Schmidt, the third column, scipy's case analysis."""
     n = a1x * a1x
     n += a1y * a1y
     n += a1z * a1z
@@ -425,7 +441,13 @@ def _sixd_to_quat(d6: np.ndarray) -> np.ndarray:
     m02 = b1y * b2z - b1z * b2y
     m12 = b1z * b2x - b1x * b2z
     m22 = b1x * b2y - b1y * b2x
-    comps = _quat_of_matrix_entries(b1x, b2x, m02, b1y, b2y, m12, b1z, b2z, m22)
+    return _quat_of_matrix_entries(b1x, b2x, m02, b1y, b2y, m12, b1z, b2z, m22)
+
+
+@_blockwise((1,), (4,))
+def _sixd_to_quat(d6: np.ndarray) -> np.ndarray:
+    c = np.moveaxis(np.asarray(d6, np.float64), -1, 0)
+    comps = _sixd_rows_to_quat(*c)
     q = np.empty((4,) + c.shape[1:])
     for i, comp in enumerate(comps):
         q[i] = comp
