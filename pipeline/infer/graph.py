@@ -1,27 +1,32 @@
 """Load-time rewrites of the generator's ONNX graph for onnxruntime's CPU kernels.
 
 The exported generator is a 1D convolutional network on (batch, channels, frames). On one
-core onnxruntime runs its 1D convolutions through im2col and sgemm, and the graph's
-element-wise ops (PReLU, the residual scales, the nearest-neighbour upsampling written as
-Unsqueeze/Tile/Reshape) one by one, at about half the core's sgemm peak all told
-(``tween bench --speed``). :func:`fast_graph` rewrites it, in memory and from the same
-weights (the model's files and hash are unchanged), into the same network on
-(batch, channels, 1, frames):
+core onnxruntime runs its 1D convolutions through im2col and sgemm (~100 GFLOP/s here), its
+stride-2 ConvTransposes through sgemm and col2im, and the element-wise ops (PReLU, the
+residual scales, the nearest-neighbour upsampling written as Unsqueeze/Tile/Reshape) one by
+one: the network took about 2.3x its FLOPs at the core's sgemm peak (``tween bench
+--speed``). :func:`fast_graph` rewrites it, in memory and from the same weights (the
+model's files and hash are unchanged), into the same network on (batch, channels, 1, frames):
 
 * every Conv / ConvTranspose / AveragePool becomes its 2D form with a 1-row kernel, so that
   onnxruntime's NCHWc layout transformer (``ORT_ENABLE_ALL``) runs the convolutions with its
-  direct MLAS kernels, bias, activations and residual sums fused, instead of im2col + sgemm;
-* the upsampling (a copy of each frame twice) becomes a nearest-neighbour Resize, which the
-  NCHWc transformer keeps in its blocked layout (the same values: a copy);
+  direct MLAS kernels (~145 GFLOP/s, bias fused) instead of im2col + sgemm;
+* each stride-2 ConvTranspose becomes two kernel-2 convolutions (its even and odd output
+  frames, NCHWc convolutions too) whose results are interleaved; the up block's PReLU and
+  residual sum run on each half before the interleave, so its skip (x upsampled, or its
+  1x1 projection) is x itself (the projection on half the frames) and the upsampling goes;
+* elsewhere the upsampling becomes a nearest-neighbour Resize (the same values: a copy);
 * a positive scalar residual weight after a PReLU is folded into the convolution before it
   (c · PReLU(z) = PReLU(c · z) for c > 0), together with the per-channel affine between the
   two (onnxruntime folds that one itself, in the same way);
 * a Slice that keeps every channel of the input is dropped.
 
-The folded weights change the order of rounding, so the result is checked against the plain
-graph on random features before it is used (within :data:`TOLERANCE` of the output's scale);
-anything the rewrite does not recognise, or a graph that fails the check, gives None and
-the plain graph runs, as before.
+Folded weights and the NCHWc kernels sum in another order, so the result differs from the
+plain graph by float32 rounding (~1e-6 of the output's scale, as onnxruntime's own
+optimisation levels differ from each other); it is checked against the plain graph on random
+features before it is used (within :data:`TOLERANCE` of the output's scale). Anything the
+rewrite does not recognise (another op, a graph with more inputs such as a DNA model's), or
+a graph that fails the check, gives None and the plain graph runs, as before.
 """
 
 from __future__ import annotations
@@ -67,6 +72,8 @@ def fast_graph(
             _to_2d(model.graph)
             if split_transposed:
                 _split_transposed(model.graph)
+                _prune(model.graph)  # (the folded Muls, which still read the PReLUs)
+                _interleave_after_residual(model.graph)
         _prune(model.graph)
         out = model.SerializeToString()
     except _Unsupported:
@@ -544,5 +551,94 @@ def _split_transposed(g) -> None:
         nodes.append(
             helper.make_node("Reshape", [base + "/interleaved", shape], [n.output[0]], name=base + "/reshape")
         )
+    del g.node[:]
+    g.node.extend(nodes)
+
+
+def _interleave_after_residual(g) -> None:
+    """An up block after :func:`_split_transposed`: ``PReLU(interleave(even, odd)) + c ·
+    up(x)`` (up: the nearest ×2 Resize, optionally followed by a 1×1 projection) becomes
+    ``interleave(PReLU(even) + c · x', PReLU(odd) + c · x')`` with x' = x (or its projection,
+    now on the frames before the upsampling): the same values frame by frame (the upsampled
+    skip is each frame of x' twice), without the Resize and with the skip's Mul and
+    projection on half the frames."""
+    from onnx import helper
+
+    gr = _Graph(g)
+    drop, insert = set(), {}
+    for rs in g.node:
+        if rs.op_type != "Reshape" or not rs.name.endswith("/reshape"):
+            continue
+        cat = gr.producer.get(rs.input[0])
+        if cat is None or cat.op_type != "Concat" or len(cat.input) != 2:
+            continue
+        unsq = [gr.producer.get(i) for i in cat.input]
+        if any(
+            u is None or u.op_type != "Unsqueeze" or gr.only_consumer(u.output[0]) is not cat for u in unsq
+        ):
+            continue
+        prelu = gr.only_consumer(rs.output[0])
+        if prelu is None or prelu.op_type != "PRelu" or prelu.input[0] != rs.output[0]:
+            continue
+        add = gr.only_consumer(prelu.output[0])
+        if add is None or add.op_type != "Add" or len(add.input) != 2:
+            continue
+        other = add.input[1] if add.input[0] == prelu.output[0] else add.input[0]
+        mul = gr.producer.get(other)
+        if mul is None or mul.op_type != "Mul" or gr.only_consumer(mul.output[0]) is not add:
+            continue
+        c = [i for i in mul.input if gr.value(i) is not None]
+        src = [i for i in mul.input if gr.value(i) is None]
+        if len(c) != 1 or len(src) != 1 or gr.value(c[0]).size != 1:
+            continue
+        proj = gr.producer.get(src[0])
+        if proj is not None and proj.op_type == "Conv":
+            a = _attrs(proj)
+            w = gr.value(proj.input[1])
+            if (
+                w is None
+                or w.shape[2:] != (1, 1)
+                or a.get("strides", [1, 1]) != [1, 1]
+                or any(a.get("pads", [0, 0, 0, 0]))
+                or a.get("group", 1) != 1
+                or gr.only_consumer(proj.output[0]) is not mul
+            ):
+                continue
+            resize = gr.producer.get(proj.input[0])
+            user = proj
+        else:
+            resize, user = proj, mul
+        if resize is None or resize.op_type != "Resize" or gr.only_consumer(resize.output[0]) is not user:
+            continue
+        sc = gr.value(resize.input[2]) if len(resize.input) > 2 else None
+        if sc is None or sc.tolist() != [1, 1, 1, 2] or _attrs(resize).get("mode") != b"nearest":
+            continue
+        # The skip on x's own frames; each half gets its PReLU and the residual sum.
+        for k, name in enumerate(user.input):
+            if name == resize.output[0]:
+                user.input[k] = resize.input[0]
+        new = []
+        parts = []
+        for u in unsq:
+            half = u.input[0]
+            p = f"{half}/prelu"
+            new.append(helper.make_node("PRelu", [half, prelu.input[1]], [p], name=p))
+            new.append(helper.make_node("Add", [p, mul.output[0]], [f"{half}/sum"], name=f"{half}/sum"))
+            new.append(
+                helper.make_node("Unsqueeze", [f"{half}/sum", u.input[1]], [f"{half}/sum5d"], name=u.name)
+            )
+            parts.append(f"{half}/sum5d")
+        new.append(helper.make_node("Concat", parts, [cat.output[0]], name=cat.name, axis=4))
+        new.append(helper.make_node("Reshape", [cat.output[0], rs.input[1]], [add.output[0]], name=rs.name))
+        drop.update(id(n) for n in (*unsq, cat, rs, prelu, resize, add))
+        insert[id(add)] = new
+    if not insert:
+        return
+    nodes = []
+    for n in g.node:
+        if id(n) in insert:
+            nodes.extend(insert[id(n)])
+        elif id(n) not in drop:
+            nodes.append(n)
     del g.node[:]
     g.node.extend(nodes)

@@ -33,7 +33,7 @@ def _run(graph, x):
     return ort.InferenceSession(graph, opts, providers=["CPUExecutionProvider"]).run(None, {"features": x})[0]
 
 
-def _toy(c: float = 0.7, extra=None) -> bytes:
+def _toy(c: float = 0.7, extra=None, proj: bool = False) -> bytes:
     """A small generator-shaped graph: conv + affine + PReLU + scaled residual, a stride-2
     down block with an average-pooled skip, an up block (ConvTranspose, upsampling written
     as Unsqueeze/Tile/Reshape), an output conv."""
@@ -54,6 +54,8 @@ def _toy(c: float = 0.7, extra=None) -> bytes:
         "su": RNG.uniform(0.5, 2, size=(1, C, 1)),
         "tu": RNG.normal(size=(1, C, 1)),
         "au": RNG.uniform(0, 0.3, size=(C, 1)),
+        "wp": RNG.normal(size=(C, C, 1)) * 0.3,
+        "bp": RNG.normal(size=C),
         "wo": RNG.normal(size=(5, C, 3)) * 0.3,
         "bo": RNG.normal(size=5),
     }
@@ -93,7 +95,8 @@ def _toy(c: float = 0.7, extra=None) -> bytes:
         n("Slice", ["r2", "z", "two", "z"], ["r3"]),
         n("Concat", ["r3", "m1"], ["r4"], axis=0),
         n("Reshape", ["r1", "r4"], ["r5"]),
-        n("Mul", ["r5", "k"], ["r6"]),
+        *([n("Conv", ["r5", "wp", "bp"], ["r5p"], kernel_shape=[1])] if proj else []),
+        n("Mul", ["r5p" if proj else "r5", "k"], ["r6"]),
         n("Add", ["u4", "r6"], ["x3"]),
         n("Add", ["x3", "x1"], ["x4"]),
         n("Conv", ["x4", "wo", "bo"], ["residual"], kernel_shape=[3], pads=[1, 1]),
@@ -113,12 +116,14 @@ def _ops(graph: bytes) -> set:
     return {n.op_type for n in onnx.load_from_string(graph).graph.node}
 
 
-def test_the_rewrite_is_the_same_network_in_2d():
-    plain = _toy()
+@pytest.mark.parametrize("proj", [False, True])
+def test_the_rewrite_is_the_same_network_in_2d(proj):
+    plain = _toy(proj=proj)
     fast = fast_graph(plain)
     assert fast is not None
     ops = _ops(fast)
-    assert "ConvTranspose" not in ops and "Tile" not in ops and "Resize" in ops
+    # No ConvTranspose, no Tile; the upsampled skip is summed before the interleave (no Resize).
+    assert not {"ConvTranspose", "Tile", "Resize"} & ops
     # The positive scale after each PReLU went into the convolutions: two Muls are left
     # (the residual weights on the skips).
     assert sum(n.op_type == "Mul" for n in onnx.load_from_string(fast).graph.node) == 2
@@ -128,6 +133,8 @@ def test_the_rewrite_is_the_same_network_in_2d():
         assert a.shape == b.shape
         assert np.abs(a - b).max() <= 1e-6 * np.abs(a).max()
     assert check_graph(plain, fast) is not None
+    # Without the ConvTranspose split the upsampling is a nearest Resize.
+    assert "Resize" in _ops(fast_graph(plain, split_transposed=False))
 
 
 def test_each_rewrite_on_its_own_and_what_is_not_folded():
