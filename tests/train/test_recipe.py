@@ -34,7 +34,7 @@ def _tween(*args, env=None):
 
 
 def test_every_shipped_model_has_a_recipe():
-    assert SHIPPED == ["tween-bandai-dna-v1", "tween-bandai-v5.3", "tween-cmu-s123-ft"]
+    assert SHIPPED == ["tween-bandai-delta-v1", "tween-bandai-dna-v1", "tween-bandai-v5.3", "tween-cmu-s123-ft"]
     for name in SHIPPED:
         rec = load_recipe(name)
         assert (ROOT / rec.model / "model.json").exists()
