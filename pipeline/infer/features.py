@@ -27,6 +27,7 @@ import os
 
 import numpy as np
 
+from pipeline.infer.graph import prune
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import (
     batch_quat_apply,
@@ -426,18 +427,7 @@ def build_adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | N
     )
     main[0].input[2] = "adapter_free/main_end"
     dim[1].dim_value = n_in - n_side
-    # Drop what no output needs any more (the adapter, its slice, the shape arithmetic).
-    need = {o.name for o in g.output}
-    live = []
-    for n in reversed(list(g.node)):
-        if need & set(n.output):
-            live.append(n)
-            need.update(n.input)
-    del g.node[:]
-    g.node.extend(reversed(live))
-    inits = [t for t in g.initializer if t.name in need]
-    del g.initializer[:]
-    g.initializer.extend(inits)
+    prune(g)  # what no output needs any more: the adapter, its slice, the shape arithmetic
     lean = model.SerializeToString()
     try:
         opts = ort.SessionOptions()

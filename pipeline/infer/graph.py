@@ -72,9 +72,9 @@ def fast_graph(
             _to_2d(model.graph)
             if split_transposed:
                 _split_transposed(model.graph)
-                _prune(model.graph)  # (the folded Muls, which still read the PReLUs)
+                prune(model.graph)  # (the folded Muls, which still read the PReLUs)
                 _interleave_after_residual(model.graph)
-        _prune(model.graph)
+        prune(model.graph)
         out = model.SerializeToString()
     except _Unsupported:
         return None
@@ -201,7 +201,7 @@ def _rename_input(gr: _Graph, old: str, new: str) -> None:
         raise _Unsupported(f"{old} is a graph output")
 
 
-def _prune(g) -> None:
+def prune(g) -> None:
     """Drop the nodes and initializers no graph output needs."""
     need = {o.name for o in g.output}
     live = []
