@@ -34,7 +34,9 @@ def export(
     }
     meta = do_export(run, out, name or out.name, settings)
     err = verify(run, out)
-    typer.echo(f"{out}: model {meta['name']} hash {meta['hash']}; max |onnx - torch| = {err:.2e}")
+    typer.echo(
+        f"{out}: model {meta['name']} hash {meta['hash']}; onnx and torch agree within {err:.2e} (export.verify)"
+    )
 
 
 @cache

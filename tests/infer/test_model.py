@@ -373,3 +373,14 @@ def test_shipped_model_takes_deterministic_and_distinct(bandai_clip):
     from pipeline.infer.interp import interpolate_keys
 
     assert not np.allclose(a.positions(), interpolate_keys(m, keys).positions(), atol=1e-3)
+
+
+def test_export_check_is_relative_only_for_random_inputs():
+    """Random features drive outputs to ±100, where float32 alone rounds at ~1e-5; real
+    features are compared absolutely."""
+    from pipeline.train.export import _gap
+
+    a, b = np.array([100.0, 0.5]), np.array([100.004, 0.5])
+    assert abs(_gap(a, b, random=True) - 0.004 / 100.004) < 1e-12
+    assert abs(_gap(a, b, random=False) - 0.004) < 1e-12
+    assert abs(_gap(np.array([0.2]), np.array([0.3]), random=True) - 0.1) < 1e-12  # |b| < 1: absolute
