@@ -23,13 +23,22 @@ _SRGB_CHUNKS = (
 )
 
 
+_RGBX = np.dtype({"names": ["rgb"], "formats": ["V3"], "offsets": [0], "itemsize": 4})
+
+
 def png_rows(rgb: np.ndarray) -> np.ndarray:
     """The PNG scanlines of ``rgb`` (h, w, 3 or 4: its RGB) uint8, each after its filter byte
     (0: none): (h, 3w + 1) uint8, a new array (the caller's buffer can be reused at once)."""
     h, w = rgb.shape[:2]
     rows = np.empty((h, 3 * w + 1), np.uint8)
     rows[:, 0] = 0
-    rows[:, 1:].reshape(h, w, 3)[...] = rgb[..., :3]
+    if rgb.shape[2] == 4 and rgb.dtype == np.uint8 and rgb.strides[2] == 1:
+        # each pixel's first 3 bytes as one 3-byte item: half the time of the uint8 copy
+        # (1.1 ms against 2.3 ms at 960x540), which runs on the writer thread with the GIL
+        src = rgb.view(_RGBX)[..., 0]["rgb"]
+        rows[:, 1:].view("V3")[...] = src
+    else:
+        rows[:, 1:].reshape(h, w, 3)[...] = rgb[..., :3]
     return rows
 
 

@@ -190,3 +190,15 @@ def test_key_rings_made_once(stage, monkeypatch):
         assert not np.array_equal(a, c)  # the ring is drawn
     finally:
         r.release()
+
+
+def test_png_rows_packed_copy_same_bytes():
+    from render.output import png_rows
+
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (37, 50, 4), dtype=np.uint8)
+    for view in (img, img[:, 7:41], img[::2], img[..., :3].copy()):
+        h, w = view.shape[:2]
+        want = np.zeros((h, 3 * w + 1), np.uint8)
+        want[:, 1:] = view[..., :3].reshape(h, -1)
+        assert np.array_equal(png_rows(view), want)
