@@ -33,20 +33,49 @@ def _text_band(w: int, h: int, items, size: int, fill_alpha: float) -> np.ndarra
     return buf.get_pixels(oiio.FLOAT).reshape(h, w, 4)
 
 
-def _fixed(src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A premultiplied float RGBA layer as 8.8 fixed point (colour*256*255, 256*(1-alpha))."""
-    rgb = np.round(np.clip(src[..., :3], 0, 1) * 255 * 256).astype(np.uint16)
-    inv = np.round((1.0 - np.clip(src[..., 3:4], 0, 1)) * 256).astype(np.uint16)
-    return rgb, inv
+class _Fixed:
+    """A premultiplied float RGBA layer as 8.8 fixed point: ``rgb`` (colour*256*255) and ``inv``
+    (256*(1-alpha)) for RGB destinations, and the same spread over 4 channels with the
+    rounding folded in (``add4``: colour + 128, alpha channel 0; ``inv4``: alpha channel 256,
+    which keeps the destination's alpha) for RGBA ones, made when first needed."""
+
+    def __init__(self, src: np.ndarray):
+        self.rgb = np.round(np.clip(src[..., :3], 0, 1) * 255 * 256).astype(np.uint16)
+        self.inv = np.round((1.0 - np.clip(src[..., 3:4], 0, 1)) * 256).astype(np.uint16)
+        self._rgba = None
+
+    def rgba(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._rgba is None:
+            h, w = self.rgb.shape[:2]
+            add4 = np.zeros((h, w, 4), np.uint16)
+            add4[..., :3] = self.rgb + 128
+            inv4 = np.full((h, w, 4), 256, np.uint16)
+            inv4[..., :3] = self.inv
+            self._rgba = add4, inv4
+        return self._rgba
+
+
+def _fixed(src: np.ndarray) -> _Fixed:
+    return _Fixed(src)
 
 
 def _over(dst: np.ndarray, src) -> None:
-    """In place: premultiplied ``src`` (float RGBA, or ``_fixed`` of it) over ``dst`` (uint8 RGB).
+    """In place: premultiplied ``src`` (float RGBA, or ``_fixed`` of it) over ``dst`` (uint8 RGB,
+    or RGBA whose alpha is kept).
 
-    Static layers are pre-converted to fixed point, so a frame's burn-in is a few integer ops.
+    Static layers are pre-converted to fixed point, so a frame's burn-in is a few integer ops;
+    on RGBA rows (the GL read-back, contiguous) they run on whole pixels without a strided
+    view, with the same result on the colour: (dst * inv + rgb + 128) >> 8.
     """
-    rgb, inv = _fixed(src) if isinstance(src, np.ndarray) else src
-    dst[...] = ((dst * inv + rgb + 128) >> 8).astype(np.uint8)
+    layer = _fixed(src) if isinstance(src, np.ndarray) else src
+    if dst.shape[-1] == 4:
+        add4, inv4 = layer.rgba()
+        acc = np.multiply(dst, inv4, dtype=np.uint16)
+        acc += add4
+        acc >>= 8
+        np.copyto(dst, acc, casting="unsafe")
+        return
+    dst[...] = ((dst * layer.inv + layer.rgb + 128) >> 8).astype(np.uint8)
 
 
 class BurnIn:
@@ -96,7 +125,7 @@ class BurnIn:
             self.labels = _fixed(self.labels)
 
     def apply(self, img: np.ndarray, frame: int, is_key: bool, tc: str | None = None) -> None:
-        """Burns the text into ``img`` (h, w, 3) uint8 in place; ``tc`` is the frame's time code
+        """Burns the text into ``img`` (h, w, 3) uint8 in place (or (h, w, 4), alpha kept); ``tc`` is the frame's time code
         (``scene.timecodes``; default: ``frame`` counted at the burn-in's fps)."""
         b, w = self.band, self.w
         _over(img[:b], self.top)
@@ -104,7 +133,7 @@ class BurnIn:
         if self.labels is not None:
             _over(img[b : 2 * b], self.labels)
             x = self.w // 2
-            img[b:-b, x - 1 : x + 1] = 150  # the seam between the panels
+            img[b:-b, x - 1 : x + 1, :3] = 150  # the seam between the panels
         rgb = KEY_RGB if is_key else (1, 1, 1)
         text = f"{frame:>6d}   {tc if tc is not None else timecode(frame, self.fps)}"
         strip = _text_band(
@@ -116,4 +145,5 @@ class BurnIn:
             _over(img[y : y + kh, x : x + kw], self.key_badge)
             t = max(2, self.h // 135)  # a border that reads at thumbnail size
             k = np.array([round(c * 255) for c in KEY_RGB], np.uint8)
-            img[:t], img[-t:], img[:, :t], img[:, -t:] = k, k, k, k
+            rgb3 = img[..., :3]
+            rgb3[:t], rgb3[-t:], rgb3[:, :t], rgb3[:, -t:] = k, k, k, k

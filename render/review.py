@@ -277,7 +277,7 @@ def render_review(
         def finish_frame(i: int, img: np.ndarray, save) -> None:
             """On the writer thread, in frame order: burn-in, MP4, thumbnail, numbered frame."""
             fno = int(shot.frames[i])
-            burn.apply(img[..., :3], fno, bool(is_key[i]), tcs[i])
+            burn.apply(img, fno, bool(is_key[i]), tcs[i])  # RGBA: the whole-pixel path
             movie.add(img)
             if i in thumb_at:
                 thumbs.append((thumbnail(img, max(1, w // 480)), f"{fno}" + (" KEY" if is_key[i] else ""),

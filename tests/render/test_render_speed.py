@@ -202,3 +202,19 @@ def test_png_rows_packed_copy_same_bytes():
         want = np.zeros((h, 3 * w + 1), np.uint8)
         want[:, 1:] = view[..., :3].reshape(h, -1)
         assert np.array_equal(png_rows(view), want)
+
+
+@pytest.mark.parametrize("panels", [None, ["BLOCKING (stepped keys)", "FILLED"]])
+def test_burn_in_rgba_same_colour_as_rgb(panels):
+    from render.overlays import BurnIn
+
+    burn = BurnIn((320, 180), "sh010 v001", {"model": "interp", "take": 1, "seed": 3}, 30.0, panels)
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (180, 320, 4), dtype=np.uint8)
+    for fno, key in ((1001, False), (1010, True)):
+        rgb, rgba = img[..., :3].copy(), img.copy()
+        burn.apply(rgb, fno, key, "00:00:33:11")
+        burn.apply(rgba, fno, key, "00:00:33:11")
+        assert np.array_equal(rgba[..., :3], rgb)
+        assert np.array_equal(rgba[..., 3], img[..., 3])
+        assert not np.array_equal(rgb, img[..., :3])
