@@ -7,7 +7,7 @@ posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q
 length of the four fills, the decided fill's ratio to the better of model and spline and to
 the model, how often each choice was made and the time it took.
 
-``python -m pipeline.bench.trust [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz]``
+``python -m pipeline.bench.trust [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz] [--model DIR]``
 (``--limit``: the first N eval clips, and at most 2N CMU windows evenly spaced over the
 takes; ``--dump``: per-window probe errors and per-window L2P of blends at w = 0, ¼, ½, ¾, 1,
 what the thresholds of the decision were tuned on).
@@ -72,6 +72,7 @@ def _shots(rots, roots, T: int):
 
 def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None) -> dict:
     """Per transition length: L2P / L2Q of each method, choices and seconds."""
+    from pipeline.infer.api import fill_windows
     from pipeline.infer.interp import interpolate_between
 
     out = {}
@@ -80,7 +81,7 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
         sl = slice(CONTEXT, CONTEXT + T)
         rr, pp, keys = _shots(rots, roots, T)
         t0 = time.perf_counter()
-        m_r, m_p = trust._fill_windows(model, rr, pp, keys, model.skeleton)
+        m_r, m_p = fill_windows(model, rr, pp, keys, trust.BATCH, model.skeleton)
         t_model = time.perf_counter() - t0
         s_r, s_p = spline.fill_batch(rr, pp, keys)
         t0 = time.perf_counter()
@@ -125,7 +126,11 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
 
 
 def run_trust_bench(
-    sources=SOURCES, limit: int | None = None, transitions=TRANSITIONS, dump: str | None = None
+    sources=SOURCES,
+    limit: int | None = None,
+    transitions=TRANSITIONS,
+    dump: str | None = None,
+    model: str = "default",
 ) -> dict:
     """Every source's table (see the module docstring): ``{"sources": {source: {"windows": N,
     "seconds": s, "results": {T: {method: {"L2P", "L2Q"}, "choices", ...}}}}, "markdown": str}``."""
@@ -134,7 +139,7 @@ def run_trust_bench(
     from pipeline.infer.spline import SplineInbetweener
 
     mean, std = position_stats(load_split("train"))
-    model = load_inbetweener("default")
+    model = load_inbetweener(model)
     spline = SplineInbetweener(model.skeleton)
     report: dict = {"model": model.name, "hash": model.model_hash, "limit": limit, "sources": {}}
     dumps = {}
@@ -212,9 +217,10 @@ def main(argv=None) -> int:
     ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
     ap.add_argument("--out", type=Path, default=None, help="folder for trust.json and trust.md")
     ap.add_argument("--dump", default=None, help="npz of per-window probe errors and blend L2P (tuning)")
+    ap.add_argument("--model", default="default", help="the network: default, or a model folder")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    report = run_trust_bench(tuple(s for s in a.sources.split(",") if s), a.limit, dump=a.dump)
+    report = run_trust_bench(tuple(s for s in a.sources.split(",") if s), a.limit, dump=a.dump, model=a.model)
     report["seconds"] = time.perf_counter() - t0
     md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
     if a.out:
