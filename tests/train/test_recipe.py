@@ -34,7 +34,12 @@ def _tween(*args, env=None):
 
 
 def test_every_shipped_model_has_a_recipe():
-    assert SHIPPED == ["tween-bandai-delta-v1", "tween-bandai-dna-v1", "tween-bandai-v5.3", "tween-cmu-s123-ft"]
+    assert SHIPPED == [
+        "tween-bandai-delta-v2",
+        "tween-bandai-dna-v1",
+        "tween-bandai-v5.3",
+        "tween-cmu-s123-ft",
+    ]
     for name in SHIPPED:
         rec = load_recipe(name)
         assert (ROOT / rec.model / "model.json").exists()
@@ -211,3 +216,26 @@ def test_the_card_gives_the_recipe_and_its_summed_wall_time():
     assert f"{walls['cpu']:,.1f} s" in card and f"{walls['cpu'] / 3600:.2f} h" in card
     assert f"{walls['cuda']:,.1f} s" in card and f"{walls['cuda'] / 60:.1f} min" in card
     assert "tween train --recipe tween-bandai-dna-v1" in (ROOT / "models/dna/MODEL_CARD.md").read_text()
+
+
+def test_the_delta_model_ships_the_checkpoint_its_next_stage_resumes_from():
+    """models/delta/torch/generator.pt is the exported network's own checkpoint (its last
+    stage), so a stage with ``init = "models/delta"`` continues it in a fresh clone."""
+    import torch
+
+    from pipeline.train.export import verify
+    from pipeline.train.generator import init_checkpoint
+
+    folder = ROOT / "models/delta"
+    ckpt = init_checkpoint(str(folder))
+    assert ckpt == folder / "torch" / "generator.pt"
+    state = torch.load(ckpt, weights_only=False, map_location="cpu")
+    meta = json.loads((folder / "model.json").read_text())
+    rec = load_recipe("tween-bandai-delta-v2")
+    assert state["config"]["model"]["delta"] and meta["generator"]["delta"]
+    assert (
+        state["step"]
+        == meta["train_steps"]
+        == configs(parse_train_args(rec.stage(rec.export.stage).args))[0].steps
+    )
+    assert verify(ckpt.parent, folder) < 1e-4  # the ONNX file is this checkpoint's export
