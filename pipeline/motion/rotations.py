@@ -480,6 +480,17 @@ def batch_quat_continuity(q: np.ndarray, axis: int = 0, copy: bool = True) -> np
     return np.moveaxis(q, 0, axis)
 
 
+def _slerp_terms(q0: np.ndarray, q1: np.ndarray, lerp_eps: float):
+    """What SLERP between q0 and q1 needs besides the weight: q1 on q0's hemisphere, whether
+    the pair is near enough to LERP, the angle between them and its sine (1 where LERP)."""
+    dot = _dot(q0, q1)[..., None]
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    near = (1.0 - dot) < lerp_eps
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    return q1, near, theta, np.where(near, 1.0, np.sin(theta))
+
+
 @_blockwise((1, 1, 0), (4,))
 def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float = 0.01) -> np.ndarray:
     """Elementwise SLERP: one weight per pair, ``w`` broadcastable to ``q0.shape[:-1]``.
@@ -489,12 +500,7 @@ def slerp_pairs(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, lerp_eps: float =
     q0 = np.asarray(q0, np.float64)
     q1 = np.asarray(q1, np.float64)
     w = np.asarray(w, np.float64)[..., None]
-    dot = _dot(q0, q1)[..., None]
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    near = (1.0 - dot) < lerp_eps
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_t = np.where(near, 1.0, np.sin(theta))
+    q1, near, theta, sin_t = _slerp_terms(q0, q1, lerp_eps)
     s0 = np.where(near, 1.0 - w, np.sin((1.0 - w) * theta) / sin_t)
     s1 = np.where(near, w, np.sin(w * theta) / sin_t)
     out = s0 * q0 + s1 * q1
@@ -514,13 +520,8 @@ def slerp_frames(
     i0, i1 = np.asarray(i0, np.int64), np.asarray(i1, np.int64)
     w = np.asarray(w, np.float64)
     pairs, inv = np.unique(i0 * q.shape[1] + i1, return_inverse=True)
-    q0, q1 = q[:, pairs // q.shape[1]], q[:, pairs % q.shape[1]]
-    dot = _dot(q0, q1)[..., None]
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    near = (1.0 - dot) < lerp_eps
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    sin_t = np.where(near, 1.0, np.sin(theta))
+    q0 = q[:, pairs // q.shape[1]]
+    q1, near, theta, sin_t = _slerp_terms(q0, q[:, pairs % q.shape[1]], lerp_eps)
     out = np.empty((len(q), len(i0)) + q.shape[2:])
     tail = (1,) * (q.ndim - 2)
     step = max(1, BLOCK // max(1, math.prod(q.shape[2:-1]) * len(q)))
