@@ -55,19 +55,15 @@ class _Fixed:
         return self._rgba
 
 
-def _fixed(src: np.ndarray) -> _Fixed:
-    return _Fixed(src)
-
-
 def _over(dst: np.ndarray, src) -> None:
-    """In place: premultiplied ``src`` (float RGBA, or ``_fixed`` of it) over ``dst`` (uint8 RGB,
+    """In place: premultiplied ``src`` (float RGBA, or ``_Fixed`` of it) over ``dst`` (uint8 RGB,
     or RGBA whose alpha is kept).
 
     Static layers are pre-converted to fixed point, so a frame's burn-in is a few integer ops;
     on RGBA rows (the GL read-back, contiguous) they run on whole pixels without a strided
     view, with the same result on the colour: (dst * inv + rgb + 128) >> 8.
     """
-    layer = _fixed(src) if isinstance(src, np.ndarray) else src
+    layer = _Fixed(src) if isinstance(src, np.ndarray) else src
     if dst.shape[-1] == 4:
         add4, inv4 = layer.rgba()
         acc = np.multiply(dst, inv4, dtype=np.uint16)
@@ -120,9 +116,9 @@ class BurnIn:
         self.key_badge[..., :3] += np.array(KEY_RGB, np.float32) * (1.0 - self.key_badge[..., 3:4])
         self.key_badge[..., 3] = 1.0
         self.frame_w = min(self.font * 16, self.w)
-        self.top, self.bottom, self.key_badge = _fixed(self.top), _fixed(self.bottom), _fixed(self.key_badge)
+        self.top, self.bottom, self.key_badge = _Fixed(self.top), _Fixed(self.bottom), _Fixed(self.key_badge)
         if self.labels is not None:
-            self.labels = _fixed(self.labels)
+            self.labels = _Fixed(self.labels)
 
     def apply(self, img: np.ndarray, frame: int, is_key: bool, tc: str | None = None) -> None:
         """Burns the text into ``img`` (h, w, 3) uint8 in place (or (h, w, 4), alpha kept); ``tc`` is the frame's time code
