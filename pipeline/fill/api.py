@@ -107,8 +107,8 @@ def dna_motion(opts: FillOptions, fps: float):
     if not opts.dna:
         return None
 
-    from pipeline.usd.take import model_take
     from pipeline.infer.dna import MAX_POSES, representative_frames
+    from pipeline.usd.take import model_take
 
     if not 1 <= opts.dna_poses <= MAX_POSES:
         raise TweenError(f"dna_poses must be 1 to {MAX_POSES}, not {opts.dna_poses}")

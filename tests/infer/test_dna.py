@@ -76,9 +76,9 @@ def tiny_dna_model(tmp_path_factory):
 
 def test_reference_take_reads_bvh_and_usd_and_names_a_bad_file(bandai_clip, tmp_path):
     from pipeline.errors import ShotError
-    from pipeline.usd.take import model_take as reference_take
     from pipeline.motion.clip import Motion
     from pipeline.usd.convert import write_shot
+    from pipeline.usd.take import model_take as reference_take
 
     take = reference_take(bandai_clip)
     assert len(take.skeleton) == len(SKEL) and len(take) > 30
