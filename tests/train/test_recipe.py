@@ -38,7 +38,7 @@ def test_every_shipped_model_has_a_recipe():
         "tween-bandai-delta-v2",
         "tween-bandai-dna-v1",
         "tween-bandai-v5.3",
-        "tween-cmu-s123-ft",
+        "tween-cmu-s123-delta-ft",
     ]
     for name in SHIPPED:
         rec = load_recipe(name)
