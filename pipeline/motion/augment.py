@@ -21,3 +21,27 @@ def posture_offsets(rot: np.ndarray, rng: np.random.Generator, max_deg: float, p
     angle = np.radians(max_deg) * rng.random((B, J, 1)) * (rng.random((B, 1, 1)) < prob)
     off = Rotation.from_rotvec((axis * angle).reshape(-1, 3)).as_quat().reshape(B, 1, J, 4)
     return quat_mul(rot.astype(np.float64), np.broadcast_to(off, rot.shape)).astype(rot.dtype)
+
+
+def tempo_factor(rng: np.random.Generator, max_change: float) -> float:
+    """A playback speed, log-uniform between 1 / (1 + max_change) and 1 + max_change: the
+    same motion performed faster or slower, as another actor or a stylised take would."""
+    span = np.log1p(max_change)
+    return float(np.exp(rng.uniform(-span, span)))
+
+
+def time_warp(rot: np.ndarray, root: np.ndarray, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Windows (B, N, J, 4) / (B, N, 3) resampled to ``frames`` frames spanning the same time
+    (first and last frames kept): rotations by SLERP, the root linearly. N > frames plays the
+    motion faster, N < frames slower."""
+    from pipeline.motion.rotations import slerp_pairs
+
+    n = rot.shape[1]
+    t = np.linspace(0.0, n - 1.0, frames)
+    i = np.minimum(np.floor(t).astype(np.int64), n - 2)
+    f = t - i
+    w = np.broadcast_to(f[None, :, None], rot.shape[:1] + (frames,) + rot.shape[2:3])
+    out_rot = slerp_pairs(rot[:, i], rot[:, i + 1], w).astype(rot.dtype)
+    r = root.astype(np.float64)
+    out_root = (r[:, i] + f[None, :, None] * (r[:, i + 1] - r[:, i])).astype(root.dtype)
+    return out_rot, out_root

@@ -33,7 +33,7 @@ from pipeline.infer.features import (
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
-from pipeline.motion.augment import posture_offsets
+from pipeline.motion.augment import posture_offsets, tempo_factor, time_warp
 from pipeline.motion.fk import fk
 from pipeline.train.batches import (
     PARTIAL_LAYOUTS,
@@ -115,6 +115,12 @@ class TrainConfig:
     mirror: float = _knob(0.0, "Share of windows mirrored left/right (augmentation).")
     posture: float = _knob(0.0, "Largest per-joint posture offset, degrees (augmentation; 0: off).")
     posture_prob: float = _knob(0.5, "Share of windows given posture offsets (with --posture).")
+    tempo: float = _knob(
+        0.0,
+        "Largest tempo change (augmentation): batches played at a speed log-uniform between "
+        "1/(1+this) and 1+this (0: off).",
+    )
+    tempo_prob: float = _knob(0.5, "Share of batches given a tempo change (with --tempo).")
     partial: float = _knob(
         0.0, "Share of batches with partial keys (some joints only; needs --key-mask or --key-adapter)."
     )
@@ -275,6 +281,14 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     L = int(rng.choice(cfg.lengths))
     where: list = []
     rot, root = sample_batch(clips, rng, cfg.batch, L, where)
+    if cfg.tempo > 0:
+        # Its own stream: the batch's keys, noise and other augmentations stay a plain run's.
+        trng = np.random.default_rng([cfg.seed, step, 4])
+        if trng.random() < cfg.tempo_prob:
+            n_src = int(round((L - 1) * tempo_factor(trng, cfg.tempo))) + 1
+            if (clips.lengths >= n_src).any():
+                where = []
+                rot, root = time_warp(*sample_batch(clips, trng, cfg.batch, n_src, where), L)
     if cfg.mirror > 0:
         # Its own stream, so a mirrored run trains on the same windows and keys as a plain one.
         flip = np.random.default_rng([cfg.seed, step, 1]).random(cfg.batch) < cfg.mirror
