@@ -18,12 +18,18 @@ Probes (:func:`probe_plan`, at most :data:`MAX_PROBES` a shot, each a local wind
   least two keys of the run kept on each side, and the widest hole (the run's two end keys
   kept), which asks the model for a motion the keys barely constrain.
 
-Decision (:func:`decide`): per probe the log-ratio ``log((e_spline + ε) / (e_model + ε))``
-(ε = :data:`EPS_CM`, so sub-millimetre probes do not dominate), averaged, then shrunk toward
-the model by :data:`PRIOR_PROBES` pseudo-probes (few probes cannot flip a good model). The
-weight of the model ``w = clip((score − THRESHOLD) / BAND + 1/2, 0, 1)``: 1 is ``"model"``,
-0 ``"spline"``, between them ``"blend"``: fill = spline + w·(model − spline), the root position
-linearly and every joint's local rotation by SLERP (:func:`apply`). Keys stay bitwise exact.
+Decision (:func:`decide`), **per gap length**: per probe the log-ratio
+``log((e_spline + ε) / (e_model + ε))`` (ε = :data:`EPS_CM`, so sub-millimetre probes do not
+dominate), averaged, then shrunk toward the model's end of the band by :data:`PRIOR_PROBES`
+pseudo-probes (few probes cannot flip a good model). For a gap of L frames the weight of the
+model is ``w = clip((score − t(L)) / BAND + 1/2, 0, 1)`` with the threshold t(L) of
+:func:`threshold_for`: 0 for gaps no longer than the probes' holes (there the probes measure
+the gap's own task, so equal errors give w = 1/2), falling to :data:`THRESHOLD` for gaps of
+:data:`LONG_GAP` frames and more (the network's lead over the spline grows with the gap, so
+probes on short holes understate it there). A shot whose gaps all get 1 is ``"model"``, all 0
+``"spline"``, otherwise ``"blend"``: each gap's frames are spline + w·(model − spline), the
+root position linearly and every joint's local rotation by SLERP (:func:`apply`). Keys stay
+bitwise exact.
 
 :class:`TrustedInbetweener` wraps a model in the same ``fill`` interface and keeps
 ``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record.
@@ -51,8 +57,11 @@ MAX_PROBES = 8
 RUN_SIDE = 2
 #: Added to both probe errors (cm) before their ratio.
 EPS_CM = 0.2
-#: Score (mean log error ratio spline / model) at which the weight is one half.
+#: Score (mean log error ratio spline / model) at which the weight is one half, for gaps of
+#: LONG_GAP frames and more; for gaps up to MIN_GAP frames (the probes' own holes) it is 0.
 THRESHOLD = -0.3
+#: The gap length (frames) from which the threshold is THRESHOLD (log-linear from MIN_GAP).
+LONG_GAP = 3 * MIN_GAP
 #: Score range over which the weight goes from 0 to 1.
 BAND = 0.4
 #: Pseudo-probes at the model's end of the band (w = 1) the probes' mean is shrunk toward.
@@ -87,10 +96,12 @@ class Probe:
 @dataclass
 class TrustDecision:
     """How one character's fill was decided. ``weight``: the model's share (1: the model's
-    fill, 0: the spline's); ``model_error_cm`` / ``spline_error_cm``: the mean joint-position
-    error of each at the probes' left-out keys (None without probes); ``score``: the shrunk
-    mean log error ratio the weight comes from; ``probes``: one dict per probe (its window,
-    left-out keys and both errors); ``reason``: one line for people."""
+    fill, 0: the spline's), over the shot's gap frames; ``model_error_cm`` /
+    ``spline_error_cm``: the mean joint-position error of each at the probes' left-out keys
+    (None without probes); ``score``: the probes' mean log error ratio (spline / model);
+    ``probes``: one dict per probe (its window, left-out keys and both errors); ``gaps``: one
+    dict per gap length of the shot (``length``, ``count``, ``threshold``, shrunk ``score``,
+    ``weight``), the weight of every gap of that length; ``reason``: one line for people."""
 
     choice: str
     weight: float
@@ -100,10 +111,26 @@ class TrustDecision:
     reason: str = ""
     score: float | None = None
     trust: str = "auto"
+    gaps: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
         return asdict(self)
+
+    def frame_weights(self, keys, n_frames: int) -> np.ndarray | float:
+        """The model's weight per frame (n_frames,) of a shot keyed at ``keys`` (the full keys
+        the decision was made on): each gap's frames its length's weight, every other frame 1
+        (keys and held frames, where both fills agree). The scalar ``weight`` where the
+        decision has no per-gap weights (overrides, no probes)."""
+        if not self.gaps:
+            return self.weight
+        by_length = {int(g["length"]): float(g["weight"]) for g in self.gaps}
+        w = np.ones(n_frames)
+        keys = _unique_keys(keys)
+        for a, b in zip(keys[:-1], keys[1:], strict=True):
+            if b - a > 1:
+                w[a + 1 : min(b, n_frames)] = by_length.get(int(b - a - 1), self.weight)
+        return w
 
 
 def _unique_keys(keys) -> np.ndarray:
@@ -224,19 +251,63 @@ def run_probes(model, spline, rots, roots, probes: list[Probe], skeleton=None, c
 # -- the decision ------------------------------------------------------------------------------
 
 
-def weight_of(score: float) -> float:
-    """The model's weight for a (shrunk) score."""
-    return float(np.clip((score - THRESHOLD) / BAND + 0.5, 0.0, 1.0))
+def threshold_for(gap: int) -> float:
+    """The score at which a gap of ``gap`` frames gets weight one half: 0 up to MIN_GAP (the
+    probes' holes: the same task), THRESHOLD from LONG_GAP on, log-linear between."""
+    if gap <= MIN_GAP:
+        return 0.0
+    if gap >= LONG_GAP:
+        return THRESHOLD
+    return float(THRESHOLD * np.log(gap / MIN_GAP) / np.log(LONG_GAP / MIN_GAP))
 
 
-def shrunk_score(log_ratios: np.ndarray) -> float:
+def weight_of(score: float, threshold: float = THRESHOLD) -> float:
+    """The model's weight for a (shrunk) score, against a gap's threshold."""
+    return float(np.clip((score - threshold) / BAND + 0.5, 0.0, 1.0))
+
+
+def shrunk_score(log_ratios: np.ndarray, threshold: float = THRESHOLD) -> float:
     """Mean of the probes' log ratios, shrunk toward the model's end of the band."""
-    prior = THRESHOLD + 0.5 * BAND
+    prior = threshold + 0.5 * BAND
     n = len(log_ratios)
     return float((np.sum(log_ratios) + PRIOR_PROBES * prior) / (n + PRIOR_PROBES))
 
 
-def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe]) -> TrustDecision:
+def gap_lengths(keys) -> dict[int, int]:
+    """{gap length in frames: how many gaps of the shot have it}, in order of length."""
+    keys = _unique_keys(keys)
+    lengths = np.diff(keys) - 1
+    lengths = lengths[lengths > 0]
+    values, counts = np.unique(lengths, return_counts=True)
+    return {int(v): int(c) for v, c in zip(values, counts, strict=True)}
+
+
+def _gap_weights(lr: np.ndarray, keys) -> list[dict]:
+    rows = []
+    for length, count in gap_lengths(keys).items():
+        t = threshold_for(length)
+        score = shrunk_score(lr, t)
+        rows.append(
+            {
+                "length": length,
+                "count": count,
+                "threshold": round(t, 6),
+                "score": round(score, 6),
+                "weight": round(weight_of(score, t), 6),
+            }
+        )
+    return rows
+
+
+def _describe_weights(gaps: list[dict]) -> str:
+    if len({g["weight"] for g in gaps}) == 1:
+        w = gaps[0]["weight"]
+        return "the model" if w >= 1.0 else "the spline" if w <= 0.0 else f"blend w={w:.2f}"
+    parts = [f"{g['length']}-frame gaps w={g['weight']:.2f}" for g in gaps[:4]]
+    return "per gap length: " + ", ".join(parts) + (", …" if len(gaps) > 4 else "")
+
+
+def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> TrustDecision:
     if not probes:
         return TrustDecision(
             "model",
@@ -248,9 +319,11 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe]) -> TrustDecis
             None,
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
-    score = shrunk_score(lr)
-    w = weight_of(score)
-    choice = "model" if w >= 1.0 else "spline" if w <= 0.0 else "blend"
+    gaps = _gap_weights(lr, keys)
+    frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
+    ws = np.array([g["weight"] for g in gaps], np.float64)
+    w = float(np.dot(frames, ws) / frames.sum()) if len(gaps) else 1.0
+    choice = "model" if ws.min(initial=1.0) >= 1.0 else "spline" if ws.max(initial=0.0) <= 0.0 else "blend"
     me, se = float(np.mean(em)), float(np.mean(es))
     rows = [
         {**p.describe(), "model_cm": round(float(a), 4), "spline_cm": round(float(b), 4)}
@@ -259,10 +332,12 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe]) -> TrustDecis
     better = int(np.sum(em < es))
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
-        f"left-out keys (model better on {better}); score {score:+.2f} → "
-        + ("the model" if choice == "model" else "the spline" if choice == "spline" else f"blend w={w:.2f}")
+        f"left-out keys (model better on {better}); score {float(np.mean(lr)):+.2f} → "
+        + _describe_weights(gaps)
     )
-    return TrustDecision(choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(score, 6))
+    return TrustDecision(
+        choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(float(np.mean(lr)), 6), gaps=gaps
+    )
 
 
 def decide_batch(
@@ -274,7 +349,7 @@ def decide_batch(
     if not probes:
         return [_decision(np.zeros(0), np.zeros(0), []) for _ in range(len(rots))]
     em, es = run_probes(model, spline, rots, roots, probes, skeleton, cache)
-    return [_decision(em[i], es[i], probes) for i in range(len(rots))]
+    return [_decision(em[i], es[i], probes, keys) for i in range(len(rots))]
 
 
 def decide(model, spline, motion: Motion, keys) -> TrustDecision:
@@ -289,8 +364,9 @@ def decide(model, spline, motion: Motion, keys) -> TrustDecision:
 
 def blend_arrays(weight, m_rot, m_root, s_rot, s_root) -> tuple[np.ndarray, np.ndarray]:
     """spline + w·(model − spline): root linearly, local rotations by SLERP; ``weight`` a
-    scalar or one per leading index (e.g. (N,) for (N, T, J, 4) windows). Where the two
-    fills are bitwise equal (keys, held frames) the result is that value, bitwise."""
+    scalar or one per leading index (e.g. (N,) for (N, T, J, 4) windows, (T,) per frame).
+    Where the two fills are bitwise equal (keys, held frames), or w is 1 or 0, the result is
+    that fill's value, bitwise."""
     m_rot, s_rot = np.asarray(m_rot), np.asarray(s_rot)
     m_root, s_root = np.asarray(m_root), np.asarray(s_root)
     w = np.asarray(weight, np.float64)
@@ -298,15 +374,22 @@ def blend_arrays(weight, m_rot, m_root, s_rot, s_root) -> tuple[np.ndarray, np.n
     w_root = w.reshape(w.shape + (1,) * (m_root.ndim - w.ndim))
     rot = slerp_pairs(s_rot, m_rot, w_rot).astype(s_rot.dtype)
     root = (s_root + w_root * (np.asarray(m_root, np.float64) - s_root)).astype(s_root.dtype)
+    # w = 1 (0) is the model's (spline's) value bitwise: SLERP at an end may give the other
+    # sign of the same quaternion, and s + 1·(m − s) is not m in floating point.
     same_r = (m_rot == s_rot).all(-1, keepdims=True)
-    same_p = m_root == s_root
-    return np.where(same_r, s_rot, rot), np.where(same_p, s_root, root)
+    rot = np.where(w_rot[..., None] >= 1.0, m_rot, np.where(same_r | (w_rot[..., None] <= 0.0), s_rot, rot))
+    w_p = np.broadcast_to(w_root, m_root.shape)
+    root = np.where(w_p >= 1.0, m_root, np.where((m_root == s_root) | (w_p <= 0.0), s_root, root))
+    return rot, root
 
 
-def apply(decision: TrustDecision, model_fill: Motion | None, spline_fill: Motion | None) -> Motion:
-    """The decided fill: the model's, the spline's, or their blend (:func:`blend_arrays`).
-    The fill not needed may be None (``"model"`` needs no spline fill, ``"spline"`` no model
-    fill). Keys are bitwise those of the inputs (both fills keep them)."""
+def apply(
+    decision: TrustDecision, model_fill: Motion | None, spline_fill: Motion | None, keys=None
+) -> Motion:
+    """The decided fill: the model's, the spline's, or their blend (:func:`blend_arrays`), each
+    gap at its length's weight where ``keys`` (the full keys decided on) are given, else at
+    the decision's one ``weight``. The fill not needed may be None (``"model"`` needs no
+    spline fill, ``"spline"`` no model fill). Keys are bitwise those of the inputs."""
     if decision.choice not in CHOICES:
         raise ValueError(f"unknown trust choice {decision.choice!r} (one of {', '.join(CHOICES)})")
     if decision.choice == "model" or (decision.choice == "blend" and decision.weight >= 1.0):
@@ -319,8 +402,9 @@ def apply(decision: TrustDecision, model_fill: Motion | None, spline_fill: Motio
         return spline_fill
     if model_fill is None:
         raise ValueError("a blend needs both fills")
+    w = decision.weight if keys is None else decision.frame_weights(keys, len(spline_fill.rotations))
     rot, root = blend_arrays(
-        decision.weight,
+        w,
         model_fill.rotations,
         model_fill.root_positions,
         spline_fill.rotations,
@@ -395,7 +479,7 @@ class TrustedInbetweener:
         m = self.model.fill(motion, keys, seed=seed, **extra) if d.weight > 0.0 else None
         s = spline_fill(self.spline, motion, keys, joint_keys) if d.weight < 1.0 else None
         self.last_decision = d
-        return apply(d, m, s)
+        return apply(d, m, s, full)
 
 
 def trusted(inbetweener, trust: str = "auto"):

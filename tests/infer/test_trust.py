@@ -194,3 +194,46 @@ def test_shipped_model_on_an_eval_walk_keeps_keys_and_records_its_decision(walk)
     assert d.choice == "model", d.reason  # an eval walk: the network's own ground
     json.dumps(d.to_json(), allow_nan=False)
     assert trust.trusted(SplineInbetweener()).name == "spline"
+
+
+def test_the_threshold_is_unbiased_at_the_probes_own_gaps_and_leans_to_the_model_on_long_ones():
+    assert trust.threshold_for(1) == trust.threshold_for(trust.MIN_GAP) == 0.0
+    assert trust.threshold_for(trust.LONG_GAP) == trust.threshold_for(90) == trust.THRESHOLD
+    ramp = [trust.threshold_for(g) for g in range(trust.MIN_GAP, trust.LONG_GAP + 1)]
+    assert all(a > b for a, b in zip(ramp, ramp[1:], strict=False))  # strictly falling between
+    # Equal errors at the probes: a short gap gets one half, a long gap leans to the model.
+    assert trust.weight_of(0.0, trust.threshold_for(5)) == pytest.approx(0.5)
+    assert trust.weight_of(0.0, trust.threshold_for(30)) > 0.5
+
+
+def test_each_gap_length_gets_its_own_weight_and_the_fill_blends_each_gap_at_it(walk):
+    keys = np.array([0, 4, 40])  # a 3-frame gap and a 35-frame gap
+    probes = trust.probe_plan(keys)
+    # The spline better at every probe (error ratio 0.74): the short gap, where the
+    # probes are its own task, leans to the spline; the long gap still to the model.
+    em = np.full(len(probes), 2.0)
+    es = (em + trust.EPS_CM) * np.exp(-0.3) - trust.EPS_CM
+    d = trust._decision(em, es, probes, keys)
+    by_len = {g["length"]: g for g in d.gaps}
+    assert set(by_len) == {3, 35} and by_len[3]["count"] == by_len[35]["count"] == 1
+    assert by_len[3]["weight"] < 0.5 < by_len[35]["weight"] <= 1.0
+    assert d.choice == "blend" and "per gap length" in d.reason
+    assert d.weight == pytest.approx((3 * by_len[3]["weight"] + 35 * by_len[35]["weight"]) / 38, abs=1e-6)
+    w = d.frame_weights(keys, len(walk.rotations))
+    assert np.all(w[1:4] == by_len[3]["weight"]) and np.all(w[5:40] == by_len[35]["weight"])
+    assert w[0] == w[4] == w[40] == 1.0
+    json.dumps(d.to_json(), allow_nan=False)
+    # Applied with the keys, each gap is blended at its own weight.
+    spline = SplineInbetweener()
+    s, m = spline.fill(walk, keys), StandIn("noise").fill(walk, keys)
+    out = trust.apply(d, m, s, keys)
+    assert keys_equal(out, walk, keys)
+    for f in (2, 20):
+        r = out.root_positions[f]
+        want = s.root_positions[f] + w[f] * (m.root_positions[f] - s.root_positions[f])
+        assert np.allclose(r, want, atol=1e-3)
+    # A gap where the model gets all of it is the model's fill there, bitwise.
+    d.gaps[1]["weight"] = 1.0
+    out = trust.apply(d, m, s, keys)
+    assert np.array_equal(out.rotations[5:40], m.rotations[5:40])
+    assert not np.array_equal(out.rotations[1:4], m.rotations[1:4])
