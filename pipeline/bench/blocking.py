@@ -1,0 +1,158 @@
+"""The trusted fill on blocking keys: long shots keyed every few frames, as an animator blocks.
+
+The trust bench (:mod:`pipeline.bench.trust`) keys every window at the protocol's 10 context
+frames and one target, so its probes are holes in that run of keys. A blocked shot has no such
+run: its probes leave single keys out (a gap twice as long as the shot's). Here each shot is
+:data:`SHOT` frames of an eval clip (``eval``), of a CMU take on the model skeleton (``cmu``),
+or of an eval clip with posture offsets up to 30° (``posture30``), keyed every N frames; the
+model, the spline and the decided fill (:mod:`pipeline.infer.trust`, per gap length) fill it,
+and each is scored by its mean global joint-position error (cm, FK on the model skeleton) over
+the frames between the keys.
+
+``python -m pipeline.bench.blocking [--every 10,30] [--sources eval,cmu,posture30] [--limit N] [--model DIR] [--out DIR]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.infer import trust
+
+SOURCES = ("eval", "cmu", "posture30")
+#: Frames per shot, and the stride between shots cut from one clip.
+SHOT, STRIDE = 181, 90
+
+
+def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(rotations (N, SHOT, J, 4), roots (N, SHOT, 3)) of a source, on the model skeleton."""
+    from pipeline.data.cache import load_split
+
+    if source in ("eval", "posture30"):
+        clips = load_split("eval", limit=limit)
+        rots, roots = _windows((clips.clip(c) for c in range(len(clips))), source)
+        if source == "posture30":
+            from pipeline.motion.augment import posture_offsets
+
+            rots = posture_offsets(rots, np.random.default_rng(0), 30.0, 1.0)
+    elif source == "cmu":
+        from pipeline.bench.heldout import cmu_files
+        from pipeline.bench.long_gaps import cmu_on_model_skeleton
+
+        files = cmu_files(None)[: limit or None]
+        takes = (cmu_on_model_skeleton(f) for f in files)
+        rots, roots = _windows(((m.rotations, m.root_positions) for m in takes), source)
+    else:
+        raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
+    return rots.astype(np.float32), roots.astype(np.float32)
+
+
+def _windows(clips, source: str):
+    from pipeline.data.protocol import windows_of
+    from pipeline.errors import TweenError
+
+    try:
+        return windows_of(clips, SHOT, STRIDE)
+    except ValueError:  # no clip longer than a shot
+        raise TweenError(f"{source}: no clip longer than {SHOT} frames (raise --limit)") from None
+
+
+def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
+    return trust._errors_cm(skel, rot[:, frames], root[:, frames], true_rot[:, frames], true_root[:, frames])
+
+
+def evaluate(model, spline, rots, roots, every: int) -> dict:
+    """Mean error (cm) of model, spline and decided fill on shots keyed every ``every`` frames,
+    the model's mean weight between the keys, and the seconds it took."""
+    from pipeline.infer.api import fill_windows
+
+    skel = model.skeleton
+    n = rots.shape[1]
+    keys = np.r_[np.arange(0, n - 1, every), n - 1]
+    free = np.setdiff1d(np.arange(n), keys)
+    t0 = time.perf_counter()
+    m_r, m_p = fill_windows(model, rots, roots, keys, trust.BATCH, skel)
+    s_r, s_p = spline.fill_batch(rots, roots, keys)
+    decisions = trust.decide_batch(model, spline, rots, roots, keys)
+    w = np.stack([np.broadcast_to(d.frame_weights(keys, n), n) for d in decisions])
+    d_r, d_p = trust.blend_arrays(w, m_r, m_p, s_r, s_p)
+    err = {
+        name: float(_errors_cm(skel, r, p, rots, roots, free).mean())
+        for name, (r, p) in {"model": (m_r, m_p), "spline": (s_r, s_p), "decided": (d_r, d_p)}.items()
+    }
+    return {
+        **err,
+        "decided_over_better": err["decided"] / min(err["model"], err["spline"]),
+        "decided_over_model": err["decided"] / err["model"],
+        "mean_weight": float(w[:, free].mean()),
+        "probes": len(decisions[0].probes),
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = "default") -> dict:
+    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.spline import SplineInbetweener
+
+    net = load_inbetweener(model)
+    spline = SplineInbetweener(net.skeleton)
+    report: dict = {"model": net.name, "hash": net.model_hash, "shot": SHOT, "limit": limit, "sources": {}}
+    for src in sources:
+        rots, roots = shots(src, limit)
+        print(f"blocking bench: {src}, {len(rots)} shots of {SHOT} frames…", file=sys.stderr)
+        report["sources"][src] = {
+            "shots": int(len(rots)),
+            "results": {int(e): evaluate(net, spline, rots, roots, int(e)) for e in every},
+        }
+    report["markdown"] = markdown(report)
+    return report
+
+
+def markdown(report: dict) -> str:
+    lines = [
+        f"Model {report['model']} ({report['hash']}); shots of {report['shot']} frames keyed every N frames; "
+        "mean joint-position error (cm) between the keys.",
+        "",
+        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for src, s in report["sources"].items():
+        for e, r in s["results"].items():
+            lines.append(
+                f"| {src} | {e} | {s['shots']} | {r['probes']} | {r['model']:.3f} | {r['spline']:.3f} | "
+                f"{r['decided']:.3f} | {r['decided_over_better']:.3f} | {r['decided_over_model']:.3f} | "
+                f"{r['mean_weight']:.2f} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m pipeline.bench.blocking", description=__doc__.splitlines()[0]
+    )
+    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames")
+    ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
+    ap.add_argument("--limit", type=int, default=None, help="first N eval clips / CMU takes")
+    ap.add_argument("--model", default="default", help="the network: default, or a model folder")
+    ap.add_argument("--out", type=Path, default=None, help="folder for blocking.json and blocking.md")
+    a = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    every = tuple(int(e) for e in a.every.split(",") if e)
+    report = run(tuple(s for s in a.sources.split(",") if s), every, a.limit, a.model)
+    report["seconds"] = time.perf_counter() - t0
+    md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
+    if a.out:
+        a.out.mkdir(parents=True, exist_ok=True)
+        (a.out / "blocking.json").write_text(json.dumps(report, indent=1))
+        (a.out / "blocking.md").write_text(md)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
