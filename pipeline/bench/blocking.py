@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.data.protocol import windows_of
+from pipeline.errors import TweenError
 from pipeline.infer import trust
 
 SOURCES = ("eval", "cmu", "posture30")
@@ -53,9 +55,6 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
 
 
 def _windows(clips, source: str):
-    from pipeline.data.protocol import windows_of
-    from pipeline.errors import TweenError
-
     try:
         return windows_of(clips, SHOT, STRIDE)
     except ValueError:  # no clip longer than a shot
