@@ -78,7 +78,7 @@ def evaluate(model, spline, rots, roots, every: int) -> dict:
     m_r, m_p = fill_windows(model, rots, roots, keys, trust.BATCH, skel)
     s_r, s_p = spline.fill_batch(rots, roots, keys)
     decisions = trust.decide_batch(model, spline, rots, roots, keys)
-    w = np.stack([np.broadcast_to(d.frame_weights(keys, n), n) for d in decisions])
+    w = np.stack([d.frame_weights(keys, n) for d in decisions])
     d_r, d_p = trust.blend_arrays(w, m_r, m_p, s_r, s_p)
     err = {
         name: float(_errors_cm(skel, r, p, rots, roots, free).mean())

@@ -88,9 +88,7 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
         decisions = trust.decide_batch(model, spline, rr, pp, keys, cache=cache)
         t_probe = time.perf_counter() - t0
         w = np.array([d.weight for d in decisions])
-        per_frame = np.stack(
-            [np.broadcast_to(d.frame_weights(keys, rr.shape[1]), rr.shape[1]) for d in decisions]
-        )
+        per_frame = np.stack([d.frame_weights(keys, rr.shape[1]) for d in decisions])
         d_r, d_p = trust.blend_arrays(per_frame, m_r, m_p, s_r, s_p)
         i_r, i_p = interpolate_between(
             rots[:, CONTEXT - 1], rots[:, CONTEXT + T], roots[:, CONTEXT - 1], roots[:, CONTEXT + T], T

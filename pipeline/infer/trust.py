@@ -117,13 +117,13 @@ class TrustDecision:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
         return asdict(self)
 
-    def frame_weights(self, keys, n_frames: int) -> np.ndarray | float:
+    def frame_weights(self, keys, n_frames: int) -> np.ndarray:
         """The model's weight per frame (n_frames,) of a shot keyed at ``keys`` (the full keys
         the decision was made on): each gap's frames its length's weight, every other frame 1
-        (keys and held frames, where both fills agree). The scalar ``weight`` where the
+        (keys and held frames, where both fills agree). Every frame ``weight`` where the
         decision has no per-gap weights (overrides, no probes)."""
         if not self.gaps:
-            return self.weight
+            return np.full(n_frames, float(self.weight))
         by_length = {int(g["length"]): float(g["weight"]) for g in self.gaps}
         w = np.ones(n_frames)
         keys = _unique_keys(keys)
@@ -300,6 +300,8 @@ def _gap_weights(lr: np.ndarray, keys) -> list[dict]:
 
 
 def _describe_weights(gaps: list[dict]) -> str:
+    if not gaps:
+        return "no frame between the keys: the model, unchanged"
     if len({g["weight"] for g in gaps}) == 1:
         w = gaps[0]["weight"]
         return "the model" if w >= 1.0 else "the spline" if w <= 0.0 else f"blend w={w:.2f}"
@@ -319,6 +321,7 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> T
             None,
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
+    mean_lr = float(np.mean(lr))
     gaps = _gap_weights(lr, keys)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
@@ -332,11 +335,10 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> T
     better = int(np.sum(em < es))
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
-        f"left-out keys (model better on {better}); score {float(np.mean(lr)):+.2f} → "
-        + _describe_weights(gaps)
+        f"left-out keys (model better on {better}); score {mean_lr:+.2f} → " + _describe_weights(gaps)
     )
     return TrustDecision(
-        choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(float(np.mean(lr)), 6), gaps=gaps
+        choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(mean_lr, 6), gaps=gaps
     )
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.motion.rotations import quat_mul
+from pipeline.motion.rotations import quat_mul, slerp_pairs
 
 
 def posture_offsets(rot: np.ndarray, rng: np.random.Generator, max_deg: float, prob: float) -> np.ndarray:
@@ -34,8 +34,6 @@ def time_warp(rot: np.ndarray, root: np.ndarray, frames: int) -> tuple[np.ndarra
     """Windows (B, N, J, 4) / (B, N, 3) resampled to ``frames`` frames spanning the same time
     (first and last frames kept): rotations by SLERP, the root linearly. N > frames plays the
     motion faster, N < frames slower."""
-    from pipeline.motion.rotations import slerp_pairs
-
     n = rot.shape[1]
     t = np.linspace(0.0, n - 1.0, frames)
     i = np.minimum(np.floor(t).astype(np.int64), n - 2)

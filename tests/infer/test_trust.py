@@ -237,3 +237,12 @@ def test_each_gap_length_gets_its_own_weight_and_the_fill_blends_each_gap_at_it(
     out = trust.apply(d, m, s, keys)
     assert np.array_equal(out.rotations[5:40], m.rotations[5:40])
     assert not np.array_equal(out.rotations[1:4], m.rotations[1:4])
+
+
+def test_a_shot_keyed_on_every_frame_has_nothing_to_blend():
+    keys = np.arange(12)
+    probes = trust.probe_plan(keys)  # holes in the run of keys
+    assert probes
+    d = trust._decision(np.full(len(probes), 2.0), np.full(len(probes), 1.0), probes, keys)
+    assert d.gaps == [] and d.choice == "model" and "no frame between the keys" in d.reason
+    assert np.array_equal(d.frame_weights(keys, 12), np.ones(12))
