@@ -1,7 +1,11 @@
-"""The generator's load-time rewrite (pipeline/infer/graph.py): the same network in 2D for
-onnxruntime's NCHWc kernels, residual scales folded, ConvTranspose as two convolutions;
+"""The generator's opt-in load-time rewrite (pipeline/infer/graph.py): the same network in 2D
+for onnxruntime's NCHWc kernels, residual scales folded, ConvTranspose as two convolutions;
 within float32 reordering of the plain graph, and None (the plain graph) where it cannot
-be made or checked."""
+be made or checked. Default fills run the graph as exported, bitwise."""
+
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -184,11 +188,47 @@ def test_the_default_generator_is_rewritten_and_matches_on_real_features(clip):
     assert np.abs(a - b).max() <= TOLERANCE * np.abs(a).max()
 
 
+def test_the_default_fill_is_bitwise_the_graph_as_exported(clip, monkeypatch):
+    """The rewrite is opt-in: a default fill is the exported file's own, through a plain
+    onnxruntime session (default options) on the whole graph, bit for bit."""
+    monkeypatch.delenv("TWEEN_FAST_GRAPH", raising=False)
+    rot, root = clip
+    keys = np.r_[np.arange(0, 149, 8), 149]
+    shipped, reference = OnnxInbetweener("models/default"), OnnxInbetweener("models/default")
+    assert shipped.fast_graph is False
+    reference.skip_adapter = False
+    reference._sessions["generator"] = ort.InferenceSession(
+        "models/default/generator.onnx", providers=["CPUExecutionProvider"]
+    )
+    mask = np.ones((len(keys), J + 1), bool)
+    mask[4, :J] = False
+    noise = np.random.default_rng(3).normal(size=(1, 8))
+    for args in ((keys,), (keys, noise), (keys, None, mask)):
+        (qa, ra), (qb, rb) = shipped.fill_batch(rot, root, *args), reference.fill_batch(rot, root, *args)
+        assert np.array_equal(qa, qb) and np.array_equal(ra, rb)
+    # ... while the opt-in rewrite is not (it sums in another order).
+    fast = OnnxInbetweener("models/default")
+    fast.fast_graph = True
+    assert not np.array_equal(fast.fill_batch(rot, root, keys)[0], shipped.fill_batch(rot, root, keys)[0])
+
+
+def test_the_rewrite_is_opt_in_through_the_environment():
+    code = "from pipeline.infer.model import OnnxInbetweener as M; print(M.fast_graph)"
+    for value, want in ((None, "False"), ("0", "False"), ("1", "True")):
+        env = {k: v for k, v in os.environ.items() if k != "TWEEN_FAST_GRAPH"}
+        if value is not None:
+            env["TWEEN_FAST_GRAPH"] = value
+        out = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        )
+        assert out.stdout.strip() == want
+
+
 def test_fills_with_and_without_the_rewrite(clip):
     rot, root = clip
     keys = np.r_[np.arange(0, 149, 8), 149]
     fast, plain = OnnxInbetweener("models/default"), OnnxInbetweener("models/default")
-    plain.fast_graph = False
+    fast.fast_graph, plain.fast_graph = True, False
     mask = np.ones((len(keys), J + 1), bool)
     mask[4, :J] = False
     for jk in (None, mask):
