@@ -44,13 +44,16 @@ class Capabilities:
     motion DNA. ``batch``: ``fill_batch(rotations, roots, keys)`` fills (N, T, J, 4) /
     (N, T, 3) windows sharing their keys in one call (:class:`BatchInbetweener`).
     ``any_rig``: fills whatever skeleton the motion carries, in its own joint space (no
-    retargeting onto :attr:`Inbetweener.skeleton`).
+    retargeting onto :attr:`Inbetweener.skeleton`). ``novelty``: ``pose_bank`` is a
+    (P, J, 3) sample of its training poses, against which the trusted fill measures how
+    familiar a shot's keys are (:mod:`pipeline.infer.novelty`).
     """
 
     partial_keys: bool = False
     dna: bool = False
     batch: bool = False
     any_rig: bool = False
+    novelty: bool = False
 
 
 @runtime_checkable

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.data import posebank
 from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
 from pipeline.infer.api import Capabilities
 from pipeline.infer.dna import dna_poses, n_dna_channels
@@ -85,7 +86,8 @@ class OnnxInbetweener:
 
     Kind ``"generator-onnx"``. Every such model takes partial keys and batches; it takes a
     motion DNA when its generator has a DNA encoder (``generator.dna`` in model.json), so
-    ``capabilities.dna`` is set per model folder."""
+    ``capabilities.dna`` is set per model folder, and so is ``capabilities.novelty`` (a pose
+    bank named in model.json)."""
 
     capabilities = Capabilities(partial_keys=True, batch=True)
 
@@ -107,7 +109,9 @@ class OnnxInbetweener:
         self.folder = Path(folder)
         self.meta = read_model_json(self.folder)
         dna = bool(self.meta.get("generator", {}).get("dna", 0))
-        self.capabilities = replace(type(self).capabilities, dna=dna)
+        self.capabilities = replace(
+            type(self).capabilities, dna=dna, novelty=bool(self.meta.get("pose_bank"))
+        )
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)
         self.name = self.meta["name"]
@@ -318,6 +322,20 @@ class OnnxInbetweener:
             croot = integrate_path(vel, ctx["croot"][:, keys_a], keys_a, croot.shape[1])
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
         return q[:, front : front + N], wroot[:, front : front + N], contacts[:, front : front + N]
+
+    @property
+    def pose_bank(self) -> np.ndarray | None:
+        """(P, J, 3) poses of the training data (model.json ``pose_bank``; None where the
+        folder has none): how familiar a shot's keys are (pipeline.infer.novelty)."""
+        if "_pose_bank" not in self.__dict__:
+            name = self.meta.get("pose_bank")
+            self._pose_bank = None
+            if name:
+                try:
+                    self._pose_bank = posebank.load(self.folder / name)
+                except ValueError as e:
+                    raise ModelFolderError(str(e)) from None
+        return self._pose_bank
 
     @property
     def has_dna(self) -> bool:

@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from pipeline.infer.api import fill_windows
+from pipeline.infer.novelty import familiarity, novelty_cm
 from pipeline.motion.clip import Motion
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import slerp_pairs
@@ -100,8 +101,10 @@ class TrustDecision:
     ``spline_error_cm``: the mean joint-position error of each at the probes' left-out keys
     (None without probes); ``score``: the probes' mean log error ratio (spline / model);
     ``probes``: one dict per probe (its window, left-out keys and both errors); ``gaps``: one
-    dict per gap length of the shot (``length``, ``count``, ``threshold``, shrunk ``score``,
-    ``weight``), the weight of every gap of that length; ``reason``: one line for people."""
+    dict per gap length of the shot (``length``, ``count``, the probes' shortest hole
+    ``probe_hole``, ``threshold``, shrunk ``score``, ``weight``), the weight of every gap of
+    that length; ``novelty_cm`` / ``familiarity``: how far the keys are from the model's pose
+    bank and what that made of it (None without a bank); ``reason``: one line for people."""
 
     choice: str
     weight: float
@@ -112,6 +115,8 @@ class TrustDecision:
     score: float | None = None
     trust: str = "auto"
     gaps: list[dict] = field(default_factory=list)
+    novelty_cm: float | None = None
+    familiarity: float | None = None
 
     def to_json(self) -> dict:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
@@ -251,14 +256,20 @@ def run_probes(model, spline, rots, roots, probes: list[Probe], skeleton=None, c
 # -- the decision ------------------------------------------------------------------------------
 
 
-def threshold_for(gap: int) -> float:
-    """The score at which a gap of ``gap`` frames gets weight one half: 0 up to MIN_GAP (the
-    probes' holes: the same task), THRESHOLD from LONG_GAP on, log-linear between."""
-    if gap <= MIN_GAP:
+def threshold_for(gap: int, hole: int = MIN_GAP) -> float:
+    """The score at which a gap of ``gap`` frames gets weight one half, for probes whose
+    shortest hole is ``hole`` frames: 0 up to ``hole`` (the probes asked the model for a gap
+    at least this long, so their score is the gap's own, or harder), THRESHOLD from
+    ``hole`` · LONG_GAP / MIN_GAP on (the network's lead over the spline grows with the gap,
+    so probes on shorter holes understate it there), log-linear between. A shot with a run of
+    dense keys has MIN_GAP holes; a blocked shot's leave-one-out probes have holes as long as
+    two of its gaps and a key."""
+    hole = max(int(hole), MIN_GAP)
+    if gap <= hole:
         return 0.0
-    if gap >= LONG_GAP:
+    if gap >= hole * LONG_GAP / MIN_GAP:
         return THRESHOLD
-    return float(THRESHOLD * np.log(gap / MIN_GAP) / np.log(LONG_GAP / MIN_GAP))
+    return float(THRESHOLD * np.log(gap / hole) / np.log(LONG_GAP / MIN_GAP))
 
 
 def weight_of(score: float, threshold: float = THRESHOLD) -> float:
@@ -266,9 +277,11 @@ def weight_of(score: float, threshold: float = THRESHOLD) -> float:
     return float(np.clip((score - threshold) / BAND + 0.5, 0.0, 1.0))
 
 
-def shrunk_score(log_ratios: np.ndarray, threshold: float = THRESHOLD) -> float:
-    """Mean of the probes' log ratios, shrunk toward the model's end of the band."""
-    prior = threshold + 0.5 * BAND
+def shrunk_score(log_ratios: np.ndarray, threshold: float = THRESHOLD, familiar: float = 1.0) -> float:
+    """Mean of the probes' log ratios, shrunk toward the model's end of the band for a shot as
+    familiar as the training data, toward the middle (w = 1/2) for an unseen one: few probes
+    cannot flip a good model on the motion it knows, and elsewhere it has no such credit."""
+    prior = threshold + 0.5 * BAND * familiar
     n = len(log_ratios)
     return float((np.sum(log_ratios) + PRIOR_PROBES * prior) / (n + PRIOR_PROBES))
 
@@ -282,15 +295,24 @@ def gap_lengths(keys) -> dict[int, int]:
     return {int(v): int(c) for v, c in zip(values, counts, strict=True)}
 
 
-def _gap_weights(lr: np.ndarray, keys) -> list[dict]:
+def gap_threshold(length: int, hole: int, familiar: float = 1.0) -> float:
+    """A gap's threshold for a shot of the given familiarity (:mod:`pipeline.infer.novelty`):
+    a familiar shot's long gaps lean toward the network from the shortest probe hole the
+    prior was measured on (MIN_GAP: the network's lead grows with the gap on its own data); an
+    unseen shot's from the probes' own shortest hole (no lead assumed beyond what they show)."""
+    return float(familiar * threshold_for(length) + (1.0 - familiar) * threshold_for(length, hole))
+
+
+def _gap_weights(lr: np.ndarray, keys, hole: int = MIN_GAP, familiar: float = 1.0) -> list[dict]:
     rows = []
     for length, count in gap_lengths(keys).items():
-        t = threshold_for(length)
-        score = shrunk_score(lr, t)
+        t = gap_threshold(length, hole, familiar)
+        score = shrunk_score(lr, t, familiar)
         rows.append(
             {
                 "length": length,
                 "count": count,
+                "probe_hole": int(max(hole, MIN_GAP)),
                 "threshold": round(t, 6),
                 "score": round(score, 6),
                 "weight": round(weight_of(score, t), 6),
@@ -309,7 +331,9 @@ def _describe_weights(gaps: list[dict]) -> str:
     return "per gap length: " + ", ".join(parts) + (", …" if len(gaps) > 4 else "")
 
 
-def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> TrustDecision:
+def _decision(
+    em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=(), novelty: float | None = None
+) -> TrustDecision:
     if not probes:
         return TrustDecision(
             "model",
@@ -322,7 +346,8 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> T
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
     mean_lr = float(np.mean(lr))
-    gaps = _gap_weights(lr, keys)
+    familiar = familiarity(novelty)
+    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
     w = float(np.dot(frames, ws) / frames.sum()) if len(gaps) else 1.0
@@ -333,12 +358,22 @@ def _decision(em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=()) -> T
         for p, a, b in zip(probes, em, es, strict=True)
     ]
     better = int(np.sum(em < es))
+    seen = "" if novelty is None else f"; keys {novelty:.1f} cm from the training poses"
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
-        f"left-out keys (model better on {better}); score {mean_lr:+.2f} → " + _describe_weights(gaps)
+        f"left-out keys (model better on {better}){seen}; score {mean_lr:+.2f} → " + _describe_weights(gaps)
     )
     return TrustDecision(
-        choice, round(w, 6), round(me, 4), round(se, 4), rows, reason, round(mean_lr, 6), gaps=gaps
+        choice,
+        round(w, 6),
+        round(me, 4),
+        round(se, 4),
+        rows,
+        reason,
+        round(mean_lr, 6),
+        gaps=gaps,
+        novelty_cm=None if novelty is None else round(float(novelty), 4),
+        familiarity=None if novelty is None else round(familiar, 6),
     )
 
 
@@ -351,7 +386,14 @@ def decide_batch(
     if not probes:
         return [_decision(np.zeros(0), np.zeros(0), []) for _ in range(len(rots))]
     em, es = run_probes(model, spline, rots, roots, probes, skeleton, cache)
-    return [_decision(em[i], es[i], probes, keys) for i in range(len(rots))]
+    bank = model.pose_bank if model.capabilities.novelty else None
+    novelty = [None] * len(rots)
+    if bank is not None:
+        k = _unique_keys(keys)
+        novelty = novelty_cm(
+            np.asarray(rots)[:, k], np.asarray(roots)[:, k], bank, skeleton or model.skeleton
+        )
+    return [_decision(em[i], es[i], probes, keys, novelty[i]) for i in range(len(rots))]
 
 
 def decide(model, spline, motion: Motion, keys) -> TrustDecision:
@@ -461,6 +503,11 @@ class TrustedInbetweener:
         # One shot at a time (no fill_batch), on the model's skeleton.
         self.capabilities = replace(model.capabilities, batch=False, any_rig=False)
         self.last_decision: TrustDecision | None = None
+
+    @property
+    def pose_bank(self):
+        """The wrapped model's pose bank (with ``capabilities.novelty``)."""
+        return self.model.pose_bank if self.model.capabilities.novelty else None
 
     def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, **kw) -> Motion:
         keys = np.asarray(keys, np.int64)

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pipeline.data import posebank
+from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
 from pipeline.infer.dna import n_dna_channels
 from pipeline.models.generator import Generator, GeneratorConfig
@@ -124,9 +126,24 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     # see OnnxInbetweener._network and scripts/pad_layouts.py for how these were chosen.
     meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
+    bank = _pose_bank(out_dir)
+    if bank:
+        meta["pose_bank"] = bank
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
     return meta
+
+
+def _pose_bank(out_dir: Path) -> str | None:
+    """The train split's pose bank beside the networks (pipeline.data.posebank: what the
+    trusted fill compares a shot's keys with); None where the data cannot be read."""
+    try:
+        train = load_split("train")
+    except (OSError, ValueError):
+        return None
+    bank = posebank.build(train.rotations, train.roots)
+    posebank.save(out_dir / "pose_bank.npz", bank, f"bandai_namco train split, {len(bank)} poses, seed 0")
+    return "pose_bank.npz"
 
 
 # Inference settings in model.json that change what a fill gives. ``root`` changes it too

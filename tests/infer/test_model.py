@@ -271,6 +271,10 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, key
     )
     meta = export(run, tmp_path / "model", "tiny")
     assert set(meta["files"]) == {"generator", "path"}
+    # The train split's pose bank beside the networks, as the shipped default has it.
+    assert meta["pose_bank"] == "pose_bank.npz"
+    bank = OnnxInbetweener(tmp_path / "model").pose_bank
+    assert np.array_equal(bank, OnnxInbetweener("models/default").pose_bank)
     assert meta["generator"]["full_timing"] == key_mask  # the farm builds the inputs it trained on
     assert verify(run, tmp_path / "model") < 1e-4
     m = read_bvh(bandai_clip).continuous().slice(0, 70)

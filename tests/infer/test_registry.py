@@ -88,8 +88,15 @@ def test_capabilities_of_each_built_in():
     default, dna, elephant = load_model("default"), load_model("dna"), load_model("elephant")
     assert interp.capabilities == Capabilities(partial_keys=False, dna=False, batch=False, any_rig=True)
     assert spline.capabilities == Capabilities(partial_keys=False, dna=False, batch=True, any_rig=True)
-    assert default.capabilities == Capabilities(partial_keys=True, dna=False, batch=True, any_rig=False)
-    assert dna.capabilities == Capabilities(partial_keys=True, dna=True, batch=True, any_rig=False)
+    assert default.capabilities == Capabilities(
+        partial_keys=True, dna=False, batch=True, any_rig=False, novelty=True
+    )
+    assert dna.capabilities == Capabilities(
+        partial_keys=True, dna=True, batch=True, any_rig=False, novelty=True
+    )
+    # The pose bank is per folder too: the delta model ships none (docs/trust.md).
+    assert load_model("models/delta").capabilities.novelty is False
+    assert default.pose_bank is not None
     assert elephant.capabilities == Capabilities(partial_keys=False, dna=False, batch=False, any_rig=False)
     # Declared on the class (the DNA encoder is a per-folder setting of the ONNX generator).
     for cls in (InterpolationInbetweener, SplineInbetweener, OnnxInbetweener, RigInbetweener):

@@ -2,18 +2,24 @@
 blends, exact keys, JSON decisions and the cost bound."""
 
 import json
+import shutil
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from pipeline.data.protocol import yaw_quat
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.infer import trust
+from pipeline.infer import novelty, trust
 from pipeline.infer.api import Capabilities
+from pipeline.infer.folder import ModelFolderError
+from pipeline.infer.model import OnnxInbetweener
 from pipeline.infer.spline import SplineInbetweener
+from pipeline.motion.augment import posture_offsets
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import quat_mul
 
 SKEL = bandai_skeleton()
 PROTOCOL_KEYS = np.r_[np.arange(10), 40]  # 10 context frames, a 30-frame transition
@@ -207,36 +213,118 @@ def test_the_threshold_is_unbiased_at_the_probes_own_gaps_and_leans_to_the_model
 
 
 def test_each_gap_length_gets_its_own_weight_and_the_fill_blends_each_gap_at_it(walk):
-    keys = np.array([0, 4, 40])  # a 3-frame gap and a 35-frame gap
+    keys = np.r_[0:10, 13, 40]  # a run of keys (5-frame probe holes), a 3- and a 26-frame gap
     probes = trust.probe_plan(keys)
+    assert min(p.gap for p in probes) == trust.MIN_GAP
     # The spline better at every probe (error ratio 0.74): the short gap, where the
     # probes are its own task, leans to the spline; the long gap still to the model.
     em = np.full(len(probes), 2.0)
     es = (em + trust.EPS_CM) * np.exp(-0.3) - trust.EPS_CM
     d = trust._decision(em, es, probes, keys)
     by_len = {g["length"]: g for g in d.gaps}
-    assert set(by_len) == {3, 35} and by_len[3]["count"] == by_len[35]["count"] == 1
-    assert by_len[3]["weight"] < 0.5 < by_len[35]["weight"] <= 1.0
+    assert set(by_len) == {3, 26} and by_len[3]["count"] == by_len[26]["count"] == 1
+    assert by_len[3]["weight"] < 0.5 < by_len[26]["weight"] <= 1.0
     assert d.choice == "blend" and "per gap length" in d.reason
-    assert d.weight == pytest.approx((3 * by_len[3]["weight"] + 35 * by_len[35]["weight"]) / 38, abs=1e-6)
+    assert d.weight == pytest.approx((3 * by_len[3]["weight"] + 26 * by_len[26]["weight"]) / 29, abs=1e-6)
     w = d.frame_weights(keys, len(walk.rotations))
-    assert np.all(w[1:4] == by_len[3]["weight"]) and np.all(w[5:40] == by_len[35]["weight"])
-    assert w[0] == w[4] == w[40] == 1.0
+    assert np.all(w[10:13] == by_len[3]["weight"]) and np.all(w[14:40] == by_len[26]["weight"])
+    assert np.all(w[:10] == 1.0) and w[13] == w[40] == 1.0
     json.dumps(d.to_json(), allow_nan=False)
     # Applied with the keys, each gap is blended at its own weight.
     spline = SplineInbetweener()
     s, m = spline.fill(walk, keys), StandIn("noise").fill(walk, keys)
     out = trust.apply(d, m, s, keys)
     assert keys_equal(out, walk, keys)
-    for f in (2, 20):
+    for f in (11, 30):
         r = out.root_positions[f]
         want = s.root_positions[f] + w[f] * (m.root_positions[f] - s.root_positions[f])
         assert np.allclose(r, want, atol=1e-3)
     # A gap where the model gets all of it is the model's fill there, bitwise.
     d.gaps[1]["weight"] = 1.0
     out = trust.apply(d, m, s, keys)
-    assert np.array_equal(out.rotations[5:40], m.rotations[5:40])
-    assert not np.array_equal(out.rotations[1:4], m.rotations[1:4])
+    assert np.array_equal(out.rotations[14:40], m.rotations[14:40])
+    assert not np.array_equal(out.rotations[10:13], m.rotations[10:13])
+
+
+def test_the_threshold_follows_the_probes_holes():
+    # The ramp starts at the probes' shortest hole: scaled with it, and never below MIN_GAP.
+    assert trust.threshold_for(29, hole=59) == trust.threshold_for(59, hole=59) == 0.0
+    assert trust.threshold_for(3 * 59, hole=59) == trust.THRESHOLD
+    assert trust.threshold_for(2 * 59, hole=59) == pytest.approx(trust.threshold_for(10))
+    assert trust.threshold_for(12, hole=2) == trust.threshold_for(12)
+
+
+def test_an_unseen_blocked_shot_trusts_its_leave_one_out_probes_own_score():
+    """Keys every 30 frames: each probe leaves one key out (a 59-frame hole), so it asks the
+    model for more than the shot's 29-frame gaps. Keys far from the training poses: the
+    probes' score is taken as it is (threshold 0). Familiar keys (or a model without a pose
+    bank): long gaps lean to the model as before. A shot with a run of keys (5-frame holes)
+    leans to the model on long gaps however novel its keys."""
+    keys = np.arange(0, 181, 30)
+    probes = trust.probe_plan(keys)
+    assert probes and all(p.gap == 59 for p in probes)
+    em = np.full(len(probes), 2.0)
+    es = (em + trust.EPS_CM) * np.exp(-0.3) - trust.EPS_CM  # the spline better by e^0.3
+    unseen = trust._decision(em, es, probes, keys, novelty=novelty.NOVEL_CM + 1)
+    assert [g["length"] for g in unseen.gaps] == [29] and unseen.gaps[0]["probe_hole"] == 59
+    assert unseen.gaps[0]["threshold"] == 0.0 and unseen.choice == "spline" and unseen.weight == 0.0
+    assert unseen.familiarity == 0.0 and unseen.novelty_cm == novelty.NOVEL_CM + 1
+    assert "cm from the training poses" in unseen.reason
+    json.dumps(unseen.to_json(), allow_nan=False)
+    for seen in (trust._decision(em, es, probes, keys, novelty=1.0), trust._decision(em, es, probes, keys)):
+        assert seen.gaps[0]["threshold"] == trust.THRESHOLD and seen.weight > 0.5
+    half = trust._decision(em, es, probes, keys, novelty=(novelty.FAMILIAR_CM + novelty.NOVEL_CM) / 2)
+    assert half.familiarity == pytest.approx(0.5) and half.gaps[0]["threshold"] == pytest.approx(
+        trust.THRESHOLD / 2
+    )
+    dense = np.r_[0:10, 39, 69]
+    dp = trust.probe_plan(dense)
+    e2 = np.full(len(dp), 2.0)
+    d2 = trust._decision(e2, (e2 + trust.EPS_CM) * np.exp(-0.3) - trust.EPS_CM, dp, dense, novelty=20.0)
+    # (its probes' score at the long-gap threshold, and no credit for the model: one half)
+    assert d2.gaps[0]["length"] == 29 and d2.gaps[0]["weight"] == pytest.approx(0.5)
+    assert d2.gaps[0]["weight"] > unseen.weight
+    # The model better at the probes: an unseen blocked shot takes the model.
+    d3 = trust._decision(em, (em + trust.EPS_CM) * np.exp(0.3) - trust.EPS_CM, probes, keys, novelty=20.0)
+    assert d3.choice == "model" and d3.weight == 1.0
+
+
+def test_novelty_tells_training_poses_from_offset_ones(walk):
+    """The shipped pose bank: the walk's own keys (an eval clip of the training actors) are
+    familiar; the same keys with 30-degree posture offsets are not; a model folder without a
+    bank gives None and a broken bank file is refused naming it."""
+    model = OnnxInbetweener("models/default")
+    bank = model.pose_bank
+    assert bank is not None and bank.shape == (4096, len(SKEL.names), 3)
+    keys = np.arange(0, 41, 10)
+    rot, root = walk.rotations[keys][None], walk.root_positions[keys][None]
+    near = novelty.novelty_cm(rot, root, bank, SKEL)[0]
+    offset = posture_offsets(rot, np.random.default_rng(0), 30.0, 1.0)
+    far = novelty.novelty_cm(offset, root, bank, SKEL)[0]
+    assert near < novelty.FAMILIAR_CM < novelty.NOVEL_CM < far
+    assert novelty.familiarity(near) == 1.0 and novelty.familiarity(far) == 0.0
+    # Moving and turning the character changes nothing: poses are root-relative, facing +X.
+    turned = quat_mul(yaw_quat(np.full((1, len(keys)), 1.3)), rot[..., 0, :])
+    moved = rot.copy()
+    moved[..., 0, :] = turned
+    assert novelty.novelty_cm(moved, root + 500.0, bank, SKEL)[0] == pytest.approx(near, abs=0.05)
+    # Decisions through a model carry the keys' novelty.
+    d = trust.decide(model, SplineInbetweener(), walk, np.arange(0, 41, 10))
+    assert d.novelty_cm == pytest.approx(near, abs=1e-3) and d.familiarity == 1.0
+
+
+def test_a_model_folder_without_or_with_a_broken_pose_bank(tmp_path):
+    folder = tmp_path / "m"
+    shutil.copytree("models/default", folder, ignore=shutil.ignore_patterns("torch", "bench"))
+    meta = json.loads((folder / "model.json").read_text())
+    del meta["pose_bank"]
+    (folder / "model.json").write_text(json.dumps(meta))
+    assert OnnxInbetweener(folder).pose_bank is None
+    meta["pose_bank"] = "pose_bank.npz"
+    (folder / "model.json").write_text(json.dumps(meta))
+    (folder / "pose_bank.npz").write_bytes(b"not a bank")
+    with pytest.raises(ModelFolderError, match="pose_bank.npz: not a pose bank"):
+        _ = OnnxInbetweener(folder).pose_bank
 
 
 def test_a_shot_keyed_on_every_frame_has_nothing_to_blend():

@@ -1,0 +1,58 @@
+"""How familiar a shot's keys are to a network: their distance to the poses it was trained on.
+
+The trusted fill (:mod:`pipeline.infer.trust`) leans toward the network on gaps longer than
+its probes' holes because, on the motion it was trained on, the network's lead over the spline
+grows with the gap. On poses it never saw that prior does not hold (on the CMU takes its lead
+shrinks as gaps grow; docs/trust.md). The keys say which case a shot is: each key pose's
+nearest pose in the model's pose bank (:mod:`pipeline.data.posebank`), as the mean per-joint
+distance in cm of root-relative, facing-aligned joint positions; the shot's **novelty** is the
+median over its keys. Familiarity is 1 up to :data:`FAMILIAR_CM`, 0 from :data:`NOVEL_CM`,
+linear between.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.data.posebank import pose_features
+
+#: Novelty (cm) up to which a shot counts as the training data's own. Eval-split shots of the
+#: blocking bench (keys every 30): at most 2.8 cm (median 1.3) from the shipped bank.
+FAMILIAR_CM = 3.0
+#: Novelty (cm) from which a shot counts as unseen. CMU shots: at least 4.5 cm (median 8.3);
+#: eval shots with posture offsets up to 30 degrees: at least 4.3 (median 10.1).
+NOVEL_CM = 5.0
+#: Key poses compared against the bank at a time (memory: CHUNK x bank x J x 3 floats).
+CHUNK = 64
+
+
+def nearest_cm(features: np.ndarray, bank: np.ndarray, cm_per_unit: float = 1.0) -> np.ndarray:
+    """(M,) each pose's mean per-joint distance to its nearest bank pose, in cm. ``features``
+    (M, J, 3) from :func:`pipeline.data.posebank.pose_features`, ``bank`` (P, J, 3)."""
+    x = np.asarray(features, np.float32)
+    bank = np.asarray(bank, np.float32)
+    if x.shape[1:] != bank.shape[1:]:
+        raise ValueError(f"poses of {x.shape[1]} joints against a bank of {bank.shape[1]}")
+    out = np.empty(len(x))
+    for s in range(0, len(x), CHUNK):
+        d = np.linalg.norm(x[s : s + CHUNK, None] - bank[None], axis=-1).mean(-1)
+        out[s : s + CHUNK] = d.min(1)
+    return out * cm_per_unit
+
+
+def novelty_cm(rots: np.ndarray, roots: np.ndarray, bank: np.ndarray, skeleton) -> np.ndarray:
+    """(N,) the median over the keys of each shot's key poses' distance to the bank (cm).
+    ``rots`` (N, K, J, 4) and ``roots`` (N, K, 3): the key frames of N shots."""
+    rots, roots = np.asarray(rots), np.asarray(roots)
+    N, K, J = rots.shape[:3]
+    feats = pose_features(rots.reshape(N * K, J, 4), roots.reshape(N * K, 3), skeleton)
+    cm = 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))
+    return np.median(nearest_cm(feats, bank, cm).reshape(N, K), axis=1)
+
+
+def familiarity(novelty: float | None) -> float:
+    """1 for a shot as familiar as the training data, 0 for an unseen one. None (a model
+    without a pose bank): 1, so such a model keeps the decision it had before banks."""
+    if novelty is None:
+        return 1.0
+    return float(np.clip((NOVEL_CM - novelty) / (NOVEL_CM - FAMILIAR_CM), 0.0, 1.0))
