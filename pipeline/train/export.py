@@ -16,6 +16,7 @@ from pipeline.data.split import list_clips
 from pipeline.infer.dna import n_dna_channels
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.path import PathConfig, PathPredictor
+from pipeline.usd.take import load_takes
 
 
 def _load(cls, cfg_cls, ckpt: Path, key="model"):
@@ -126,7 +127,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     # see OnnxInbetweener._network and scripts/pad_layouts.py for how these were chosen.
     meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
-    bank = _pose_bank(out_dir)
+    bank = _pose_bank(out_dir, gstate.get("config", {}))
     if bank:
         meta["pose_bank"] = bank
     meta["hash"] = model_hash(out_dir, meta)
@@ -134,15 +135,26 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     return meta
 
 
-def _pose_bank(out_dir: Path) -> str | None:
-    """The train split's pose bank beside the networks (pipeline.data.posebank: what the
-    trusted fill compares a shot's keys with); None where the data cannot be read."""
+def _pose_bank(out_dir: Path, config: dict) -> str | None:
+    """The pose bank beside the networks (pipeline.data.posebank: what the trusted fill
+    compares a shot's keys with): the train split's poses, and for a fine-tune on a studio's
+    takes (``tween train --data``) half of them the takes'. None where the data cannot be read,
+    and for a network with relative pose inputs (``--delta``: a posture offset is no new pose
+    to it, so absolute poses say nothing of what it knows; docs/trust.md)."""
+    if (config.get("model") or {}).get("delta"):
+        return None
     try:
-        train = load_split("train")
+        sets = [("bandai_namco train split", load_split("train"))]
+        if config.get("data"):
+            sets.append(
+                (f"takes of {config['data']}", load_takes(config["data"], config.get("data_include")))
+            )
     except (OSError, ValueError):
         return None
-    bank = posebank.build(train.rotations, train.roots)
-    posebank.save(out_dir / "pose_bank.npz", bank, f"bandai_namco train split, {len(bank)} poses, seed 0")
+    each = posebank.POSES // len(sets)
+    bank = np.concatenate([posebank.build(c.rotations, c.roots, each) for _, c in sets])
+    source = "; ".join(f"{name}: {min(each, len(c.rotations))} poses" for name, c in sets) + ", seed 0"
+    posebank.save(out_dir / "pose_bank.npz", bank, source)
     return "pose_bank.npz"
 
 

@@ -105,3 +105,37 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
         err = capsys.readouterr().err.strip().splitlines()
         assert ex.value.code == 2 and want in err[-1] and err[-1].startswith("tween: error: "), err
         assert not (tmp_path / "r" / "generator.pt").exists()
+
+
+def test_a_fine_tune_exports_a_pose_bank_with_the_studio_takes(takes, tmp_path, monkeypatch):
+    """The exported bank holds the train split's poses and, for a fine-tune on a studio's
+    takes, as many of the takes' own (so its own characters count as familiar); a network
+    with relative pose inputs gets none (docs/trust.md)."""
+    pytest.importorskip("torch")
+    from pipeline.data import posebank
+    from pipeline.data.cache import load_split
+    from pipeline.infer.novelty import nearest_cm
+    from pipeline.train import export as ex
+
+    monkeypatch.setenv("TWEEN_CACHE", str(tmp_path / "cache"))
+    small = load_split("eval", limit=3)  # stands in for the train split (the same reading)
+    monkeypatch.setattr(ex, "load_split", lambda split: small)
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    assert ex._pose_bank(plain, {"model": {"delta": False}}) == "pose_bank.npz"
+    tuned = tmp_path / "tuned"
+    tuned.mkdir()
+    assert ex._pose_bank(tuned, {"model": {}, "data": str(takes), "data_include": None}) == "pose_bank.npz"
+    a, b = posebank.load(plain / "pose_bank.npz"), posebank.load(tuned / "pose_bank.npz")
+    studio = load_takes(takes)
+    assert len(a) == min(posebank.POSES, len(small.rotations))
+    assert len(b) == min(posebank.POSES // 2, len(small.rotations)) + min(
+        posebank.POSES // 2, len(studio.rotations)
+    )
+    # The studio's poses are in the fine-tune's bank, and far from the Bandai-only one.
+    feats = posebank.pose_features(
+        studio.rotations[:: max(1, len(studio.rotations) // 50)],
+        studio.roots[:: max(1, len(studio.rotations) // 50)],
+    )
+    assert np.median(nearest_cm(feats, b)) < 0.5 < np.median(nearest_cm(feats, a))
+    assert ex._pose_bank(tmp_path, {"model": {"delta": True}}) is None
