@@ -173,6 +173,8 @@ def trust_line(d: dict) -> str:
     if d.get("model_error_cm") is not None:
         line += (f"; at {len(d.get('probes') or [])} probe(s) of the shot's own keys the model is "
                  f"{d['model_error_cm']:.2f} cm off, the spline {d['spline_error_cm']:.2f} cm")  # fmt: skip
+    if d.get("novelty_cm") is not None:
+        line += f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
     return line + ")"
 
 

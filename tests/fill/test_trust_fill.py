@@ -44,9 +44,13 @@ def test_auto_trust_is_decided_recorded_and_said(example, tmp_path, capfd):
     spec = stage.GetPrimAtPath(ANIM + "_tween")
     assert spec.GetAttribute("tween:trust").Get() == d["choice"]
     assert spec.GetAttribute("tween:trustWeight").Get() == pytest.approx(d["weight"])
-    assert json.loads(spec.GetAttribute("tween:trustEvidence").Get())["probes"] == d["probes"]
+    evidence = json.loads(spec.GetAttribute("tween:trustEvidence").Get())
+    assert evidence["probes"] == d["probes"]
+    # The keys' novelty against the model's pose bank: the example is an eval walk, familiar.
+    assert evidence["novelty_cm"] == d["novelty_cm"] < 3.0 and evidence["familiarity"] == 1.0
     err = capfd.readouterr().err
     assert f"{ANIM}: trust {d['choice']} (model weight {d['weight']:.2f}" in err
+    assert f"keys {d['novelty_cm']:.1f} cm from its training poses (familiarity 1.00)" in err
 
 
 def test_on_the_models_own_data_auto_is_the_model_bit_for_bit(example, tmp_path):
