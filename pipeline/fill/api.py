@@ -174,7 +174,9 @@ def trust_line(d: dict) -> str:
         line += (f"; at {len(d.get('probes') or [])} probe(s) of the shot's own keys the model is "
                  f"{d['model_error_cm']:.2f} cm off, the spline {d['spline_error_cm']:.2f} cm")  # fmt: skip
     if d.get("novelty_cm") is not None:
-        line += f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
+        line += (
+            f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
+        )
     return line + ")"
 
 
