@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
-from pipeline.infer import trust
+from pipeline.infer import novelty, trust
 
 SOURCES = ("eval", "cmu", "posture30", "mirrored")
 METHODS = ("interp", "spline", "model", "decided")
@@ -169,7 +169,7 @@ def run_trust_bench(
             "BAND",
             "PRIOR_PROBES",
         )
-    }
+    } | {k: getattr(novelty, k) for k in ("FAMILIAR_CM", "NOVEL_CM")}
     report["markdown"] = markdown(report, transitions)
     if dump:
         flat = {}
