@@ -26,8 +26,8 @@ from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_apply
 
 #: Poses in a bank (4,096 × 22 joints × 3 float16: 0.46 MB compressed). A random 4,096 of the
-#: train split keep eval shots within 2.8 cm of the bank (20,000: 2.4 cm), CMU shots at 4.5 cm
-#: or more (docs/trust.md, Blocking keys).
+#: train split keep eval shots within 2.7 cm of the bank (20,000: 2.4 cm), CMU shots at 4.4 cm
+#: or more (scripts/key_novelty.py; docs/trust.md).
 POSES = 4096
 VERSION = 1
 
