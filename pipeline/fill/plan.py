@@ -104,7 +104,7 @@ def _rig_for(shot: Shot, c: Character, rig: str):
     return RigMap(c, info, perm, up, mpu), str(info.folder)
 
 
-def _own_rate(tcps: float, keys: np.ndarray) -> float:
+def own_rate(tcps: float, keys: np.ndarray) -> float:
     """The rate a character is interpolated at on its own rig: the shot's, or a multiple
     of it fine enough that no two keys (sub-frame time codes included) share a frame."""
     for n in (1, 2, 4, 8, 16, 32):
@@ -161,7 +161,7 @@ def make_plan(
         _check_key_values(path, c, k, rot, tr, sc)
         rt, folder, fps = None, None, model_fps
         if own_rig:
-            rt, fps = OwnRig(c), _own_rate(shot.tcps, k)
+            rt, fps = OwnRig(c), own_rate(shot.tcps, k)
         elif rig != RIG_OFF:
             rt, folder = _rig_for(shot, c, rig)
             if rt is None and rig != RIG_AUTO:

@@ -7,8 +7,8 @@ import numpy as np
 
 from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
-from pipeline.fill.plan import CharPlan, Plan
-from pipeline.infer.trust import TrustedInbetweener, trusted
+from pipeline.fill.plan import CharPlan, Plan, own_rate
+from pipeline.infer.trust import TrustedInbetweener, blend_arrays, gap_weights_at, trusted
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
@@ -84,38 +84,30 @@ def key_channels(cp: CharPlan, rig_keys: tuple[np.ndarray, np.ndarray] | None) -
     return None if mask.all() else mask
 
 
-def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto") -> dict:
-    """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
-    Motion of representative poses for a model that takes a motion DNA; ``trust``: how far
-    the human model is trusted against the spline (pipeline.infer.trust), decided per
-    character and returned under ``"trust"`` (None where nothing was decided: a rig model,
-    or interpolation and the spline on the character's own rig)."""
+def _on_rig(plan: Plan, cp: CharPlan, retarget, skeleton, fps: float, fill) -> dict:
+    """One in-betweener's fill of the character turned back onto its rig: ``fill(motion,
+    frames)`` fills ``motion`` (the keys on ``skeleton``, through ``retarget``, at ``fps``) from the key
+    frames; None from it (nothing to fill) gives no ``rot``/``tr``. Returns the fill range's
+    time codes ``inside``, their model frames ``u``, the keys' model frames ``m``, and the
+    rig's ``rot``/``tr``/``sc`` there."""
     shot, c = plan.shot, cp.char
-    if cp.model is None and not isinstance(cp.retarget, OwnRig):
-        inb = trusted(inb, trust)
     k = cp.keys
-    rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
-    loc_k, root_k = cp.retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
-    fps = float(cp.fps)
+    rot_k, tr_k, _ = anim_values(shot.stage, c, k)
+    loc_k, root_k = retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
     m = np.round((k - k[0]) / shot.tcps * fps).astype(np.int64)
     T = int(m[-1]) + 1
     near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
-    skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
-    motion = Motion(skel, loc_k[near], root_k[near], fps, c.anim_path)
+    motion = Motion(skeleton, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
-    # Partial keys go to models that take them (the human model); others get full keys.
-    takes_partial = inb.capabilities.partial_keys and not isinstance(cp.retarget, OwnRig)
-    rig_keys = rig_key_channels(cp) if takes_partial else None
-    mask = key_channels(cp, rig_keys)
-    extra = {} if dna is None else {"dna": dna}
-    if mask is None:
-        filled = inb.fill(motion, m, seed=seed, **extra)
-    else:
-        filled = inb.fill(motion, m, seed=seed, joint_keys=mask, **extra)
+    filled = fill(motion, m)
 
     lo, hi = cp.fill_range
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
     u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
+    out = {"inside": inside, "u": u, "m": m, "rot": None, "tr": None}
+    if filled is None:
+        out["sc"] = anim_values(shot.stage, c, inside)[2]
+        return out
     i0 = np.floor(u + 1e-9).astype(np.int64)
     w = np.clip(u - i0, 0.0, 1.0)
     w[w < 1e-7] = 0.0
@@ -129,11 +121,61 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
         wb = w[b, None]
         root = (1 - wb) * filled.root_positions[i0[b]] + wb * filled.root_positions[i1]
         rot_o, tr_o, sc_o = anim_values(shot.stage, c, inside[b])
-        rot_s, tr_s = cp.retarget.from_model(loc, root, *to_skeleton_order(c, rot_o, tr_o))
+        rot_s, tr_s = retarget.from_model(loc, root, *to_skeleton_order(c, rot_o, tr_o))
         parts.append((rot_s[:, c.anim_index], tr_s[:, c.anim_index], sc_o))
         del loc, root, rot_o, tr_o, rot_s, tr_s
     rot, tr, sc_o = parts[0] if len(parts) == 1 else (np.concatenate(p) for p in zip(*parts, strict=True))
-    del parts
+    out.update(rot=rot, tr=tr, sc=sc_o)
+    return out
+
+
+def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto") -> dict:
+    """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
+    Motion of representative poses for a model that takes a motion DNA; ``trust``: how far
+    the human model is trusted against the spline (pipeline.infer.trust), decided per
+    character and returned under ``"trust"`` (None where nothing was decided: a rig model,
+    or interpolation and the spline on the character's own rig).
+
+    The trusted fill's spline is the animator's own: filled on the character's rig, exactly
+    as ``--model spline`` fills it (so a decision for the spline gives that fill bit for bit),
+    and blended with the network's fill, turned back onto the rig, gap by gap at the decided
+    weights. Shots with partial keys or a motion DNA blend on the model skeleton instead."""
+    shot, c = plan.shot, cp.char
+    if cp.model is None and not isinstance(cp.retarget, OwnRig):
+        inb = trusted(inb, trust)
+    k = cp.keys
+    rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
+    fps = float(cp.fps)
+    # Partial keys go to models that take them (the human model); others get full keys.
+    takes_partial = inb.capabilities.partial_keys and not isinstance(cp.retarget, OwnRig)
+    rig_keys = rig_key_channels(cp) if takes_partial else None
+    mask = key_channels(cp, rig_keys)
+    extra = {} if dna is None else {"dna": dna}
+    if mask is not None:
+        extra["joint_keys"] = mask
+    on_rig = isinstance(inb, TrustedInbetweener) and mask is None and dna is None
+    skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
+    if not on_rig:
+        res = _on_rig(plan, cp, cp.retarget, skel, fps, lambda mo, m: inb.fill(mo, m, seed=seed, **extra))
+    else:
+
+        def network(motion, m):
+            d = inb.decide(motion, m)
+            return inb.model.fill(motion, m, seed=seed) if d.weight > 0.0 else None
+
+        res = _on_rig(plan, cp, cp.retarget, skel, fps, network)
+        d = inb.last_decision
+        if d.weight < 1.0:
+            own = OwnRig(c)
+            rate = own_rate(shot.tcps, k)
+            spline = _on_rig(plan, cp, own, own.skeleton, rate, lambda mo, m: inb.spline.fill(mo, m))
+            if res["rot"] is None:
+                res["rot"], res["tr"] = spline["rot"], spline["tr"]
+            else:
+                w = gap_weights_at(d, res["m"], res["u"])
+                res["rot"], res["tr"] = blend_arrays(w, res["rot"], res["tr"], spline["rot"], spline["tr"])
+    inside, rot, tr, sc_o = res["inside"], res["rot"], res["tr"], res["sc"]
+    lo, hi = cp.fill_range
     if not (np.isfinite(rot).all() and np.isfinite(tr).all()):
         raise ShotError(shot.path, "the in-betweener produced non-finite values", c.anim_path)
     # Keys carry exactly the authored values (not round-tripped ones).

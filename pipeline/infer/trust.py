@@ -138,6 +138,21 @@ class TrustDecision:
         return w
 
 
+def gap_weights_at(decision: TrustDecision, keys, frames) -> np.ndarray:
+    """The model's weight at (fractional) model frames ``frames`` of a shot keyed at ``keys``:
+    the weight of the gap each falls in (1 at a key and outside the keys)."""
+    keys = _unique_keys(keys)
+    u = np.asarray(frames, np.float64)
+    if not decision.gaps:
+        return np.where((u > keys[0]) & (u < keys[-1]), float(decision.weight), 1.0)
+    by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
+    j = np.clip(np.searchsorted(keys, u, side="right") - 1, 0, len(keys) - 2)
+    lengths = keys[j + 1] - keys[j] - 1
+    w = np.array([by_length.get(int(n), decision.weight) for n in lengths])
+    at_key = np.isin(u, keys) | (u <= keys[0]) | (u >= keys[-1])
+    return np.where(at_key, 1.0, w)
+
+
 def _unique_keys(keys) -> np.ndarray:
     return np.unique(np.asarray(keys, np.int64))
 
@@ -509,6 +524,20 @@ class TrustedInbetweener:
         """The wrapped model's pose bank (with ``capabilities.novelty``)."""
         return self.model.pose_bank if self.model.capabilities.novelty else None
 
+    def decide(self, motion: Motion, keys) -> TrustDecision:
+        """The decision for a shot keyed at ``keys`` (its full keys): probed with ``"auto"``,
+        the override otherwise; kept as ``last_decision``."""
+        if self.trust == "model":
+            d = TrustDecision(
+                "model", 1.0, None, None, [], "trust=model: the model, unchecked", None, "model"
+            )
+        elif self.trust == "spline":
+            d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
+        else:
+            d = decide(self.model, self.spline, motion, keys)
+        self.last_decision = d
+        return d
+
     def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, **kw) -> Motion:
         keys = np.asarray(keys, np.int64)
         extra = dict(kw)
@@ -517,17 +546,9 @@ class TrustedInbetweener:
         if dna is not None:
             extra["dna"] = dna
         full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
-        if self.trust == "model":
-            d = TrustDecision(
-                "model", 1.0, None, None, [], "trust=model: the model, unchecked", None, "model"
-            )
-        elif self.trust == "spline":
-            d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
-        else:
-            d = decide(self.model, self.spline, motion, full)
+        d = self.decide(motion, full)
         m = self.model.fill(motion, keys, seed=seed, **extra) if d.weight > 0.0 else None
         s = spline_fill(self.spline, motion, keys, joint_keys) if d.weight < 1.0 else None
-        self.last_decision = d
         return apply(d, m, s, full)
 
 

@@ -149,7 +149,8 @@ def test_non_integer_time_codes_and_keys_override(tmp_path):
 def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
     before = tree_hashes(tmp_path)
-    res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "o")))
+    # The network's own fill (the trusted fill picks the rig's spline for this take).
+    res = fill_shot(str(shot), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "o")))
     after = tree_hashes(tmp_path)
     assert {k: after[k] for k in before} == before
     stage = _open(res["review"])
@@ -173,6 +174,54 @@ def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
     assert np.abs(np.abs((seq[1:] * seq[:-1]).sum(-1)) - 1).max() < 0.02
     usd = np.array(orig_attr.Get(1006.0))[th]
     assert 1e-6 < abs(abs(float(usd @ filled[1006.0][th])) - 1) < 0.05
+
+
+def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path):
+    """Where the decision is the spline, the default fill is the animator's own curves on
+    the rig (``--model spline``) bit for bit, every one of its 100 joints; a blend lies
+    between the network's fill and that spline, keys exact."""
+    shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
+    runs = {
+        name: fill_shot(str(shot), FillOptions(model=model, trust=trust, out_dir=str(tmp_path / name)))
+        for name, model, trust in (
+            ("auto", "default", "auto"),
+            ("net", "default", "model"),
+            ("forced", "default", "spline"),
+            ("rig", "spline", "auto"),
+        )
+    }
+    got = {name: samples(_open(r["review"]), FILLED) for name, r in runs.items()}
+    d = runs["auto"]["trust"][ANIM]
+    assert d["choice"] == "spline" and d["familiarity"] == 0.0  # a CMU take: unseen, spline better
+    for name in ("auto", "forced"):
+        assert got[name].keys() == got["rig"].keys()
+        assert all(np.array_equal(got[name][t], got["rig"][t]) for t in got["rig"])
+    assert any(not np.array_equal(got["net"][t], got["rig"][t]) for t in got["rig"])
+    # A blend: half way between the two fills, joint by joint (SLERP at w = 0.5).
+    from pipeline.fill import solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
+
+    class Halfway(TrustedInbetweener):
+        def decide(self, motion, keys):
+            self.last_decision = TrustDecision("blend", 0.5, None, None, [], "half", None)
+            return self.last_decision
+
+    plan = make_plan(str(shot), None, None, None, 30.0)
+    cp = plan.chars[0]
+    half = solve.fill_character(plan, cp, Halfway(load_inbetweener("default")), seed=0)
+    net = solve.fill_character(plan, cp, load_inbetweener("default"), seed=0, trust="model")
+    rig = got["rig"]
+    i = int(np.flatnonzero(half["times"] == 1006.0)[0])
+    a, b = net["rot"][i].astype(np.float64), np.array(rig[1006.0], np.float64)
+    b = np.where((a * b).sum(-1, keepdims=True) < 0, -b, b)
+    mid = (a + b) / np.linalg.norm(a + b, axis=-1, keepdims=True)
+    h = half["rot"][i].astype(np.float64)
+    assert np.abs(np.abs((h * mid).sum(-1)) - 1).max() < 1e-5
+    for t in (1001.0, 1013.0, 1121.0):  # keys: the authored values
+        j = int(np.flatnonzero(half["times"] == t)[0])
+        assert np.array_equal(half["rot"][j], np.array(rig[t]))
 
 
 def test_interp_fills_any_rig_in_its_own_space(tmp_path):
