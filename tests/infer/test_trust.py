@@ -334,3 +334,17 @@ def test_a_shot_keyed_on_every_frame_has_nothing_to_blend():
     d = trust._decision(np.full(len(probes), 2.0), np.full(len(probes), 1.0), probes, keys)
     assert d.gaps == [] and d.choice == "model" and "no frame between the keys" in d.reason
     assert np.array_equal(d.frame_weights(keys, 12), np.ones(12))
+
+
+def test_gap_weights_at_fractional_frames():
+    keys = np.r_[0:10, 13, 40]
+    probes = trust.probe_plan(keys)
+    em = np.full(len(probes), 2.0)
+    d = trust._decision(em, (em + trust.EPS_CM) * np.exp(-0.3) - trust.EPS_CM, probes, keys)
+    by_len = {g["length"]: g["weight"] for g in d.gaps}
+    w = trust.gap_weights_at(d, keys, [0.0, 9.0, 9.5, 12.9, 13.0, 13.2, 39.99, 40.0, 45.0])
+    assert list(w) == [1.0, 1.0, by_len[3], by_len[3], 1.0, by_len[26], by_len[26], 1.0, 1.0]
+    # Whole frames: the same as frame_weights.
+    assert np.array_equal(trust.gap_weights_at(d, keys, np.arange(41)), d.frame_weights(keys, 41))
+    forced = trust.TrustDecision("spline", 0.0, None, None, [], "trust=spline", None, "spline")
+    assert list(trust.gap_weights_at(forced, keys, [0.0, 5.5, 40.0])) == [1.0, 0.0, 1.0]
