@@ -6,7 +6,7 @@ grows with the gap. On poses it never saw that prior does not hold (on the CMU t
 shrinks as gaps grow; docs/trust.md). The keys say which case a shot is: each key pose's
 nearest pose in the model's pose bank (:mod:`pipeline.data.posebank`), as the mean per-joint
 distance in cm of root-relative, facing-aligned joint positions; the shot's **novelty** is the
-median over its keys. Familiarity is 1 up to :data:`FAMILIAR_CM`, 0 from :data:`NOVEL_CM`,
+median over its keys (at most MAX_KEYS of them, evenly spread). Familiarity is 1 up to :data:`FAMILIAR_CM`, 0 from :data:`NOVEL_CM`,
 linear between.
 """
 
@@ -23,8 +23,12 @@ FAMILIAR_CM = 3.0
 #: Novelty (cm) from which a shot counts as unseen. CMU shots: at least 4.4 cm (median 8.1);
 #: eval shots with posture offsets up to 30 degrees: at least 4.3 (median 10.0).
 NOVEL_CM = 5.0
-#: Key poses compared against the bank at a time (memory: CHUNK x bank x J x 3 floats).
-CHUNK = 64
+#: Key poses compared against the bank at a time (memory: CHUNK x bank x J x 3 float32,
+#: 17 MB with the shipped bank).
+CHUNK = 16
+#: At most this many keys of a shot are compared (evenly spread): time stays bounded on
+#: shots keyed on every frame, and the median over 256 keys is as good as over all.
+MAX_KEYS = 256
 
 
 def nearest_cm(features: np.ndarray, bank: np.ndarray, cm_per_unit: float = 1.0) -> np.ndarray:
@@ -45,6 +49,9 @@ def novelty_cm(rots: np.ndarray, roots: np.ndarray, bank: np.ndarray, skeleton) 
     """(N,) the median over the keys of each shot's key poses' distance to the bank (cm).
     ``rots`` (N, K, J, 4) and ``roots`` (N, K, 3): the key frames of N shots."""
     rots, roots = np.asarray(rots), np.asarray(roots)
+    if rots.shape[1] > MAX_KEYS:
+        pick = np.unique(np.round(np.linspace(0, rots.shape[1] - 1, MAX_KEYS)).astype(int))
+        rots, roots = rots[:, pick], roots[:, pick]
     N, K, J = rots.shape[:3]
     feats = pose_features(rots.reshape(N * K, J, 4), roots.reshape(N * K, 3), skeleton)
     cm = 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))

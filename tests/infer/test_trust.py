@@ -348,3 +348,19 @@ def test_gap_weights_at_fractional_frames():
     assert np.array_equal(trust.gap_weights_at(d, keys, np.arange(41)), d.frame_weights(keys, 41))
     forced = trust.TrustDecision("spline", 0.0, None, None, [], "trust=spline", None, "spline")
     assert list(trust.gap_weights_at(forced, keys, [0.0, 5.5, 40.0])) == [1.0, 0.0, 1.0]
+
+
+def test_novelty_of_a_shot_keyed_on_every_frame_is_bounded(walk, monkeypatch):
+    """Thousands of keys: at most MAX_KEYS are compared, evenly spread, and the answer is the
+    median of those (the same as all of them here, within a millimetre)."""
+    import time
+
+    bank = OnnxInbetweener("models/default").pose_bank
+    reps = 60
+    rot = np.concatenate([walk.rotations] * reps)[None]
+    root = np.concatenate([walk.root_positions] * reps)[None]
+    t = time.perf_counter()
+    many = novelty.novelty_cm(rot, root, bank, SKEL)[0]
+    assert time.perf_counter() - t < 10.0
+    monkeypatch.setattr(novelty, "MAX_KEYS", 10**6)
+    assert many == pytest.approx(novelty.novelty_cm(rot, root, bank, SKEL)[0], abs=0.1)
