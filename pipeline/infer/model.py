@@ -114,6 +114,9 @@ class OnnxInbetweener:
         )
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)
+        bank = self.meta.get("pose_bank")
+        if bank and not (self.folder / bank).is_file():
+            raise ModelFolderError(f"{self.folder / bank}: the pose bank model.json names is missing")
         self.name = self.meta["name"]
         self.model_hash = self.meta["hash"]
         self.fps = float(self.meta["fps"])

@@ -322,6 +322,9 @@ def test_a_model_folder_without_or_with_a_broken_pose_bank(tmp_path):
     assert OnnxInbetweener(folder).pose_bank is None
     meta["pose_bank"] = "pose_bank.npz"
     (folder / "model.json").write_text(json.dumps(meta))
+    (folder / "pose_bank.npz").unlink()
+    with pytest.raises(ModelFolderError, match="pose_bank.npz: the pose bank model.json names is missing"):
+        OnnxInbetweener(folder)
     (folder / "pose_bank.npz").write_bytes(b"not a bank")
     with pytest.raises(ModelFolderError, match="pose_bank.npz: not a pose bank"):
         _ = OnnxInbetweener(folder).pose_bank
