@@ -12,7 +12,7 @@ Methods: ``default`` (the shipped fill: network, trust decided from the shot), `
 (the same model with ``--trust model``), ``spline`` (the animator's own curves), ``interp``.
 
 ``python -m pipeline.bench.studio [--every 10,30] [--subjects 5,6,7] [--limit N]
-[--max-frames 300] [--methods default,network,spline,interp] [--keep-glitches] [--out DIR]``
+[--max-frames 300] [--fps 30] [--methods default,network,spline,interp] [--keep-glitches] [--out DIR]``
 """
 
 from __future__ import annotations
@@ -82,26 +82,28 @@ def leading_glitch(motion) -> int:
 
 
 def evaluate_take(
-    path: Path, every: int, methods, work: Path, max_frames: int | None, trim: bool = True
+    path: Path, every: int, methods, work: Path, max_frames: int | None, trim: bool = True, fps: float = 30.0
 ) -> dict:
     """Per method: summed joint errors (cm) and counts over the take's frames between keys,
     for all joints and for the joints mapped to the model's; and each default fill's trust.
-    ``trim``: leading glitch frames dropped (:func:`leading_glitch`)."""
+    ``trim``: leading glitch frames dropped (:func:`leading_glitch`); ``fps``: the shot's rate
+    (0: the take's own)."""
     motion = read_bvh(path)
     cut = leading_glitch(motion) if trim else 0
     if cut:
         motion = motion.slice(cut, len(motion))
-    at30 = resample(motion, FPS)
+    fps = float(fps or motion.fps)
+    at30 = resample(motion, fps)
     if max_frames and len(at30) > max_frames:
-        motion = motion.slice(0, int(np.ceil((max_frames - 1) * motion.fps / FPS)) + 1)
-        at30 = resample(motion, FPS)
+        motion = motion.slice(0, int(np.ceil((max_frames - 1) * motion.fps / fps)) + 1)
+        at30 = resample(motion, fps)
     T = len(at30)
     truth = at30.positions() * at30.skeleton.meters_per_unit * 100.0
     mapped = sorted(map_joints(tuple(at30.skeleton.names), at30.skeleton.parents).values())
     keys = np.r_[np.arange(0, T, every), T - 1]
     inside = np.setdiff1d(np.arange(T), keys)
     shot = Path(
-        write_shot(motion, work / f"{path.name.split('.')[0]}_{every}.usda", fps=FPS, keys_every=every)
+        write_shot(motion, work / f"{path.name.split('.')[0]}_{every}.usda", fps=fps, keys_every=every)
     )
     res: dict = {"frames": int(T), "inside": int(len(inside)), "trimmed": cut, "methods": {}}
     for m in methods:
@@ -127,17 +129,18 @@ def run(
     methods=METHODS,
     max_frames: int | None = 300,
     trim: bool = True,
+    fps: float = FPS,
 ) -> dict:
     files = cmu_files(subjects)[: limit or None]
     report: dict = {"every": list(every), "takes": [f.name for f in files], "max_frames": max_frames}
-    report["trim"] = trim
+    report.update(trim=trim, fps=fps)
     t0 = time.perf_counter()
     per: dict = {int(e): {} for e in every}
     with tempfile.TemporaryDirectory(prefix="tween-studio-") as tmp:
         for i, f in enumerate(files):
             for e in every:
                 print(f"studio bench: take {i + 1}/{len(files)} {f.name}, keys every {e}…", file=sys.stderr)
-                per[int(e)][f.name] = evaluate_take(f, int(e), methods, Path(tmp), max_frames, trim)
+                per[int(e)][f.name] = evaluate_take(f, int(e), methods, Path(tmp), max_frames, trim, fps)
     report["per_take"] = per
     report["error_cm"] = {
         e: {
@@ -158,7 +161,8 @@ def run(
 def markdown(rep: dict, methods) -> str:
     trimmed = sorted({n for takes in rep["per_take"].values() for n, t in takes.items() if t["trimmed"]})
     lines = [
-        f"{len(rep['takes'])} CMU takes (first {rep['max_frames']} frames at 30 fps each), converted, "
+        f"{len(rep['takes'])} CMU takes (first {rep['max_frames']} frames at "
+        f"{rep.get('fps') or 'their own'} fps each), converted, "
         "blocked, filled and scored on their own rig: mean world joint error (cm) between the keys.",
         (
             f"Leading glitch frames dropped from {len(trimmed)} take(s): {', '.join(trimmed)}."
@@ -180,13 +184,16 @@ def markdown(rep: dict, methods) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipeline.bench.studio", description=__doc__.splitlines()[0])
-    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (at 30 fps)")
+    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (of the shot)")
     ap.add_argument("--subjects", default=None, help="CMU subjects, e.g. 5,6,7 (default: all)")
     ap.add_argument("--limit", type=int, default=None, help="first N takes")
     ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
     ap.add_argument("--out", type=Path, default=None, help="folder for studio.json and studio.md")
     ap.add_argument("--keep-glitches", action="store_true", help="keep takes' leading glitch frames")
+    ap.add_argument(
+        "--fps", type=float, default=FPS, help="the shots' rate (tween convert --fps; 0: the take's)"
+    )
     a = ap.parse_args(argv)
     methods = tuple(m for m in a.methods.split(",") if m)
     bad = [m for m in methods if m not in METHODS]
@@ -194,7 +201,7 @@ def main(argv=None) -> int:
         ap.error(f"--methods: unknown {', '.join(bad)} (one of {', '.join(METHODS)})")
     subjects = tuple(int(s) for s in a.subjects.split(",")) if a.subjects else None
     every = tuple(int(e) for e in a.every.split(",") if e)
-    rep = run(every, subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches)
+    rep = run(every, subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches, a.fps)
     md = rep["markdown"] + f"\nTotal: {rep['seconds']:.0f} s.\n"
     if a.out:
         a.out.mkdir(parents=True, exist_ok=True)

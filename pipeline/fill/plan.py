@@ -206,10 +206,19 @@ def make_plan(
             )
         m = np.round((k - k[0]) / shot.tcps * fps)
         dup = np.nonzero(np.diff(m) == 0)[0]
-        if len(dup):
-            a, b = k[dup[0]], k[dup[0] + 1]
+        close = dup[np.diff(k)[dup] < 1 - TIME_EPS]
+        if len(close):  # sub-frame keys closer than the model's frame: refused, as asked
+            a, b = k[close[0]], k[close[0] + 1]
             raise ShotError(
                 path, f"keys {a:.10g} and {b:.10g} fall on one model frame (1/{fps:g} s)", c.anim_path
+            )
+        if len(dup):  # a shot above the model's rate keyed on consecutive frames: the
+            # in-betweener sees one key a model frame, and every key keeps its values
+            a, b = k[dup[0]], k[dup[0] + 1]
+            more = f" and {len(dup) - 1} more pair(s)" if len(dup) > 1 else ""
+            notes.append(
+                f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
+                f"frame (1/{fps:g} s): the in-betweener sees one key there; every key keeps its values"
             )
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:

@@ -39,6 +39,20 @@ def _slerp_frames(q: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
+def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """(m, keep): the model frame of each key time code, and the keys the in-betweener is
+    given, one a model frame. Keys closer than a model frame (a 60 fps shot keyed on
+    consecutive frames, sub-frame keys) share one: the key nearest to the frame's time stands
+    for them all (the first on a tie); every key still gets its authored values afterwards."""
+    m = np.round((keys - keys[0]) / tcps * fps).astype(np.int64)
+    off = np.abs((keys - keys[0]) / tcps * fps - m)
+    keep = []
+    for frame in np.unique(m):
+        idx = np.flatnonzero(m == frame)
+        keep.append(int(idx[np.argmin(off[idx])]))
+    return m, np.asarray(keep, np.int64)
+
+
 def frames_in(lo: float, hi: float) -> np.ndarray:
     return np.arange(np.ceil(lo - TIME_EPS), np.floor(hi + TIME_EPS) + 1, dtype=np.float64)
 
@@ -92,9 +106,11 @@ def _on_rig(plan: Plan, cp: CharPlan, retarget, skeleton, fps: float, fill) -> d
     rig's ``rot``/``tr``/``sc`` there."""
     shot, c = plan.shot, cp.char
     k = cp.keys
+    m, keep = model_frames(k, shot.tcps, fps)
+    k = k[keep]  # one key a model frame (model_frames)
     rot_k, tr_k, _ = anim_values(shot.stage, c, k)
     loc_k, root_k = retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
-    m = np.round((k - k[0]) / shot.tcps * fps).astype(np.int64)
+    m = m[keep]
     T = int(m[-1]) + 1
     near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
     motion = Motion(skeleton, loc_k[near], root_k[near], fps, c.anim_path)
@@ -102,6 +118,7 @@ def _on_rig(plan: Plan, cp: CharPlan, retarget, skeleton, fps: float, fill) -> d
     filled = fill(motion, m)
 
     lo, hi = cp.fill_range
+    k = cp.keys
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
     u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
     out = {"inside": inside, "u": u, "m": m, "rot": None, "tr": None}
@@ -151,8 +168,10 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
     rig_keys = rig_key_channels(cp) if takes_partial else None
     mask = key_channels(cp, rig_keys)
     extra = {} if dna is None else {"dna": dna}
-    if mask is not None:
-        extra["joint_keys"] = mask
+    if mask is not None:  # for the keys the in-betweener is given (model_frames)
+        kept = mask[model_frames(k, shot.tcps, fps)[1]]
+        kept[[0, -1]] = True  # the first and last keys stay full poses
+        extra["joint_keys"] = kept
     on_rig = isinstance(inb, TrustedInbetweener) and mask is None and dna is None
     skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
     if not on_rig:

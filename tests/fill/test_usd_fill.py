@@ -224,6 +224,26 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path):
         assert np.array_equal(half["rot"][j], np.array(rig[t]))
 
 
+@pytest.mark.parametrize("trust", ["auto", "model"])
+def test_a_60fps_shot_keyed_on_consecutive_frames_fills(tmp_path, capfd, trust):
+    """60 fps, keys every 12 frames and the last one frame after the one before (a hold, as
+    an animator keys it): two keys on one model frame. The network sees one of them; every
+    key keeps its authored values and the frames between keys are filled."""
+    shot = cmu_shot(tmp_path / "cc.usda", frames=122, keys_every=12)
+    res = fill_shot(str(shot), FillOptions(model="default", trust=trust, out_dir=str(tmp_path / "o")))
+    err = capfd.readouterr().err
+    assert "keys 1121 and 1122 fall on one model frame (1/30 s): the in-betweener sees one key" in err
+    stage = _open(res["review"])
+    filled, orig = samples(stage, FILLED), stage.GetPrimAtPath(ANIM).GetAttribute("rotations")
+    assert sorted(filled) == [float(t) for t in range(1001, 1123)]
+    for t in orig.GetTimeSamples():
+        assert np.array_equal(filled[t], np.array(orig.Get(t)))
+    seq = np.stack([filled[float(t)] for t in range(1001, 1123)])
+    assert np.isfinite(seq).all()
+    steps = np.abs(np.abs((seq[1:] * seq[:-1]).sum(-1)) - 1).max(-1)
+    assert steps.max() < 0.05  # no jump between consecutive frames, the two keys included
+
+
 def test_interp_fills_any_rig_in_its_own_space(tmp_path):
     """--model interp needs no mapping: an unmappable rig (joints renamed to nonsense) is
     interpolated joint by joint, as USD itself interpolates between the keys."""
