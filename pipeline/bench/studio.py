@@ -187,7 +187,9 @@ def main(argv=None) -> int:
     ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (of the shot)")
     ap.add_argument("--subjects", default=None, help="CMU subjects, e.g. 5,6,7 (default: all)")
     ap.add_argument("--limit", type=int, default=None, help="first N takes")
-    ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
+    ap.add_argument(
+        "--max-frames", type=int, default=300, help="frames of each take at the shot rate (0: all)"
+    )
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
     ap.add_argument("--out", type=Path, default=None, help="folder for studio.json and studio.md")
     ap.add_argument("--keep-glitches", action="store_true", help="keep takes' leading glitch frames")

@@ -25,7 +25,7 @@ from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_apply
 
-#: Poses in a bank (4,096 × 22 joints × 3 float16: 0.46 MB compressed). A random 4,096 of the
+#: Poses in a bank (4,096 × 21 joints × 3 float16: 0.46 MB compressed). A random 4,096 of the
 #: train split keep eval shots within 2.7 cm of the bank (20,000: 2.4 cm), CMU shots at 4.4 cm
 #: or more (scripts/key_novelty.py; docs/trust.md).
 POSES = 4096
@@ -61,8 +61,9 @@ def load(path: str | Path) -> np.ndarray:
     try:
         with np.load(path) as d:
             poses = np.asarray(d["poses"], np.float32)
-    except (OSError, KeyError, ValueError) as e:
-        raise ValueError(f"{path}: not a pose bank ({e})") from None
+    except Exception as e:  # numpy's and zipfile's many ways of saying "not this file"
+        why = " ".join(str(e).split()) or type(e).__name__
+        raise ValueError(f"{path}: not a pose bank ({why})") from None
     if poses.ndim != 3 or poses.shape[-1] != 3 or not len(poses) or not np.isfinite(poses).all():
         raise ValueError(f"{path}: not a pose bank (poses of shape {poses.shape})")
     return poses

@@ -34,6 +34,7 @@ from pipeline.fill.options import (  # noqa: F401
     FillOptions,
     check_fill_options,
 )
+from pipeline.infer.graph import fast_graph_requested
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
 from pipeline.usd.write import check_out_dir, clean_dead_temps, owner_tag, write_error
@@ -180,6 +181,17 @@ def trust_line(d: dict) -> str:
     return line + ")"
 
 
+def _fill_identity(inb) -> str:
+    """What of a model decides its fills beyond its hash: its pose bank (the trusted fill's
+    decisions) and the generator graph it runs (TWEEN_FAST_GRAPH)."""
+    out = inb.model_hash
+    if inb.capabilities.novelty:
+        out += "+bank:" + hashlib.sha256(np.ascontiguousarray(inb.pose_bank).tobytes()).hexdigest()[:12]
+    if fast_graph_requested():
+        out += "+fast-graph"
+    return out
+
+
 def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
     """Hash of every layer file the shot uses, the options that change values, the take, and
     the model hash of every character's model."""
@@ -207,7 +219,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
     try:
-        digest = _digest(shot, plan.shot.stage, opts, take, [m.model_hash for m in inbs])
+        digest = _digest(shot, plan.shot.stage, opts, take, [_fill_identity(m) for m in inbs])
     except OSError as e:
         raise ShotError(shot, f"cannot read: {e.strerror}") from None
     out = Path(work_dir) / f"{Path(shot).name.split('.')[0]}.take{take:03d}.{digest}.npz"

@@ -212,13 +212,20 @@ def make_plan(
             raise ShotError(
                 path, f"keys {a:.10g} and {b:.10g} fall on one model frame (1/{fps:g} s)", c.anim_path
             )
+        if len(np.unique(m)) < 2:  # nothing left between the keys at the model's rate
+            raise ShotError(
+                path,
+                f"keys {k[0]:.10g}-{k[-1]:.10g} all fall on one model frame (1/{fps:g} s): "
+                "at least two frames apart are needed",
+                c.anim_path,
+            )
         if len(dup):  # a shot above the model's rate keyed on consecutive frames: the
-            # in-betweener sees one key a model frame, and every key keeps its values
+            # network sees one key a model frame, and every key keeps its values
             a, b = k[dup[0]], k[dup[0] + 1]
             more = f" and {len(dup) - 1} more pair(s)" if len(dup) > 1 else ""
             notes.append(
                 f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
-                f"frame (1/{fps:g} s): the in-betweener sees one key there; every key keeps its values"
+                f"frame (1/{fps:g} s): the network sees one key there; every key keeps its values"
             )
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:

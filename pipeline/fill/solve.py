@@ -1,5 +1,7 @@
 """Filling one character: keys → model skeleton at the model rate → in-betweener → back
-onto the shot's rig at every shot frame, keys carrying their authored values bitwise."""
+onto the shot's rig at every shot frame, keys carrying their authored values bitwise. The
+human model's trusted fill blends, gap by gap, its network's fill turned back onto the rig
+with the spline filled on the rig itself (the animator's own curves)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ import numpy as np
 
 from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
-from pipeline.fill.plan import CharPlan, Plan, own_rate
+from pipeline.fill.plan import MAX_MODEL_FRAMES, CharPlan, Plan, own_rate
 from pipeline.infer.trust import TrustedInbetweener, blend_arrays, gap_weights_at, trusted
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
@@ -41,9 +43,11 @@ def _slerp_frames(q: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """(m, keep): the model frame of each key time code, and the keys the in-betweener is
-    given, one a model frame. Keys closer than a model frame (a 60 fps shot keyed on
-    consecutive frames, sub-frame keys) share one: the key nearest to the frame's time stands
-    for them all (the first on a tie); every key still gets its authored values afterwards."""
+    given, one a model frame. Keys on one model frame (a 60 fps shot keyed on consecutive
+    frames; the plan refuses sub-frame keys that collide) share it: the key nearest to the
+    frame's time stands for them all (the first on a tie). Every key still gets its authored
+    values afterwards; where the two keys differ (a pop rather than a hold) the fill on the
+    far side of the one left out starts from the other, so it jumps at that key."""
     m = np.round((keys - keys[0]) / tcps * fps).astype(np.int64)
     off = np.abs((keys - keys[0]) / tcps * fps - m)
     keep = []
@@ -170,9 +174,12 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
     extra = {} if dna is None else {"dna": dna}
     if mask is not None:  # for the keys the in-betweener is given (model_frames)
         kept = mask[model_frames(k, shot.tcps, fps)[1]]
-        kept[[0, -1]] = True  # the first and last keys stay full poses
+        kept[[0, -1]] = True  # the first and last keys given stay full poses
         extra["joint_keys"] = kept
     on_rig = isinstance(inb, TrustedInbetweener) and mask is None and dna is None
+    rate = own_rate(shot.tcps, k)
+    if on_rig and (k[-1] - k[0]) / shot.tcps * rate > MAX_MODEL_FRAMES:
+        on_rig = False  # the rig's spline at the shot's rate would pass the plan's bound
     skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
     if not on_rig:
         res = _on_rig(plan, cp, cp.retarget, skel, fps, lambda mo, m: inb.fill(mo, m, seed=seed, **extra))
@@ -186,13 +193,17 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
         d = inb.last_decision
         if d.weight < 1.0:
             own = OwnRig(c)
-            rate = own_rate(shot.tcps, k)
             spline = _on_rig(plan, cp, own, own.skeleton, rate, lambda mo, m: inb.spline.fill(mo, m))
             if res["rot"] is None:
                 res["rot"], res["tr"] = spline["rot"], spline["tr"]
             else:
                 w = gap_weights_at(d, res["m"], res["u"])
-                res["rot"], res["tr"] = blend_arrays(w, res["rot"], res["tr"], spline["rot"], spline["tr"])
+                for s in range(0, len(w), SOLVE_BLOCK):  # float64 temporaries follow the block
+                    b = slice(s, s + SOLVE_BLOCK)
+                    res["rot"][b], res["tr"][b] = blend_arrays(
+                        w[b], res["rot"][b], res["tr"][b], spline["rot"][b], spline["tr"][b]
+                    )
+                del spline
     inside, rot, tr, sc_o = res["inside"], res["rot"], res["tr"], res["sc"]
     lo, hi = cp.fill_range
     if not (np.isfinite(rot).all() and np.isfinite(tr).all()):

@@ -49,6 +49,12 @@ class _Unsupported(Exception):
     """A graph this rewrite does not know how to handle (the plain graph is used)."""
 
 
+def fast_graph_requested() -> bool:
+    """Whether this process asks for the rewritten generator (``TWEEN_FAST_GRAPH`` 1, true,
+    yes or on); the graph as exported otherwise."""
+    return os.environ.get("TWEEN_FAST_GRAPH", "0").strip().lower() in ("1", "true", "yes", "on")
+
+
 def fast_graph(
     graph, frames: int = 256, fold: bool = True, nchwc: bool = True, split_transposed: bool = True
 ) -> bytes | None:

@@ -36,7 +36,7 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     models_root,
     read_model_json,
 )
-from pipeline.infer.graph import cached_fast_graph
+from pipeline.infer.graph import cached_fast_graph, fast_graph_requested
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import (
@@ -114,9 +114,6 @@ class OnnxInbetweener:
         )
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)
-        bank = self.meta.get("pose_bank")
-        if bank and not (self.folder / bank).is_file():
-            raise ModelFolderError(f"{self.folder / bank}: the pose bank model.json names is missing")
         self.name = self.meta["name"]
         self.model_hash = self.meta["hash"]
         self.fps = float(self.meta["fps"])
@@ -144,6 +141,7 @@ class OnnxInbetweener:
         self.chunk_core = CHUNK_CORE if chunk_core is None else int(chunk_core)
         self.margin = int(self.meta.get("receptive_field", 512))
         self._sessions: dict[str, object] = {}
+        self._pose_bank = self._load_pose_bank()
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
     #: False (the default): the generator runs as exported, so fills are bitwise those of the
@@ -152,7 +150,7 @@ class OnnxInbetweener:
     #: about 20 % less network time). Opt-in because no reordering keeps every fill within 1e-5:
     #: where the network's two 6D columns are nearly parallel the decoding amplifies float32
     #: rounding ~100-fold (up to 1e-4 per quaternion component; README, Fill speed).
-    fast_graph = os.environ.get("TWEEN_FAST_GRAPH", "0") == "1"
+    fast_graph = fast_graph_requested()
 
     def _fast_session(self, graph):
         """The session for a generator graph (file or bytes): its rewrite where there is one."""
@@ -328,17 +326,31 @@ class OnnxInbetweener:
 
     @property
     def pose_bank(self) -> np.ndarray | None:
-        """(P, J, 3) poses of the training data (model.json ``pose_bank``; None where the
-        folder has none): how familiar a shot's keys are (pipeline.infer.novelty)."""
-        if "_pose_bank" not in self.__dict__:
-            name = self.meta.get("pose_bank")
-            self._pose_bank = None
-            if name:
-                try:
-                    self._pose_bank = posebank.load(self.folder / name)
-                except ValueError as e:
-                    raise ModelFolderError(str(e)) from None
+        """(P, J, 3) poses of the training data (model.json ``pose_bank``, read and checked
+        when the model loads; None where the folder has none): how familiar a shot's keys are
+        (pipeline.infer.novelty)."""
         return self._pose_bank
+
+    def _load_pose_bank(self) -> np.ndarray | None:
+        name = self.meta.get("pose_bank")
+        if name is None:
+            return None
+        if not isinstance(name, str) or not name:
+            raise ModelFolderError(
+                f"{self.folder / 'model.json'}: pose_bank must be a file name, not {name!r}"
+            )
+        path = self.folder / name
+        if not path.is_file():
+            raise ModelFolderError(f"{path}: the pose bank model.json names is missing")
+        try:
+            bank = posebank.load(path)
+        except ValueError as e:
+            raise ModelFolderError(str(e)) from None
+        if bank.shape[1] != len(self.skeleton):
+            raise ModelFolderError(
+                f"{path}: a pose bank of {bank.shape[1]} joints for a model of {len(self.skeleton)}"
+            )
+        return bank
 
     @property
     def has_dna(self) -> bool:

@@ -143,14 +143,16 @@ def gap_weights_at(decision: TrustDecision, keys, frames) -> np.ndarray:
     the weight of the gap each falls in (1 at a key and outside the keys)."""
     keys = _unique_keys(keys)
     u = np.asarray(frames, np.float64)
-    if not decision.gaps:
-        return np.where((u > keys[0]) & (u < keys[-1]), float(decision.weight), 1.0)
-    by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
-    j = np.clip(np.searchsorted(keys, u, side="right") - 1, 0, len(keys) - 2)
-    lengths = keys[j + 1] - keys[j] - 1
-    w = np.array([by_length.get(int(n), decision.weight) for n in lengths])
     at_key = np.isin(u, keys) | (u <= keys[0]) | (u >= keys[-1])
-    return np.where(at_key, 1.0, w)
+    if not decision.gaps:
+        return np.where(at_key, 1.0, float(decision.weight))
+    # One weight per gap (its length's), looked up per frame; between keys on adjacent
+    # frames (no frame to fill) 1, as frame_weights gives every frame outside a gap.
+    lengths = np.diff(keys) - 1
+    by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
+    per_gap = np.array([by_length.get(int(n), decision.weight) if n > 0 else 1.0 for n in lengths])
+    j = np.clip(np.searchsorted(keys, u, side="right") - 1, 0, len(keys) - 2)
+    return np.where(at_key, 1.0, per_gap[j])
 
 
 def _unique_keys(keys) -> np.ndarray:
@@ -500,7 +502,8 @@ class TrustedInbetweener:
     ``trust``: ``"auto"`` (probe, then the model, the spline or a blend), ``"model"`` or
     ``"spline"`` (no probes: that one's fill). Same ``fill`` interface, skeleton, frame rate,
     name and hash as ``model``; ``last_decision`` is the :class:`TrustDecision` of the latest
-    ``fill`` (``.to_json()`` for a layer attribute).
+    ``fill`` or ``decide`` (``.to_json()`` for a layer attribute). The fill API calls
+    ``decide`` itself and blends on the character's rig (pipeline.fill.solve).
     """
 
     def __init__(self, model, spline=None, trust: str = "auto"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -149,7 +150,9 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
             sets.append(
                 (f"takes of {config['data']}", load_takes(config["data"], config.get("data_include")))
             )
-    except (OSError, ValueError):
+    except (OSError, ValueError) as e:
+        print(f"tween: warning: {out_dir}: no pose bank written ({e}); its fills trust the network "
+              "as if every shot were its own data", file=sys.stderr)  # fmt: skip
         return None
     each = posebank.POSES // len(sets)
     bank = np.concatenate([posebank.build(c.rotations, c.roots, each) for _, c in sets])

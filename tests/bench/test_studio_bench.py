@@ -42,8 +42,10 @@ def test_studio_bench_end_to_end(tmp_path, capsys):
         assert 0 < table[m]["mapped"] < 50 and 0 < table[m]["all"] < 50
     take = next(iter(rep["per_take"]["10"].values()))
     assert take["frames"] <= 90 and take["methods"]["default"]["trust"]["novelty_cm"] > 0
-    # The trusted fill is a blend of the network's and the spline's.
-    assert table["default"]["mapped"] <= 1.05 * max(table["network"]["mapped"], table["spline"]["mapped"])
+    # The trusted fill is near the better of the network's and the spline's (this walk:
+    # the network, 1.047x the spline on the mapped joints, 1.000x on all of them).
+    for part in ("mapped", "all"):
+        assert table["default"][part] <= 1.10 * min(table["network"][part], table["spline"][part])
     assert "| 10 | mapped |" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         studio.main(["--methods", "linear"])

@@ -5,6 +5,7 @@ line naming the file, never an onnxruntime traceback."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -287,6 +288,12 @@ def _bytes(name: str, data):
     return make
 
 
+def _npz(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
 def _remove(name: str):
     return lambda folder: (folder / name).unlink()
 
@@ -312,6 +319,13 @@ BROKEN = {
     "feet_anchor a string": (_json(feet_anchor="yes"), "model.json", "'feet_anchor' must be true or false"),
     "min_window negative": (_json(min_window=-4), "model.json", "'min_window' must be 0 or more"),
     "generator config a list": (_json(generator=[1]), "model.json", "'generator' must be an object"),
+    "pose bank missing": (_remove("pose_bank.npz"), "pose_bank.npz", "the pose bank model.json names is missing"),
+    "pose bank empty": (_bytes("pose_bank.npz", b""), "pose_bank.npz", "not a pose bank"),
+    "pose bank truncated": (_bytes("pose_bank.npz", lambda p: p.read_bytes()[: p.stat().st_size // 2]), "pose_bank.npz", "not a pose bank"),
+    "pose bank is text": (_bytes("pose_bank.npz", b"not a bank"), "pose_bank.npz", "not a pose bank"),
+    "pose bank of another rig": (_bytes("pose_bank.npz", lambda p: _npz(poses=np.zeros((8, 19, 3), np.float16))), "pose_bank.npz", "a pose bank of 19 joints for a model of 21"),
+    "pose bank without poses": (_bytes("pose_bank.npz", lambda p: _npz(other=np.zeros(3))), "pose_bank.npz", "not a pose bank"),
+    "pose bank a number": (_json(pose_bank=3), "model.json", "pose_bank must be a file name, not 3"),
 }  # fmt: skip
 
 

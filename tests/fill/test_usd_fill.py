@@ -232,7 +232,7 @@ def test_a_60fps_shot_keyed_on_consecutive_frames_fills(tmp_path, capfd, trust):
     shot = cmu_shot(tmp_path / "cc.usda", frames=122, keys_every=12)
     res = fill_shot(str(shot), FillOptions(model="default", trust=trust, out_dir=str(tmp_path / "o")))
     err = capfd.readouterr().err
-    assert "keys 1121 and 1122 fall on one model frame (1/30 s): the in-betweener sees one key" in err
+    assert "keys 1121 and 1122 fall on one model frame (1/30 s): the network sees one key" in err
     stage = _open(res["review"])
     filled, orig = samples(stage, FILLED), stage.GetPrimAtPath(ANIM).GetAttribute("rotations")
     assert sorted(filled) == [float(t) for t in range(1001, 1123)]
@@ -242,6 +242,48 @@ def test_a_60fps_shot_keyed_on_consecutive_frames_fills(tmp_path, capfd, trust):
     assert np.isfinite(seq).all()
     steps = np.abs(np.abs((seq[1:] * seq[:-1]).sum(-1)) - 1).max(-1)
     assert steps.max() < 0.05  # no jump between consecutive frames, the two keys included
+
+
+def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
+    """Gap weights 0, 1 and 1/2: the first gap is the rig's spline bit for bit, the second
+    the network's fill on the rig, the third between them."""
+    from pipeline.fill import solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
+
+    shot = str(cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12))
+    keys = "1001,1013,1049,1121"  # 60 fps: gaps of 5, 17 and 35 model frames
+    weights = {5: 0.0, 17: 1.0, 35: 0.5}
+
+    class Fixed(TrustedInbetweener):
+        def decide(self, motion, keys):
+            gaps = [{"length": n, "count": 1, "weight": w} for n, w in weights.items()]
+            self.last_decision = TrustDecision("blend", 0.5, None, None, [], "fixed", None, gaps=gaps)
+            return self.last_decision
+
+    plan = make_plan(shot, keys, None, None, 30.0)
+    mix = solve.fill_character(plan, plan.chars[0], Fixed(load_inbetweener("default")), seed=0)
+    net = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0, trust="model")
+    own = make_plan(shot, keys, None, None, 30.0, own_rig=True)
+    spl = solve.fill_character(own, own.chars[0], load_inbetweener("spline"), seed=0)
+    t = mix["times"]
+    assert np.array_equal(t, net["times"]) and np.array_equal(t, spl["times"])
+    first, second, third = ((t > a) & (t < b) for a, b in ((1001, 1013), (1013, 1049), (1049, 1121)))
+    assert np.array_equal(mix["rot"][first], spl["rot"][first])
+    assert np.array_equal(mix["rot"][second], net["rot"][second])
+    a, b, h = (x["rot"][third].astype(np.float64) for x in (net, spl, mix))
+    b = np.where((a * b).sum(-1, keepdims=True) < 0, -b, b)
+    mid = (a + b) / np.linalg.norm(a + b, axis=-1, keepdims=True)
+    assert np.abs(np.abs((h * mid).sum(-1)) - 1).max() < 1e-5
+    assert not np.array_equal(h, a) and not np.array_equal(h, b)
+
+
+def test_keys_that_all_fall_on_one_model_frame_are_one_clear_line(tmp_path):
+    shot = cmu_shot(tmp_path / "cc.usda", frames=122, keys_every=12)
+    with pytest.raises(ShotError, match=r"keys 1001-1002 all fall on one model frame \(1/30 s\)"):
+        fill_shot(str(shot), FillOptions(model="default", keys="1001,1002", out_dir=str(tmp_path / "o")))
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
 
 
 def test_interp_fills_any_rig_in_its_own_space(tmp_path):

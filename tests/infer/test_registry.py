@@ -140,10 +140,10 @@ def test_extras_an_in_betweener_does_not_declare_are_refused():
 
 
 def _copy_model(src: Path, dst: Path, **changes) -> Path:
-    """``src`` with its ONNX files linked and its JSON changed."""
+    """``src`` with its ONNX files and pose bank linked and its JSON changed."""
     dst.mkdir(parents=True)
     for f in src.iterdir():
-        if f.suffix == ".onnx":
+        if f.suffix in (".onnx", ".npz"):
             (dst / f.name).symlink_to(f)
     file = "rig.json" if (src / "rig.json").exists() else "model.json"
     meta = json.loads((src / file).read_text())

@@ -327,7 +327,7 @@ def test_a_model_folder_without_or_with_a_broken_pose_bank(tmp_path):
         OnnxInbetweener(folder)
     (folder / "pose_bank.npz").write_bytes(b"not a bank")
     with pytest.raises(ModelFolderError, match="pose_bank.npz: not a pose bank"):
-        _ = OnnxInbetweener(folder).pose_bank
+        OnnxInbetweener(folder)  # read and checked when the model loads
 
 
 def test_a_shot_keyed_on_every_frame_has_nothing_to_blend():
@@ -364,6 +364,6 @@ def test_novelty_of_a_shot_keyed_on_every_frame_is_bounded(walk, monkeypatch):
     root = np.concatenate([walk.root_positions] * reps)[None]
     t = time.perf_counter()
     many = novelty.novelty_cm(rot, root, bank, SKEL)[0]
-    assert time.perf_counter() - t < 10.0
+    assert time.perf_counter() - t < 30.0  # (about 1 s here; shared cores vary)
     monkeypatch.setattr(novelty, "MAX_KEYS", 10**6)
     assert many == pytest.approx(novelty.novelty_cm(rot, root, bank, SKEL)[0], abs=0.1)
