@@ -15,13 +15,13 @@ the frames between the keys.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.report import publish
 from pipeline.data.protocol import windows_of
 from pipeline.errors import TweenError
 from pipeline.infer import trust
@@ -144,12 +144,7 @@ def main(argv=None) -> int:
     every = tuple(int(e) for e in a.every.split(",") if e)
     report = run(tuple(s for s in a.sources.split(",") if s), every, a.limit, a.model)
     report["seconds"] = time.perf_counter() - t0
-    md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
-    if a.out:
-        a.out.mkdir(parents=True, exist_ok=True)
-        (a.out / "blocking.json").write_text(json.dumps(report, indent=1))
-        (a.out / "blocking.md").write_text(md)
-    print(md)
+    publish(report, a.out, "blocking")
     return 0
 
 

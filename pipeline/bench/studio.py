@@ -18,7 +18,6 @@ Methods: ``default`` (the shipped fill: network, trust decided from the shot), `
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -28,6 +27,7 @@ import numpy as np
 
 from pipeline.adapt.mapping import map_joints
 from pipeline.bench.heldout import cmu_files
+from pipeline.bench.report import publish
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import resample
@@ -204,12 +204,7 @@ def main(argv=None) -> int:
     subjects = tuple(int(s) for s in a.subjects.split(",")) if a.subjects else None
     every = tuple(int(e) for e in a.every.split(",") if e)
     rep = run(every, subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches, a.fps)
-    md = rep["markdown"] + f"\nTotal: {rep['seconds']:.0f} s.\n"
-    if a.out:
-        a.out.mkdir(parents=True, exist_ok=True)
-        (a.out / "studio.json").write_text(json.dumps(rep, indent=1))
-        (a.out / "studio.md").write_text(md)
-    print(md)
+    publish(rep, a.out, "studio")
     return 0
 
 

@@ -16,13 +16,13 @@ what the thresholds of the decision were tuned on).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.report import publish
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
 from pipeline.infer import novelty, trust
 
@@ -232,12 +232,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     report = run_trust_bench(tuple(s for s in a.sources.split(",") if s), a.limit, dump=a.dump, model=a.model)
     report["seconds"] = time.perf_counter() - t0
-    md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
-    if a.out:
-        a.out.mkdir(parents=True, exist_ok=True)
-        (a.out / "trust.json").write_text(json.dumps(report, indent=1, default=str))
-        (a.out / "trust.md").write_text(md)
-    print(md)
+    publish(report, a.out, "trust")
     return 0
 
 
