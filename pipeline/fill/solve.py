@@ -48,13 +48,11 @@ def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray,
     frame's time stands for them all (the first on a tie). Every key still gets its authored
     values afterwards; where the two keys differ (a pop rather than a hold) the fill on the
     far side of the one left out starts from the other, so it jumps at that key."""
-    m = np.round((keys - keys[0]) / tcps * fps).astype(np.int64)
-    off = np.abs((keys - keys[0]) / tcps * fps - m)
-    keep = []
-    for frame in np.unique(m):
-        idx = np.flatnonzero(m == frame)
-        keep.append(int(idx[np.argmin(off[idx])]))
-    return m, np.asarray(keep, np.int64)
+    t = (keys - keys[0]) / tcps * fps
+    m = np.round(t).astype(np.int64)
+    order = np.lexsort((np.abs(t - m), m))  # by frame, then offset (stable: the first on a tie)
+    first = np.r_[True, np.diff(m[order]) != 0]
+    return m, order[first]
 
 
 def frames_in(lo: float, hi: float) -> np.ndarray:
