@@ -129,13 +129,7 @@ class TrustDecision:
         decision has no per-gap weights (overrides, no probes)."""
         if not self.gaps:
             return np.full(n_frames, float(self.weight))
-        by_length = {int(g["length"]): float(g["weight"]) for g in self.gaps}
-        w = np.ones(n_frames)
-        keys = _unique_keys(keys)
-        for a, b in zip(keys[:-1], keys[1:], strict=True):
-            if b - a > 1:
-                w[a + 1 : min(b, n_frames)] = by_length.get(int(b - a - 1), self.weight)
-        return w
+        return gap_weights_at(self, keys, np.arange(n_frames))
 
 
 def gap_weights_at(decision: TrustDecision, keys, frames) -> np.ndarray:
