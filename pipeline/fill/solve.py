@@ -100,17 +100,17 @@ def key_channels(cp: CharPlan, rig_keys: tuple[np.ndarray, np.ndarray] | None) -
     return None if mask.all() else mask
 
 
-def _on_rig(plan: Plan, cp: CharPlan, retarget, skeleton, fps: float, fill) -> dict:
+def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fill) -> dict:
     """One in-betweener's fill of the character turned back onto its rig: ``fill(motion,
     frames)`` fills ``motion`` (the keys on ``skeleton``, through ``retarget``, at ``fps``) from the key
     frames; None from it (nothing to fill) gives no ``rot``/``tr``. Returns the fill range's
     time codes ``inside``, their model frames ``u``, the keys' model frames ``m``, and the
-    rig's ``rot``/``tr``/``sc`` there."""
+    rig's ``rot``/``tr``/``sc`` there. ``keyed``: the rig's rotations and translations at every
+    key (``anim_values`` at ``cp.keys``, read once by the caller)."""
     shot, c = plan.shot, cp.char
     k = cp.keys
-    m, keep = model_frames(k, shot.tcps, fps)
-    k = k[keep]  # one key a model frame (model_frames)
-    rot_k, tr_k, _ = anim_values(shot.stage, c, k)
+    m, keep = model_frames(k, shot.tcps, fps)  # one key a model frame
+    rot_k, tr_k = (v[keep] for v in keyed)
     loc_k, root_k = retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
     m = m[keep]
     T = int(m[-1]) + 1
@@ -120,7 +120,6 @@ def _on_rig(plan: Plan, cp: CharPlan, retarget, skeleton, fps: float, fill) -> d
     filled = fill(motion, m)
 
     lo, hi = cp.fill_range
-    k = cp.keys
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
     u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
     out = {"inside": inside, "u": u, "m": m, "rot": None, "tr": None}
@@ -180,18 +179,22 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
         on_rig = False  # the rig's spline at the shot's rate would pass the plan's bound
     skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
     if not on_rig:
-        res = _on_rig(plan, cp, cp.retarget, skel, fps, lambda mo, m: inb.fill(mo, m, seed=seed, **extra))
+        res = _on_rig(
+            plan, cp, (rot_k, tr_k), cp.retarget, skel, fps, lambda mo, m: inb.fill(mo, m, seed=seed, **extra)
+        )
     else:
 
         def network(motion, m):
             d = inb.decide(motion, m)
             return inb.model.fill(motion, m, seed=seed) if d.weight > 0.0 else None
 
-        res = _on_rig(plan, cp, cp.retarget, skel, fps, network)
+        res = _on_rig(plan, cp, (rot_k, tr_k), cp.retarget, skel, fps, network)
         d = inb.last_decision
         if d.weight < 1.0:
             own = OwnRig(c)
-            spline = _on_rig(plan, cp, own, own.skeleton, rate, lambda mo, m: inb.spline.fill(mo, m))
+            spline = _on_rig(
+                plan, cp, (rot_k, tr_k), own, own.skeleton, rate, lambda mo, m: inb.spline.fill(mo, m)
+            )
             if res["rot"] is None:
                 res["rot"], res["tr"] = spline["rot"], spline["tr"]
             else:
