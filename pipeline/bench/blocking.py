@@ -4,7 +4,9 @@ The trust bench (:mod:`pipeline.bench.trust`) keys every window at the protocol'
 frames and one target, so its probes are holes in that run of keys. A blocked shot has no such
 run: its probes leave single keys out (a gap twice as long as the shot's). Here each shot is
 :data:`SHOT` frames of an eval clip (``eval``), of a CMU take on the model skeleton (``cmu``),
-or of an eval clip with posture offsets up to 30° (``posture30``), keyed every N frames; the
+of an eval clip with posture offsets up to N° (``postureN``, e.g. ``posture30``), or of an eval clip as a rig
+lacking joints brings it (``noshoulders``: no clavicles, ``nospine``: one spine joint fewer;
+the joint at rest, its children keeping their world rotations), keyed every N frames; the
 model, the spline and the decided fill (:mod:`pipeline.infer.trust`, per gap length) fill it,
 and each is scored by its mean global joint-position error (cm, FK on the model skeleton) over
 the frames between the keys.
@@ -23,10 +25,14 @@ import numpy as np
 
 from pipeline.bench.report import publish
 from pipeline.data.protocol import windows_of
+from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.infer import trust
+from pipeline.motion.rotations import quat_mul
 
-SOURCES = ("eval", "cmu", "posture30")
+SOURCES = ("eval", "cmu", "posture30", "posture10", "noshoulders", "nospine")
+#: Rigs lacking joints the model skeleton has: the joints a source holds at rest.
+MISSING = {"noshoulders": ("Shoulder_L", "Shoulder_R"), "nospine": ("Spine",)}
 #: Frames per shot, and the stride between shots cut from one clip.
 SHOT, STRIDE = 181, 90
 
@@ -35,13 +41,16 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
     """(rotations (N, SHOT, J, 4), roots (N, SHOT, 3)) of a source, on the model skeleton."""
     from pipeline.data.cache import load_split
 
-    if source in ("eval", "posture30"):
+    posture = _posture(source)
+    if source == "eval" or posture or source in MISSING:
         clips = load_split("eval", limit=limit)
         rots, roots = _windows((clips.clip(c) for c in range(len(clips))), source)
-        if source == "posture30":
+        if source in MISSING:
+            rots = without_joints(rots, MISSING[source])
+        if posture:
             from pipeline.motion.augment import posture_offsets
 
-            rots = posture_offsets(rots, np.random.default_rng(0), 30.0, 1.0)
+            rots = posture_offsets(rots, np.random.default_rng(0), posture, 1.0)
     elif source == "cmu":
         from pipeline.bench.heldout import cmu_files
         from pipeline.bench.long_gaps import cmu_on_model_skeleton
@@ -50,8 +59,32 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
         takes = (cmu_on_model_skeleton(f) for f in files)
         rots, roots = _windows(((m.rotations, m.root_positions) for m in takes), source)
     else:
-        raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
+        raise ValueError(f"unknown source {source!r} (one of eval, cmu, postureN, {', '.join(MISSING)})")
     return rots.astype(np.float32), roots.astype(np.float32)
+
+
+def _posture(source: str) -> float:
+    """N for a source ``postureN`` (offsets up to N degrees), else 0."""
+    tail = source[len("posture") :] if source.startswith("posture") else ""
+    try:
+        return float(tail) if tail else 0.0
+    except ValueError:
+        return 0.0
+
+
+def without_joints(rots: np.ndarray, names) -> np.ndarray:
+    """Local rotations (..., J, 4) as a rig without the joints ``names`` delivers them once
+    retargeted: each such joint at rest (identity), its children turned by its rotation so
+    their world rotations are unchanged (the bones below move only by the missing joint's own
+    bone, a few cm)."""
+    skel = bandai_skeleton()
+    out = np.array(rots, copy=True)
+    for name in names:
+        j = skel.index(name)
+        for c in np.flatnonzero(np.asarray(skel.parents) == j):
+            out[..., c, :] = quat_mul(out[..., j, :], out[..., c, :])
+        out[..., j, :] = (0.0, 0.0, 0.0, 1.0)
+    return out
 
 
 def _windows(clips, source: str):

@@ -2,10 +2,14 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from pipeline.bench import blocking
+from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError
+from pipeline.motion.fk import fk
+from pipeline.motion.rotations import quat_normalize
 
 
 def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
@@ -24,3 +28,33 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
 def test_too_short_clips_are_one_clear_error():
     with pytest.raises(TweenError, match="no clip longer than 181 frames"):
         blocking.shots("eval", limit=3)
+
+
+def test_a_rig_without_a_joint_keeps_its_childrens_world_rotations():
+    """``noshoulders`` / ``nospine``: the missing joint at rest, the bones below it turned the
+    same in the world; only the missing joint's own bone moves them."""
+    skel = bandai_skeleton()
+    rng = np.random.default_rng(3)
+    rots = quat_normalize(rng.normal(size=(4, len(skel.names), 4)))
+    roots = rng.normal(size=(4, 3))
+    for name, joints in blocking.MISSING.items():
+        out = blocking.without_joints(rots, joints)
+        g0, p0 = fk(rots, roots, skel.parents, skel.offsets)
+        g1, p1 = fk(out, roots, skel.parents, skel.offsets)
+        g0, g1 = np.asarray(g0), np.asarray(g1)
+        for j in joints:
+            i = skel.index(j)
+            assert np.allclose(out[:, i], (0, 0, 0, 1)), name
+            kids = np.flatnonzero(np.asarray(skel.parents) == i)
+            same = np.abs(np.sum(g0[:, kids] * g1[:, kids], axis=-1))
+            assert np.allclose(same, 1.0, atol=1e-5), name  # the children's world rotations
+            assert not np.allclose(p0[:, kids], p1[:, kids], atol=1e-3), name  # moved by its bone
+        rest = [k for k in range(len(skel.names)) if skel.names[k] not in joints]
+        assert not np.allclose(out[:, rest], rots[:, rest])  # the children were turned
+    with pytest.raises(ValueError, match="postureN"):
+        blocking.shots("nohands")
+
+
+def test_posture_sources_take_any_angle():
+    assert blocking._posture("posture10") == 10.0 and blocking._posture("posture30") == 30.0
+    assert blocking._posture("eval") == 0.0 and blocking._posture("posturex") == 0.0
