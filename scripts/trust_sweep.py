@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.bench import blocking
-from pipeline.data.skeletons import bandai_mirror
+from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.infer import trust
-from pipeline.infer.api import fill_windows, load_inbetweener
+from pipeline.infer.api import load_inbetweener
 from pipeline.infer.spline import SplineInbetweener
 
 GRID = np.linspace(0.0, 1.0, 9)
@@ -30,23 +30,17 @@ def shots(name: str):
         return blocking.shots(name)
     r, p = blocking.shots("eval")
     m = bandai_mirror()
-    return m.rotations(r, blocking.bandai_skeleton().parents).astype(np.float32), m.root(p).astype(np.float32)
+    return m.rotations(r, bandai_skeleton().parents).astype(np.float32), m.root(p).astype(np.float32)
 
 
 def dump(net, spl, src: str, every: int, out: Path) -> Path:
     skel = net.skeleton
     rots, roots = shots(src)
-    n = rots.shape[1]
-    keys = np.r_[np.arange(0, n - 1, every), n - 1]
-    free = np.setdiff1d(np.arange(n), keys)
-    m_r, m_p = fill_windows(net, rots, roots, keys, trust.BATCH, skel)
-    s_r, s_p = spl.fill_batch(rots, roots, keys)
-    ds = trust.decide_batch(net, spl, rots, roots, keys)
+    _, free, (m_r, m_p), (s_r, s_p), ds, _, (d_r, d_p) = blocking.fill_blocked(net, spl, rots, roots, every)
     E = np.zeros((len(rots), len(GRID)))
     for i, w in enumerate(GRID):
         b_r, b_p = trust.blend_arrays(np.full(len(rots), w), m_r, m_p, s_r, s_p)
         E[:, i] = blocking._errors_cm(skel, b_r, b_p, rots, roots, free)
-    d_r, d_p = trust.blend_arrays(np.stack([d.frame_weights(keys, n) for d in ds]), m_r, m_p, s_r, s_p)
     path = out / f"d_{src}_{every}.npz"
     np.savez(
         path,

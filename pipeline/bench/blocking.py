@@ -98,21 +98,30 @@ def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
     return trust._errors_cm(skel, rot[:, frames], root[:, frames], true_rot[:, frames], true_root[:, frames])
 
 
-def evaluate(model, spline, rots, roots, every: int) -> dict:
-    """Mean error (cm) of model, spline and decided fill on shots keyed every ``every`` frames,
-    the model's mean weight between the keys, and the seconds it took."""
+def fill_blocked(model, spline, rots, roots, every: int):
+    """Shots keyed every ``every`` frames, filled three ways: (keys, free frames, the model's
+    fill, the spline's fill, the trust decisions, the model's weight per shot and frame, the
+    decided fill), each fill a (rotations, roots) pair. What :func:`evaluate` scores (and scripts/trust_sweep.py studies per shot)."""
     from pipeline.infer.api import fill_windows
 
-    skel = model.skeleton
     n = rots.shape[1]
     keys = np.r_[np.arange(0, n - 1, every), n - 1]
     free = np.setdiff1d(np.arange(n), keys)
-    t0 = time.perf_counter()
-    m_r, m_p = fill_windows(model, rots, roots, keys, trust.BATCH, skel)
-    s_r, s_p = spline.fill_batch(rots, roots, keys)
+    m = fill_windows(model, rots, roots, keys, trust.BATCH, model.skeleton)
+    s = spline.fill_batch(rots, roots, keys)
     decisions = trust.decide_batch(model, spline, rots, roots, keys)
     w = np.stack([d.frame_weights(keys, n) for d in decisions])
-    d_r, d_p = trust.blend_arrays(w, m_r, m_p, s_r, s_p)
+    return keys, free, m, s, decisions, w, trust.blend_arrays(w, *m, *s)
+
+
+def evaluate(model, spline, rots, roots, every: int) -> dict:
+    """Mean error (cm) of model, spline and decided fill on shots keyed every ``every`` frames,
+    the model's mean weight between the keys, and the seconds it took."""
+    skel = model.skeleton
+    t0 = time.perf_counter()
+    _, free, (m_r, m_p), (s_r, s_p), decisions, w, (d_r, d_p) = fill_blocked(
+        model, spline, rots, roots, every
+    )
     err = {
         name: float(_errors_cm(skel, r, p, rots, roots, free).mean())
         for name, (r, p) in {"model": (m_r, m_p), "spline": (s_r, s_p), "decided": (d_r, d_p)}.items()
