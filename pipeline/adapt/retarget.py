@@ -196,6 +196,17 @@ def model_rest() -> np.ndarray:
 
 
 @lru_cache(maxsize=1)
+def typical_local() -> np.ndarray:
+    """The model skeleton's typical pose, local rotations (21, 4): each joint's mean over the
+    train split (``bandai_mean.json``, scripts/mean_pose.py). A joint the shot's rig lacks
+    takes this rotation, the one the network saw most; its reference pose's (a T-pose's
+    clavicle, a zero pose's identity) is 15° to 116° from anything it was trained on."""
+    skel = bandai_skeleton()
+    d = json.loads(Path(__file__).with_name("bandai_mean.json").read_text())["rotations_xyzw"]
+    return quat_normalize(np.array([d[n] for n in skel.names], np.float64))
+
+
+@lru_cache(maxsize=1)
 def model_rig() -> tuple[np.ndarray, float]:
     """The model skeleton's reference pose and leg length: the reference of its canonical
     T-pose (:func:`model_rest`), computed as a shot's rest pose is, so that a rig whose
@@ -375,14 +386,14 @@ class Retarget:
             return local.astype(np.float32), p_src[:, 0].astype(np.float32)
         g = np.empty((T, len(MODEL_JOINTS), 4))
         local = np.empty_like(g)
+        typical = typical_local()
         for j, m in enumerate(MODEL_JOINTS):
             par = self.model_parents[j]
             if m in self.roles:
                 delta = quat_mul(quat_inv(self.src_ref[j]), self.tgt_ref[j])
                 g[:, j] = quat_mul(g_src[:, self.roles[m]], np.broadcast_to(delta, (T, 4)))
-            else:
-                rel = quat_mul(quat_inv(self.tgt_ref[par]), self.tgt_ref[j])
-                g[:, j] = quat_mul(g[:, par], np.broadcast_to(rel, (T, 4)))
+            else:  # a joint the rig lacks: the typical pose; its mapped children keep their world rotations
+                g[:, j] = quat_mul(g[:, par], np.broadcast_to(typical[j], (T, 4)))
             local[:, j] = g[:, j] if par < 0 else quat_mul(quat_inv(g[:, par]), g[:, j])
         root = p_src[:, self.roles["Hips"]] * self.ratio
         return local.astype(np.float32), root.astype(np.float32)

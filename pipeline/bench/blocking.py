@@ -4,12 +4,13 @@ The trust bench (:mod:`pipeline.bench.trust`) keys every window at the protocol'
 frames and one target, so its probes are holes in that run of keys. A blocked shot has no such
 run: its probes leave single keys out (a gap twice as long as the shot's). Here each shot is
 :data:`SHOT` frames of an eval clip (``eval``), of a CMU take on the model skeleton (``cmu``),
-of an eval clip with posture offsets up to N° (``postureN``, e.g. ``posture30``), or of an eval clip as a rig
-lacking joints brings it (``noshoulders``: no clavicles, ``nospine``: one spine joint fewer;
-the joint at rest, its children keeping their world rotations), keyed every N frames; the
-model, the spline and the decided fill (:mod:`pipeline.infer.trust`, per gap length) fill it,
-and each is scored by its mean global joint-position error (cm, FK on the model skeleton) over
-the frames between the keys.
+of an eval clip with posture offsets up to N° (``postureN``, e.g. ``posture30``), or of an
+eval clip as a rig lacking joints brings it (``noshoulders``: no clavicles, ``nospine``: one
+spine joint fewer; the joint in the model's typical pose, as the retarget gives it, and its
+children keeping their world rotations), keyed every N frames; the model, the spline and the
+decided fill (:mod:`pipeline.infer.trust`, per gap length) fill it, and each is scored by its
+mean global joint-position error (cm, FK on the model skeleton) over the frames between the
+keys.
 
 ``python -m pipeline.bench.blocking [--every 10,30] [--sources eval,cmu,posture30] [--limit N] [--model DIR] [--out DIR]``
 """
@@ -23,12 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.adapt.retarget import typical_local
 from pipeline.bench.report import publish
 from pipeline.data.protocol import windows_of
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.infer import trust
-from pipeline.motion.rotations import quat_mul
+from pipeline.motion.rotations import quat_inv, quat_mul
 
 SOURCES = ("eval", "cmu", "posture30", "posture10", "noshoulders", "nospine")
 #: Rigs lacking joints the model skeleton has: the joints a source holds at rest.
@@ -74,16 +76,19 @@ def _posture(source: str) -> float:
 
 def without_joints(rots: np.ndarray, names) -> np.ndarray:
     """Local rotations (..., J, 4) as a rig without the joints ``names`` delivers them once
-    retargeted: each such joint at rest (identity), its children turned by its rotation so
-    their world rotations are unchanged (the bones below move only by the missing joint's own
-    bone, a few cm)."""
+    retargeted (:meth:`pipeline.adapt.retarget.Retarget.to_model`): each such joint in the
+    model's typical pose (:func:`~pipeline.adapt.retarget.typical_local`), its children
+    turned so that their world rotations are unchanged (the bones below move only by the
+    missing joint's own bone, a few cm)."""
     skel = bandai_skeleton()
+    typical = typical_local()
     out = np.array(rots, copy=True)
     for name in names:
         j = skel.index(name)
+        turn = quat_mul(quat_inv(typical[j]), out[..., j, :])
         for c in np.flatnonzero(np.asarray(skel.parents) == j):
-            out[..., c, :] = quat_mul(out[..., j, :], out[..., c, :])
-        out[..., j, :] = (0.0, 0.0, 0.0, 1.0)
+            out[..., c, :] = quat_mul(turn, out[..., c, :])
+        out[..., j, :] = typical[j]
     return out
 
 

@@ -188,7 +188,7 @@ def make_plan(
             if rt.missing:
                 notes.append(
                     f"tween: {path} {c.skel_path}: the rig has no {', '.join(rt.missing)}: "
-                    "carried rigidly from their parents"
+                    "held at the model's typical pose"
                 )
         lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
         out = k[(k < lo) | (k > hi)]

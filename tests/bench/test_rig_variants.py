@@ -6,9 +6,13 @@ import numpy as np
 import pytest
 from usd_fixtures import BANDAI_CLIP
 
+from pipeline.adapt.mapping import MODEL_JOINTS
+from pipeline.adapt.retarget import typical_local
+from pipeline.bench import blocking
 from pipeline.bench import rig_variants as rv
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
+from pipeline.motion.rotations import quat_apply, quat_mul
 
 
 @pytest.fixture(scope="module")
@@ -136,10 +140,54 @@ def test_rig_without_hands_and_toes_fills_and_says_so(clip, tmp_path, capfd):
     shot = rv.write_rig_shot(rig, tmp_path / "nohands.usda")
     res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
     err = capfd.readouterr().err
-    assert "the rig has no Hand_L, Hand_R, Toes_L, Toes_R: carried rigidly" in err
+    assert "the rig has no Hand_L, Hand_R, Toes_L, Toes_R: held at the model's typical pose" in err
     stage = Usd.Stage.Open(res["review"])
     anim = stage.GetPrimAtPath("/World/Character/Skel/Anim_tween")
     assert list(anim.GetAttribute("tween:missingJoints").Get()) == ["Hand_L", "Hand_R", "Toes_L", "Toes_R"]
+
+
+def _collapsed(rig: rv.Rig, names) -> rv.Rig:
+    """The rig without the joints ``names``: each child of one takes on its transform, so
+    every remaining joint moves in the world exactly as before."""
+    rot, trans = rig.rot.copy(), rig.trans.copy()
+    rest_rot, rest_trans = rig.rest_rot.copy(), rig.rest_trans.copy()
+    parents = rig.parents.copy()
+    for name in names:
+        j = rig.names.index(name)
+        for c in np.flatnonzero(parents == j):
+            for r, t in ((rot, trans), (rest_rot, rest_trans)):
+                t[..., c, :] = t[..., j, :] + quat_apply(r[..., j, :], t[..., c, :])
+                r[..., c, :] = quat_mul(r[..., j, :], r[..., c, :])
+            parents[c] = parents[j]
+    keep = [i for i, n in enumerate(rig.names) if n not in names]
+    idx = {old: k for k, old in enumerate(keep)}
+    return rv.Rig([rig.names[i] for i in keep], np.array([idx.get(parents[i], -1) for i in keep]),
+                  rest_rot[keep], rest_trans[keep], rot[:, keep], trans[:, keep])  # fmt: skip
+
+
+@pytest.mark.parametrize("source", sorted(blocking.MISSING))
+def test_a_rig_lacking_joints_reaches_the_network_as_the_blocking_bench_says(source, clip, tmp_path, capfd):
+    """A rig without clavicles (or with one spine joint fewer) reaches the network with the
+    joints it lacks in the model's typical pose and every other joint turned as in the world:
+    exactly what the blocking bench's ``noshoulders`` / ``nospine`` sources give the fill."""
+    names = blocking.MISSING[source]
+    rig = _collapsed(rv.model_rig_of(clip), names)
+    local, root, ref = rv.network_input(rv.write_rig_shot(rig, tmp_path / f"{source}.usda"))
+    assert ref == "rest"
+    keys = np.arange(0, len(clip), 10)
+    want = blocking.without_joints(clip.rotations[keys].astype(np.float64), names)
+    assert local.shape == want.shape
+    assert np.abs(np.abs((local.astype(np.float64) * want).sum(-1)) - 1).max() < 1e-5
+    np.testing.assert_allclose(root, clip.root_positions[keys], atol=1e-3)
+    typical = typical_local()
+    for n in names:  # the typical pose, not the reference's T-pose (16° from the mean clavicle)
+        j = MODEL_JOINTS.index(n)
+        assert np.abs(np.abs(local[:, j].astype(np.float64) @ typical[j]) - 1).max() < 1e-6
+    res = fill_shot(
+        str(rv.write_rig_shot(rig, tmp_path / "fill.usda")), FillOptions(out_dir=str(tmp_path / "o"))
+    )
+    assert f"the rig has no {', '.join(names)}: held at the model's typical pose" in capfd.readouterr().err
+    assert res["review"]
 
 
 def test_bench_cli_rig_variants(tmp_path):
