@@ -199,8 +199,9 @@ def model_rest() -> np.ndarray:
 def typical_local() -> np.ndarray:
     """The model skeleton's typical pose, local rotations (21, 4): each joint's mean over the
     train split (``bandai_mean.json``, scripts/mean_pose.py). A joint the shot's rig lacks
-    takes this rotation, the one the network saw most; its reference pose's (a T-pose's
-    clavicle, a zero pose's identity) is 15° to 116° from anything it was trained on."""
+    takes this rotation, the one the network saw most; its reference pose's is not one the
+    data knows (a T-pose clavicle is 15° from the train split's, median; a zero pose's
+    identity 116°, and 90° for the Spine)."""
     skel = bandai_skeleton()
     d = json.loads(Path(__file__).with_name("bandai_mean.json").read_text())["rotations_xyzw"]
     return quat_normalize(np.array([d[n] for n in skel.names], np.float64))
