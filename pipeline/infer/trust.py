@@ -20,7 +20,8 @@ Probes (:func:`probe_plan`, at most :data:`MAX_PROBES` a shot, each a local wind
 
 Decision (:func:`decide`), **per gap length**: per probe the log-ratio
 ``log((e_spline + ε) / (e_model + ε))`` (ε = :data:`EPS_CM`, so sub-millimetre probes do not
-dominate), averaged, then shrunk toward the model's end of the band by :data:`PRIOR_PROBES`
+dominate), averaged (each probe at its :func:`alias_weights`: one on keys that repeat a pose
+while the character travels across its hole counts less), then shrunk toward the model's end of the band by :data:`PRIOR_PROBES`
 pseudo-probes (few probes cannot flip a good model). For a gap of L frames the weight of the
 model is ``w = clip((score − t(L)) / BAND + 1/2, 0, 1)`` with the threshold t(L) of
 :func:`threshold_for`: 0 for gaps no longer than the probes' holes (there the probes measure
@@ -67,6 +68,9 @@ LONG_GAP = 3 * MIN_GAP
 BAND = 0.4
 #: Pseudo-probes at the model's end of the band (w = 1) the probes' mean is shrunk toward.
 PRIOR_PROBES = 1.0
+#: A probe counts in full when the spline misses its left-out keys by at least this share of
+#: the root's travel across the hole, and in proportion below it (an aliased probe: below).
+ALIAS = 0.3
 #: Windows per model call when probing many shots at once.
 BATCH = 128
 
@@ -225,9 +229,13 @@ def probe_plan(keys, max_probes: int = MAX_PROBES) -> list[Probe]:
 # -- filling probes ----------------------------------------------------------------------------
 
 
+def _cm_per_unit(skeleton) -> float:
+    return 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))
+
+
 def _errors_cm(skeleton, rot, root, true_rot, true_root) -> np.ndarray:
     """(N,) mean global joint-position error over frames and joints, in cm."""
-    to_cm = 100.0 * float(getattr(skeleton, "meters_per_unit", 0.01))
+    to_cm = _cm_per_unit(skeleton)
     _, a = fk(rot, root, skeleton.parents, skeleton.offsets)
     _, b = fk(true_rot, true_root, skeleton.parents, skeleton.offsets)
     return np.linalg.norm(np.asarray(a, np.float64) - b, axis=-1).mean(axis=(1, 2)) * to_cm
@@ -288,13 +296,35 @@ def weight_of(score: float, threshold: float = THRESHOLD) -> float:
     return float(np.clip((score - threshold) / BAND + 0.5, 0.0, 1.0))
 
 
-def shrunk_score(log_ratios: np.ndarray, threshold: float = THRESHOLD, familiar: float = 1.0) -> float:
-    """Mean of the probes' log ratios, shrunk toward the model's end of the band for a shot as
-    familiar as the training data, toward the middle (w = 1/2) for an unseen one: few probes
-    cannot flip a good model on the motion it knows, and elsewhere it has no such credit."""
+def shrunk_score(
+    log_ratios: np.ndarray, threshold: float = THRESHOLD, familiar: float = 1.0, weights=None
+) -> float:
+    """Mean of the probes' log ratios (each counted at its ``weights``, 1 by default), shrunk
+    toward the model's end of the band for a shot as familiar as the training data, toward the
+    middle (w = 1/2) for an unseen one: few probes cannot flip a good model on the motion it
+    knows, and elsewhere it has no such credit."""
     prior = threshold + 0.5 * BAND * familiar
-    n = len(log_ratios)
-    return float((np.sum(log_ratios) + PRIOR_PROBES * prior) / (n + PRIOR_PROBES))
+    lr = np.asarray(log_ratios, np.float64)
+    wt = np.ones_like(lr) if weights is None else np.asarray(weights, np.float64)
+    return float((np.dot(wt, lr) + PRIOR_PROBES * prior) / (wt.sum() + PRIOR_PROBES))
+
+
+def alias_weights(spline_cm: np.ndarray, travel_cm: np.ndarray) -> np.ndarray:
+    """How much each probe counts: 1 where the spline misses the left-out keys by at least
+    ALIAS × the root's travel across the hole, in proportion below. A character that travels
+    far across a hole while the spline, which slides between the kept keys, still lands on
+    the left-out key repeats one pose at the keys: a cycle keyed at its period (a walk keyed
+    every 30 frames, a step a second). Such a probe rewards the spline for landing on a
+    repeated pose, while between the shot's own keys the spline glides; it says little about
+    the gaps. A probe whose hole the character does not travel across counts in full, and so
+    does one the spline hits within EPS_CM (falling to none at twice that): a pose held
+    exactly while the root moves is the animator's own glide (copied keys), where the spline
+    is right between the keys too; no capture repeats a pose that closely."""
+    reach = ALIAS * np.asarray(travel_cm, np.float64)
+    es = np.asarray(spline_cm, np.float64)
+    cycle = np.where(reach > 0, np.clip(es / np.where(reach > 0, reach, 1.0), 0.0, 1.0), 1.0)
+    held = np.clip((2.0 * EPS_CM - es) / EPS_CM, 0.0, 1.0)
+    return np.maximum(cycle, held)
 
 
 def gap_lengths(keys) -> dict[int, int]:
@@ -314,11 +344,13 @@ def gap_threshold(length: int, hole: int, familiar: float = 1.0) -> float:
     return float(familiar * threshold_for(length) + (1.0 - familiar) * threshold_for(length, hole))
 
 
-def _gap_weights(lr: np.ndarray, keys, hole: int = MIN_GAP, familiar: float = 1.0) -> list[dict]:
+def _gap_weights(
+    lr: np.ndarray, keys, hole: int = MIN_GAP, familiar: float = 1.0, weights=None
+) -> list[dict]:
     rows = []
     for length, count in gap_lengths(keys).items():
         t = gap_threshold(length, hole, familiar)
-        score = shrunk_score(lr, t, familiar)
+        score = shrunk_score(lr, t, familiar, weights)
         rows.append(
             {
                 "length": length,
@@ -343,7 +375,12 @@ def _describe_weights(gaps: list[dict]) -> str:
 
 
 def _decision(
-    em: np.ndarray, es: np.ndarray, probes: list[Probe], keys=(), novelty: float | None = None
+    em: np.ndarray,
+    es: np.ndarray,
+    probes: list[Probe],
+    keys=(),
+    novelty: float | None = None,
+    travel: np.ndarray | None = None,
 ) -> TrustDecision:
     if not probes:
         return TrustDecision(
@@ -356,23 +393,32 @@ def _decision(
             None,
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
+    counts = np.ones_like(lr) if travel is None else alias_weights(es, travel)
     mean_lr = float(np.mean(lr))
     familiar = familiarity(novelty)
-    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar)
+    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar, counts)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
     w = float(np.dot(frames, ws) / frames.sum()) if len(gaps) else 1.0
     choice = "model" if ws.min(initial=1.0) >= 1.0 else "spline" if ws.max(initial=0.0) <= 0.0 else "blend"
     me, se = float(np.mean(em)), float(np.mean(es))
     rows = [
-        {**p.describe(), "model_cm": round(float(a), 4), "spline_cm": round(float(b), 4)}
-        for p, a, b in zip(probes, em, es, strict=True)
+        {
+            **p.describe(),
+            "model_cm": round(float(a), 4),
+            "spline_cm": round(float(b), 4),
+            "counts": round(float(c), 4),
+        }
+        for p, a, b, c in zip(probes, em, es, counts, strict=True)
     ]
     better = int(np.sum(em < es))
     seen = "" if novelty is None else f"; keys {novelty:.1f} cm from the training poses"
+    aliased = int(np.sum(counts < 0.5))
+    cyc = f"; {aliased} on keys repeating one pose (counted less)" if aliased else ""
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
-        f"left-out keys (model better on {better}){seen}; score {mean_lr:+.2f} → " + _describe_weights(gaps)
+        f"left-out keys (model better on {better}){cyc}{seen}; score {mean_lr:+.2f} → "
+        + _describe_weights(gaps)
     )
     return TrustDecision(
         choice,
@@ -404,7 +450,21 @@ def decide_batch(
         novelty = novelty_cm(
             np.asarray(rots)[:, k], np.asarray(roots)[:, k], bank, skeleton or model.skeleton
         )
-    return [_decision(em[i], es[i], probes, keys, novelty[i]) for i in range(len(rots))]
+    travel = probe_travel_cm(np.asarray(roots), probes, skeleton or model.skeleton)
+    return [_decision(em[i], es[i], probes, keys, novelty[i], travel[i]) for i in range(len(rots))]
+
+
+def probe_travel_cm(roots: np.ndarray, probes: list[Probe], skeleton) -> np.ndarray:
+    """(N, P) how far the root travels over the ground (the model skeleton is Y up) between
+    the kept keys around each probe's hole, in cm."""
+    to_cm = _cm_per_unit(skeleton)
+    out = np.zeros((len(roots), len(probes)))
+    for c, p in enumerate(probes):
+        a = max(k for k in p.kept if k < p.left_out[0])
+        b = min(k for k in p.kept if k > p.left_out[-1])
+        step = np.asarray(roots[:, b], np.float64) - roots[:, a]
+        out[:, c] = np.hypot(step[:, 0], step[:, 2]) * to_cm
+    return out
 
 
 def decide(model, spline, motion: Motion, keys) -> TrustDecision:

@@ -289,6 +289,39 @@ def test_an_unseen_blocked_shot_trusts_its_leave_one_out_probes_own_score():
     assert d3.choice == "model" and d3.weight == 1.0
 
 
+def test_probes_on_keys_that_repeat_one_pose_while_the_character_travels_count_less(walk):
+    """A walk keyed at its period: the spline lands on each left-out key (the same pose as its
+    neighbours) though the character travelled metres across the hole. Such a probe counts in
+    proportion to the spline's miss over ALIAS × the travel; a probe the character does not
+    travel across, or one the spline misses by more, counts in full."""
+    eps = trust.EPS_CM
+    es = np.array([3.0, 1.5, 5.0, 0.0, eps, 1.5 * eps, 2 * eps])
+    assert trust.alias_weights(es, np.array([10.0, 10.0, 0.0, 100.0, 100.0, 100.0, 100.0])) == (
+        pytest.approx([1.0, 0.5, 1.0, 1.0, 1.0, 0.5, 2 * eps / 30.0])
+    )  # (a pose held exactly: the animator's glide, which the spline gets right; it counts)
+    keys = np.arange(0, 181, 30)
+    probes = trust.probe_plan(keys)
+    # One pose at every frame, the root walking 1.2 m/s along X (2.4 m across each hole).
+    rot = np.broadcast_to(walk.rotations[0], (1, 181, *walk.rotations.shape[1:])).copy()
+    root = np.zeros((1, 181, 3), np.float32)
+    root[0, :, 0] = np.arange(181) * 4.0
+    travel = trust.probe_travel_cm(root, probes, SKEL)
+    assert travel == pytest.approx(np.full((1, len(probes)), 240.0))
+    em = np.full(len(probes), 4.0)
+    es = np.full(len(probes), 0.5)  # the spline lands on the repeated pose; the model 4 cm off
+    plain = trust._decision(em, es, probes, keys, novelty=1.0)
+    cyc = trust._decision(em, es, probes, keys, novelty=1.0, travel=travel[0])
+    assert plain.weight < 0.5 < cyc.weight  # the familiar prior decides, not the aliased probes
+    assert all(r["counts"] == pytest.approx(0.5 / (trust.ALIAS * 240.0), abs=1e-4) for r in cyc.probes)
+    assert "repeating one pose" in cyc.reason and "repeating" not in plain.reason
+    still = trust._decision(em, es, probes, keys, novelty=1.0, travel=np.zeros(len(probes)))
+    assert still.weight == plain.weight and all(r["counts"] == 1.0 for r in still.probes)
+    # Through decide_batch, the travel from the shot's own root: one pose held exactly while
+    # the root walks is the animator's glide; the spline hits it, and its probes count in full.
+    d = trust.decide_batch(StandIn("noise"), SplineInbetweener(SKEL), rot, root, keys)[0]
+    assert all(r["counts"] == 1.0 and r["spline_cm"] < 0.01 for r in d.probes) and d.choice == "spline"
+
+
 def test_novelty_tells_training_poses_from_offset_ones(walk):
     """The shipped pose bank: the walk's own keys (an eval clip of the training actors) are
     familiar; the same keys with 30-degree posture offsets are not; a model folder without a
