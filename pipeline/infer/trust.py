@@ -71,6 +71,9 @@ PRIOR_PROBES = 1.0
 #: A probe counts in full when the spline misses its left-out keys by at least this share of
 #: the root's travel across the hole, and in proportion below it (an aliased probe: below).
 ALIAS = 0.3
+#: Probe holes shorter than this many frames (0.4 s at the models' 30 fps) count in full:
+#: no human gait cycle (two steps, a sprint's included) is shorter, so no key there repeats.
+CYCLE_FRAMES = 12
 #: Windows per model call when probing many shots at once.
 BATCH = 128
 
@@ -309,22 +312,24 @@ def shrunk_score(
     return float((np.dot(wt, lr) + PRIOR_PROBES * prior) / (wt.sum() + PRIOR_PROBES))
 
 
-def alias_weights(spline_cm: np.ndarray, travel_cm: np.ndarray) -> np.ndarray:
+def alias_weights(spline_cm: np.ndarray, travel_cm: np.ndarray, holes=None) -> np.ndarray:
     """How much each probe counts: 1 where the spline misses the left-out keys by at least
     ALIAS × the root's travel across the hole, in proportion below. A character that travels
     far across a hole while the spline, which slides between the kept keys, still lands on
     the left-out key repeats one pose at the keys: a cycle keyed at its period (a walk keyed
     every 30 frames, a step a second). Such a probe rewards the spline for landing on a
     repeated pose, while between the shot's own keys the spline glides; it says little about
-    the gaps. A probe whose hole the character does not travel across counts in full, and so
-    does one the spline hits within EPS_CM (falling to none at twice that): a pose held
+    the gaps. A probe whose hole the character does not travel across counts in full, as
+    does one whose hole (``holes``, frames) is shorter than a gait cycle (CYCLE_FRAMES), and
+    one the spline hits within EPS_CM (falling to none at twice that): a pose held
     exactly while the root moves is the animator's own glide (copied keys), where the spline
     is right between the keys too; no capture repeats a pose that closely."""
     reach = ALIAS * np.asarray(travel_cm, np.float64)
     es = np.asarray(spline_cm, np.float64)
     cycle = np.where(reach > 0, np.clip(es / np.where(reach > 0, reach, 1.0), 0.0, 1.0), 1.0)
     held = np.clip((2.0 * EPS_CM - es) / EPS_CM, 0.0, 1.0)
-    return np.maximum(cycle, held)
+    short = np.zeros_like(es) if holes is None else (np.asarray(holes) < CYCLE_FRAMES).astype(np.float64)
+    return np.maximum(np.maximum(cycle, held), short)
 
 
 def gap_lengths(keys) -> dict[int, int]:
@@ -393,7 +398,8 @@ def _decision(
             None,
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
-    counts = np.ones_like(lr) if travel is None else alias_weights(es, travel)
+    holes = [p.gap for p in probes]
+    counts = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
     mean_lr = float(np.mean(lr))
     familiar = familiarity(novelty)
     gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar, counts)

@@ -299,6 +299,8 @@ def test_probes_on_keys_that_repeat_one_pose_while_the_character_travels_count_l
     assert trust.alias_weights(es, np.array([10.0, 10.0, 0.0, 100.0, 100.0, 100.0, 100.0])) == (
         pytest.approx([1.0, 0.5, 1.0, 1.0, 1.0, 0.5, 2 * eps / 30.0])
     )  # (a pose held exactly: the animator's glide, which the spline gets right; it counts)
+    holes = np.array([trust.CYCLE_FRAMES - 1, trust.CYCLE_FRAMES])
+    assert trust.alias_weights(np.zeros(2) + 1.0, np.full(2, 100.0), holes) == pytest.approx([1.0, 1 / 30])
     keys = np.arange(0, 181, 30)
     probes = trust.probe_plan(keys)
     # One pose at every frame, the root walking 1.2 m/s along X (2.4 m across each hole).
