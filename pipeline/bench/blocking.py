@@ -33,7 +33,7 @@ from pipeline.infer import trust
 from pipeline.motion.rotations import quat_inv, quat_mul
 
 SOURCES = ("eval", "cmu", "posture30", "posture10", "noshoulders", "nospine")
-#: Rigs lacking joints the model skeleton has: the joints a source holds at rest.
+#: Rigs lacking joints the model skeleton has: the joints a source holds in the typical pose.
 MISSING = {"noshoulders": ("Shoulder_L", "Shoulder_R"), "nospine": ("Spine",)}
 #: Frames per shot, and the stride between shots cut from one clip.
 SHOT, STRIDE = 181, 90

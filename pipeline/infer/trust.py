@@ -21,10 +21,10 @@ Probes (:func:`probe_plan`, at most :data:`MAX_PROBES` a shot, each a local wind
 Decision (:func:`decide`), **per gap length**: per probe the log-ratio
 ``log((e_spline + ε) / (e_model + ε))`` (ε = :data:`EPS_CM`, so sub-millimetre probes do not
 dominate), averaged (each probe at its :func:`alias_weights`: one on keys that repeat a pose
-while the character travels across its hole counts less), then shrunk toward the model's end of the band by :data:`PRIOR_PROBES`
-pseudo-probes (few probes cannot flip a good model). For a gap of L frames the weight of the
-model is ``w = clip((score − t(L)) / BAND + 1/2, 0, 1)`` with the threshold t(L) of
-:func:`threshold_for`: 0 for gaps no longer than the probes' holes (there the probes measure
+while the character travels across its hole counts less), then shrunk toward the model's end
+of the band by :data:`PRIOR_PROBES` pseudo-probes (few probes cannot flip a good model). For a
+gap of L frames the weight of the model is ``w = clip((score − t(L)) / BAND + 1/2, 0, 1)``
+with the threshold t(L) of :func:`threshold_for`: 0 for gaps no longer than the probes' holes (there the probes measure
 the gap's own task, so equal errors give w = 1/2), falling to :data:`THRESHOLD` for gaps of
 :data:`LONG_GAP` frames and more (the network's lead over the spline grows with the gap, so
 probes on short holes understate it there). A shot whose gaps all get 1 is ``"model"``, all 0
@@ -399,10 +399,10 @@ def _decision(
         )
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
     holes = [p.gap for p in probes]
-    counts = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
+    counted = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
     mean_lr = float(np.mean(lr))
     familiar = familiarity(novelty)
-    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar, counts)
+    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar, counted)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
     w = float(np.dot(frames, ws) / frames.sum()) if len(gaps) else 1.0
@@ -413,13 +413,13 @@ def _decision(
             **p.describe(),
             "model_cm": round(float(a), 4),
             "spline_cm": round(float(b), 4),
-            "counts": round(float(c), 4),
+            "counted": round(float(c), 4),
         }
-        for p, a, b, c in zip(probes, em, es, counts, strict=True)
+        for p, a, b, c in zip(probes, em, es, counted, strict=True)
     ]
     better = int(np.sum(em < es))
     seen = "" if novelty is None else f"; keys {novelty:.1f} cm from the training poses"
-    aliased = int(np.sum(counts < 0.5))
+    aliased = int(np.sum(counted < 0.5))
     cyc = f"; {aliased} on keys repeating one pose (counted less)" if aliased else ""
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "

@@ -314,14 +314,14 @@ def test_probes_on_keys_that_repeat_one_pose_while_the_character_travels_count_l
     plain = trust._decision(em, es, probes, keys, novelty=1.0)
     cyc = trust._decision(em, es, probes, keys, novelty=1.0, travel=travel[0])
     assert plain.weight < 0.5 < cyc.weight  # the familiar prior decides, not the aliased probes
-    assert all(r["counts"] == pytest.approx(0.5 / (trust.ALIAS * 240.0), abs=1e-4) for r in cyc.probes)
+    assert all(r["counted"] == pytest.approx(0.5 / (trust.ALIAS * 240.0), abs=1e-4) for r in cyc.probes)
     assert "repeating one pose" in cyc.reason and "repeating" not in plain.reason
     still = trust._decision(em, es, probes, keys, novelty=1.0, travel=np.zeros(len(probes)))
-    assert still.weight == plain.weight and all(r["counts"] == 1.0 for r in still.probes)
+    assert still.weight == plain.weight and all(r["counted"] == 1.0 for r in still.probes)
     # Through decide_batch, the travel from the shot's own root: one pose held exactly while
     # the root walks is the animator's glide; the spline hits it, and its probes count in full.
     d = trust.decide_batch(StandIn("noise"), SplineInbetweener(SKEL), rot, root, keys)[0]
-    assert all(r["counts"] == 1.0 and r["spline_cm"] < 0.01 for r in d.probes) and d.choice == "spline"
+    assert all(r["counted"] == 1.0 and r["spline_cm"] < 0.01 for r in d.probes) and d.choice == "spline"
 
 
 def test_novelty_tells_training_poses_from_offset_ones(walk):
