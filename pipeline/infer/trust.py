@@ -24,10 +24,10 @@ dominate), averaged (each probe at its :func:`alias_weights`: one on keys that r
 while the character travels across its hole counts less), then shrunk toward the model's end
 of the band by :data:`PRIOR_PROBES` pseudo-probes (few probes cannot flip a good model). For a
 gap of L frames the weight of the model is ``w = clip((score − t(L)) / BAND + 1/2, 0, 1)``
-with the threshold t(L) of :func:`threshold_for`: 0 for gaps no longer than the probes' holes (there the probes measure
-the gap's own task, so equal errors give w = 1/2), falling to :data:`THRESHOLD` for gaps of
-:data:`LONG_GAP` frames and more (the network's lead over the spline grows with the gap, so
-probes on short holes understate it there). A shot whose gaps all get 1 is ``"model"``, all 0
+with the threshold t(L) of :func:`threshold_for`: 0 for gaps no longer than the probes' holes
+(there the probes measure the gap's own task, so equal errors give w = 1/2), falling to
+:data:`THRESHOLD` for gaps of :data:`LONG_GAP` frames and more (the network's lead over the
+spline grows with the gap, so probes on short holes understate it there). A shot whose gaps all get 1 is ``"model"``, all 0
 ``"spline"``, otherwise ``"blend"``: each gap's frames are spline + w·(model − spline), the
 root position linearly and every joint's local rotation by SLERP (:func:`apply`). Keys stay
 bitwise exact.
@@ -326,7 +326,7 @@ def alias_weights(spline_cm: np.ndarray, travel_cm: np.ndarray, holes=None) -> n
     is right between the keys too; no capture repeats a pose that closely."""
     reach = ALIAS * np.asarray(travel_cm, np.float64)
     es = np.asarray(spline_cm, np.float64)
-    cycle = np.where(reach > 0, np.clip(es / np.where(reach > 0, reach, 1.0), 0.0, 1.0), 1.0)
+    cycle = np.clip(np.divide(es, reach, out=np.ones_like(es), where=reach > 0), 0.0, 1.0)
     held = np.clip((2.0 * EPS_CM - es) / EPS_CM, 0.0, 1.0)
     short = np.zeros_like(es) if holes is None else (np.asarray(holes) < CYCLE_FRAMES).astype(np.float64)
     return np.maximum(np.maximum(cycle, held), short)
@@ -402,7 +402,7 @@ def _decision(
     counted = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
     mean_lr = float(np.mean(lr))
     familiar = familiarity(novelty)
-    gaps = _gap_weights(lr, keys, min(p.gap for p in probes), familiar, counted)
+    gaps = _gap_weights(lr, keys, min(holes), familiar, counted)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
     w = float(np.dot(frames, ws) / frames.sum()) if len(gaps) else 1.0
