@@ -239,7 +239,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
                       "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
                       "model_kind": "rig" if cp.model else "human",
-                      "retarget": cp.retarget_info(), "trust": decision})  # fmt: skip
+                      "retarget": cp.retarget_info(), "trust": decision, "jumps": cp.jumps})  # fmt: skip
     meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
             "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
             "chars": chars}  # fmt: skip
@@ -308,6 +308,8 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
     # Per character: how far the human model was trusted against the spline (None: not asked).
     result["trust"] = {c["anim"]: c.get("trust") for c in takes[0]["chars"]}
+    # Per character: the key pairs its body teleports between (pipeline.fill.jumps).
+    result["jumps"] = {c["anim"]: c.get("jumps", []) for c in takes[0]["chars"]}
     return result
 
 

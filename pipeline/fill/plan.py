@@ -8,7 +8,7 @@ joint mapping and retargeting, otherwise it is refused with a hint to train a ri
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -16,6 +16,7 @@ from pipeline.adapt.mapping import REQUIRED, MappingError, load_override, map_jo
 from pipeline.adapt.retarget import Retarget
 from pipeline.adapt.rigmap import OwnRig, RigMap, skeleton_space
 from pipeline.errors import ShotError, TweenError
+from pipeline.fill.jumps import body_centre, jump_line, key_jumps
 from pipeline.rig import store
 from pipeline.rig.store import no_model_hint
 from pipeline.usd.keys import merge_times, parse_keys, parse_range
@@ -34,6 +35,7 @@ class CharPlan:
     model: str | None = None  # a rig model folder; None = the job's human model
     fps: float = 30.0  # the frame rate of this character's model
     authored_keys: bool = False  # keys are the animation's own samples (not --keys / tween:keyTimes)
+    jumps: list[dict] = field(default_factory=list)  # key pairs the body teleports between (fill.jumps)
 
     def retarget_info(self) -> dict:
         """How the character reaches its model: the reference pose mapped through and the
@@ -69,6 +71,7 @@ class Plan:
             "refused": [{"prim": p, "reason": r} for p, r in self.refused],
             "rig_models": {c.char.anim_path: c.model for c in self.chars if c.model},
             "retarget": {c.char.anim_path: c.retarget_info() for c in self.chars},
+            "jumps": {c.char.anim_path: c.jumps for c in self.chars},
         }
 
 
@@ -159,6 +162,7 @@ def make_plan(
             raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)
         rot, tr, sc = anim_values(shot.stage, c, k)
         _check_key_values(path, c, k, rot, tr, sc)
+        srot, strans = to_skeleton_order(c, rot, tr)
         rt, folder, fps = None, None, model_fps
         if own_rig:
             rt, fps = OwnRig(c), own_rate(shot.tcps, k)
@@ -172,8 +176,7 @@ def make_plan(
         if rt is None:
             try:
                 roles = map_joints(c.joints, c.parents, override)
-                poses = (k, *to_skeleton_order(c, rot, tr))
-                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, poses)
+                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, (k, srot, strans))
             except MappingError as e:
                 why = str(e)
                 # A rig model is the way for a creature: a rig whose pose is not a human's, or
@@ -227,13 +230,17 @@ def make_plan(
                 f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
                 f"frame (1/{fps:g} s): the network sees one key there; every key keeps its values"
             )
+        _, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
+        jumps = key_jumps(k, body_centre(c.parents, srot, strans) * mpu, shot.tcps)
+        if jumps:
+            notes.append(f"tween: warning: {path} {c.anim_path}: {jump_line(jumps)}")
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:
             raise ShotError(
                 path, f"range {fr[0]:g}-{fr[1]:g} is outside the stage range {shot.start:g}-{shot.end:g}"
             )
         authored = not keys and c.key_override is None
-        chars.append(CharPlan(c, rt, k, fr, folder, float(fps), authored_keys=authored))
+        chars.append(CharPlan(c, rt, k, fr, folder, float(fps), authored_keys=authored, jumps=jumps))
     if not chars:
         prim, why = refused[0]
         raise ShotError(path, f"rig refused: {why}", prim)

@@ -234,7 +234,7 @@ def _author_samples(layer, spec, data: dict) -> None:
 
 def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
     """Authors every character of every take into ``layer`` (an Sdf layer)."""
-    from pxr import Sdf, Vt
+    from pxr import Gf, Sdf, Vt
 
     chars = takes[0]["chars"]
     many = len(takes) > 1
@@ -283,6 +283,9 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                 _attr(
                     spec, tokens.MISSING_JOINTS, Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
                 )
+            if c.get("jumps"):  # key pairs the body teleports between: (from, to) time codes
+                pairs = Vt.Vec2dArray([Gf.Vec2d(j["from"], j["to"]) for j in c["jumps"]])
+                _attr(spec, tokens.KEY_JUMPS, Sdf.ValueTypeNames.Double2Array, pairs)
             # Blend shape weights are the animator's: copied as authored.
             for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
                 a = src.GetAttribute(an)

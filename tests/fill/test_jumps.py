@@ -1,0 +1,78 @@
+"""Keys the body teleports between: said on stderr, in the fill's JSON and on the layer."""
+
+import numpy as np
+from usd_fixtures import ANIM, FILLED, bandai_shot, tree_hashes
+
+from pipeline.fill.api import FillOptions, fill_shot
+from pipeline.fill.jumps import JUMP_MPS, body_centre, key_jumps
+
+
+def _moved(shot, time: float, dx_cm: float) -> None:
+    """Moves the root joint of the shot's animation by ``dx_cm`` along X at ``time``."""
+    from pxr import Gf, Usd
+
+    stage = Usd.Stage.Open(str(shot))
+    attr = stage.GetPrimAtPath(ANIM).GetAttribute("translations")
+    tr = attr.Get(time)
+    tr[0] = tr[0] + Gf.Vec3f(dx_cm, 0, 0)
+    attr.Set(tr, time)
+    stage.GetRootLayer().Save()
+
+
+def test_a_key_six_metres_off_is_flagged_and_the_fill_still_goes_through_it(tmp_path, capfd):
+    shot = bandai_shot(tmp_path / "shots" / "walk.usda", frames=61, keys_every=10)
+    _moved(shot, 1031.0, 600.0)  # 6 m in 1/3 s: 18 m/s there and back
+    before = tree_hashes(shot.parent)
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o")))
+    assert tree_hashes(shot.parent) == before
+    err = capfd.readouterr().err
+    assert f"tween: warning: {shot} {ANIM}: keys 1021 and 1031 and 1 more pair(s): the body moves" in err
+    assert "faster than anyone runs): a capture glitch or a cut? filled as keyed" in err
+    jumps = res["jumps"][ANIM]
+    assert [(j["from"], j["to"]) for j in jumps] == [(1021.0, 1031.0), (1031.0, 1041.0)]
+    assert all(j["mps"] > JUMP_MPS and 5.5 < j["metres"] < 6.5 for j in jumps)
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(res["review"])
+    pairs = stage.GetPrimAtPath(FILLED).GetAttribute("tween:keyJumps").Get()
+    assert [tuple(p) for p in pairs] == [(1021.0, 1031.0), (1031.0, 1041.0)]
+    # Filled as keyed: the moved key keeps its value.
+    tr = stage.GetPrimAtPath(FILLED).GetAttribute("translations")
+    src = stage.GetPrimAtPath(ANIM).GetAttribute("translations")
+    assert np.array_equal(np.array(tr.Get(1031.0)), np.array(src.Get(1031.0)))
+
+
+def test_a_plain_walk_has_no_jumps_and_no_attribute(tmp_path, capfd):
+    shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o")))
+    assert res["jumps"] == {ANIM: []}
+    assert "the body moves" not in capfd.readouterr().err
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(res["review"])
+    assert not stage.GetPrimAtPath(FILLED).GetAttribute("tween:keyJumps").HasAuthoredValue()
+
+
+def test_the_body_centre_moves_with_the_whole_body_not_with_one_joint():
+    """Three joints in a chain: the root moving 1 m moves the centre 1 m; the last joint's
+    translation moving 1 m moves it a third of that. Over 1/30 s the first is a jump, and a
+    single joint flipping as far is not."""
+    parents = np.array([-1, 0, 1])
+    rot = np.tile([0.0, 0.0, 0.0, 1.0], (2, 3, 1))
+    trans = np.zeros((2, 3, 3))
+    trans[:, 1:, 1] = 0.5
+    whole = trans.copy()
+    whole[1, 0, 0] = 1.0
+    one = trans.copy()
+    one[1, 2, 0] = 1.0
+    c_whole, c_one = body_centre(parents, rot, whole), body_centre(parents, rot, one)
+    assert np.allclose(c_whole[1] - c_whole[0], [1.0, 0, 0])
+    assert np.allclose(c_one[1] - c_one[0], [1 / 3, 0, 0])
+    times = np.array([1001.0, 1002.0])
+    assert len(key_jumps(times, c_whole, 30.0)) == 1  # 30 m/s
+    assert key_jumps(times, c_one * 0.4, 30.0) == []  # 4 m/s
+    # A joint turned moves its children: a 90° turn of the middle joint swings the tip.
+    turned = rot.copy()
+    turned[1, 1] = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]
+    c = body_centre(parents, turned, trans)
+    assert np.allclose(c[1] - c[0], [-0.5 / 3, -0.5 / 3, 0])
