@@ -10,7 +10,7 @@ import numpy as np
 from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
 from pipeline.fill.plan import MAX_MODEL_FRAMES, CharPlan, Plan, own_rate
-from pipeline.infer.trust import TrustedInbetweener, blend_arrays, gap_weights_at, trusted
+from pipeline.infer.trust import TrustedInbetweener, blend_arrays, fill_across_cuts, gap_weights_at, trusted
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
@@ -53,6 +53,15 @@ def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray,
     order = np.lexsort((np.abs(t - m), m))  # by frame, then offset (stable: the first on a tie)
     first = np.r_[True, np.diff(m[order]) != 0]
     return m, order[first]
+
+
+def jump_gaps(cp: CharPlan, tcps: float, fps: float) -> list[tuple[int, int]]:
+    """The key pairs the character's body teleports between (``cp.jumps``), as model frames
+    (numbered as :func:`model_frames` numbers the keys)."""
+    k0 = cp.keys[0]
+    return [
+        tuple(int(x) for x in np.round((np.array([j["from"], j["to"]]) - k0) / tcps * fps)) for j in cp.jumps
+    ]
 
 
 def frames_in(lo: float, hi: float) -> np.ndarray:
@@ -173,7 +182,10 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
         kept = mask[model_frames(k, shot.tcps, fps)[1]]
         kept[[0, -1]] = True  # the first and last keys given stay full poses
         extra["joint_keys"] = kept
-    on_rig = isinstance(inb, TrustedInbetweener) and mask is None and dna is None
+    trusting = isinstance(inb, TrustedInbetweener)
+    if trusting:  # gaps the body teleports across: the spline's, and no network window spans one
+        extra["cuts"] = jump_gaps(cp, shot.tcps, fps)
+    on_rig = trusting and mask is None and dna is None
     rate = own_rate(shot.tcps, k)
     if on_rig and (k[-1] - k[0]) / shot.tcps * rate > MAX_MODEL_FRAMES:
         on_rig = False  # the rig's spline at the shot's rate would pass the plan's bound
@@ -185,8 +197,8 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
     else:
 
         def network(motion, m):
-            d = inb.decide(motion, m)
-            return inb.model.fill(motion, m, seed=seed) if d.weight > 0.0 else None
+            d = inb.decide(motion, m, extra["cuts"])
+            return fill_across_cuts(inb.model, motion, m, d.cuts, seed=seed) if d.weight > 0.0 else None
 
         res = _on_rig(plan, cp, (rot_k, tr_k), cp.retarget, skel, fps, network)
         d = inb.last_decision

@@ -111,7 +111,9 @@ class TrustDecision:
     dict per gap length of the shot (``length``, ``count``, the probes' shortest hole
     ``probe_hole``, ``threshold``, shrunk ``score``, ``weight``), the weight of every gap of
     that length; ``novelty_cm`` / ``familiarity``: how far the keys are from the model's pose
-    bank and what that made of it (None without a bank); ``reason``: one line for people."""
+    bank and what that made of it (None without a bank); ``cuts``: gaps ([first, last]
+    key frame) the body teleports across, which the spline fills whatever their length's
+    weight (:meth:`with_cuts`); ``reason``: one line for people."""
 
     choice: str
     weight: float
@@ -124,19 +126,52 @@ class TrustDecision:
     gaps: list[dict] = field(default_factory=list)
     novelty_cm: float | None = None
     familiarity: float | None = None
+    cuts: list[list[int]] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
         return asdict(self)
+
+    def with_cuts(self, pairs, keys) -> TrustDecision:
+        """This decision with the gaps between the key frames of ``pairs`` ((a, b), adjacent
+        keys of ``keys``) given to the spline whatever their length's weight: cuts, keys the
+        body teleports between (pipeline.fill.jumps), where what the network learned of motion
+        says nothing and the animator's curve is the least surprise. ``weight`` and ``choice``
+        follow (over the gap frames of ``keys``); pairs that are no gap of ``keys`` are ignored."""
+        k = _unique_keys(keys)
+        gaps = {(int(a), int(b)) for a, b in zip(k[:-1], k[1:], strict=True) if b - a > 1}
+        own = sorted({(int(a), int(b)) for a, b in pairs} & gaps)
+        if not own:
+            return self
+        merged = sorted({*map(tuple, self.cuts), *own})
+        new = replace(self, cuts=[list(g) for g in merged])
+        lengths = np.diff(k) - 1
+        w = _per_gap(new, k)[lengths > 0]
+        n = lengths[lengths > 0].astype(np.float64)
+        new.weight = round(float(np.dot(n, w) / n.sum()), 6)
+        new.choice = "model" if w.min() >= 1.0 else "spline" if w.max() <= 0.0 else "blend"
+        new.reason += f"; {len(own)} gap(s) the body teleports across: the spline"
+        return new
 
     def frame_weights(self, keys, n_frames: int) -> np.ndarray:
         """The model's weight per frame (n_frames,) of a shot keyed at ``keys`` (the full keys
         the decision was made on): each gap's frames its length's weight, every other frame 1
         (keys and held frames, where both fills agree). Every frame ``weight`` where the
         decision has no per-gap weights (overrides, no probes)."""
-        if not self.gaps:
+        if not self.gaps and not self.cuts:
             return np.full(n_frames, float(self.weight))
         return gap_weights_at(self, keys, np.arange(n_frames))
+
+
+def _per_gap(decision: TrustDecision, keys: np.ndarray) -> np.ndarray:
+    """The model's weight in each gap of the unique ``keys``: its length's (``weight`` where
+    the decision has none), 0 in a spline gap, 1 between keys on adjacent frames."""
+    lengths = np.diff(keys) - 1
+    by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
+    per_gap = np.array([by_length.get(int(n), decision.weight) if n > 0 else 1.0 for n in lengths])
+    for a, b in decision.cuts:
+        per_gap[(keys[:-1] == a) & (keys[1:] == b)] = 0.0
+    return per_gap
 
 
 def gap_weights_at(decision: TrustDecision, keys, frames) -> np.ndarray:
@@ -145,15 +180,12 @@ def gap_weights_at(decision: TrustDecision, keys, frames) -> np.ndarray:
     keys = _unique_keys(keys)
     u = np.asarray(frames, np.float64)
     at_key = np.isin(u, keys) | (u <= keys[0]) | (u >= keys[-1])
-    if not decision.gaps:
+    if not decision.gaps and not decision.cuts:
         return np.where(at_key, 1.0, float(decision.weight))
-    # One weight per gap (its length's), looked up per frame; between keys on adjacent
-    # frames (no frame to fill) 1, as frame_weights gives every frame outside a gap.
-    lengths = np.diff(keys) - 1
-    by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
-    per_gap = np.array([by_length.get(int(n), decision.weight) if n > 0 else 1.0 for n in lengths])
+    # One weight per gap, looked up per frame; between keys on adjacent frames (no frame
+    # to fill) 1, as frame_weights gives every frame outside a gap.
     j = np.clip(np.searchsorted(keys, u, side="right") - 1, 0, len(keys) - 2)
-    return np.where(at_key, 1.0, per_gap[j])
+    return np.where(at_key, 1.0, _per_gap(decision, keys)[j])
 
 
 def _unique_keys(keys) -> np.ndarray:
@@ -440,12 +472,19 @@ def _decision(
     )
 
 
+def across_cuts(probes: list[Probe], cuts) -> list[Probe]:
+    """The probes whose window holds none of the ``cuts`` ((a, b) key frames the body
+    teleports between): a probe across one measures the teleport, not the motion."""
+    return [p for p in probes if not any(a < p.hi and b > p.lo for a, b in cuts)]
+
+
 def decide_batch(
-    model, spline, rots, roots, keys, skeleton=None, cache: dict | None = None
+    model, spline, rots, roots, keys, skeleton=None, cache: dict | None = None, cuts=()
 ) -> list[TrustDecision]:
     """:func:`decide` for N shots sharing their keys: rotations (N, T, J, 4), roots (N, T, 3)
-    on the model skeleton (only the key frames are read). One model call per probe."""
-    probes = probe_plan(keys)
+    on the model skeleton (only the key frames are read). One model call per probe. No probe
+    spans one of the ``cuts``."""
+    probes = across_cuts(probe_plan(keys), cuts)
     if not probes:
         return [_decision(np.zeros(0), np.zeros(0), []) for _ in range(len(rots))]
     em, es = run_probes(model, spline, rots, roots, probes, skeleton, cache)
@@ -473,11 +512,35 @@ def probe_travel_cm(roots: np.ndarray, probes: list[Probe], skeleton) -> np.ndar
     return out
 
 
-def decide(model, spline, motion: Motion, keys) -> TrustDecision:
-    """How far to trust ``model`` over ``spline`` on this shot, from its ``keys`` alone."""
-    return decide_batch(
-        model, spline, motion.rotations[None], motion.root_positions[None], keys, motion.skeleton
+def decide(model, spline, motion: Motion, keys, cuts=()) -> TrustDecision:
+    """How far to trust ``model`` over ``spline`` on this shot, from its ``keys`` alone; the
+    ``cuts`` (key frames the body teleports between) go to the spline, and no probe spans one."""
+    d = decide_batch(
+        model, spline, motion.rotations[None], motion.root_positions[None], keys, motion.skeleton, cuts=cuts
     )[0]
+    return d.with_cuts(cuts, keys)
+
+
+def fill_across_cuts(model, motion: Motion, keys, cuts, joint_keys=None, **kw) -> Motion:
+    """``model``'s fill of ``motion`` from ``keys``, each stretch of keys between the ``cuts``
+    ((a, b) adjacent key frames the body teleports between) filled on its own, so no window of
+    the network spans a teleport; frames inside a cut keep ``motion``'s values (the decision
+    gives them to the spline). Without cuts, ``model.fill`` as it is."""
+    keys = np.asarray(keys, np.int64)
+    cuts = sorted((int(a), int(b)) for a, b in cuts if a in keys and b in keys)
+    if not cuts:
+        extra = kw if joint_keys is None else {**kw, "joint_keys": joint_keys}
+        return model.fill(motion, keys, **extra)
+    rot, root = motion.rotations.copy(), motion.root_positions.copy()
+    edges = [int(keys.min()), *(x for c in cuts for x in c), int(keys.max())]
+    for lo, hi in zip(edges[0::2], edges[1::2], strict=True):
+        inside = (keys >= lo) & (keys <= hi)
+        if len(np.unique(keys[inside])) < 2:
+            continue  # a lone key between two cuts (or at an end): nothing to fill
+        extra = dict(kw) if joint_keys is None else {**kw, "joint_keys": np.asarray(joint_keys)[inside]}
+        part = model.fill(motion.slice(lo, hi + 1), keys[inside] - lo, **extra)
+        rot[lo : hi + 1], root[lo : hi + 1] = part.rotations, part.root_positions
+    return replace(motion, rotations=rot, root_positions=root)
 
 
 # -- applying it -------------------------------------------------------------------------------
@@ -587,9 +650,11 @@ class TrustedInbetweener:
         """The wrapped model's pose bank (with ``capabilities.novelty``)."""
         return self.model.pose_bank if self.model.capabilities.novelty else None
 
-    def decide(self, motion: Motion, keys) -> TrustDecision:
+    def decide(self, motion: Motion, keys, cuts=()) -> TrustDecision:
         """The decision for a shot keyed at ``keys`` (its full keys): probed with ``"auto"``,
-        the override otherwise; kept as ``last_decision``."""
+        the override otherwise; kept as ``last_decision``. ``cuts``: (a, b) key frames
+        the body teleports between, given to the spline with ``"auto"``
+        (:meth:`TrustDecision.with_cuts`)."""
         if self.trust == "model":
             d = TrustDecision(
                 "model", 1.0, None, None, [], "trust=model: the model, unchecked", None, "model"
@@ -597,11 +662,11 @@ class TrustedInbetweener:
         elif self.trust == "spline":
             d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
         else:
-            d = decide(self.model, self.spline, motion, keys)
+            d = decide(self.model, self.spline, motion, keys, cuts)
         self.last_decision = d
         return d
 
-    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, **kw) -> Motion:
+    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, cuts=(), **kw) -> Motion:
         keys = np.asarray(keys, np.int64)
         extra = dict(kw)
         if joint_keys is not None:
@@ -609,8 +674,8 @@ class TrustedInbetweener:
         if dna is not None:
             extra["dna"] = dna
         full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
-        d = self.decide(motion, full)
-        m = self.model.fill(motion, keys, seed=seed, **extra) if d.weight > 0.0 else None
+        d = self.decide(motion, full, cuts)
+        m = fill_across_cuts(self.model, motion, keys, d.cuts, seed=seed, **extra) if d.weight > 0.0 else None
         s = spline_fill(self.spline, motion, keys, joint_keys) if d.weight < 1.0 else None
         return apply(d, m, s, full)
 

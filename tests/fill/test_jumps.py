@@ -76,3 +76,25 @@ def test_the_body_centre_moves_with_the_whole_body_not_with_one_joint():
     turned[1, 1] = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]
     c = body_centre(parents, turned, trans)
     assert np.allclose(c[1] - c[0], [-0.5 / 3, -0.5 / 3, 0])
+
+
+def test_the_default_fill_gives_the_gaps_across_a_teleport_to_the_rigs_spline(tmp_path):
+    from pipeline.fill import solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.api import load_inbetweener
+
+    shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
+    _moved(shot, 1031.0, 600.0)
+    plan = make_plan(str(shot), None, None, None, 30.0)
+    got = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0)
+    assert got["trust"]["cuts"] == [[20, 30], [30, 40]]
+    own = make_plan(str(shot), None, None, None, 30.0, own_rig=True)
+    spl = solve.fill_character(own, own.chars[0], load_inbetweener("spline"), seed=0)
+    net = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0, trust="model")
+    t = got["times"]
+    assert np.array_equal(t, spl["times"])
+    across = (t > 1021) & (t < 1041) & (t != 1031)
+    assert np.array_equal(got["rot"][across], spl["rot"][across])
+    assert np.array_equal(got["trans"][across], spl["trans"][across])
+    assert not np.array_equal(net["rot"][across], spl["rot"][across])
+    assert net["trust"]["cuts"] == []  # --trust model: the network, unchecked

@@ -402,3 +402,61 @@ def test_novelty_of_a_shot_keyed_on_every_frame_is_bounded(walk, monkeypatch):
     assert time.perf_counter() - t < 30.0  # (about 1 s here; shared cores vary)
     monkeypatch.setattr(novelty, "MAX_KEYS", 10**6)
     assert many == pytest.approx(novelty.novelty_cm(rot, root, bank, SKEL)[0], abs=0.1)
+
+
+def test_gaps_the_body_teleports_across_go_to_the_spline():
+    """with_cuts: the pair's gap gets weight 0 whatever its length's weight; the other
+    gaps keep theirs; weight and choice follow over the gap frames; pairs that are no gap of
+    the keys (adjacent frames, not adjacent keys) change nothing."""
+    keys = np.r_[0, 10, 20, 30]
+    d = trust.TrustDecision("model", 1.0, 1.0, 2.0, [], "probes", 0.5, gaps=[{"length": 9, "weight": 1.0}])
+    assert d.with_cuts([(0, 20), (5, 6)], keys) is d
+    j = d.with_cuts([(10, 20)], keys)
+    assert j.cuts == [[10, 20]] and j.choice == "blend" and j.weight == pytest.approx(2 / 3)
+    assert "1 gap(s) the body teleports across: the spline" in j.reason
+    w = j.frame_weights(keys, 31)
+    assert list(w[1:10]) == [1.0] * 9 and list(w[11:20]) == [0.0] * 9 and list(w[21:30]) == [1.0] * 9
+    assert list(trust.gap_weights_at(j, keys, [9.5, 10.0, 15.5, 20.0, 25.5])) == [1.0, 1.0, 0.0, 1.0, 1.0]
+    every = j.with_cuts([(0, 10), (20, 30)], keys)
+    assert every.choice == "spline" and every.weight == 0.0 and every.cuts == [[0, 10], [10, 20], [20, 30]]
+    assert json.loads(json.dumps(every.to_json()))["cuts"] == [[0, 10], [10, 20], [20, 30]]
+
+
+def test_a_trusted_fill_gives_a_teleport_gap_to_the_spline_and_keeps_keys(walk):
+    keys = np.r_[0, 10, 20, 30, 40]
+    model = trust.TrustedInbetweener(StandIn("noise"), trust="auto")
+    out = model.fill(walk, keys, cuts=[(10, 20)])
+    d = model.last_decision
+    assert d.cuts == [[10, 20]] and keys_equal(out, walk, keys)
+    spl = trust.spline_fill(model.spline, walk, keys)
+    assert np.array_equal(out.rotations[11:20], spl.rotations[11:20])
+    assert np.array_equal(out.root_positions[11:20], spl.root_positions[11:20])
+    # --trust model is the model, unchecked: no gap is taken from it.
+    forced = trust.TrustedInbetweener(StandIn("oracle"), trust="model")
+    forced.fill(walk, keys, cuts=[(10, 20)])
+    assert forced.last_decision.cuts == [] and forced.last_decision.weight == 1.0
+
+
+def test_no_network_window_and_no_probe_spans_a_cut(walk):
+    """fill_across_cuts fills each stretch of keys between cuts on its own (a lone key between
+    two cuts is not filled); the frames inside a cut keep the input's values; across_cuts
+    drops the probes whose window holds a cut."""
+    keys = np.r_[0, 5, 10, 20, 25, 30, 40]
+    model = StandIn("oracle")
+    calls = []
+    fill = model.fill
+    model.fill = lambda motion, k, **kw: calls.append((len(motion), list(k))) or fill(motion, k, **kw)
+    noisy = replace(walk, rotations=walk.rotations.copy())
+    noisy.rotations[11:20] = [0.0, 0.0, 0.0, 1.0]
+    out = trust.fill_across_cuts(model, noisy, keys, [(10, 20), (30, 40)])
+    assert calls == [(11, [0, 5, 10]), (11, [0, 5, 10])]
+    assert np.array_equal(out.rotations[11:20], noisy.rotations[11:20]) and keys_equal(out, noisy, keys)
+    calls.clear()
+    trust.fill_across_cuts(model, noisy, keys, [])
+    assert calls == [(41, list(keys))]
+    probes = trust.probe_plan(keys)
+    kept = trust.across_cuts(probes, [(10, 20)])
+    assert kept and len(kept) < len(probes)
+    assert all(p.hi <= 10 or p.lo >= 20 for p in kept)
+    d = trust.decide(StandIn("noise"), SplineInbetweener(SKEL), walk, keys, cuts=[(10, 20)])
+    assert d.cuts == [[10, 20]] and all(p["frames"][1] <= 10 or p["frames"][0] >= 20 for p in d.probes)
