@@ -204,7 +204,7 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path):
     from pipeline.infer.trust import TrustDecision, TrustedInbetweener
 
     class Halfway(TrustedInbetweener):
-        def decide(self, motion, keys):
+        def decide(self, motion, keys, cuts=()):
             self.last_decision = TrustDecision("blend", 0.5, None, None, [], "half", None)
             return self.last_decision
 
@@ -257,7 +257,7 @@ def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
     weights = {5: 0.0, 17: 1.0, 35: 0.5}
 
     class Fixed(TrustedInbetweener):
-        def decide(self, motion, keys):
+        def decide(self, motion, keys, cuts=()):
             gaps = [{"length": n, "count": 1, "weight": w} for n, w in weights.items()]
             self.last_decision = TrustDecision("blend", 0.5, None, None, [], "fixed", None, gaps=gaps)
             return self.last_decision
