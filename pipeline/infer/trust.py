@@ -165,7 +165,7 @@ class TrustDecision:
 
 def _per_gap(decision: TrustDecision, keys: np.ndarray) -> np.ndarray:
     """The model's weight in each gap of the unique ``keys``: its length's (``weight`` where
-    the decision has none), 0 in a spline gap, 1 between keys on adjacent frames."""
+    the decision has none), 0 across a cut, 1 between keys on adjacent frames."""
     lengths = np.diff(keys) - 1
     by_length = {int(g["length"]): float(g["weight"]) for g in decision.gaps}
     per_gap = np.array([by_length.get(int(n), decision.weight) if n > 0 else 1.0 for n in lengths])
@@ -484,9 +484,13 @@ def decide_batch(
     """:func:`decide` for N shots sharing their keys: rotations (N, T, J, 4), roots (N, T, 3)
     on the model skeleton (only the key frames are read). One model call per probe. No probe
     spans one of the ``cuts``."""
-    probes = across_cuts(probe_plan(keys), cuts)
+    planned = probe_plan(keys)
+    probes = across_cuts(planned, cuts)
     if not probes:
-        return [_decision(np.zeros(0), np.zeros(0), []) for _ in range(len(rots))]
+        d = _decision(np.zeros(0), np.zeros(0), [])
+        if planned:
+            d.reason = "no probe possible away from the cuts: the model, unchecked"
+        return [replace(d) for _ in range(len(rots))]
     em, es = run_probes(model, spline, rots, roots, probes, skeleton, cache)
     bank = model.pose_bank if model.capabilities.novelty else None
     novelty = [None] * len(rots)

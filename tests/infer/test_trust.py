@@ -460,3 +460,6 @@ def test_no_network_window_and_no_probe_spans_a_cut(walk):
     assert all(p.hi <= 10 or p.lo >= 20 for p in kept)
     d = trust.decide(StandIn("noise"), SplineInbetweener(SKEL), walk, keys, cuts=[(10, 20)])
     assert d.cuts == [[10, 20]] and all(p["frames"][1] <= 10 or p["frames"][0] >= 20 for p in d.probes)
+    few = trust.decide(StandIn("noise"), SplineInbetweener(SKEL), walk, np.r_[0, 10, 20], cuts=[(0, 10)])
+    assert few.probes == [] and few.reason.startswith("no probe possible away from the cuts")
+    assert few.cuts == [[0, 10]] and few.choice == "blend" and few.weight == 0.5
