@@ -4,7 +4,7 @@ import numpy as np
 from usd_fixtures import ANIM, FILLED, bandai_shot, tree_hashes
 
 from pipeline.fill.api import FillOptions, fill_shot
-from pipeline.fill.jumps import JUMP_MPS, body_centre, key_jumps
+from pipeline.fill.jumps import JUMP_MPS, body_centre, jump_line, key_jumps
 
 
 def _moved(shot, time: float, dx_cm: float) -> None:
@@ -98,3 +98,34 @@ def test_the_default_fill_gives_the_gaps_across_a_teleport_to_the_rigs_spline(tm
     assert np.array_equal(got["trans"][across], spl["trans"][across])
     assert not np.array_equal(net["rot"][across], spl["rot"][across])
     assert net["trust"]["cuts"] == []  # --trust model: the network, unchecked
+
+
+def _path(paces, dt):
+    """Body centres (K, 3) walking along X at each gap's pace (m/s), keys ``dt`` s apart."""
+    steps = np.zeros((len(paces), 3))
+    steps[:, 0] = np.asarray(paces) * dt
+    return np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+
+
+def test_a_spike_in_pace_is_a_jump_and_a_sprint_start_or_capture_jitter_is_not():
+    dt, tcps = 1 / 3, 30.0
+    times = 1001 + np.arange(7) * 10.0  # keys every 10 frames at 30 fps
+    walk_glitch = _path([1.2, 1.2, 7.0, 1.2, 1.2, 1.2], dt)  # one gap 2.3 m: 7 m/s, no sprint
+    (j,) = key_jumps(times, walk_glitch, tcps, up=1)
+    assert (j["from"], j["to"], j["why"]) == (1021.0, 1031.0, "spike") and j["mps"] == 7.0
+    assert jump_line([j]).startswith("keys 1021 and 1031: the body moves 2.33 m in 0.333 s (7 m/s, a change")
+    first = _path([7.0, 1.2, 1.2, 1.2, 1.2, 1.2], dt)  # a glitch on the first key: one neighbour
+    assert [(x["from"], x["why"]) for x in key_jumps(times, first, tcps, up=1)] == [(1001.0, "spike")]
+    sprint = _path([0.0, 2.0, 4.0, 6.0, 8.0, 9.0], dt)  # 6 m/s² at most
+    assert key_jumps(times, sprint, tcps, up=1) == []
+    stop = _path([6.0, 3.0, 0.5, 0.0, 0.0, 0.0], dt)  # a hard stop, 9 m/s²
+    assert key_jumps(times, stop, tcps, up=1) == []
+    # A jump's landing changes the vertical pace, not the horizontal one: not a spike.
+    land = _path([1.0] * 6, dt)
+    land[3:, 1] = -2.0  # 2 m down in one gap (6 m/s), then level
+    assert key_jumps(times, land, tcps, up=1) == []
+    assert [x["why"] for x in key_jumps(times, land, tcps, up=None)] == ["spike"]
+    # Capture on every frame at 60 fps: 1 cm of jitter is no jump.
+    rng = np.random.default_rng(0)
+    dense = _path([1.5] * 600, 1 / 60) + rng.normal(scale=0.01, size=(601, 3))
+    assert key_jumps(1001 + np.arange(601.0), dense, 60.0, up=1) == []
