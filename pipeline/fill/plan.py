@@ -230,9 +230,11 @@ def make_plan(
                 f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
                 f"frame (1/{fps:g} s): the network sees one key there; every key keeps its values"
             )
-        up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
-        centre = body_centre(c.parents, srot, strans) * mpu
-        jumps = key_jumps(k, centre, shot.tcps, {"Y": 1, "Z": 2}.get(up))
+        jumps = []
+        if not isinstance(rt, RigMap):  # a human's bounds: not for a creature's own rig model
+            up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
+            centre = body_centre(c.parents, srot, strans) * mpu
+            jumps = key_jumps(k, centre, shot.tcps, {"Y": 1, "Z": 2}.get(up))
         if jumps:
             notes.append(f"tween: warning: {path} {c.anim_path}: {jump_line(jumps)}")
         fr = rng or (float(k[0]), float(k[-1]))
