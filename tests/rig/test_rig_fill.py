@@ -511,3 +511,22 @@ def test_tween_fill_cli_through_the_embedded_farm_picks_the_rig_model(tmp_path, 
         f"{shot}: layer {tmp_path / 'o' / 'cr300.tween.v001.usda'}, review {tmp_path / 'o' / 'cr300.review.v001.usda'}, "
         "model creature"
     )
+
+
+def test_a_creature_on_its_rig_model_is_not_judged_by_a_humans_bounds(tmp_path, models):
+    """A key far from the next: on the creature's own rig model nothing is said (a cheetah
+    outruns any sprinter); interpolated on its own rig, the human bounds flag the pair."""
+    from pxr import Gf, Usd
+
+    shot = creature_shot(tmp_path / "shots" / "cr010.usda")
+    rig_from_shot(models / "creature", shot)
+    stage = Usd.Stage.Open(str(shot))
+    attr = stage.GetPrimAtPath(CREATURE_ANIM).GetAttribute("translations")
+    tr = attr.Get(1031.0)
+    tr[0] = tr[0] + Gf.Vec3f(5000.0, 0, 0)
+    attr.Set(tr, 1031.0)
+    stage.GetRootLayer().Save()
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    assert res["models"] == {CREATURE_ANIM: "creature"} and res["jumps"] == {CREATURE_ANIM: []}
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o2")))
+    assert [(j["from"], j["to"]) for j in res["jumps"][CREATURE_ANIM]] == [(1021.0, 1031.0), (1031.0, 1041.0)]
