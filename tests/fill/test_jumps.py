@@ -129,3 +129,26 @@ def test_a_spike_in_pace_is_a_jump_and_a_sprint_start_or_capture_jitter_is_not()
     rng = np.random.default_rng(0)
     dense = _path([1.5] * 600, 1 / 60) + rng.normal(scale=0.01, size=(601, 3))
     assert key_jumps(1001 + np.arange(601.0), dense, 60.0, up=1) == []
+
+
+def test_a_60fps_shots_jump_is_cut_on_the_models_30fps_frames(tmp_path):
+    """Keys every 10 frames at 60 fps: the pair 1061-1071 is model frames 30-35 (30 fps)."""
+    from usd_fixtures import cmu_shot
+
+    from pipeline.fill import solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.api import load_inbetweener
+
+    shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=10)
+    from pxr import Gf, Usd
+
+    stage = Usd.Stage.Open(str(shot))
+    attr = stage.GetPrimAtPath(ANIM).GetAttribute("translations")
+    tr = attr.Get(1071.0)
+    tr[0] = tr[0] + Gf.Vec3f(250.0, 0, 0)  # 2.5 m sideways, one key (the rig is in cm)
+    attr.Set(tr, 1071.0)
+    stage.GetRootLayer().Save()
+    plan = make_plan(str(shot), None, None, None, 30.0)
+    assert [(j["from"], j["to"]) for j in plan.chars[0].jumps] == [(1061.0, 1071.0), (1071.0, 1081.0)]
+    got = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0)
+    assert got["trust"]["cuts"] == [[30, 35], [35, 40]]
