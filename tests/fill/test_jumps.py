@@ -152,3 +152,17 @@ def test_a_60fps_shots_jump_is_cut_on_the_models_30fps_frames(tmp_path):
     assert [(j["from"], j["to"]) for j in plan.chars[0].jumps] == [(1061.0, 1071.0), (1071.0, 1081.0)]
     got = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0)
     assert got["trust"]["cuts"] == [[30, 35], [35, 40]]
+
+
+def test_the_body_centre_of_many_keys_is_computed_in_blocks(monkeypatch):
+    """Blocks of keys give the same centres as one pass (memory follows the block)."""
+    from pipeline.fill import jumps
+    from pipeline.motion.rotations import quat_normalize
+
+    rng = np.random.default_rng(1)
+    parents = np.array([-1, 0, 1, 1, 3])
+    rot = quat_normalize(rng.normal(size=(37, 5, 4)))
+    trans = rng.normal(size=(37, 5, 3))
+    whole = body_centre(parents, rot, trans)
+    monkeypatch.setattr(jumps, "BLOCK", 8)
+    assert np.allclose(body_centre(parents, rot, trans), whole, atol=1e-12)
