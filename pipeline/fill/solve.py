@@ -56,12 +56,13 @@ def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray,
 
 
 def jump_gaps(cp: CharPlan, tcps: float, fps: float) -> list[tuple[int, int]]:
-    """The key pairs the character's body teleports between (``cp.jumps``), as model frames
-    (numbered as :func:`model_frames` numbers the keys)."""
-    k0 = cp.keys[0]
-    return [
-        tuple(int(x) for x in np.round((np.array([j["from"], j["to"]]) - k0) / tcps * fps)) for j in cp.jumps
-    ]
+    """The key pairs the character's body teleports between (``cp.jumps``), as the model
+    frames :func:`model_frames` gives those keys."""
+    if not cp.jumps:
+        return []
+    m = model_frames(cp.keys, tcps, fps)[0]
+    at = {float(t): int(f) for t, f in zip(cp.keys, m, strict=True)}
+    return [(at[j["from"]], at[j["to"]]) for j in cp.jumps]
 
 
 def frames_in(lo: float, hi: float) -> np.ndarray:
