@@ -47,6 +47,7 @@ setup(
             "farm = workers.cli:register",
             "render = render.cli:register",
             "rig = pipeline.rig.cli:register",
+            "library = pipeline.library.cli:register",
         ],
         # Model families by kind (pipeline.infer.api's registry): the in-betweener class of a
         # model.json / rig.json kind, called with its folder; folderless ones under every name.

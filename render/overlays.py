@@ -74,6 +74,28 @@ def _over(dst: np.ndarray, src) -> None:
     dst[...] = ((dst * layer.inv + layer.rgb + 128) >> 8).astype(np.uint8)
 
 
+def fill_sources(facts: dict) -> list[tuple[float, float, str]]:
+    """(from, to, label) per gap a motion library was asked to fill (``tween:libraryGaps`` and
+    ``tween:libraryShare``): "library", "spline", or "library NN%" for a blend."""
+    gaps, share = facts.get("library_gaps"), facts.get("library_share")
+    if gaps is None or share is None or len(gaps) != len(share):
+        return []
+    out = []
+    for (a, b), s in zip(gaps, share, strict=True):
+        s = float(s)
+        label = "library" if s >= 0.995 else "spline" if s <= 0.005 else f"library {100 * s:.0f}%"
+        out.append((float(a), float(b), label))
+    return out
+
+
+def source_at(sources: list[tuple[float, float, str]], t: float) -> str | None:
+    """The label of the gap time code ``t`` lies in (None outside every gap)."""
+    for a, b, label in sources:
+        if a < t < b:
+            return label
+    return None
+
+
 class BurnIn:
     """Burn-ins for frames of ``size``: shot / model / take / frame + time code / KEY."""
 
@@ -116,6 +138,8 @@ class BurnIn:
         self.key_badge[..., :3] += np.array(KEY_RGB, np.float32) * (1.0 - self.key_badge[..., 3:4])
         self.key_badge[..., 3] = 1.0
         self.frame_w = min(self.font * 16, self.w)
+        self.sources = fill_sources(facts)
+        self.source_w = min(self.font * 12, self.w // 3)
         self.top, self.bottom, self.key_badge = _Fixed(self.top), _Fixed(self.bottom), _Fixed(self.key_badge)
         if self.labels is not None:
             self.labels = _Fixed(self.labels)
@@ -136,6 +160,12 @@ class BurnIn:
             self.frame_w, b, [(self.frame_w - self.font // 2, b // 2, text, rgb, "right")], self.font, 0.0
         )
         _over(img[-b:, w - self.frame_w :], strip)
+        label = None if is_key else source_at(self.sources, frame)
+        if label:  # what filled this frame: the library's takes, the spline, or a blend of both
+            x0 = (w - self.source_w) // 2
+            strip = _text_band(self.source_w, b, [(self.source_w // 2, b // 2, label, (0.85, 0.9, 1.0), "center")],
+                               self.font, 0.0)  # fmt: skip
+            _over(img[-b:, x0 : x0 + self.source_w], strip)
         if is_key:
             x, y, kw, kh = self.key_rect
             _over(img[y : y + kh, x : x + kw], self.key_badge)

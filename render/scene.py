@@ -26,6 +26,9 @@ FACT_ATTRS = {
     "model_hash": tokens.MODEL_HASH,
     "take": tokens.TAKE,
     "seed": tokens.SEED,
+    "trust": tokens.TRUST,
+    "library_gaps": tokens.LIBRARY_GAPS,
+    "library_share": tokens.LIBRARY_SHARE,
 }
 
 

@@ -21,6 +21,7 @@ LAYERS = {
     "pipeline.usd": 4,  # USD I/O (beside the in-betweeners; the rest pose of a converted rig)
     "pipeline.models": 5,  # the torch networks
     "pipeline.rig": 5,  # per-rig models: their training, ONNX in-betweener and store
+    "pipeline.library": 5,  # a studio's motion library: its store, build and in-betweener
     "pipeline.train": 6,  # training and export of the networks
     "pipeline.fill": 7,  # fill orchestration above USD I/O, adaptation and every model
     "pipeline.bench": 8,

@@ -22,8 +22,13 @@ def _opts(opts) -> dict:
     the farm payload."""
 
     from workers.jobs import make_opts
+    from workers.settings import load_settings
 
-    return make_opts(**asdict(opts.check()))
+    out = make_opts(**asdict(opts.check()))
+    default = load_settings().library  # the studio's library, for every job that names none
+    if not out.get("library") and default:
+        out["library"] = os.path.abspath(os.path.expanduser(default))
+    return out
 
 
 def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:
@@ -157,7 +162,7 @@ def register(app: typer.Typer) -> None:
         from workers.app import check_farm, farm_errors
 
         check_farm(celery_app, broker=False)  # the states are in the result backend
-        fills = [j for j in job_ids if not j.startswith("rig-")]
+        fills = [j for j in job_ids if not j.startswith(("rig-", "lib-"))]
         with farm_errors(celery_app):
             by_id = dict(
                 zip(
@@ -167,6 +172,8 @@ def register(app: typer.Typer) -> None:
             for j in job_ids:
                 if j.startswith("rig-"):
                     by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
+                elif j.startswith("lib-"):
+                    by_id[j] = jobs.wait_library(j) if wait else jobs.library_state(j)
         states = [by_id[j] for j in job_ids]
         code = 0
         for s in states:
@@ -177,6 +184,10 @@ def register(app: typer.Typer) -> None:
                 typer.echo(
                     f"{s.id} {s.shot}: success, model {r.get('out')} ({r.get('model')}, hash {r.get('model_hash')})"
                 )
+            elif s.id.startswith("lib-") and s.state == "SUCCESS":
+                r = s.result or {}
+                typer.echo(f"{s.id} {s.shot}: success, {r.get('takes')} take(s), {r.get('hours', 0):.2f} h, "
+                           f"hash {r.get('hash')} ({r.get('added')} added, {len(r.get('failed') or [])} failed)")  # fmt: skip
             elif s.id.startswith("rig-") and s.state == "RUNNING" and (s.result or {}).get("levels"):
                 r = s.result
                 typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "
@@ -281,6 +292,50 @@ def register(app: typer.Typer) -> None:
             raise typer.Exit(2)
         r = s.result or {}
         typer.echo(f"{r.get('out')}  ({r.get('model')}, hash {r.get('model_hash')})")
+
+    @app.command("submit-library")
+    def submit_library(
+        folder: Path = typer.Argument(
+            ..., help="Folder of takes (BVH and USD), on storage every worker sees."
+        ),
+        out: Path = typer.Option(
+            ..., "--out", help="The library folder to write (or to add to, with --add)."
+        ),
+        add: bool = typer.Option(False, "--add", help="Append the takes the library does not hold yet."),
+        include: str = typer.Option(
+            None, "--include", help="Only takes whose file name matches these globs."
+        ),
+        licence: str = typer.Option(None, "--licence", help="The takes' licence as the studio states it."),
+        name: str = typer.Option(None, "--name", help="The library's name (default: the folder's)."),
+        mirror: bool = typer.Option(False, "--mirror", help="Also add each take's mirror image."),
+        wait: bool = typer.Option(False, "--wait", help="Wait, then print the library's summary."),
+    ):
+        """Build a motion library on the farm's training queue (`tween worker --train`); prints
+        the job id (`tween status ID` shows it)."""
+        from workers.app import check_farm, farm_errors, train_app
+
+        if train_app.conf.tween.embedded:
+            _err(
+                "no broker configured (set TWEEN_BROKER_URL); run `tween library build` on this host instead"
+            )
+            raise typer.Exit(2)
+        if not folder.is_dir():
+            _err(f"{folder}: no such folder of takes")
+            raise typer.Exit(2)
+        check_farm(train_app)
+        options = {"add": add, "include": include, "licence": licence, "name": name, "mirror": mirror}
+        with farm_errors(train_app):
+            job_id = jobs.submit_library(str(folder), str(out), options)
+        if not wait:
+            typer.echo(job_id)
+            return
+        print(job_id, file=sys.stderr)
+        with farm_errors(train_app):
+            s = jobs.wait_library(job_id)
+        if s.state != "SUCCESS":
+            _err(s.error or f"{folder}: library job {job_id} {s.state.lower()}")
+            raise typer.Exit(2)
+        typer.echo(json.dumps(s.result, indent=1))
 
     @app.command("bench-farm")
     def bench_farm(

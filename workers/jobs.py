@@ -21,7 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from pipeline.fill.options import PATH_FIELDS, FillOptions
 from pipeline.usd.write import clean_dead_temps
 from workers import paths as jobpaths
-from workers.app import SUBMITTED, app, rig_app
+from workers.app import SUBMITTED, app, rig_app, train_app
 from workers.limits import failure_message
 
 
@@ -331,3 +331,63 @@ def wait_train_rig(job_id: str, *, progress: bool = True, poll: float = 1.0, tim
             if timeout is not None and time.monotonic() - t0 > timeout:
                 raise TimeoutError(f"training {job_id} not finished after {timeout} s")
             time.sleep(poll)
+
+
+#: Options of ``tween library build`` a farm job may carry.
+LIBRARY_OPTIONS = ("include", "licence", "name", "add", "mirror")
+
+
+def submit_library(
+    folder: str, out: str, options: dict | None = None, roots=None, queue: str | None = None
+) -> str:
+    """Sends one ``tween library build`` job to the training queue (``tween worker --train``);
+    returns its id (``lib-…``) at once. Both paths are checked against the shot roots here and
+    again on the worker."""
+    options = {k: v for k, v in (options or {}).items() if v not in (None, False)}
+    unknown = set(options) - set(LIBRARY_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown library build option(s): {', '.join(sorted(unknown))}")
+    folder, out = os.path.abspath(folder), os.path.abspath(out)
+    roots = train_app.conf.tween.shot_roots if roots is None else roots
+    if roots:
+        jobpaths.check_under_roots(folder, roots, "takes folder")
+        jobpaths.check_under_roots(out, roots, "library")
+    job_id = f"lib-{uuid.uuid4().hex}"
+    queue = queue or train_app.conf.tween.train_queue
+    train_app.backend.store_result(job_id, {"kind": "library", "source": folder, "out": out, "queue": queue,
+                                            "time": time.time()}, SUBMITTED)  # fmt: skip
+    train_app.send_task("tween.library_build", (folder, out, options), task_id=job_id, queue=queue)
+    return job_id
+
+
+def library_state(job_id: str) -> JobState:
+    """QUEUED, RUNNING, SUCCESS (the build's summary in ``result``), FAILURE or UNKNOWN."""
+    m = train_app.backend.get_task_meta(job_id)
+    st, res = m.get("status", cstates.PENDING), m.get("result")
+    js = JobState(id=job_id, total=1)
+    if st == SUBMITTED and isinstance(res, dict):
+        js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", "library build"
+    elif st in (cstates.STARTED, cstates.RETRY):
+        js.state, js.stage = "RUNNING", "library build"
+        js.shot = (res or {}).get("folder", "") if isinstance(res, dict) else ""
+    elif st == cstates.SUCCESS:
+        js.state, js.done, js.result = "SUCCESS", 1, res
+        js.shot = (res or {}).get("library", "")
+    elif st == cstates.FAILURE:
+        exc = train_app.backend.exception_to_python(res)
+        js.state, js.stage, js.error = "FAILURE", "library build", str(exc) or type(exc).__name__
+    else:
+        js.error = f"{job_id}: no such library job (unknown id, or its record expired)"
+    return js
+
+
+def wait_library(job_id: str, *, poll: float = 1.0, timeout=None) -> JobState:
+    """Polls one library job until it finishes."""
+    t0 = time.monotonic()
+    while True:
+        s = library_state(job_id)
+        if s.finished:
+            return s
+        if timeout is not None and time.monotonic() - t0 > timeout:
+            raise TimeoutError(f"library job {job_id} not finished after {timeout} s")
+        time.sleep(poll)

@@ -76,6 +76,8 @@ class FarmSettings:
     train_rig_queue: str = "tween.train_rig"
     train_rig_time_limit: int = 16 * 3600
     train_rig_visibility_timeout: int = 17 * 3600
+    # The motion library every fill job uses when it names none (`tween fill --library`).
+    library: str = ""
     max_retries: int = 4
     retry_backoff_max: int = 30
     extra: dict = field(default_factory=dict)
@@ -97,7 +99,15 @@ _INT_KEYS = (
     "max_retries",
     "retry_backoff_max",
 )
-_STR_KEYS = ("broker_url", "result_backend", "queue", "train_queue", "train_rig_queue", "key_prefix")
+_STR_KEYS = (
+    "broker_url",
+    "result_backend",
+    "queue",
+    "train_queue",
+    "train_rig_queue",
+    "key_prefix",
+    "library",
+)
 
 
 def _read_file(path: Path) -> dict:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -18,3 +19,33 @@ def train(self, args: list[str]) -> dict:
         tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
         raise JobError(f"tween train {' '.join(map(str, args))}: exit {proc.returncode}: {tail}")
     return {"stdout": proc.stdout[-4000:]}
+
+
+@train_app.task(name="tween.library_build", bind=True)
+def library_build(self, folder: str, out: str, options: dict) -> dict:
+    """Runs ``tween library build FOLDER --out OUT`` on this worker (a subprocess, so that a
+    take that crashes the reader fails this job only); its paths are checked against the
+    worker's own shot roots first. Returns the build's summary (takes, frames, hours, hash)."""
+    from workers.app import app as fill_app
+    from workers.paths import check_under_roots
+
+    roots = fill_app.conf.tween.shot_roots
+    folder = check_under_roots(folder, roots, "takes folder")
+    out = check_under_roots(out, roots, "library")
+    cmd = [sys.executable, "-m", "pipeline.cli", "library", "build", folder, "--out", out, "--no-progress"]
+    for key in ("include", "licence", "name"):
+        if options.get(key):
+            cmd += [f"--{key}", str(options[key])]
+    cmd += ["--add"] if options.get("add") else []
+    cmd += ["--mirror"] if options.get("mirror") else []
+    self.update_state(state="STARTED", meta={"stage": "library build", "folder": folder, "out": out})
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        lines = [ln for ln in proc.stderr.strip().splitlines() if ln.startswith("tween: error:")]
+        tail = (
+            lines[-1].removeprefix("tween: error: ")
+            if lines
+            else "\n".join(proc.stderr.strip().splitlines()[-3:])
+        )
+        raise JobError(f"tween library build {folder}: {tail}")
+    return json.loads(proc.stdout)

@@ -82,12 +82,20 @@ def leading_glitch(motion) -> int:
 
 
 def evaluate_take(
-    path: Path, every: int, methods, work: Path, max_frames: int | None, trim: bool = True, fps: float = 30.0
+    path: Path,
+    every: int,
+    methods,
+    work: Path,
+    max_frames: int | None,
+    trim: bool = True,
+    fps: float = 30.0,
+    fills: dict | None = None,
 ) -> dict:
     """Per method: summed joint errors (cm) and counts over the take's frames between keys,
     for all joints and for the joints mapped to the model's; and each default fill's trust.
     ``trim``: leading glitch frames dropped (:func:`leading_glitch`); ``fps``: the shot's rate
-    (0: the take's own)."""
+    (0: the take's own); ``fills``: each method's FillOptions fields (default: ``_FILL``'s
+    model and trust)."""
     motion = read_bvh(path)
     cut = leading_glitch(motion) if trim else 0
     if cut:
@@ -107,17 +115,18 @@ def evaluate_take(
     )
     res: dict = {"frames": int(T), "inside": int(len(inside)), "trimmed": cut, "methods": {}}
     for m in methods:
-        model, trust = _FILL[m]
-        out = fill_shot(
-            str(shot), FillOptions(model=model, trust=trust, out_dir=str(work / f"{shot.stem}_{m}"))
-        )
+        fields = (fills or {}).get(m) or dict(zip(("model", "trust"), _FILL[m], strict=True))
+        out = fill_shot(str(shot), FillOptions(**fields, out_dir=str(work / f"{shot.stem}_{m}")))
         pos = review_positions(out["review"], T)
         err = np.linalg.norm(pos[inside] - truth[inside], axis=-1)
         row = {"all_sum": float(err.sum()), "all_n": int(err.size)}
         row |= {"mapped_sum": float(err[:, mapped].sum()), "mapped_n": int(err[:, mapped].size)}
-        if m == "default":
-            d = next(iter((out.get("trust") or {}).values()), None)
-            row["trust"] = None if d is None else {k: d.get(k) for k in ("choice", "weight", "novelty_cm")}
+        d = next(iter((out.get("trust") or {}).values()), None)
+        if d is not None:
+            row["trust"] = {k: d.get(k) for k in ("choice", "weight", "novelty_cm")}
+            if d.get("library"):
+                gaps = d["library"]["gaps"]
+                row["trust"]["library_share"] = round(float(np.mean([g["share"] for g in gaps])), 4)
         res["methods"][m] = row
     return res
 

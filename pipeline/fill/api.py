@@ -35,6 +35,7 @@ from pipeline.fill.options import (  # noqa: F401
     check_fill_options,
 )
 from pipeline.infer.graph import fast_graph_requested
+from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
 from pipeline.usd.write import check_out_dir, clean_dead_temps, owner_tag, write_error
@@ -87,9 +88,28 @@ def _model(name: str):
     return _MODELS[key]
 
 
+def _library(folder: str):
+    """The library in-betweener of ``folder`` (pipeline.library), loaded once per process and
+    library version (a library grown with ``--add`` has a new hash and is loaded again)."""
+    from pipeline.library.infer import LibraryInbetweener
+
+    lib = open_library(folder)
+    key = (os.getpid(), "library", os.path.realpath(folder), lib.hash)
+    if key not in _MODELS:
+        _MODELS[key] = LibraryInbetweener(lib)
+    return _MODELS[key]
+
+
 def _human(opts: FillOptions):
-    """The human model of the job, or None when a rig model is forced."""
-    return None if rig_folder(opts.model) else _model(opts.model)
+    """The human in-betweener of the job: the library with ``--library``, else the human model;
+    None when a rig model is forced."""
+    if rig_folder(opts.model):
+        return None
+    if opts.library:
+        if opts.model != "default":
+            raise TweenError(f"--library {opts.library}: fills from the library; drop --model {opts.model}")
+        return _library(opts.library)
+    return _model(opts.model)
 
 
 def _plan(shot: str, opts: FillOptions, human):
@@ -178,6 +198,16 @@ def trust_line(d: dict) -> str:
         line += (
             f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
         )
+    lib = d.get("library")
+    if lib:
+        gaps = lib["gaps"]
+        used = [g for g in gaps if g["weight"] > 0]
+        miss = [g["miss_cm"] for g in used]
+        line += f"; library {lib['name']}: {len(used)} of {len(gaps)} gap(s) from its takes"
+        if miss:
+            line += f" (median miss at the keys {float(np.median(miss)):.1f} cm)"
+        if len(used) < len(gaps):
+            line += f", {len(gaps) - len(used)} the spline's"
     return line + ")"
 
 
@@ -206,6 +236,8 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
     d = {k: v for k, v in asdict(opts).items() if k in ("keys", "range", "seed", "model", "mapping", "trust")}
     if opts.dna:  # takes without a DNA keep the digests they had
         d.update(dna=opts.dna, dna_poses=opts.dna_poses)
+    if opts.library:  # its content is in the model hash (library-<hash>)
+        d.update(library=os.path.realpath(opts.library))
     h.update(json.dumps([os.path.realpath(shot), d, take, model_hash], sort_keys=True).encode())
     return h.hexdigest()[:16]
 

@@ -65,6 +65,14 @@ class FillOptions:
         path="file",
     )
     dna_poses: int = _opt(4, "--dna-poses", help="Representative poses taken from --dna, 1 to 8.")
+    library: str | None = _opt(
+        None,
+        "--library",
+        help="A studio's motion library (`tween library build`): each gap of a human character is "
+        "filled from its best-matching takes, fitted to the keys, where they match; the spline elsewhere. "
+        "Default: the farm's `library` setting (TWEEN_LIBRARY), else none.",
+        path="dir",
+    )
     trust: str = _opt(
         "auto",
         "--trust",
@@ -135,7 +143,7 @@ def check_fill_options(opts: FillOptions) -> None:
         if not all(math.isfinite(t) for t in parse_range(opts.range)):
             raise TweenError(f"--range {opts.range!r}: time codes must be finite numbers")
     for opt, v in (("--out-dir", opts.out_dir), ("--mapping", opts.mapping), ("--review-layer", opts.review_layer),
-                   ("--dna", opts.dna)):  # fmt: skip
+                   ("--dna", opts.dna), ("--library", opts.library)):  # fmt: skip
         _opt_path(opt, v)
 
 

@@ -157,6 +157,37 @@ def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fil
     return out
 
 
+def library_record(inb: TrustedInbetweener, cp: CharPlan, tcps: float, fps: float) -> dict:
+    """What a per-gap in-betweener (a motion library) did in each gap of the character's fill:
+    its record (``last_gaps``) with the key time codes of each gap, and the trusted fill's
+    weight there (the gap's share of the library over the spline is the product)."""
+    m, keep = model_frames(cp.keys, tcps, fps)
+    at = {int(f): float(t) for f, t in zip(m[keep], cp.keys[keep], strict=True)}
+    d = inb.last_decision
+    frames = np.array(sorted(at), np.int64)
+    trusted_w = _gap_weights(d, frames) if len(frames) > 1 else {}
+    gaps = []
+    for row in inb.model.last_gaps:
+        a, b = row["frames"]
+        w = trusted_w.get((a, b), 1.0)
+        gaps.append(row | {"times": [at.get(a), at.get(b)], "trust_weight": round(w, 4),
+                           "share": round(w * row["weight"], 4)})  # fmt: skip
+    lib = inb.model
+    return {
+        "name": lib.library.name,
+        "hash": lib.library.hash,
+        "folder": str(lib.library.folder),
+        "gaps": gaps,
+    }
+
+
+def _gap_weights(decision, frames: np.ndarray) -> dict:
+    """{(a, b): the decision's model weight in the gap between adjacent key frames a, b}."""
+    mid = (frames[:-1] + frames[1:]) / 2.0
+    w = gap_weights_at(decision, frames, mid)
+    return {(int(a), int(b)): float(x) for a, b, x in zip(frames[:-1], frames[1:], w, strict=True)}
+
+
 def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto") -> dict:
     """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
     Motion of representative poses for a model that takes a motion DNA; ``trust``: how far
@@ -243,8 +274,11 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
     times = np.concatenate([inside, outside])
     order = np.argsort(times, kind="stable")
     decision = inb.last_decision if isinstance(inb, TrustedInbetweener) else None
+    record = None if decision is None else decision.to_json()
+    if record is not None and inb.model.capabilities.per_gap:
+        record["library"] = library_record(inb, cp, shot.tcps, fps)
     return {
-        "trust": None if decision is None else decision.to_json(),
+        "trust": record,
         "times": times[order],
         "rot": np.concatenate([rot, r2])[order],
         "trans": np.concatenate([tr, t2])[order],

@@ -46,7 +46,9 @@ class Capabilities:
     ``any_rig``: fills whatever skeleton the motion carries, in its own joint space (no
     retargeting onto :attr:`Inbetweener.skeleton`). ``novelty``: ``pose_bank`` is a
     (P, J, 3) sample of its training poses, against which the trusted fill measures how
-    familiar a shot's keys are (:mod:`pipeline.infer.novelty`).
+    familiar a shot's keys are (:mod:`pipeline.infer.novelty`). ``per_gap``: fills each gap
+    from its own two keys (no window spans a key, so a cut needs no splitting) and keeps
+    ``last_gaps``, a JSON-ready record per gap of its latest fill (a motion library).
     """
 
     partial_keys: bool = False
@@ -54,6 +56,7 @@ class Capabilities:
     batch: bool = False
     any_rig: bool = False
     novelty: bool = False
+    per_gap: bool = False
 
 
 @runtime_checkable

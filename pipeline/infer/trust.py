@@ -529,10 +529,11 @@ def fill_across_cuts(model, motion: Motion, keys, cuts, joint_keys=None, **kw) -
     """``model``'s fill of ``motion`` from ``keys``, each stretch of keys between the ``cuts``
     ((a, b) adjacent key frames the body teleports between) filled on its own, so no window of
     the network spans a teleport; frames inside a cut keep ``motion``'s values (the decision
-    gives them to the spline). Without cuts, ``model.fill`` as it is."""
+    gives them to the spline). Without cuts, or for a model that fills each gap on its own
+    (``capabilities.per_gap``), ``model.fill`` as it is."""
     keys = np.asarray(keys, np.int64)
     cuts = sorted((int(a), int(b)) for a, b in cuts if a in keys and b in keys)
-    if not cuts:
+    if not cuts or model.capabilities.per_gap:  # no window of a per-gap fill spans a key
         extra = kw if joint_keys is None else {**kw, "joint_keys": joint_keys}
         return model.fill(motion, keys, **extra)
     rot, root = motion.rotations.copy(), motion.root_positions.copy()

@@ -77,7 +77,7 @@ def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
     return files
 
 
-def _studio_take(path: Path) -> Motion:
+def studio_take(path: Path) -> Motion:
     """A take as the model trains on it: 30 fps on the model skeleton, quaternions continuous.
     BVH already on the model skeleton is read as the protocol reads it (exactly); any other
     rig goes through :func:`model_take`, the fill's own mapping and retargeting."""
@@ -98,4 +98,4 @@ def load_takes(folder: str | Path, include: str | None = None):
     ``tween train --data FOLDER`` trains on."""
     from pipeline.data.cache import load_files
 
-    return load_files(take_files(folder, include), "takes", read=_studio_take)
+    return load_files(take_files(folder, include), "takes", read=studio_take)

@@ -277,6 +277,15 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                 _attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
                 _attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
                 _attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
+                lib = tr.get("library")
+                if lib:  # the library's version, and how much of each gap is its motion
+                    _attr(spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})")
+                    _attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
+                    gaps = [g for g in lib["gaps"] if None not in g["times"]]
+                    _attr(spec, tokens.LIBRARY_GAPS, Sdf.ValueTypeNames.Double2Array,
+                          Vt.Vec2dArray([Gf.Vec2d(*g["times"]) for g in gaps]))  # fmt: skip
+                    _attr(spec, tokens.LIBRARY_SHARE, Sdf.ValueTypeNames.DoubleArray,
+                          Vt.DoubleArray([float(g["share"]) for g in gaps]))  # fmt: skip
             rt = c.get("retarget")
             if rt:
                 _attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])

@@ -1,0 +1,179 @@
+"""The library bench: a studio's own takes as the in-betweener, measured on takes held out of it.
+
+What a studio that hands over its library gets on new shots of the same characters and kinds
+of motion. A source is split **by take**: the held-out takes are shots, the other takes are
+the library (``tween library build``); nothing held out is in the library, and nothing here
+trains. Each held-out take goes the product's path (``tween convert --fps 30 --keys-every N``,
+the fill API as ``tween fill-local --library`` runs it) and is scored in the rig's own world
+joint positions between the keys (:func:`pipeline.bench.studio.evaluate_take`).
+
+Sources and their splits (never the sources issue 30 reserves for independent measurement):
+
+- ``cmu``: the CMU takes of ``../shared/data/cmu_iclone`` (100-joint Character Creator rig,
+  60 fps), every fifth take of each subject (its 5th, 10th, …) held out;
+- ``bandai``: the Bandai train split (the protocol's eval split is not used), the dataset-2
+  takes whose number is 4 mod 5 held out (every ``--stride``-th of them is scored).
+
+Methods: ``library`` (the trusted library fill: ``--library LIB``), ``library-alone``
+(``--library LIB --trust model``: its per-gap windows and spline fallback, unchecked by
+probes), ``default`` (the shipped network's trusted fill), ``spline``.
+
+``python -m pipeline.bench.library [--source cmu,bandai] [--every 10,30] [--stride 5]
+[--max-frames 300] [--methods library,library-alone,default,spline] [--out DIR]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.bench.heldout import cmu_files
+from pipeline.bench.report import publish
+from pipeline.bench.studio import evaluate_take
+from pipeline.data.cache import cache_dir
+from pipeline.data.split import list_clips
+from pipeline.library.store import is_library
+
+METHODS = ("library", "library-alone", "default", "spline")
+SOURCES = ("cmu", "bandai")
+_TAKE = re.compile(r"_(\d+)\.bvh(\.gz)?$")
+
+
+def split(source: str) -> tuple[list[Path], list[Path]]:
+    """(library takes, held-out takes) of a source, split by take."""
+    if source == "cmu":
+        files = cmu_files()
+        by: dict[str, list[Path]] = {}
+        for f in files:
+            by.setdefault(f.name[:3], []).append(f)
+        held = {f for fs in by.values() for i, f in enumerate(fs) if i % 5 == 4}
+    elif source == "bandai":
+        files = list_clips("train")
+        held = {f for f in files if f.name.startswith("dataset-2_") and int(_TAKE.search(f.name)[1]) % 5 == 4}
+    else:
+        raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
+    return [f for f in files if f not in held], sorted(held)
+
+
+def library_for(source: str, files: list[Path]) -> Path:
+    """The source's library (built once into the cache, as ``tween library build`` builds it)."""
+    from pipeline.library.build import build
+
+    folder = cache_dir() / "bench-libraries" / f"{source}-split-v1"
+    if not is_library(folder):
+        print(f"library bench: building the {source} library from {len(files)} takes…", file=sys.stderr)
+        tmp = folder.with_name(folder.name + ".partial")
+        if tmp.exists():
+            shutil.rmtree(tmp)
+        build(None, tmp, files=files, licence="as the source's", name=f"{source}-split")
+        tmp.rename(folder)
+    return folder
+
+
+def _fills(lib: Path) -> dict:
+    return {
+        "library": {"library": str(lib), "trust": "auto"},
+        "library-alone": {"library": str(lib), "trust": "model"},
+        "default": {"model": "default", "trust": "auto"},
+        "spline": {"model": "spline", "trust": "auto"},
+    }
+
+
+def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_frames: int | None = 300,
+        limit: int | None = None) -> dict:  # fmt: skip
+    report: dict = {"every": list(every), "methods": list(methods), "max_frames": max_frames, "sources": {}}
+    t0 = time.perf_counter()
+    for source in sources:
+        lib_files, held = split(source)
+        lib = library_for(source, lib_files)
+        if source == "bandai":
+            held = held[::stride]
+        held = held[: limit or None]
+        per: dict = {int(e): {} for e in every}
+        with tempfile.TemporaryDirectory(prefix="tween-library-bench-") as tmp:
+            for i, f in enumerate(held):
+                for e in every:
+                    print(f"library bench: {source} take {i + 1}/{len(held)} {f.name}, keys every {e}…",
+                          file=sys.stderr)  # fmt: skip
+                    per[int(e)][f.name] = evaluate_take(f, int(e), methods, Path(tmp), max_frames, True, 30.0,
+                                                        fills=_fills(lib))  # fmt: skip
+        report["sources"][source] = {"library_takes": len(lib_files), "held_out": [f.name for f in held],
+                                     "per_take": per, "summary": summary(per, methods)}  # fmt: skip
+    report["seconds"] = time.perf_counter() - t0
+    report["markdown"] = markdown(report)
+    return report
+
+
+def summary(per: dict, methods) -> dict:
+    """Per key spacing: each method's pooled error (cm, mapped joints) and its ratio to the
+    spline's, pooled and per take (median, worst)."""
+    out = {}
+    for e, takes in per.items():
+        row = {}
+        for m in methods:
+            err = sum(t["methods"][m]["mapped_sum"] for t in takes.values()) / max(
+                1, sum(t["methods"][m]["mapped_n"] for t in takes.values())
+            )
+            ratios = [
+                t["methods"][m]["mapped_sum"] / max(t["methods"]["spline"]["mapped_sum"], 1e-9)
+                for t in takes.values()
+            ]
+            row[m] = {"cm": err, "median_take": float(np.median(ratios)), "worst_take": float(max(ratios))}
+        for m in methods:
+            row[m]["vs_spline"] = row[m]["cm"] / max(row["spline"]["cm"], 1e-9)
+        out[e] = row
+    return out
+
+
+def markdown(rep: dict) -> str:
+    lines = [
+        f"Held-out takes (first {rep['max_frames']} frames at 30 fps), converted, blocked, filled and "
+        "scored on their own rig: mapped joints' world error (cm) between the keys; ÷ spline pooled "
+        "(median take, worst take).",
+        "",
+        "| source | keys every | " + " | ".join(rep["methods"]) + " |",
+        "|---|---|" + "---|" * len(rep["methods"]),
+    ]
+    for source, r in rep["sources"].items():
+        for e, row in r["summary"].items():
+            cells = [
+                f"{row[m]['cm']:.2f} cm, {row[m]['vs_spline']:.3f} ({row[m]['median_take']:.2f}, "
+                f"{row[m]['worst_take']:.2f})"
+                for m in rep["methods"]
+            ]
+            lines.append(f"| {source} ({len(r['held_out'])} takes) | {e} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipeline.bench.library", description=__doc__.splitlines()[0])
+    ap.add_argument("--source", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
+    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (of the shot)")
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
+    ap.add_argument("--stride", type=int, default=5, help="bandai: every N-th held-out take is scored")
+    ap.add_argument("--limit", type=int, default=None, help="at most N held-out takes per source")
+    ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
+    ap.add_argument("--out", type=Path, default=None, help="folder for library.json and library.md")
+    a = ap.parse_args(argv)
+    methods = tuple(m for m in a.methods.split(",") if m)
+    bad = [m for m in methods if m not in METHODS]
+    if bad or "spline" not in methods:
+        ap.error(f"--methods: one or more of {', '.join(METHODS)}, spline included")
+    sources = tuple(s for s in a.source.split(",") if s)
+    if any(s not in SOURCES for s in sources):
+        ap.error(f"--source: one or more of {', '.join(SOURCES)}")
+    every = tuple(int(e) for e in a.every.split(",") if e)
+    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit)
+    publish(rep, a.out, "library")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

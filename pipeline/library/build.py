@@ -1,0 +1,120 @@
+"""Building a library from a studio's takes (``tween library build``).
+
+Every BVH and USD take under a folder goes the way a shot goes to the model (the fill's own
+joint mapping and retargeting, :func:`pipeline.usd.take.studio_take`), resampled to the
+model's 30 fps, then its match features, facing and foot contacts are computed and appended
+to the library's arrays (:mod:`pipeline.library.store`). Memory follows one take. A take that
+cannot be read is one line on stderr naming the file; the others go on. ``add=True`` appends
+the takes the library does not hold yet (by resolved path) and keeps the rest as it is.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
+from pipeline.errors import TweenError
+from pipeline.library.features import contacts, facing, frame_features
+from pipeline.library.store import LibraryError, Writer, empty_manifest, is_library, open_library
+
+FPS = 30.0
+
+
+def take_arrays(motion) -> dict[str, np.ndarray]:
+    """The per-frame arrays of one take on the model skeleton at the library's rate."""
+    rot = np.asarray(motion.rotations, np.float32)
+    root = np.asarray(motion.root_positions, np.float32)
+    feats = frame_features(rot, root, motion.skeleton)
+    return {
+        "rotations": rot,
+        "roots": root,
+        "features": feats,
+        "sqnorm": (feats.astype(np.float64) ** 2).sum(1).astype(np.float32),
+        "facing": facing(rot, root, motion.skeleton).astype(np.float32),
+        "contacts": contacts(rot, root, motion.skeleton),
+    }
+
+
+def mirrored(motion):
+    """The take's left/right mirror image (the model skeleton's mirror, pipeline.motion.mirror)."""
+    m = bandai_mirror()
+    rot = m.rotations(np.asarray(motion.rotations, np.float64), motion.skeleton.parents)
+    return replace(motion, rotations=rot.astype(np.float32), root_positions=m.root(motion.root_positions))
+
+
+def _rig_of(path: Path, motion) -> str:
+    """What the take came from, for the manifest."""
+    kind = "BVH" if path.name.endswith((".bvh", ".bvh.gz")) else "USD"
+    return kind
+
+
+def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
+          add: bool = False, files=None, progress: bool = True, mirror: bool = False) -> dict:  # fmt: skip
+    """Reads the takes under ``folder`` (or the paths in ``files``) into the library ``out``;
+    returns {"library", "added", "skipped", "failed", "frames", "hours", "hash"}. Without
+    ``add`` an existing library at ``out`` is refused (build into a new folder, or add)."""
+    from pipeline.usd.take import studio_take, take_files
+
+    out = Path(out)
+    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
+        what = "a library" if is_library(out) else "not empty"
+        raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
+    if add and out.exists() and not is_library(out) and any(out.iterdir()):
+        raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
+    paths = [Path(p) for p in files] if files is not None else take_files(folder, include)
+    skel = bandai_skeleton()
+    if add and is_library(out):
+        manifest = dict(open_library(out).manifest)
+        if licence and manifest.get("licence") and licence != manifest["licence"]:
+            print(f"tween: {out}: new takes under licence {licence!r}; the library says {manifest['licence']!r}",
+                  file=sys.stderr)  # fmt: skip
+    else:
+        manifest = empty_manifest(name or out.resolve().name, licence, skel.names, FPS)
+    have = {t["file"] for t in manifest["takes"]}
+    todo = [p for p in paths if str(p.resolve()) not in have]
+    writer = Writer(out, manifest)
+    failed, added = [], 0
+    bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
+               disable=not progress or None, mininterval=2.0)  # fmt: skip
+    try:
+        for path in bar:
+            try:
+                motion = studio_take(path)
+                if len(motion) < 2:
+                    raise TweenError(f"{path}: fewer than two frames")
+                rig = _rig_of(path, motion)
+                arrays = take_arrays(motion)
+            except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
+                msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+                line = msg if str(path) in msg else f"{path}: {msg}"
+                print(f"tween: skipped take: {line}", file=sys.stderr)
+                failed.append({"file": str(path), "why": msg})
+                continue
+            entry = {"name": path.name, "file": str(path.resolve()), "rig": rig}
+            if licence:
+                entry["licence"] = licence
+            writer.add(entry, arrays)
+            if mirror:  # the same motion with the other hand and foot leading
+                writer.add(entry | {"name": f"{path.name} (mirrored)", "mirrored": True},
+                           take_arrays(mirrored(motion)))  # fmt: skip
+            added += 1
+        writer.commit()
+    finally:
+        writer.close()
+        bar.close()
+    lib = open_library(out)
+    return {
+        "library": str(out),
+        "added": added,
+        "skipped": len(paths) - len(todo),
+        "failed": failed,
+        "frames": lib.frames,
+        "hours": lib.manifest["hours"],
+        "hash": lib.hash,
+        "takes": len(lib.manifest["takes"]),
+    }

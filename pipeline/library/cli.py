@@ -1,0 +1,56 @@
+"""``tween library build`` and ``tween library info``: a studio's takes as a motion library."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from pipeline.errors import TweenError
+from pipeline.library.store import open_library
+
+
+def build_command(
+    folder: Path = typer.Argument(
+        ..., help="Folder of takes (BVH and USD, any humanoid rig; searched recursively)."
+    ),
+    out: Path = typer.Option(
+        ..., "--out", help="The library folder to write (new, or an existing library with --add)."
+    ),
+    add: bool = typer.Option(False, "--add", help="Append the takes the library does not hold yet."),
+    include: str = typer.Option(
+        None, "--include", help="Only takes whose file name matches these globs (a,b)."
+    ),
+    licence: str = typer.Option(
+        None, "--licence", help="The takes' licence as the studio states it (recorded)."
+    ),
+    name: str = typer.Option(None, "--name", help="The library's name (default: the folder's)."),
+    mirror: bool = typer.Option(False, "--mirror", help="Also add each take's left/right mirror image."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="A progress bar on stderr."),
+):
+    """Read a studio's takes into a motion library for `tween fill --library`."""
+    from pipeline.library.build import build
+
+    res = build(folder, out, include=include, licence=licence, name=name, add=add, progress=progress,
+                mirror=mirror)  # fmt: skip
+    typer.echo(json.dumps(res, indent=1))
+    if res["added"] == 0 and res["failed"] and not res["takes"]:
+        raise TweenError(f"{folder}: no take could be read ({len(res['failed'])} failed)")
+
+
+def info_command(library: Path = typer.Argument(..., help="A library folder.")):
+    """What a library holds: takes, frames, hours, licence and hash."""
+    lib = open_library(library)
+    typer.echo(lib.describe())
+    for t in lib.manifest["takes"]:
+        typer.echo(f"  {t['name']}: {t['frames']} frames ({t.get('rig', '')})")
+
+
+def register(app: typer.Typer) -> None:
+    lib = typer.Typer(
+        name="library", help="A studio's motion library: build it, look at it.", no_args_is_help=True
+    )
+    lib.command("build")(build_command)
+    lib.command("info")(info_command)
+    app.add_typer(lib, name="library")

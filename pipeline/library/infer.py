@@ -1,0 +1,193 @@
+"""The library as an in-betweener: per gap, the library's best windows fitted onto the keys,
+or the spline where the library has nothing like them.
+
+Per gap (:mod:`pipeline.library.match`): the ``BEST`` windows of least cost, fitted onto the
+two keys and averaged. How far the gap takes them over the spline through the same keys
+(what the animator's DCC draws) follows from their pose miss at the keys (cm, the mean
+joint-position distance between the keys and the windows' ends): in full up to
+``TRUST_CM``, not at all from ``REFUSE_CM``, linearly between (the library's motion is
+then not the keys' motion). Gaps no take of the library spans, and gaps longer than
+``MAX_GAP`` frames, are the spline's. Feet in contact in the retrieved windows are held
+in place by the fill's foot cleanup (:func:`pipeline.infer.post.lock_feet`). Keys are
+bitwise the input's. ``last_gaps`` keeps, per gap of the latest fill, its frames, pose miss,
+weight and the windows it took (take name and frame), for the fill's record.
+
+The trusted fill (:mod:`pipeline.infer.trust`) wraps this in-betweener as it wraps the
+network: probes from the shot's own keys decide, per gap length, how far the whole is
+trusted over the spline.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+
+from pipeline.data.skeletons import LEGS, bandai_skeleton
+from pipeline.infer.api import Capabilities
+from pipeline.infer.post import lock_feet, match_keys
+from pipeline.infer.spline import spline_keys
+from pipeline.library import match
+from pipeline.library.features import facing
+from pipeline.library.store import Library, LibraryError, open_library
+from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import slerp_pairs
+
+#: Pose miss (cm) up to which a gap takes the library's windows in full.
+TRUST_CM = 6.0
+#: Pose miss (cm) from which a gap is the spline's.
+REFUSE_CM = 12.0
+#: Library frames in the pose bank the trusted fill measures the keys' familiarity on.
+BANK_POSES = 4096
+#: Pose miss over the keys' change of pose (+1 cm) up to which a gap takes the library in
+#: full, and from which it is the spline's: where the keys barely move, the spline is
+#: already right and a window that misses them adds motion nobody keyed.
+TRUST_RATIO = 0.5
+REFUSE_RATIO = 1.5
+#: The longest gap (frames) the library fills; longer ones are the spline's.
+MAX_GAP = 300
+
+
+def gap_weight(miss_cm: float, change_cm: float = np.inf) -> float:
+    """The library's share of a gap whose windows miss the keys by ``miss_cm`` while the pose
+    changes by ``change_cm`` from one key to the other (both RMS over the joints)."""
+    absolute = (REFUSE_CM - miss_cm) / (REFUSE_CM - TRUST_CM)
+    relative = (REFUSE_RATIO - miss_cm / (change_cm + 1.0)) / (REFUSE_RATIO - TRUST_RATIO)
+    return float(np.clip(min(absolute, relative), 0.0, 1.0))
+
+
+class LibraryInbetweener:
+    """Fills the frames between keys from a studio's library (:mod:`pipeline.library`)."""
+
+    fps = 30.0
+    capabilities = Capabilities(partial_keys=True, novelty=True, per_gap=True)
+
+    def __init__(self, library: str | Library, feet: bool = True, best: int = match.BEST):
+        self.library = library if isinstance(library, Library) else open_library(library)
+        self.skeleton = bandai_skeleton()
+        if tuple(self.library.manifest.get("skeleton", ())) != tuple(self.skeleton.names):
+            raise LibraryError(f"{self.library.folder}: its takes are on another skeleton than the model's")
+        if abs(self.library.fps - self.fps) > 1e-6:
+            raise LibraryError(
+                f"{self.library.folder}: {self.library.fps:g} fps, the fill works at {self.fps:g}"
+            )
+        if self.library.frames < 2:
+            raise LibraryError(f"{self.library.folder}: the library holds no motion")
+        self.name = f"library:{self.library.name}"
+        self.model_hash = f"library-{self.library.hash}"
+        self.feet, self.best = feet, best
+        self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
+        self.last_gaps: list[dict] = []
+
+    @cached_property
+    def pose_bank(self) -> np.ndarray:
+        """(P, J, 3) float32: ``BANK_POSES`` library frames (fixed seed) as the trusted fill's
+        novelty reads them, so keys unlike the library's motion earn it no credit beyond
+        what the probes show (:mod:`pipeline.infer.novelty`)."""
+        lib = self.library
+        pick = np.sort(
+            np.random.default_rng(0).choice(lib.frames, min(BANK_POSES, lib.frames), replace=False)
+        )
+        J = len(self.skeleton)
+        return np.asarray(lib.features[pick, : J * 3], np.float32).reshape(len(pick), J, 3)
+
+    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None) -> Motion:
+        if dna is not None:
+            raise ValueError(f"{self.name}: a library takes no motion DNA")
+        keys = np.asarray(keys, np.int64)
+        if joint_keys is None or np.asarray(joint_keys, bool).all():
+            rot, root = self._fill(motion.rotations, motion.root_positions, np.unique(keys))
+        else:  # partial keys: filled from the full keys, the partial ones matched after (as the spline)
+            mask = np.asarray(joint_keys, bool)
+            rot, root = self._fill(motion.rotations, motion.root_positions, keys[mask.all(axis=1)])
+            q, r = match_keys(rot[None], root[None], motion.rotations[keys][None],
+                              motion.root_positions[keys][None], keys, mask)  # fmt: skip
+            rot, root = np.asarray(q[0], np.float32), np.asarray(r[0], np.float32)
+        return Motion(motion.skeleton, rot, root, motion.fps, motion.name)
+
+    def _fill(self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray):
+        """(T, J, 4) / (T, 3) filled from the full ``keys``: the spline, then each gap the
+        library spans blended over it at its weight; the keys bitwise the input's."""
+        skel = self.skeleton
+        rot, root = spline_keys(rotations, roots, keys)
+        rot, root = rot.astype(np.float64), root.astype(np.float64)
+        contacts = np.zeros((len(rot), 2))
+        k_rot = np.asarray(rotations[keys], np.float64)
+        k_root = np.asarray(roots[keys], np.float64)
+        feats = match.key_features(k_rot, k_root, skel)
+        faces = facing(k_rot, k_root, skel)
+        gaps: list[dict] = []
+        todo = [g for g in range(len(keys) - 1) if 1 < keys[g + 1] - keys[g] <= MAX_GAP]
+        for g in range(len(keys) - 1):
+            if keys[g + 1] - keys[g] > MAX_GAP:
+                gaps.append(self._row(keys, g, None, 0.0, "longer than the library fills"))
+        # The distances of a block of keys to every library frame at once (memory follows the block).
+        for b0 in range(0, len(todo), match.KEY_BLOCK - 1):
+            block = todo[b0 : b0 + match.KEY_BLOCK - 1]
+            idx = sorted({i for g in block for i in (g - 1, g, g + 1, g + 2) if 0 <= i < len(keys)})
+            at = {i: c for c, i in enumerate(idx)}
+            d = match.key_distances(self.library, feats[idx])
+            for g in block:
+                n = int(keys[g + 1] - keys[g])
+                step = k_root[g + 1] - k_root[g]
+                travel = match.batch_quat_apply(faces[g], step)[[0, 2]]
+                turn = float(match._wrap(match._yaw(faces[g]) - match._yaw(faces[g + 1])))
+                context = [
+                    (d[:, at[i]], int(keys[i] - keys[g]))
+                    for i in (g - 1, g + 2)
+                    if i in at
+                    and abs(int(keys[i]) - int(keys[g if i < g else g + 1])) <= match.CONTEXT_FRAMES
+                ]
+                m = match.search(
+                    self.library, d[:, at[g]], d[:, at[g + 1]], n, travel, turn, self.best, context
+                )
+                if m is None:
+                    gaps.append(self._row(keys, g, None, 0.0, "no take of the library is that long"))
+                    continue
+                w = gap_weight(m.miss_cm, float(np.sqrt(((feats[g + 1] - feats[g]) ** 2).sum() / len(skel))))
+                gaps.append(
+                    self._row(keys, g, m, w, "" if w > 0 else "the library has no motion like the keys")
+                )
+                if w <= 0.0:
+                    continue
+                lo, hi = int(keys[g]), int(keys[g + 1])
+                fits = [match.fit_window(self.library, int(s), int(ln), n, k_rot[g : g + 2], k_root[g : g + 2],
+                                         faces[g])
+                        for s, ln in zip(m.starts, m.lengths, strict=True)]  # fmt: skip
+                q, p = match.average([f[0] for f in fits], [f[1] for f in fits], m.weights)
+                lo, hi = int(keys[g]), int(keys[g + 1])
+                inner = slice(lo + 1, hi)
+                if w >= 1.0:
+                    rot[inner], root[inner] = q[1:-1], p[1:-1]
+                else:
+                    rot[inner] = slerp_pairs(rot[inner], q[1:-1], np.full(q[1:-1].shape[:-1], w))
+                    root[inner] += w * (p[1:-1] - root[inner])
+                c = sum(wt * _retimed(self.library.contacts[s : s + ln + 1], n)
+                        for s, ln, wt in zip(m.starts, m.lengths, m.weights, strict=True))  # fmt: skip
+                contacts[lo : hi + 1] = np.maximum(contacts[lo : hi + 1], w * c)
+        self.last_gaps = sorted(gaps, key=lambda r: r["frames"][0])
+        out_rot = rot.astype(np.float32)
+        if self.feet and contacts.any():
+            out_rot = lock_feet(out_rot, root, skel, (contacts > 0.5).astype(np.float32), keys, self.legs,
+                                anchor=True, orient=True)  # fmt: skip
+        out_root = root.astype(np.float32)
+        out_rot[keys], out_root[keys] = rotations[keys], roots[keys]
+        return out_rot, out_root
+
+    def _row(self, keys, g: int, m, weight: float, why: str) -> dict:
+        row = {"frames": [int(keys[g]), int(keys[g + 1])], "weight": round(weight, 4)}
+        if m is None:
+            return row | {"miss_cm": None, "windows": [], "why": why}
+        takes = self.library.manifest["takes"]
+        starts = np.array([t["start"] for t in takes])
+        where = []
+        for s in m.starts:
+            t = takes[int(np.searchsorted(starts, s, side="right")) - 1]
+            where.append([t["name"], int(s) - int(t["start"])])
+        return row | {"miss_cm": round(m.miss_cm, 3), "windows": where, **({"why": why} if why else {})}
+
+
+def _retimed(flags: np.ndarray, n: int) -> np.ndarray:
+    """(n + 1, C) per-frame values of a window of any length, at the nearest window frame."""
+    f = np.asarray(flags, np.float64)
+    return f[np.round(np.arange(n + 1) * ((len(f) - 1) / n)).astype(np.int64)]

@@ -1,0 +1,181 @@
+"""Searching a library for the stretch of motion between two keys, and fitting it onto them.
+
+For a gap from key a to key b, ``n`` frames apart, every library frame ``s`` whose take runs
+on to ``s + n`` is a candidate window. Its cost, in cm:
+
+- the pose miss at both ends: the root-mean-square joint-position miss between frame ``s``
+  and key a, and between ``s + n`` and key b (:mod:`pipeline.library.features`: facing and
+  place do not count, posture and root height do);
+- the root's travel: how far the window's root displacement over the gap, seen from its first
+  frame's facing, misses the keys' (``DISP_WEIGHT`` per cm), and its change of facing the
+  keys' (``TURN_WEIGHT`` cm per radian).
+
+The pose terms of every frame come from one matrix product per block of keys (the distances
+of every key to every library frame, :func:`key_distances`); the travel terms are computed for
+the ``PREFILTER`` windows of least pose miss only. The ``best`` windows of least cost are then
+fitted (:func:`fit_window`): turned about the vertical and moved so that their first frame
+faces and stands where key a does, the root's miss at key b spread linearly over the gap, and
+each joint's rotation offset to the keys (key ⊗ window⁻¹, at both ends) slerped across the gap
+and applied, so the fit passes through both keys; the fitted windows are averaged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.library.features import frame_features
+from pipeline.motion.rotations import (
+    batch_quat_apply,
+    batch_quat_conj,
+    batch_quat_mul,
+    batch_quat_normalize,
+    slerp_pairs,
+)
+
+#: Windows fitted and averaged per gap.
+BEST = 8
+#: Windows of least pose miss whose travel terms are computed.
+PREFILTER = 256
+#: Cost (cm) per cm that a window's root displacement misses the keys'.
+DISP_WEIGHT = 0.5
+#: Cost (cm) per radian that a window's change of facing misses the keys'.
+TURN_WEIGHT = 20.0
+#: Weight of each key beside the gap (its squared pose miss) against the gap's own two.
+CONTEXT_WEIGHT = 0.25
+#: Keys beside a gap further than this (frames) from it give no context.
+CONTEXT_FRAMES = 60
+#: Cost (cm) over the best window's at which a window counts 1/e as much in the average
+#: (None: every window alike).
+SOFTMIN_CM = 2.0
+#: Keys whose distances to every library frame are held at once (memory: KEY_BLOCK × frames
+#: float32; 128 MB for a 10-hour library at 30 fps).
+KEY_BLOCK = 32
+
+
+@dataclass
+class GapMatch:
+    """The windows chosen for one gap: their first library frames, costs and pose misses
+    (cm), and their weights in the average."""
+
+    starts: np.ndarray
+    lengths: np.ndarray
+    cost: np.ndarray
+    pose_cm: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def miss_cm(self) -> float:
+        """The chosen windows' weighted pose miss at the two keys (cm): how like the keys the
+        library's motion is."""
+        return float(np.dot(self.weights, self.pose_cm))
+
+
+def key_distances(lib, feats: np.ndarray) -> np.ndarray:
+    """(F, K) float32: each key's mean squared joint-position miss (cm²) against every
+    library frame, for K key features (K, D)."""
+    joints = (feats.shape[1] - 1) / 3.0
+    k = np.asarray(feats, np.float32)
+    d = lib.features @ (-2.0 * k.T)
+    d += lib.sqnorm[:, None]
+    d += (k * k).sum(1)[None]
+    np.maximum(d, 0.0, out=d)
+    d /= joints
+    return d
+
+
+def _yaw(q: np.ndarray) -> np.ndarray:
+    """The angle (rad) of yaw quaternions about +Y."""
+    return 2.0 * np.arctan2(q[..., 1], q[..., 3])
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, turn: float,
+           best: int = BEST, context=()) -> GapMatch | None:  # fmt: skip
+    """The ``best`` windows for a gap of ``n`` frames whose keys' distances to every library
+    frame are ``d_a`` and ``d_b`` (F,), whose root travels ``travel`` (x, z, seen from key a's
+    facing) and turns ``turn`` rad. ``context``: (distances (F,), offset) of the keys beside
+    the gap, ``offset`` frames from key a: a window whose take around it also passes near
+    them (a walk in the same phase, a jump with the same run-up) costs less
+    (``CONTEXT_WEIGHT``; an offset past the take's end is read at its end). None when no
+    take is long enough."""
+    F = lib.frames
+    if n < 1 or n >= F:
+        return None
+    s = np.arange(F - n)
+    pose = d_a[: F - n] + d_b[n:]
+    for d_c, off in context if CONTEXT_WEIGHT else ():
+        at = np.clip(s + off, lib.take_start[: F - n], lib.take_end[: F - n])
+        pose = pose + CONTEXT_WEIGHT * d_c[at]
+    pose = np.where(lib.take_end[: F - n] >= s + n, pose, np.inf)
+    p = min(PREFILTER, len(pose))
+    cand = np.argpartition(pose, p - 1)[:p] if p < len(pose) else s
+    cand = cand[np.isfinite(pose[cand])]
+    if not len(cand):
+        return None
+    pose_cm = 0.5 * (np.sqrt(d_a[cand]) + np.sqrt(d_b[cand + n]))
+    ctx_cm = np.sqrt(pose[cand] / 2.0) - 0.0  # the prefilter's pose terms, as an RMS (cm)
+    face = np.asarray(lib.facing[cand], np.float64)
+    step = np.asarray(lib.roots[cand + n], np.float64) - lib.roots[cand]
+    disp = batch_quat_apply(face, step)[:, [0, 2]]
+    lib_turn = _wrap(_yaw(face) - _yaw(np.asarray(lib.facing[cand + n], np.float64)))
+    cost = 2.0 * ctx_cm if context and CONTEXT_WEIGHT else 2.0 * pose_cm
+    cost = cost + DISP_WEIGHT * np.linalg.norm(disp - travel, axis=1)
+    cost += TURN_WEIGHT * np.abs(_wrap(lib_turn - turn))
+    order = np.argsort(cost, kind="stable")[:best]
+    if SOFTMIN_CM:
+        w = np.exp(-(cost[order] - cost[order[0]]) / SOFTMIN_CM)
+        w /= w.sum()
+    else:
+        w = np.full(len(order), 1.0 / len(order))
+    return GapMatch(cand[order], np.full(len(order), n), cost[order], pose_cm[order], w)
+
+
+def fit_window(lib, s: int, length: int, n: int, key_rot: np.ndarray, key_root: np.ndarray,
+               key_face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Library frames ``s .. s + length`` retimed to ``n + 1`` frames and fitted onto the
+    keys: (n + 1, J, 4) rotations and (n + 1, 3) roots equal to the keys (``key_rot``
+    (2, J, 4), ``key_root`` (2, 3)) at both ends up to rounding. ``key_face``: key a's
+    facing turn (4,)."""
+    rot = np.array(lib.rotations[s : s + length + 1], np.float64)
+    root = np.array(lib.roots[s : s + length + 1], np.float64)
+    if length != n:  # retimed: each gap frame between the two library frames around it
+        u = np.arange(n + 1) * (length / n)
+        i0 = np.minimum(np.floor(u).astype(np.int64), length - 1)
+        w = u - i0
+        rot = slerp_pairs(rot[i0], rot[i0 + 1], np.broadcast_to(w[:, None], rot[i0].shape[:-1]))
+        root = root[i0] + w[:, None] * (root[i0 + 1] - root[i0])
+    # Turn the window to face as key a does and stand where it stands.
+    align = batch_quat_mul(batch_quat_conj(key_face), np.asarray(lib.facing[s], np.float64))
+    rot[:, 0] = batch_quat_mul(np.broadcast_to(align, rot[:, 0].shape), rot[:, 0])
+    root = batch_quat_apply(np.broadcast_to(align, root.shape[:1] + (4,)), root - root[0]) + key_root[0]
+    t = np.arange(n + 1, dtype=np.float64) / n
+    root += t[:, None] * (key_root[1] - root[-1])
+    # Each joint's offset to the keys at both ends, slerped across the gap.
+    k = np.asarray(key_rot, np.float64)
+    o_a = batch_quat_mul(k[0], batch_quat_conj(rot[0]))
+    o_b = batch_quat_mul(k[1], batch_quat_conj(rot[-1]))
+    off = slerp_pairs(np.broadcast_to(o_a, rot.shape), np.broadcast_to(o_b, rot.shape), t[:, None])
+    rot = batch_quat_normalize(batch_quat_mul(off, rot))
+    return rot, root
+
+
+def average(rots: list[np.ndarray], roots: list[np.ndarray], weights: np.ndarray):
+    """The weighted mean of fitted windows: rotations on the first's hemisphere, summed and
+    normalised; roots averaged."""
+    ref = rots[0]
+    acc = np.zeros_like(ref)
+    for r, w in zip(rots, weights, strict=True):
+        sign = np.where((r * ref).sum(-1, keepdims=True) < 0, -1.0, 1.0)
+        acc += w * sign * r
+    root = sum(w * p for p, w in zip(roots, weights, strict=True))
+    return batch_quat_normalize(acc), root
+
+
+def key_features(rots: np.ndarray, roots: np.ndarray, skeleton) -> np.ndarray:
+    """(K, D) features of key poses (the library's own kind)."""
+    return frame_features(np.asarray(rots, np.float32), np.asarray(roots, np.float32), skeleton)

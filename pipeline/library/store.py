@@ -1,0 +1,219 @@
+"""The library folder: a manifest and flat arrays, memory-mapped.
+
+``library.json`` names the takes (file, frames, first frame, rig, licence as the studio states
+it), the skeleton and frame rate every frame is on (the model's), the arrays' shapes, and the
+library's **hash**: a chain over its takes' contents (``tween library build --add`` extends the
+chain), recorded in every fill that uses it so that fill can be reproduced.
+
+Each array is a raw little-endian file (``ARRAYS``) read with ``np.memmap``: a worker maps the
+files, and every process of a host shares one copy in the page cache whatever its
+concurrency. Takes are appended to the files; the manifest, written last and atomically, says
+how many frames are valid, so an interrupted ``--add`` leaves the library as it was (the bytes
+past the manifest's frames are cut off by the next ``--add``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import TweenError
+
+MANIFEST = "library.json"
+KIND = "tween-library"
+VERSION = 1
+#: name → (dtype, shape of one frame's entry).
+ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
+    "rotations": ("<f4", (21, 4)),  # local joint rotations, xyzw, on the model skeleton
+    "roots": ("<f4", (3,)),  # root positions (cm, Y up)
+    "features": ("<f4", (64,)),  # pipeline.library.features.frame_features
+    "sqnorm": ("<f4", ()),  # |features|² (the search's dot-product form)
+    "facing": ("<f4", (4,)),  # yaw quaternion turning the pose to face +X
+    "contacts": ("u1", (2,)),  # left / right foot on the ground
+    "take_end": ("<i4", ()),  # index of the last frame of this frame's take
+}
+
+
+class LibraryError(TweenError):
+    """A library folder that cannot be used; one line naming it."""
+
+
+@dataclass
+class Library:
+    """An open library: ``manifest`` and the arrays as read-only memory maps (attributes named
+    as in :data:`ARRAYS`)."""
+
+    folder: Path
+    manifest: dict
+
+    @property
+    def frames(self) -> int:
+        return int(self.manifest["frames"])
+
+    @property
+    def hash(self) -> str:
+        return str(self.manifest["hash"])
+
+    @property
+    def name(self) -> str:
+        return str(self.manifest.get("name") or self.folder.name)
+
+    @property
+    def fps(self) -> float:
+        return float(self.manifest["fps"])
+
+    def array(self, name: str) -> np.ndarray:
+        dtype, shape = ARRAYS[name]
+        if self.frames == 0:
+            return np.zeros((0, *shape), dtype)
+        return np.memmap(self.folder / f"{name}.bin", dtype=dtype, mode="r", shape=(self.frames, *shape))
+
+    @cached_property
+    def rotations(self) -> np.ndarray:
+        return self.array("rotations")
+
+    @cached_property
+    def roots(self) -> np.ndarray:
+        return self.array("roots")
+
+    @cached_property
+    def features(self) -> np.ndarray:
+        return self.array("features")
+
+    @cached_property
+    def sqnorm(self) -> np.ndarray:
+        return self.array("sqnorm")
+
+    @cached_property
+    def facing(self) -> np.ndarray:
+        return self.array("facing")
+
+    @cached_property
+    def contacts(self) -> np.ndarray:
+        return self.array("contacts")
+
+    @cached_property
+    def take_end(self) -> np.ndarray:
+        return self.array("take_end")
+
+    @cached_property
+    def take_start(self) -> np.ndarray:
+        """(F,) int32: index of the first frame of each frame's take."""
+        takes = self.manifest["takes"]
+        starts = np.array([t["start"] for t in takes], np.int32)
+        return np.repeat(starts, [int(t["frames"]) for t in takes])
+
+    def describe(self) -> str:
+        m = self.manifest
+        return (
+            f"{self.folder}: {len(m['takes'])} take(s), {self.frames} frames at {self.fps:g} fps "
+            f"({m['hours']:.2f} h), licence {m.get('licence') or 'not stated'}, hash {self.hash}"
+        )
+
+
+def is_library(folder: str | Path) -> bool:
+    return (Path(folder) / MANIFEST).is_file()
+
+
+def open_library(folder: str | Path) -> Library:
+    """The library in ``folder``; LibraryError (one line naming the folder) when it is none,
+    or its files do not hold the frames its manifest says."""
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not folder.is_dir():
+        raise LibraryError(f"{folder}: no such library folder (make one with `tween library build`)")
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise LibraryError(
+            f"{folder}: not a library (no {MANIFEST}; make one with `tween library build`)"
+        ) from None
+    except (OSError, UnicodeDecodeError, ValueError) as e:
+        raise LibraryError(f"{path}: cannot read: {e}") from None
+    if not isinstance(manifest, dict) or manifest.get("kind") != KIND:
+        raise LibraryError(f"{path}: not a usd-tween library manifest")
+    if manifest.get("version") != VERSION:
+        raise LibraryError(f"{path}: library version {manifest.get('version')!r}, this tween reads {VERSION}")
+    frames = manifest.get("frames")
+    if not isinstance(frames, int) or frames < 0 or not isinstance(manifest.get("takes"), list):
+        raise LibraryError(f"{path}: manifest without a frame count or takes")
+    for name, (dtype, shape) in ARRAYS.items():
+        need = frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        f = folder / f"{name}.bin"
+        try:
+            have = f.stat().st_size
+        except OSError:
+            raise LibraryError(f"{f}: missing (the library is incomplete; build it again)") from None
+        if have < need:
+            raise LibraryError(f"{f}: {have} bytes, the manifest's {frames} frames need {need}")
+    return Library(folder, manifest)
+
+
+def empty_manifest(name: str, licence: str | None, skeleton_names, fps: float) -> dict:
+    return {
+        "kind": KIND,
+        "version": VERSION,
+        "name": name,
+        "licence": licence,
+        "skeleton": list(skeleton_names),
+        "fps": float(fps),
+        "frames": 0,
+        "hours": 0.0,
+        "hash": hashlib.sha256(b"tween-library").hexdigest()[:16],
+        "takes": [],
+    }
+
+
+class Writer:
+    """Appends takes to a library folder; :meth:`commit` writes the manifest (atomically)."""
+
+    def __init__(self, folder: Path, manifest: dict):
+        self.folder, self.manifest = folder, manifest
+        folder.mkdir(parents=True, exist_ok=True)
+        frames = int(manifest["frames"])
+        self.files = {}
+        for name, (dtype, shape) in ARRAYS.items():
+            f = folder / f"{name}.bin"
+            f.touch()
+            with open(f, "r+b") as h:  # drop what an interrupted add left past the manifest
+                h.truncate(frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
+            self.files[name] = open(f, "ab")
+
+    def add(self, take: dict, arrays: dict[str, np.ndarray]) -> None:
+        """One take: its manifest entry and its per-frame arrays (``take_end`` is made here)."""
+        n = len(arrays["rotations"])
+        start = int(self.manifest["frames"])
+        arrays = dict(arrays, take_end=np.full(n, start + n - 1, np.int32))
+        digest = hashlib.sha256()
+        for name, (dtype, shape) in ARRAYS.items():
+            a = np.ascontiguousarray(arrays[name], dtype=dtype)
+            if a.shape != (n, *shape):
+                raise ValueError(f"{name}: shape {a.shape}, expected {(n, *shape)}")
+            if name != "take_end":
+                digest.update(a.tobytes())
+            self.files[name].write(a.tobytes())
+        chain = hashlib.sha256((self.manifest["hash"] + digest.hexdigest()).encode())
+        self.manifest["hash"] = chain.hexdigest()[:16]
+        self.manifest["takes"].append(dict(take, start=start, frames=n))
+        self.manifest["frames"] = start + n
+        self.manifest["hours"] = round(self.manifest["frames"] / self.manifest["fps"] / 3600.0, 6)
+
+    def commit(self) -> None:
+        for h in self.files.values():
+            h.flush()
+            os.fsync(h.fileno())
+        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=f".{MANIFEST}.", suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(self.manifest, f, indent=1)
+        os.replace(tmp, self.folder / MANIFEST)
+
+    def close(self) -> None:
+        for h in self.files.values():
+            h.close()

@@ -1,0 +1,263 @@
+"""A studio's motion library: building it from takes of any rig, and filling gaps from it.
+
+The library is built from real takes (Bandai clips on the model skeleton, a CMU take on a
+100-joint rig at 60 fps) through the product's own reading; the fill is checked against the
+motion it came from."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pipeline.infer.spline import spline_keys
+from pipeline.library import match
+from pipeline.library.build import build
+from pipeline.library.infer import LibraryInbetweener, gap_weight
+from pipeline.library.store import ARRAYS, MANIFEST, LibraryError, open_library
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.fk import fk
+from pipeline.usd.take import studio_take
+
+BANDAI = (
+    "dataset-2_walk_active_001.bvh.gz",
+    "dataset-2_run_active_001.bvh.gz",
+    "dataset-2_raise-up-both-hands_active_001.bvh.gz",
+)
+CMU_TAKE = "002_02.bvh.gz"
+HELD_OUT = "dataset-2_walk_active_003.bvh.gz"  # another take of the same walk
+
+
+@pytest.fixture(scope="module")
+def takes(data_dir, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("takes")
+    for name in BANDAI:
+        shutil.copy(data_dir / "bandai_namco" / "dataset-2" / name, folder / name)
+    (folder / "cmu").mkdir()
+    shutil.copy(data_dir / "cmu_iclone" / CMU_TAKE, folder / "cmu" / CMU_TAKE)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def library(takes, tmp_path_factory):
+    out = tmp_path_factory.mktemp("libs") / "studio"
+    res = build(takes, out, licence="studio-internal", progress=False)
+    assert res["added"] == 4 and not res["failed"]
+    return out
+
+
+def _err_cm(skel, rot, root, true_rot, true_root, frames):
+    _, a = fk(rot[frames], root[frames], skel.parents, skel.offsets)
+    _, b = fk(true_rot[frames], true_root[frames], skel.parents, skel.offsets)
+    return float(np.linalg.norm(a - b, axis=-1).mean())
+
+
+def test_a_library_holds_every_take_on_the_model_skeleton_with_a_manifest(library, takes):
+    lib = open_library(library)
+    m = lib.manifest
+    assert {t["name"] for t in m["takes"]} == {*BANDAI, CMU_TAKE}
+    assert m["licence"] == "studio-internal" and m["fps"] == 30.0
+    assert lib.frames == sum(t["frames"] for t in m["takes"])
+    assert m["hours"] == pytest.approx(lib.frames / 30 / 3600, abs=1e-6)
+    # The Bandai takes are read exactly; the CMU take (60 fps, another rig) is resampled to 30.
+    for t in m["takes"]:
+        want = studio_take(takes / ("cmu/" if t["name"] == CMU_TAKE else "") / t["name"])
+        got = lib.rotations[t["start"] : t["start"] + t["frames"]]
+        assert np.array_equal(got, want.rotations)
+        assert lib.take_end[t["start"]] == t["start"] + t["frames"] - 1
+    cmu = next(t for t in m["takes"] if t["name"] == CMU_TAKE)
+    assert cmu["frames"] == len(read_bvh(takes / "cmu" / CMU_TAKE).rotations[::2])
+    # Memory-mapped, read-only: a worker shares one copy in the page cache.
+    assert isinstance(lib.features, np.memmap) and not lib.features.flags.writeable
+    assert lib.features.shape == (lib.frames, *ARRAYS["features"][1])
+
+
+def test_add_appends_new_takes_only_and_versions_the_library(library, takes, tmp_path, data_dir):
+    copy = tmp_path / "lib"
+    shutil.copytree(library, copy)
+    before = open_library(copy)
+    h0, n0 = before.hash, before.frames
+    again = build(takes, copy, add=True, progress=False)
+    assert again["added"] == 0 and again["skipped"] == 4 and again["hash"] == h0
+    more = tmp_path / "more"
+    more.mkdir()
+    shutil.copy(data_dir / "bandai_namco" / "dataset-2" / HELD_OUT, more / HELD_OUT)
+    res = build(more, copy, add=True, progress=False)
+    lib = open_library(copy)
+    assert res["added"] == 1 and lib.frames > n0 and lib.hash != h0
+    # The takes already there are untouched, byte for byte.
+    assert np.array_equal(lib.rotations[:n0], before.rotations)
+    # An add that died after writing frames but before its manifest is cut off by the next.
+    with open(copy / "rotations.bin", "ab") as f:
+        f.write(b"\0" * 4096)
+    assert open_library(copy).frames == lib.frames
+    build(more, copy, add=True, progress=False)
+    assert (copy / "rotations.bin").stat().st_size == lib.frames * 21 * 4 * 4
+
+
+def test_a_bad_take_is_one_line_and_the_others_go_on(takes, tmp_path, data_dir, capsys):
+    folder = tmp_path / "takes"
+    shutil.copytree(takes, folder)
+    (folder / "broken.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
+    res = build(folder, tmp_path / "lib", progress=False)
+    err = capsys.readouterr().err
+    assert res["added"] == 4 and len(res["failed"]) == 1
+    lines = [ln for ln in err.splitlines() if "broken.bvh" in ln]
+    assert len(lines) == 1 and lines[0].startswith("tween: skipped take:")
+
+
+def test_an_existing_library_is_not_overwritten_without_add(library, takes):
+    before = (library / MANIFEST).read_bytes()
+    with pytest.raises(LibraryError, match="use --add"):
+        build(takes, library, progress=False)
+    assert (library / MANIFEST).read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda d: (d / MANIFEST).unlink(), "not a library"),
+        (lambda d: (d / MANIFEST).write_text("{not json"), "cannot read"),
+        (lambda d: (d / MANIFEST).write_text(json.dumps({"kind": "something"})), "not a usd-tween library"),
+        (lambda d: (d / "features.bin").write_bytes(b"\0" * 8), "features.bin"),
+        (lambda d: (d / "roots.bin").unlink(), "roots.bin: missing"),
+    ],
+)
+def test_a_broken_library_is_one_line_naming_it(library, tmp_path, damage, message):
+    copy = tmp_path / "lib"
+    shutil.copytree(library, copy)
+    damage(copy)
+    with pytest.raises(LibraryError, match=message) as e:
+        LibraryInbetweener(copy)
+    assert "\n" not in str(e.value) and str(copy) in str(e.value)
+
+
+def test_a_take_of_the_library_comes_back_from_its_keys(library, takes):
+    """The library holds the very take: every gap finds its own stretch, fitted to the keys."""
+    inb = LibraryInbetweener(library)
+    m = read_bvh(takes / BANDAI[0]).continuous().slice(0, 151)
+    keys = np.r_[0:151:10]
+    out = inb.fill(m, keys)
+    inside = np.setdiff1d(np.arange(len(m)), keys)
+    lib_cm = _err_cm(inb.skeleton, out.rotations, out.root_positions, m.rotations, m.root_positions, inside)
+    s_rot, s_root = spline_keys(m.rotations, m.root_positions, keys)
+    spline_cm = _err_cm(inb.skeleton, s_rot, s_root, m.rotations, m.root_positions, inside)
+    assert lib_cm < 0.35 * spline_cm
+    # Keys are the input's, bit for bit; every gap is the library's, and says which take.
+    assert np.array_equal(out.rotations[keys], m.rotations[keys])
+    assert np.array_equal(out.root_positions[keys], m.root_positions[keys])
+    assert all(g["weight"] == 1.0 and g["windows"][0][0] == BANDAI[0] for g in inb.last_gaps)
+
+
+def test_a_held_out_take_of_the_same_motion_beats_the_spline(library, data_dir):
+    inb = LibraryInbetweener(library)
+    m = read_bvh(data_dir / "bandai_namco" / "dataset-2" / HELD_OUT).continuous()
+    keys = np.unique(np.r_[0 : len(m) : 10, len(m) - 1])
+    out = inb.fill(m, keys)
+    inside = np.setdiff1d(np.arange(len(m)), keys)
+    s_rot, s_root = spline_keys(m.rotations, m.root_positions, keys)
+    lib_cm = _err_cm(inb.skeleton, out.rotations, out.root_positions, m.rotations, m.root_positions, inside)
+    spline_cm = _err_cm(inb.skeleton, s_rot, s_root, m.rotations, m.root_positions, inside)
+    assert lib_cm < 0.8 * spline_cm
+
+
+def test_keys_unlike_every_take_are_the_splines(library, takes):
+    inb = LibraryInbetweener(library)
+    keys = np.array([0, 10, 20])
+    still = read_bvh(takes / BANDAI[0]).continuous().slice(0, 21)
+    # Keys in poses no take holds (every joint turned 90° about X): the spline.
+    odd = still.rotations.copy()
+    odd[:, 1:] = [0.7071068, 0.0, 0.0, 0.7071068]
+    weird = type(still)(still.skeleton, odd, still.root_positions, still.fps)
+    out = inb.fill(weird, keys)
+    s_rot, s_root = spline_keys(weird.rotations, weird.root_positions, keys)
+    assert np.array_equal(out.rotations, s_rot.astype(np.float32))
+    assert [g["weight"] for g in inb.last_gaps] == [0.0, 0.0]
+    assert all("no motion like the keys" in g["why"] for g in inb.last_gaps)
+
+
+def test_a_gap_longer_than_every_take_is_the_splines(library, takes):
+    inb = LibraryInbetweener(library)
+    longest = max(t["frames"] for t in inb.library.manifest["takes"])
+    m = read_bvh(takes / BANDAI[0]).continuous()
+    T = longest + 5
+    idx = np.arange(T) % len(m)
+    long = type(m)(m.skeleton, m.rotations[idx], m.root_positions[idx], m.fps)
+    keys = np.array([0, 4, T - 1])
+    out = inb.fill(long, keys)
+    s_rot, _ = spline_keys(long.rotations, long.root_positions, keys)
+    assert np.allclose(out.rotations[5 : T - 1], s_rot[5 : T - 1], atol=1e-6)
+    assert inb.last_gaps[1]["weight"] == 0.0 and inb.last_gaps[1]["why"]
+
+
+def test_partial_keys_keep_their_keyed_joints(library, takes):
+    inb = LibraryInbetweener(library)
+    m = read_bvh(takes / BANDAI[1]).continuous().slice(0, 41)
+    keys = np.array([0, 10, 20, 30, 40])
+    mask = np.ones((5, len(inb.skeleton) + 1), bool)
+    mask[2, 13:] = False  # the key at 20 sets the upper body and root only: its legs are not keyed
+    odd = m.rotations.copy()
+    odd[20, 13:] = [0.7071068, 0.0, 0.0, 0.7071068]  # whatever is there is not a key
+    m = type(m)(m.skeleton, odd, m.root_positions, m.fps)
+    out = inb.fill(m, keys, joint_keys=mask)
+    assert np.allclose(out.rotations[20, :13], m.rotations[20, :13], atol=1e-6)
+    free = inb.fill(m, np.array([0, 10, 30, 40]))
+    assert np.allclose(out.rotations[20, 13:], free.rotations[20, 13:], atol=1e-6)
+    assert np.array_equal(out.rotations[[0, 10, 30, 40]], m.rotations[[0, 10, 30, 40]])
+
+
+def test_the_match_gate_prefers_the_spline_where_the_keys_barely_move():
+    assert gap_weight(2.0, 20.0) == 1.0
+    assert gap_weight(20.0, 20.0) == 0.0  # a poor match
+    assert gap_weight(3.0, 0.5) == 0.0  # a good match of keys that hardly move: the spline is right
+    assert 0.0 < gap_weight(8.0, 30.0) < 1.0
+
+
+def test_search_finds_the_window_of_least_cost_by_brute_force(library):
+    """The search's best window is the one a plain loop over every window of every take finds,
+    and a window of the library itself is found at no cost."""
+    lib = open_library(library)
+    n = 12
+    a = next(s for s in range(200, lib.frames) if lib.take_end[s] >= s + n)
+    feats = np.asarray(lib.features[[a, a + n]])
+    face = np.asarray(lib.facing[[a, a + n]], np.float64)
+    travel = match.batch_quat_apply(face[0], np.asarray(lib.roots[a + n], np.float64) - lib.roots[a])[[0, 2]]
+    turn = float(match._wrap(match._yaw(face[0]) - match._yaw(face[1])))
+    d = match.key_distances(lib, feats)
+    got = match.search(lib, d[:, 0], d[:, 1], n, travel, turn, best=3)
+    assert got.starts[0] == a and got.pose_cm[0] < 1e-2 and got.cost[0] < 0.05
+
+    def cost(s):
+        pose = sum(
+            np.sqrt(((lib.features[f] - x) ** 2).sum() / 21) for f, x in ((s, feats[0]), (s + n, feats[1]))
+        )
+        f0 = np.asarray(lib.facing[s], np.float64)
+        disp = match.batch_quat_apply(f0, np.asarray(lib.roots[s + n], np.float64) - lib.roots[s])[[0, 2]]
+        t = match._wrap(match._yaw(f0) - match._yaw(np.asarray(lib.facing[s + n], np.float64)))
+        return (
+            pose
+            + match.DISP_WEIGHT * np.linalg.norm(disp - travel)
+            + match.TURN_WEIGHT * abs(match._wrap(t - turn))
+        )
+
+    brute = sorted((cost(s), s) for s in range(lib.frames - n) if lib.take_end[s] >= s + n)
+    assert [s for _, s in brute[:3]] == list(got.starts)
+    assert np.allclose([c for c, _ in brute[:3]], got.cost, atol=1e-3)
+
+
+def test_tween_library_build_and_info_from_the_command_line(takes, tmp_path):
+    out = tmp_path / "lib"
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "library", "build", str(takes), "--out", str(out),
+                        "--licence", "CC BY 4.0", "--no-progress"], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["takes"] == 4
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "library", "info", str(out)], capture_output=True,
+                       text=True)  # fmt: skip
+    assert r.returncode == 0 and "4 take(s)" in r.stdout and "CC BY 4.0" in r.stdout
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "library", "info", str(tmp_path)], capture_output=True,
+                       text=True)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("tween: error:")
