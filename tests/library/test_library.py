@@ -23,31 +23,7 @@ from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
 from pipeline.usd.take import studio_take
 
-BANDAI = (
-    "dataset-2_walk_active_001.bvh.gz",
-    "dataset-2_run_active_001.bvh.gz",
-    "dataset-2_raise-up-both-hands_active_001.bvh.gz",
-)
-CMU_TAKE = "002_02.bvh.gz"
-HELD_OUT = "dataset-2_walk_active_003.bvh.gz"  # another take of the same walk
-
-
-@pytest.fixture(scope="module")
-def takes(data_dir, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("takes")
-    for name in BANDAI:
-        shutil.copy(data_dir / "bandai_namco" / "dataset-2" / name, folder / name)
-    (folder / "cmu").mkdir()
-    shutil.copy(data_dir / "cmu_iclone" / CMU_TAKE, folder / "cmu" / CMU_TAKE)
-    return folder
-
-
-@pytest.fixture(scope="module")
-def library(takes, tmp_path_factory):
-    out = tmp_path_factory.mktemp("libs") / "studio"
-    res = build(takes, out, licence="studio-internal", progress=False)
-    assert res["added"] == 4 and not res["failed"]
-    return out
+from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
 
 def _err_cm(skel, rot, root, true_rot, true_root, frames):

@@ -1,0 +1,157 @@
+"""`tween fill --library`: a shot filled from a studio's library through the product's path,
+with the library's version and per-gap decision in the layer; bad libraries refused in one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from library_fixtures import HELD_OUT
+from pxr import Usd
+from usd_fixtures import ANIM, FILLED, samples, tree_hashes
+
+from pipeline.errors import TweenError
+from pipeline.fill.api import FillOptions, fill_shot
+from pipeline.library.store import MANIFEST, LibraryError, open_library
+from pipeline.motion.bvh import read_bvh
+from pipeline.usd.convert import write_shot
+from usd_schemas import tokens
+
+
+@pytest.fixture(scope="module")
+def shot(data_dir, tmp_path_factory):
+    """A held-out take of a motion the library holds, converted and blocked every 10 frames."""
+    folder = tmp_path_factory.mktemp("shot")
+    m = read_bvh(data_dir / "bandai_namco" / "dataset-2" / HELD_OUT).slice(0, 81)
+    return write_shot(m, folder / "sh020_walk.usda", keys_every=10)
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd)  # fmt: skip
+
+
+def test_a_library_fill_records_the_library_and_each_gap(shot, library, tmp_path):
+    before = tree_hashes(Path(shot).parent)
+    r = _run("fill-local", shot, "--library", library, "--out-dir", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert tree_hashes(Path(shot).parent) == before  # the user's files are never modified
+    res = json.loads(r.stdout)
+    lib = open_library(library)
+    assert res["model"] == "library:studio" and res["model_hash"] == f"library-{lib.hash}"
+    d = res["trust"][ANIM]
+    gaps = d["library"]["gaps"]
+    assert d["library"]["hash"] == lib.hash and len(gaps) == 8
+    assert all(g["times"][1] - g["times"][0] == 10 for g in gaps)
+    assert all(0.0 <= g["share"] <= 1.0 and g["share"] == pytest.approx(g["weight"] * g["trust_weight"], abs=1e-3)
+               for g in gaps)  # fmt: skip
+    assert "library studio:" in r.stderr and "gap(s) from its takes" in r.stderr
+    # In the layer: the library's name, version and each gap's share.
+    stage = Usd.Stage.Open(res["layer"])
+    anim = stage.GetPrimAtPath(FILLED)
+    assert anim.GetAttribute(tokens.LIBRARY_HASH).Get() == lib.hash
+    assert "studio" in anim.GetAttribute(tokens.LIBRARY).Get()
+    assert list(anim.GetAttribute(tokens.LIBRARY_SHARE).Get()) == pytest.approx([g["share"] for g in gaps])
+    assert len(anim.GetAttribute(tokens.LIBRARY_GAPS).Get()) == len(gaps)
+    # The keys carry the animator's values, bit for bit.
+    keyed = samples(Usd.Stage.Open(str(shot)), ANIM)
+    filled = samples(Usd.Stage.Open(res["layer"]), FILLED)
+    for t, v in keyed.items():
+        assert np.array_equal(filled[t], v)
+
+
+def test_the_library_moves_the_frames_between_the_keys_toward_the_take(shot, library, tmp_path, data_dir):
+    """Scored as the library bench scores (the rig's world joint positions between the keys):
+    the library's fill is nearer the capture than the spline through the same keys."""
+    from pipeline.bench.studio import review_positions
+
+    truth = read_bvh(data_dir / "bandai_namco" / "dataset-2" / HELD_OUT).slice(0, 81)
+    want = truth.positions() * truth.skeleton.meters_per_unit * 100.0
+    inside = np.setdiff1d(np.arange(81), np.arange(0, 81, 10))
+    miss = {}
+    for name, opts in (("lib", {"library": str(library), "trust": "model"}), ("spline", {"model": "spline"})):
+        res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / name), **opts))
+        pos = review_positions(res["review"], 81)
+        miss[name] = float(np.linalg.norm(pos[inside] - want[inside], axis=-1).mean())
+    assert miss["lib"] < 0.8 * miss["spline"]
+
+
+@pytest.mark.parametrize(
+    "make, says",
+    [
+        (lambda p: p, "no such library folder"),
+        (lambda p: (p.mkdir(), p)[1], "not a library"),
+    ],
+)
+def test_a_missing_or_foreign_library_is_one_line_and_writes_nothing(shot, tmp_path, make, says):
+    lib = make(tmp_path / "lib")
+    out = tmp_path / "out"
+    r = _run("fill-local", shot, "--library", lib, "--out-dir", out)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert r.stderr.startswith("tween: error:") and str(lib) in r.stderr and says in r.stderr
+    assert not out.exists()
+
+
+def test_a_library_fill_takes_no_other_model(shot, library, tmp_path):
+    with pytest.raises(TweenError, match="--library .*drop --model interp"):
+        fill_shot(str(shot), FillOptions(library=str(library), model="interp", out_dir=str(tmp_path / "o")))
+
+
+def test_the_farms_library_setting_is_every_jobs_default(library, monkeypatch, tmp_path):
+    from workers.cli import _opts
+
+    monkeypatch.setenv("TWEEN_FARM_CONFIG", str(tmp_path / "none.toml"))
+    monkeypatch.setenv("TWEEN_LIBRARY", str(library))
+    assert _opts(FillOptions())["library"] == os.path.abspath(library)
+    own = tmp_path / "own"
+    assert _opts(FillOptions(library=str(own)))["library"] == str(own)  # a job's own wins
+    monkeypatch.delenv("TWEEN_LIBRARY")
+    (tmp_path / "farm.toml").write_text(f'library = "{library}"\n')
+    monkeypatch.setenv("TWEEN_FARM_CONFIG", str(tmp_path / "farm.toml"))
+    assert _opts(FillOptions())["library"] == os.path.abspath(library)
+
+
+def test_a_library_outside_the_shot_roots_is_refused(shot, library, tmp_path):
+    from workers import paths
+
+    roots = [str(Path(shot).parent)]
+    with pytest.raises(paths.PathRefused, match="library resolves to"):
+        paths.check_job(str(shot), {"library": str(library)}, roots)
+    paths.check_job(str(shot), {"library": str(library)}, [*roots, str(library)])
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    manifest=st.one_of(
+        st.binary(max_size=64),
+        st.dictionaries(
+            st.sampled_from(["kind", "version", "frames", "takes", "fps", "skeleton", "hash"]),
+            st.one_of(
+                st.none(),
+                st.integers(-3, 10**9),
+                st.text(max_size=8),
+                st.lists(st.integers(), max_size=3),
+                st.just("tween-library"),
+                st.just(1),
+            ),  # fmt: skip
+            max_size=7,
+        ),
+    )
+)
+def test_any_broken_manifest_is_a_library_error(tmp_path_factory, manifest):
+    folder = tmp_path_factory.mktemp("lib")
+    data = manifest if isinstance(manifest, bytes) else json.dumps(manifest).encode()
+    (folder / MANIFEST).write_bytes(data)
+    try:
+        from pipeline.library.infer import LibraryInbetweener
+
+        LibraryInbetweener(folder)
+    except LibraryError as e:
+        assert "\n" not in str(e) and str(folder) in str(e)
