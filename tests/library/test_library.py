@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 import pytest
+from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
 from pipeline.infer.spline import spline_keys
 from pipeline.library import match
@@ -22,8 +23,6 @@ from pipeline.library.store import ARRAYS, MANIFEST, LibraryError, open_library
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
 from pipeline.usd.take import studio_take
-
-from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
 
 def _err_cm(skel, rot, root, true_rot, true_root, frames):
