@@ -76,7 +76,11 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     else:
         manifest = empty_manifest(name or out.resolve().name, licence, skel.names, FPS)
     have = {t["file"] for t in manifest["takes"]}
-    todo = [p for p in paths if str(p.resolve()) not in have]
+    todo = []
+    for p in paths:  # each file once (a take linked twice is one take)
+        if str(p.resolve()) not in have:
+            have.add(str(p.resolve()))
+            todo.append(p)
     writer = Writer(out, manifest)
     failed, added = [], 0
     bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,

@@ -44,6 +44,7 @@ BANK_POSES = 4096
 #: already right and a window that misses them adds motion nobody keyed.
 TRUST_RATIO = 0.5
 REFUSE_RATIO = 1.5
+CHANGE_FLOOR_CM = 1.0
 #: The longest gap (frames) the library fills; longer ones are the spline's.
 MAX_GAP = 300
 
@@ -52,7 +53,7 @@ def gap_weight(miss_cm: float, change_cm: float = np.inf) -> float:
     """The library's share of a gap whose windows miss the keys by ``miss_cm`` while the pose
     changes by ``change_cm`` from one key to the other (both RMS over the joints)."""
     absolute = (REFUSE_CM - miss_cm) / (REFUSE_CM - TRUST_CM)
-    relative = (REFUSE_RATIO - miss_cm / (change_cm + 1.0)) / (REFUSE_RATIO - TRUST_RATIO)
+    relative = (REFUSE_RATIO - miss_cm / (change_cm + CHANGE_FLOOR_CM)) / (REFUSE_RATIO - TRUST_RATIO)
     return float(np.clip(min(absolute, relative), 0.0, 1.0))
 
 

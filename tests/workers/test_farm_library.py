@@ -1,0 +1,97 @@
+"""`tween submit-library`: a library built on the farm's training queue by a real
+`tween worker --train` process against Redis, its paths checked against the shot roots."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+
+import pytest
+from redis_server import REPO, farm_env, start_redis
+
+from pipeline.library.store import open_library
+
+TAKES = ("dataset-2_walk_active_001.bvh.gz", "dataset-2_run_active_001.bvh.gz")
+
+
+@pytest.fixture(scope="module")
+def libfarm(tmp_path_factory, data_dir):
+    server = start_redis()
+    root = tmp_path_factory.mktemp("libroot")
+    logs = tmp_path_factory.mktemp("liblogs")
+    takes = root / "takes"
+    takes.mkdir()
+    for name in TAKES:
+        shutil.copy(data_dir / "bandai_namco" / "dataset-2" / name, takes / name)
+    env = farm_env(server, [str(root)], TWEEN_TRAIN_QUEUE=f"{server.prefix}train")
+    env["PYTHONPATH"] = str(REPO)
+    log = logs / "train-worker.log"
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "worker",
+        "--train",
+        "-c",
+        "1",
+        "-n",
+        f"lib-{uuid.uuid4().hex[:6]}@%h",
+    ]
+    cmd += ["--logfile", str(log), "-l", "info"]
+    with open(logs / "train-worker.out", "wb") as out:
+        proc = subprocess.Popen(cmd, cwd=REPO, env={**os.environ, **env}, start_new_session=True, stdout=out,
+                                stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        t0 = time.monotonic()
+        while " ready." not in (log.read_text() if log.exists() else ""):
+            assert proc.poll() is None, (logs / "train-worker.out").read_text()[-2000:]
+            assert time.monotonic() - t0 < 60, "training worker not ready"
+            time.sleep(0.1)
+        yield root, takes, {**os.environ, **env}
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            proc.wait()
+        server.cleanup()
+
+
+def _tween(env, *args):
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, args)], capture_output=True, text=True,
+                          env=env, cwd=REPO, timeout=300)  # fmt: skip
+
+
+def test_a_library_is_built_on_the_training_queue(libfarm):
+    root, takes, env = libfarm
+    out = root / "library"
+    r = _tween(env, "submit-library", takes, "--out", out, "--licence", "studio", "--wait")
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    lib = open_library(out)
+    assert res["takes"] == 2 and res["hash"] == lib.hash and lib.manifest["licence"] == "studio"
+    job = r.stderr.strip().splitlines()[0]
+    assert job.startswith("lib-")
+    s = _tween(env, "status", job)
+    assert s.returncode == 0 and f"hash {lib.hash}" in s.stdout and "success, 2 take(s)" in s.stdout
+
+
+def test_paths_outside_the_shot_roots_are_refused_before_any_job(libfarm, tmp_path):
+    root, takes, env = libfarm
+    r = _tween(env, "submit-library", takes, "--out", tmp_path / "elsewhere")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "outside the shot roots" in r.stderr
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_a_library_job_that_fails_says_why(libfarm):
+    root, takes, env = libfarm
+    empty = root / "empty"
+    empty.mkdir()
+    r = _tween(env, "submit-library", empty, "--out", root / "nolib", "--wait")
+    assert r.returncode == 2 and "no BVH or USD takes" in r.stderr.splitlines()[-1]
