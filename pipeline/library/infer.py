@@ -134,14 +134,12 @@ class LibraryInbetweener:
                 travel = match.batch_quat_apply(faces[g], step)[[0, 2]]
                 turn = float(match._wrap(match._yaw(faces[g]) - match._yaw(faces[g + 1])))
                 context = [
-                    (d[:, at[i]], int(keys[i] - keys[g]))
+                    (d[at[i]], int(keys[i] - keys[g]))
                     for i in (g - 1, g + 2)
                     if i in at
                     and abs(int(keys[i]) - int(keys[g if i < g else g + 1])) <= match.CONTEXT_FRAMES
                 ]
-                m = match.search(
-                    self.library, d[:, at[g]], d[:, at[g + 1]], n, travel, turn, self.best, context
-                )
+                m = match.search(self.library, d[at[g]], d[at[g + 1]], n, travel, turn, self.best, context)
                 if m is None:
                     gaps.append(self._row(keys, g, None, 0.0, "no take of the library is that long"))
                     continue

@@ -49,6 +49,8 @@ CONTEXT_FRAMES = 60
 #: Cost (cm) over the best window's at which a window counts 1/e as much in the average
 #: (None: every window alike).
 SOFTMIN_CM = 2.0
+#: The coarse pass looks at every STRIDE-th window start.
+STRIDE = 3
 #: Keys whose distances to every library frame are held at once (memory: KEY_BLOCK × frames
 #: float32; 128 MB for a 10-hour library at 30 fps).
 KEY_BLOCK = 32
@@ -73,16 +75,17 @@ class GapMatch:
 
 
 def key_distances(lib, feats: np.ndarray) -> np.ndarray:
-    """(F, K) float32: each key's mean squared joint-position miss (cm²) against every
-    library frame, for K key features (K, D)."""
+    """(K, F) float32: each key's mean squared joint-position miss (cm²) against every
+    library frame, for K key features (K, D); one row a key, so that a key's row is
+    contiguous (the search reads it in strides)."""
     joints = (feats.shape[1] - 1) / 3.0
     k = np.asarray(feats, np.float32)
-    d = lib.features @ (-2.0 * k.T)
+    d = lib.features @ (-2.0 * k.T)  # (F, K): the fast layout for the product
     d += lib.sqnorm[:, None]
     d += (k * k).sum(1)[None]
     np.maximum(d, 0.0, out=d)
     d /= joints
-    return d
+    return np.ascontiguousarray(d.T)
 
 
 def _yaw(q: np.ndarray) -> np.ndarray:
@@ -94,6 +97,46 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _strided(a: np.ndarray, start: int, count: int, step: int) -> np.ndarray:
+    """``a[start + step * i]`` for i < count, a view where it can be (0 where out of range)."""
+    stop = start + step * count
+    if start >= 0 and stop - step < len(a):
+        return a[start:stop:step]
+    out = np.zeros(count, a.dtype)
+    i0 = max(0, -(start // step) if start < 0 else 0)
+    while start + step * i0 < 0:
+        i0 += 1
+    i1 = min(count, (len(a) - 1 - start) // step + 1)
+    if i1 > i0:
+        out[i0:i1] = a[start + step * i0 : start + step * (i1 - 1) + 1 : step]
+    return out
+
+
+def _pose_terms(lib, d_a, d_b, n: int, context, at) -> np.ndarray:
+    """The pose part of the cost (cm², summed) of the windows starting at frames ``at`` (an
+    index array, or a ``slice`` with a step: read as strided views, not gathered), inf where
+    the take ends before ``at + n``. A context key whose offset falls outside the window's
+    take counts as the gap's own keys do on average (no evidence either way)."""
+    if isinstance(at, slice):
+        count = len(range(at.start, at.stop, at.step))
+
+        def read(a, shift=0):
+            return _strided(a, at.start + shift, count, at.step)
+    else:
+
+        def read(a, shift=0):
+            return a.take(at + shift, mode="clip")
+
+    left = read(lib.frames_left)
+    own = read(d_a) + read(d_b, n)
+    pose = own.copy()
+    for d_c, off in context if CONTEXT_WEIGHT else ():
+        inside = left >= off if off > 0 else read(lib.frames_before) >= -off
+        pose += CONTEXT_WEIGHT * np.where(inside, read(d_c, off), 0.5 * own)
+    pose[left < n] = np.inf
+    return pose
+
+
 def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, turn: float,
            best: int = BEST, context=()) -> GapMatch | None:  # fmt: skip
     """The ``best`` windows for a gap of ``n`` frames whose keys' distances to every library
@@ -101,24 +144,26 @@ def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, tu
     facing) and turns ``turn`` rad. ``context``: (distances (F,), offset) of the keys beside
     the gap, ``offset`` frames from key a: a window whose take around it also passes near
     them (a walk in the same phase, a jump with the same run-up) costs less
-    (``CONTEXT_WEIGHT``; an offset past the take's end is read at its end). None when no
-    take is long enough."""
+    (``CONTEXT_WEIGHT``). None when no take is long enough.
+
+    Coarse to fine: the pose terms of every ``STRIDE``-th start first (motion at 30 fps
+    changes little from one frame to the next), then every start around the best of those."""
     F = lib.frames
     if n < 1 or n >= F:
         return None
-    s = np.arange(F - n)
-    pose = d_a[: F - n] + d_b[n:]
-    for d_c, off in context if CONTEXT_WEIGHT else ():
-        at = np.clip(s + off, lib.take_start[: F - n], lib.take_end[: F - n])
-        pose = pose + CONTEXT_WEIGHT * d_c[at]
-    pose = np.where(lib.take_end[: F - n] >= s + n, pose, np.inf)
+    pose = _pose_terms(lib, d_a, d_b, n, context, slice(0, F - n, STRIDE))
     p = min(PREFILTER, len(pose))
-    cand = np.argpartition(pose, p - 1)[:p] if p < len(pose) else s
-    cand = cand[np.isfinite(pose[cand])]
+    top = (np.argpartition(pose, p - 1)[:p] if p < len(pose) else np.arange(len(pose))) * STRIDE
+    near = np.unique((top[:, None] + np.arange(-(STRIDE // 2), STRIDE - STRIDE // 2)).ravel())
+    near = near[(near >= 0) & (near < F - n)]
+    pose = _pose_terms(lib, d_a, d_b, n, context, near)
+    keep = np.argsort(pose, kind="stable")[:PREFILTER]
+    cand = near[keep][np.isfinite(pose[keep])]
+    pose = pose[keep][np.isfinite(pose[keep])]
     if not len(cand):
         return None
     pose_cm = 0.5 * (np.sqrt(d_a[cand]) + np.sqrt(d_b[cand + n]))
-    ctx_cm = np.sqrt(pose[cand] / 2.0) - 0.0  # the prefilter's pose terms, as an RMS (cm)
+    ctx_cm = np.sqrt(pose / 2.0)  # the pose terms with the context keys, as an RMS (cm)
     face = np.asarray(lib.facing[cand], np.float64)
     step = np.asarray(lib.roots[cand + n], np.float64) - lib.roots[cand]
     disp = batch_quat_apply(face, step)[:, [0, 2]]

@@ -110,6 +110,16 @@ class Library:
         starts = np.array([t["start"] for t in takes], np.int32)
         return np.repeat(starts, [int(t["frames"]) for t in takes])
 
+    @cached_property
+    def frames_left(self) -> np.ndarray:
+        """(F,) int32: frames of its take after each frame."""
+        return (self.take_end - np.arange(self.frames, dtype=np.int32)).astype(np.int32)
+
+    @cached_property
+    def frames_before(self) -> np.ndarray:
+        """(F,) int32: frames of its take before each frame."""
+        return (np.arange(self.frames, dtype=np.int32) - self.take_start).astype(np.int32)
+
     def describe(self) -> str:
         m = self.manifest
         return (
@@ -210,6 +220,9 @@ class Writer:
             h.flush()
             os.fsync(h.fileno())
         fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=f".{MANIFEST}.", suffix=".tmp")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # readable as the arrays are (mkstemp makes it private)
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(self.manifest, f, indent=1)
         os.replace(tmp, self.folder / MANIFEST)

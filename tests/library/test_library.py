@@ -203,7 +203,7 @@ def test_search_finds_the_window_of_least_cost_by_brute_force(library):
     travel = match.batch_quat_apply(face[0], np.asarray(lib.roots[a + n], np.float64) - lib.roots[a])[[0, 2]]
     turn = float(match._wrap(match._yaw(face[0]) - match._yaw(face[1])))
     d = match.key_distances(lib, feats)
-    got = match.search(lib, d[:, 0], d[:, 1], n, travel, turn, best=3)
+    got = match.search(lib, d[0], d[1], n, travel, turn, best=3)
     assert got.starts[0] == a and got.pose_cm[0] < 1e-2 and got.cost[0] < 0.05
 
     def cost(s):
