@@ -198,6 +198,8 @@ def trust_line(d: dict) -> str:
         line += (
             f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
         )
+    if d.get("source") and len(d.get("candidates") or []) > 1:
+        line += f"; decided on {d['source']} by the probes"
     lib = d.get("library")
     if lib:
         gaps = lib["gaps"]
@@ -250,8 +252,11 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     plan = _plan(shot, opts, human)
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
+    # A library's characters are also probed against the human network (the better decides).
+    alternatives = (_model("default"),) if opts.library else ()
     try:
-        digest = _digest(shot, plan.shot.stage, opts, take, [_fill_identity(m) for m in inbs])
+        identity = [_fill_identity(m) for m in (*inbs, *alternatives)]
+        digest = _digest(shot, plan.shot.stage, opts, take, identity)
     except OSError as e:
         raise ShotError(shot, f"cannot read: {e.strerror}") from None
     out = Path(work_dir) / f"{Path(shot).name.split('.')[0]}.take{take:03d}.{digest}.npz"
@@ -261,7 +266,8 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     chars = []
     dna = dna_motion(opts, float(inbs[0].fps))
     for i, (cp, inb) in enumerate(zip(plan.chars, inbs, strict=True)):
-        data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna, trust=opts.trust)
+        data = fill_character(plan, cp, inb, seed=opts.seed + take, dna=dna, trust=opts.trust,
+                              alternatives=alternatives if cp.model is None else ())  # fmt: skip
         decision = data.pop("trust")
         if decision is not None and take == 0:
             print(f"tween: {shot} {cp.char.anim_path}: {trust_line(decision)}", file=sys.stderr)

@@ -188,7 +188,9 @@ def _gap_weights(decision, frames: np.ndarray) -> dict:
     return {(int(a), int(b)): float(x) for a, b, x in zip(frames[:-1], frames[1:], w, strict=True)}
 
 
-def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto") -> dict:
+def fill_character(
+    plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto", alternatives=()
+) -> dict:
     """Times and animation-ordered rotations/translations/scales for the fill layer; ``dna``: a
     Motion of representative poses for a model that takes a motion DNA; ``trust``: how far
     the human model is trusted against the spline (pipeline.infer.trust), decided per
@@ -198,10 +200,12 @@ def fill_character(plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: st
     The trusted fill's spline is the animator's own: filled on the character's rig, exactly
     as ``--model spline`` fills it (so a decision for the spline gives that fill bit for bit),
     and blended with the network's fill, turned back onto the rig, gap by gap at the decided
-    weights. Shots with partial keys or a motion DNA blend on the model skeleton instead."""
+    weights. Shots with partial keys or a motion DNA blend on the model skeleton instead.
+    ``alternatives``: other in-betweeners the trusted fill probes against ``inb`` (a motion
+    library's network), the better on the shot's own keys deciding."""
     shot, c = plan.shot, cp.char
     if cp.model is None and not isinstance(cp.retarget, OwnRig):
-        inb = trusted(inb, trust)
+        inb = trusted(inb, trust, alternatives)
     k = cp.keys
     rot_k, tr_k, sc_k = anim_values(shot.stage, c, k)
     fps = float(cp.fps)

@@ -113,7 +113,9 @@ class TrustDecision:
     that length; ``novelty_cm`` / ``familiarity``: how far the keys are from the model's pose
     bank and what that made of it (None without a bank); ``cuts``: gaps ([first, last]
     key frame) the body teleports across, which the spline fills whatever their length's
-    weight (:meth:`with_cuts`); ``reason``: one line for people."""
+    weight (:meth:`with_cuts`); ``source``: the in-betweener decided on, where there were
+    several (``candidates``: each one's name, hash, probe score and error); ``reason``: one
+    line for people."""
 
     choice: str
     weight: float
@@ -127,6 +129,8 @@ class TrustDecision:
     novelty_cm: float | None = None
     familiarity: float | None = None
     cuts: list[list[int]] = field(default_factory=list)
+    source: str | None = None
+    candidates: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
@@ -632,9 +636,14 @@ class TrustedInbetweener:
     name and hash as ``model``; ``last_decision`` is the :class:`TrustDecision` of the latest
     ``fill`` or ``decide`` (``.to_json()`` for a layer attribute). The fill API calls
     ``decide`` itself and blends on the character's rig (pipeline.fill.solve).
+
+    ``alternatives``: other in-betweeners on the same skeleton and rate (a motion library's
+    network). With ``"auto"`` each is probed on the shot's own keys as ``model`` is, and the
+    one whose probes beat the spline by most is decided on: ``model`` then names it until the
+    next decision (the first, ``primary``, on a tie or without probes).
     """
 
-    def __init__(self, model, spline=None, trust: str = "auto"):
+    def __init__(self, model, spline=None, trust: str = "auto", alternatives=()):
         if trust not in TRUST_MODES:
             raise ValueError(f"unknown trust {trust!r} (one of {', '.join(TRUST_MODES)})")
         if spline is None:
@@ -642,6 +651,12 @@ class TrustedInbetweener:
 
             spline = SplineInbetweener(model.skeleton)
         self.model, self.spline, self.trust = model, spline, trust
+        self.primary = model
+        self.alternatives = tuple(
+            a
+            for a in alternatives
+            if not a.capabilities.any_rig and a.skeleton.names == model.skeleton.names and a.fps == model.fps
+        )
         self.name = model.name
         self.model_hash = model.model_hash
         self.fps = model.fps
@@ -660,6 +675,7 @@ class TrustedInbetweener:
         the override otherwise; kept as ``last_decision``. ``cuts``: (a, b) key frames
         the body teleports between, given to the spline with ``"auto"``
         (:meth:`TrustDecision.with_cuts`)."""
+        self.model = self.primary
         if self.trust == "model":
             d = TrustDecision(
                 "model", 1.0, None, None, [], "trust=model: the model, unchecked", None, "model"
@@ -668,7 +684,33 @@ class TrustedInbetweener:
             d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
         else:
             d = decide(self.model, self.spline, motion, keys, cuts)
+            if self.alternatives:
+                d = self._choose(d, motion, keys, cuts)
         self.last_decision = d
+        return d
+
+    def _choose(self, first: TrustDecision, motion: Motion, keys, cuts) -> TrustDecision:
+        """Of the primary's decision and each alternative's, the one whose probes beat the
+        spline by most (score: mean log error ratio spline / model); ``model`` follows."""
+        options = [(self.primary, first)] + [
+            (a, decide(a, self.spline, motion, keys, cuts)) for a in self.alternatives
+        ]
+        rows = [{"name": m.name, "hash": m.model_hash, "score": d.score, "model_error_cm": d.model_error_cm}
+                for m, d in options]  # fmt: skip
+        best = max(
+            range(len(options)),
+            key=lambda i: (options[i][1].score is not None, options[i][1].score or 0.0, -i),
+        )
+        model, d = options[best]
+        self.model = model
+        others = ", ".join(
+            f"{r['name']} {r['score']:+.2f}"
+            for r in rows
+            if r["score"] is not None and r["name"] != model.name
+        )
+        d = replace(d, source=model.name, candidates=rows)
+        if others:
+            d.reason += f"; {model.name} chosen by the probes (score {d.score:+.2f}; {others})"
         return d
 
     def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, cuts=(), **kw) -> Motion:
@@ -685,10 +727,11 @@ class TrustedInbetweener:
         return apply(d, m, s, full)
 
 
-def trusted(inbetweener, trust: str = "auto"):
-    """``inbetweener`` wrapped in a :class:`TrustedInbetweener` when it is a network (what the
-    fill layer calls once, on what ``load_inbetweener`` gave it); the spline and interpolation
+def trusted(inbetweener, trust: str = "auto", alternatives=()):
+    """``inbetweener`` wrapped in a :class:`TrustedInbetweener` when it is a network or a
+    library (what the fill layer calls once, on what ``load_inbetweener`` gave it), with the
+    ``alternatives`` it is probed against; the spline and interpolation
     (``capabilities.any_rig``) come back as they are: they have nothing to decide."""
     if isinstance(inbetweener, TrustedInbetweener) or inbetweener.capabilities.any_rig:
         return inbetweener
-    return TrustedInbetweener(inbetweener, trust=trust)
+    return TrustedInbetweener(inbetweener, trust=trust, alternatives=alternatives)

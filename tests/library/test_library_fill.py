@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from library_fixtures import HELD_OUT
+from library_fixtures import CMU_TAKE, HELD_OUT
 from pxr import Usd
 from usd_fixtures import ANIM, FILLED, samples, tree_hashes
 
@@ -23,6 +23,14 @@ from pipeline.library.store import MANIFEST, LibraryError, open_library
 from pipeline.motion.bvh import read_bvh
 from pipeline.usd.convert import write_shot
 from usd_schemas import tokens
+
+
+@pytest.fixture(scope="module")
+def cmu_shot(data_dir, tmp_path_factory):
+    """The library's CMU take (another actor and rig than the network's), blocked every 10."""
+    folder = tmp_path_factory.mktemp("cmushot")
+    m = read_bvh(data_dir / "cmu_iclone" / CMU_TAKE)
+    return write_shot(m, folder / "sh030_cmu.usda", fps=30, keys_every=10)
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +46,8 @@ def _run(*args, cwd=None):
                           cwd=cwd)  # fmt: skip
 
 
-def test_a_library_fill_records_the_library_and_each_gap(shot, library, tmp_path):
+def test_a_library_fill_records_the_library_and_each_gap(cmu_shot, library, tmp_path):
+    shot = cmu_shot
     before = tree_hashes(Path(shot).parent)
     r = _run("fill-local", shot, "--library", library, "--out-dir", tmp_path / "out")
     assert r.returncode == 0, r.stderr
@@ -48,8 +57,12 @@ def test_a_library_fill_records_the_library_and_each_gap(shot, library, tmp_path
     assert res["model"] == "library:studio" and res["model_hash"] == f"library-{lib.hash}"
     d = res["trust"][ANIM]
     gaps = d["library"]["gaps"]
-    assert d["library"]["hash"] == lib.hash and len(gaps) == 8
-    assert all(g["times"][1] - g["times"][0] == 10 for g in gaps)
+    # The network (which never saw this actor) was probed too; the library decided.
+    assert d["source"] == "library:studio" and [c["name"] for c in d["candidates"]][0] == "library:studio"
+    assert len(d["candidates"]) == 2 and "decided on library:studio by the probes" in r.stderr
+    assert d["library"]["hash"] == lib.hash and len(gaps) == len(keyed_times(shot)) - 1
+    k = keyed_times(shot)
+    assert [g["times"] for g in gaps] == [[a, b] for a, b in zip(k[:-1], k[1:], strict=True)]
     assert all(0.0 <= g["share"] <= 1.0 and g["share"] == pytest.approx(g["weight"] * g["trust_weight"], abs=1e-3)
                for g in gaps)  # fmt: skip
     assert "library studio:" in r.stderr and "gap(s) from its takes" in r.stderr
@@ -65,6 +78,21 @@ def test_a_library_fill_records_the_library_and_each_gap(shot, library, tmp_path
     filled = samples(Usd.Stage.Open(res["layer"]), FILLED)
     for t, v in keyed.items():
         assert np.array_equal(filled[t], v)
+
+
+def keyed_times(shot) -> list[float]:
+    return sorted(samples(Usd.Stage.Open(str(shot)), ANIM))
+
+
+def test_where_the_network_knows_the_motion_better_it_decides(shot, library, tmp_path):
+    """A take of the network's own training capture: its probes beat the library's."""
+    res = fill_shot(str(shot), FillOptions(library=str(library), out_dir=str(tmp_path / "o")))
+    d = res["trust"][ANIM]
+    names = [c["name"] for c in d["candidates"]]
+    assert names[0] == "library:studio" and d["source"] == names[1] != names[0]
+    scores = {c["name"]: c["score"] for c in d["candidates"]}
+    assert scores[d["source"]] > scores["library:studio"]
+    assert "library" not in d  # no gap of it came from the library
 
 
 def test_the_library_moves_the_frames_between_the_keys_toward_the_take(shot, library, tmp_path, data_dir):
