@@ -41,6 +41,9 @@ from pipeline.usd import write
 from pipeline.usd.write import check_out_dir, clean_dead_temps, owner_tag, write_error
 
 _MODELS: dict[tuple[int, str], object] = {}
+#: A library fill also probes the human network (False: the library against the spline only;
+#: the library bench measures both).
+LIBRARY_VS_NETWORK = True
 
 
 def _load_rig(folder: str):
@@ -253,7 +256,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
     # A library's characters are also probed against the human network (the better decides).
-    alternatives = (_model("default"),) if opts.library else ()
+    alternatives = (_model("default"),) if opts.library and LIBRARY_VS_NETWORK else ()
     try:
         identity = [_fill_identity(m) for m in (*inbs, *alternatives)]
         digest = _digest(shot, plan.shot.stage, opts, take, identity)

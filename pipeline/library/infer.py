@@ -6,15 +6,17 @@ two keys and averaged. How far the gap takes them over the spline through the sa
 (what the animator's DCC draws) follows from their pose miss at the keys (cm, the mean
 joint-position distance between the keys and the windows' ends): in full up to
 ``TRUST_CM``, not at all from ``REFUSE_CM``, linearly between (the library's motion is
-then not the keys' motion). Gaps no take of the library spans, and gaps longer than
+then not the keys' motion); and from that miss against how much the keys move
+(:func:`gap_weight`). Gaps no take of the library spans, and gaps longer than
 ``MAX_GAP`` frames, are the spline's. Feet in contact in the retrieved windows are held
 in place by the fill's foot cleanup (:func:`pipeline.infer.post.lock_feet`). Keys are
 bitwise the input's. ``last_gaps`` keeps, per gap of the latest fill, its frames, pose miss,
 weight and the windows it took (take name and frame), for the fill's record.
 
 The trusted fill (:mod:`pipeline.infer.trust`) wraps this in-betweener as it wraps the
-network: probes from the shot's own keys decide, per gap length, how far the whole is
-trusted over the spline.
+network (and beside it: the one whose probes do better decides): probes from the shot's
+own keys decide, per gap length, how far the whole is trusted over the spline. The
+constants were chosen on held-out takes of a split other than the bench's (docs/library.md).
 """
 
 from __future__ import annotations
@@ -39,9 +41,10 @@ TRUST_CM = 6.0
 REFUSE_CM = 12.0
 #: Library frames in the pose bank the trusted fill measures the keys' familiarity on.
 BANK_POSES = 4096
-#: Pose miss over the keys' change of pose (+1 cm) up to which a gap takes the library in
-#: full, and from which it is the spline's: where the keys barely move, the spline is
-#: already right and a window that misses them adds motion nobody keyed.
+#: Pose miss over the keys' change of pose (+ CHANGE_FLOOR_CM) up to which a gap takes the
+#: library in full (TRUST_RATIO), and from which it is the spline's (REFUSE_RATIO): where the
+#: keys barely move, the spline is already right and a window that misses them adds motion
+#: nobody keyed (on CMU takes, gaps whose keys move under 3.5 cm were 1.6x the spline).
 TRUST_RATIO = 0.5
 REFUSE_RATIO = 1.5
 CHANGE_FLOOR_CM = 1.0
@@ -132,7 +135,7 @@ class LibraryInbetweener:
                 n = int(keys[g + 1] - keys[g])
                 step = k_root[g + 1] - k_root[g]
                 travel = match.batch_quat_apply(faces[g], step)[[0, 2]]
-                turn = float(match._wrap(match._yaw(faces[g]) - match._yaw(faces[g + 1])))
+                turn = float(match.wrap_angle(match.yaw_of(faces[g]) - match.yaw_of(faces[g + 1])))
                 context = [
                     (d[at[i]], int(keys[i] - keys[g]))
                     for i in (g - 1, g + 2)
@@ -149,10 +152,8 @@ class LibraryInbetweener:
                 )
                 if w <= 0.0:
                     continue
-                lo, hi = int(keys[g]), int(keys[g + 1])
-                fits = [match.fit_window(self.library, int(s), int(ln), n, k_rot[g : g + 2], k_root[g : g + 2],
-                                         faces[g])
-                        for s, ln in zip(m.starts, m.lengths, strict=True)]  # fmt: skip
+                fits = [match.fit_window(self.library, int(s), n, k_rot[g : g + 2], k_root[g : g + 2], faces[g])
+                        for s in m.starts]  # fmt: skip
                 q, p = match.average([f[0] for f in fits], [f[1] for f in fits], m.weights)
                 lo, hi = int(keys[g]), int(keys[g + 1])
                 inner = slice(lo + 1, hi)
@@ -161,8 +162,8 @@ class LibraryInbetweener:
                 else:
                     rot[inner] = slerp_pairs(rot[inner], q[1:-1], np.full(q[1:-1].shape[:-1], w))
                     root[inner] += w * (p[1:-1] - root[inner])
-                c = sum(wt * _retimed(self.library.contacts[s : s + ln + 1], n)
-                        for s, ln, wt in zip(m.starts, m.lengths, m.weights, strict=True))  # fmt: skip
+                c = sum(wt * np.asarray(self.library.contacts[s : s + n + 1], np.float64)
+                        for s, wt in zip(m.starts, m.weights, strict=True))  # fmt: skip
                 contacts[lo : hi + 1] = np.maximum(contacts[lo : hi + 1], w * c)
         self.last_gaps = sorted(gaps, key=lambda r: r["frames"][0])
         out_rot = rot.astype(np.float32)
@@ -184,9 +185,3 @@ class LibraryInbetweener:
             t = takes[int(np.searchsorted(starts, s, side="right")) - 1]
             where.append([t["name"], int(s) - int(t["start"])])
         return row | {"miss_cm": round(m.miss_cm, 3), "windows": where, **({"why": why} if why else {})}
-
-
-def _retimed(flags: np.ndarray, n: int) -> np.ndarray:
-    """(n + 1, C) per-frame values of a window of any length, at the nearest window frame."""
-    f = np.asarray(flags, np.float64)
-    return f[np.round(np.arange(n + 1) * ((len(f) - 1) / n)).astype(np.int64)]

@@ -62,7 +62,6 @@ class GapMatch:
     (cm), and their weights in the average."""
 
     starts: np.ndarray
-    lengths: np.ndarray
     cost: np.ndarray
     pose_cm: np.ndarray
     weights: np.ndarray
@@ -88,12 +87,12 @@ def key_distances(lib, feats: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(d.T)
 
 
-def _yaw(q: np.ndarray) -> np.ndarray:
+def yaw_of(q: np.ndarray) -> np.ndarray:
     """The angle (rad) of yaw quaternions about +Y."""
     return 2.0 * np.arctan2(q[..., 1], q[..., 3])
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
+def wrap_angle(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
@@ -167,33 +166,26 @@ def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, tu
     face = np.asarray(lib.facing[cand], np.float64)
     step = np.asarray(lib.roots[cand + n], np.float64) - lib.roots[cand]
     disp = batch_quat_apply(face, step)[:, [0, 2]]
-    lib_turn = _wrap(_yaw(face) - _yaw(np.asarray(lib.facing[cand + n], np.float64)))
+    lib_turn = wrap_angle(yaw_of(face) - yaw_of(np.asarray(lib.facing[cand + n], np.float64)))
     cost = 2.0 * ctx_cm if context and CONTEXT_WEIGHT else 2.0 * pose_cm
     cost = cost + DISP_WEIGHT * np.linalg.norm(disp - travel, axis=1)
-    cost += TURN_WEIGHT * np.abs(_wrap(lib_turn - turn))
+    cost += TURN_WEIGHT * np.abs(wrap_angle(lib_turn - turn))
     order = np.argsort(cost, kind="stable")[:best]
     if SOFTMIN_CM:
         w = np.exp(-(cost[order] - cost[order[0]]) / SOFTMIN_CM)
         w /= w.sum()
     else:
         w = np.full(len(order), 1.0 / len(order))
-    return GapMatch(cand[order], np.full(len(order), n), cost[order], pose_cm[order], w)
+    return GapMatch(cand[order], cost[order], pose_cm[order], w)
 
 
-def fit_window(lib, s: int, length: int, n: int, key_rot: np.ndarray, key_root: np.ndarray,
+def fit_window(lib, s: int, n: int, key_rot: np.ndarray, key_root: np.ndarray,
                key_face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Library frames ``s .. s + length`` retimed to ``n + 1`` frames and fitted onto the
-    keys: (n + 1, J, 4) rotations and (n + 1, 3) roots equal to the keys (``key_rot``
-    (2, J, 4), ``key_root`` (2, 3)) at both ends up to rounding. ``key_face``: key a's
-    facing turn (4,)."""
-    rot = np.array(lib.rotations[s : s + length + 1], np.float64)
-    root = np.array(lib.roots[s : s + length + 1], np.float64)
-    if length != n:  # retimed: each gap frame between the two library frames around it
-        u = np.arange(n + 1) * (length / n)
-        i0 = np.minimum(np.floor(u).astype(np.int64), length - 1)
-        w = u - i0
-        rot = slerp_pairs(rot[i0], rot[i0 + 1], np.broadcast_to(w[:, None], rot[i0].shape[:-1]))
-        root = root[i0] + w[:, None] * (root[i0 + 1] - root[i0])
+    """Library frames ``s .. s + n`` fitted onto the keys: (n + 1, J, 4) rotations and
+    (n + 1, 3) roots equal to the keys (``key_rot`` (2, J, 4), ``key_root`` (2, 3)) at both
+    ends up to rounding. ``key_face``: key a's facing turn (4,)."""
+    rot = np.array(lib.rotations[s : s + n + 1], np.float64)
+    root = np.array(lib.roots[s : s + n + 1], np.float64)
     # Turn the window to face as key a does and stand where it stands.
     align = batch_quat_mul(batch_quat_conj(key_face), np.asarray(lib.facing[s], np.float64))
     rot[:, 0] = batch_quat_mul(np.broadcast_to(align, rot[:, 0].shape), rot[:, 0])

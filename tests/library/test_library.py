@@ -201,7 +201,7 @@ def test_search_finds_the_window_of_least_cost_by_brute_force(library):
     feats = np.asarray(lib.features[[a, a + n]])
     face = np.asarray(lib.facing[[a, a + n]], np.float64)
     travel = match.batch_quat_apply(face[0], np.asarray(lib.roots[a + n], np.float64) - lib.roots[a])[[0, 2]]
-    turn = float(match._wrap(match._yaw(face[0]) - match._yaw(face[1])))
+    turn = float(match.wrap_angle(match.yaw_of(face[0]) - match.yaw_of(face[1])))
     d = match.key_distances(lib, feats)
     got = match.search(lib, d[0], d[1], n, travel, turn, best=3)
     assert got.starts[0] == a and got.pose_cm[0] < 1e-2 and got.cost[0] < 0.05
@@ -212,11 +212,11 @@ def test_search_finds_the_window_of_least_cost_by_brute_force(library):
         )
         f0 = np.asarray(lib.facing[s], np.float64)
         disp = match.batch_quat_apply(f0, np.asarray(lib.roots[s + n], np.float64) - lib.roots[s])[[0, 2]]
-        t = match._wrap(match._yaw(f0) - match._yaw(np.asarray(lib.facing[s + n], np.float64)))
+        t = match.wrap_angle(match.yaw_of(f0) - match.yaw_of(np.asarray(lib.facing[s + n], np.float64)))
         return (
             pose
             + match.DISP_WEIGHT * np.linalg.norm(disp - travel)
-            + match.TURN_WEIGHT * abs(match._wrap(t - turn))
+            + match.TURN_WEIGHT * abs(match.wrap_angle(t - turn))
         )
 
     brute = sorted((cost(s), s) for s in range(lib.frames - n) if lib.take_end[s] >= s + n)
