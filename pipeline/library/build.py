@@ -10,6 +10,7 @@ the takes the library does not hold yet (by resolved path) and keeps the rest as
 
 from __future__ import annotations
 
+import gzip
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -47,10 +48,23 @@ def mirrored(motion):
     return replace(motion, rotations=rot.astype(np.float32), root_positions=m.root(motion.root_positions))
 
 
-def _rig_of(path: Path, motion) -> str:
-    """What the take came from, for the manifest."""
-    kind = "BVH" if path.name.endswith((".bvh", ".bvh.gz")) else "USD"
-    return kind
+def _rig_of(path: Path) -> str:
+    """What the take came from, for the manifest: a BVH's joint count, root and rate from its
+    header (read up to MOTION, not the frames), or "USD"."""
+    if not path.name.endswith((".bvh", ".bvh.gz")):
+        return "USD"
+    joints, root, rate = 0, "", ""
+    opener = gzip.open if path.name.endswith(".gz") else open
+    with opener(path, "rt", encoding="utf-8", errors="replace") as f:
+        for line in f:
+            word = line.split()[:2]
+            if word and word[0] in ("ROOT", "JOINT"):
+                joints += 1
+                root = root or (word[1] if len(word) > 1 else "")
+            elif line.strip().startswith("Frame Time:"):
+                rate = f", {1.0 / float(line.split(':')[1]):g} fps"
+                break
+    return f"BVH, {joints} joints from {root}{rate}"
 
 
 def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
@@ -91,7 +105,7 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                 motion = studio_take(path)
                 if len(motion) < 2:
                     raise TweenError(f"{path}: fewer than two frames")
-                rig = _rig_of(path, motion)
+                rig = _rig_of(path)
                 arrays = take_arrays(motion)
             except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
                 msg = str(e).splitlines()[0] if str(e) else type(e).__name__

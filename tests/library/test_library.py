@@ -46,6 +46,7 @@ def test_a_library_holds_every_take_on_the_model_skeleton_with_a_manifest(librar
         assert lib.take_end[t["start"]] == t["start"] + t["frames"] - 1
     cmu = next(t for t in m["takes"] if t["name"] == CMU_TAKE)
     assert cmu["frames"] == len(read_bvh(takes / "cmu" / CMU_TAKE).rotations[::2])
+    assert cmu["rig"].startswith("BVH, 101 joints from RL_BoneRoot")
     # Memory-mapped, read-only: a worker shares one copy in the page cache.
     assert isinstance(lib.features, np.memmap) and not lib.features.flags.writeable
     assert lib.features.shape == (lib.frames, *ARRAYS["features"][1])
