@@ -1,0 +1,34 @@
+"""The burn-ins say what filled each in-between frame of a library fill."""
+
+import numpy as np
+
+from render.overlays import BurnIn, fill_sources, source_at
+
+
+def test_each_gap_is_named_by_what_filled_it():
+    facts = {"model": "library:studio", "library_gaps": [(1001, 1011), (1011, 1021), (1021, 1031)],
+             "library_share": [1.0, 0.0, 0.4]}  # fmt: skip
+    src = fill_sources(facts)
+    assert [source_at(src, t) for t in (1005, 1015, 1025, 1011, 1040)] == [
+        "library", "spline", "library 40%", None, None
+    ]  # fmt: skip
+    assert fill_sources({"model": "tween-bandai-v5.3"}) == []
+
+
+def test_the_label_is_burnt_into_in_between_frames_only():
+    facts = {"model": "library:studio", "library_gaps": [(1001, 1011)], "library_share": [1.0]}
+    burn = BurnIn((640, 360), "sh010", facts, 24.0)
+    mid = slice(640 // 2 - 40, 640 // 2 + 40)
+
+    def bottom(frame, key):
+        img = np.zeros((360, 640, 3), np.uint8)
+        burn.apply(img, frame, key)
+        return img[-burn.band :, mid].astype(int)
+
+    plain = BurnIn((640, 360), "sh010", {"model": "library:studio"}, 24.0)
+    ref = np.zeros((360, 640, 3), np.uint8)
+    plain.apply(ref, 1005, False)
+    assert np.abs(bottom(1005, False) - ref[-burn.band :, mid]).sum() > 0  # "library" written
+    out = np.zeros((360, 640, 3), np.uint8)
+    burn.apply(out, 1020, False)  # outside every gap: as without a library
+    assert np.array_equal(out[-burn.band :, mid], ref[-burn.band :, mid])
