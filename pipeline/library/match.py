@@ -49,10 +49,12 @@ CONTEXT_FRAMES = 60
 #: Cost (cm) over the best window's at which a window counts 1/e as much in the average
 #: (None: every window alike).
 SOFTMIN_CM = 2.0
+#: Library frames whose distances to the keys are computed at once.
+FRAME_BLOCK = 65536
 #: The coarse pass looks at every STRIDE-th window start.
 STRIDE = 3
 #: Keys whose distances to every library frame are held at once (memory: KEY_BLOCK × frames
-#: float32; 128 MB for a 10-hour library at 30 fps).
+#: float32; 138 MB for a 10-hour library at 30 fps).
 KEY_BLOCK = 32
 
 
@@ -76,15 +78,21 @@ class GapMatch:
 def key_distances(lib, feats: np.ndarray) -> np.ndarray:
     """(K, F) float32: each key's mean squared joint-position miss (cm²) against every
     library frame, for K key features (K, D); one row a key, so that a key's row is
-    contiguous (the search reads it in strides)."""
+    contiguous (the search reads it in strides). Computed in blocks of frames (the product
+    in its fast (frames, keys) layout, then turned), so memory is the result's."""
     joints = (feats.shape[1] - 1) / 3.0
     k = np.asarray(feats, np.float32)
-    d = lib.features @ (-2.0 * k.T)  # (F, K): the fast layout for the product
-    d += lib.sqnorm[:, None]
-    d += (k * k).sum(1)[None]
-    np.maximum(d, 0.0, out=d)
-    d /= joints
-    return np.ascontiguousarray(d.T)
+    k2 = -2.0 * k.T
+    kk = (k * k).sum(1)
+    out = np.empty((len(k), lib.frames), np.float32)
+    for s in range(0, lib.frames, FRAME_BLOCK):
+        d = lib.features[s : s + FRAME_BLOCK] @ k2
+        d += lib.sqnorm[s : s + FRAME_BLOCK, None]
+        d += kk[None]
+        np.maximum(d, 0.0, out=d)
+        out[:, s : s + FRAME_BLOCK] = d.T
+    out /= joints
+    return out
 
 
 def yaw_of(q: np.ndarray) -> np.ndarray:
