@@ -11,6 +11,7 @@ key prefix (``<prefix>rig:``), time limits and visibility timeout.
 
 from __future__ import annotations
 
+import os
 import time
 from contextlib import contextmanager
 
@@ -18,7 +19,7 @@ from celery import Celery
 
 import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
 from workers.errors import FarmConnectionError
-from workers.settings import FarmSettings, load_settings, redact_url, url_passwords
+from workers.settings import FarmConfigError, FarmSettings, load_settings, redact_url, url_passwords
 
 #: Celery's own states plus the one the job record is stored under.
 SUBMITTED = "SUBMITTED"
@@ -102,7 +103,19 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = 
     return app
 
 
-settings = load_settings()
+def _settings() -> tuple[FarmSettings, FarmConfigError | None]:
+    """The farm settings, and the configuration's error when it has one. A bad setting must
+    not break the commands that need no farm (``tween fill-local``, ``convert``, …: this
+    module is imported when the CLI registers its commands), so the apps are then made with
+    the defaults and every farm command says the error in one line (:func:`check_farm`)."""
+    try:
+        return load_settings(), None
+    except FarmConfigError as e:
+        keep = {k: v for k, v in os.environ.items() if k == "TWEEN_CACHE"}
+        return load_settings({**keep, "TWEEN_FARM_CONFIG": os.devnull}), e
+
+
+settings, SETTINGS_ERROR = _settings()
 app = configure(Celery("tween", include=["workers.tasks"]), settings)
 train_app = configure(Celery("tween-train", include=["workers.train_tasks"]), settings, train=True)
 rig_app = configure(Celery("tween-rig", include=["workers.rig_tasks"]), settings, rig=True)
@@ -168,7 +181,10 @@ def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
 
 
 def check_farm(celery_app: Celery, *, broker: bool = True, backend: bool = True) -> None:
-    """Fails fast, in one line, when the farm the CLI talks to cannot be reached."""
+    """Fails fast, in one line, when the farm's configuration is wrong or the farm the CLI
+    talks to cannot be reached."""
+    if SETTINGS_ERROR is not None:
+        raise SETTINGS_ERROR
     if celery_app.conf.tween.embedded:
         return
     if broker:

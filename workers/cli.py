@@ -38,6 +38,15 @@ def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:
         raise TweenError(f"{opt} {value}: must be from {lo} to {hi}")
 
 
+def raise_settings_error() -> None:
+    """The farm configuration's error, if it has one (before telling a farm command that no
+    broker is configured: the broker setting may be the one that is wrong)."""
+    from workers.app import SETTINGS_ERROR
+
+    if SETTINGS_ERROR is not None:
+        raise SETTINGS_ERROR
+
+
 def _err(msg: str) -> None:
     print(f"tween: error: {msg}", file=sys.stderr)
 
@@ -142,6 +151,7 @@ def register(app: typer.Typer) -> None:
         from workers.app import app as celery_app
         from workers.app import check_farm, farm_errors
 
+        raise_settings_error()
         if celery_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
             raise typer.Exit(2)
@@ -272,6 +282,7 @@ def register(app: typer.Typer) -> None:
         opts = opts.check().as_job()
         from workers.app import check_farm, farm_errors, rig_app
 
+        raise_settings_error()
         if rig_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
             raise typer.Exit(2)
@@ -314,6 +325,7 @@ def register(app: typer.Typer) -> None:
         the job id (`tween status ID` shows it)."""
         from workers.app import check_farm, farm_errors, train_app
 
+        raise_settings_error()
         if train_app.conf.tween.embedded:
             _err(
                 "no broker configured (set TWEEN_BROKER_URL); run `tween library build` on this host instead"

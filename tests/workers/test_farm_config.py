@@ -210,3 +210,34 @@ def test_state_reports_the_stage_that_failed_while_it_is_being_written(monkeypat
     monkeypatch.setattr(jobs, "_meta", meta)
     js = jobs.state(job)
     assert js.state == "FAILURE" and js.stage == "validate" and "outside the shot roots" in js.error
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"TWEEN_FILL_TIME_LIMIT": "50s"},  # an integer setting that is not one
+        {"config": 'brokr_url = "redis://h"\n'},  # a typo in the farm TOML
+    ],
+)
+def test_a_bad_farm_setting_is_one_line_for_farm_commands_and_nothing_for_the_others(tmp_path, bad):
+    import subprocess
+    import sys
+
+    from usd_fixtures import bandai_shot
+
+    shot = bandai_shot(tmp_path / "sh.usda", frames=21)
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(bad.pop("config", ""))
+    env = {**os.environ, **_env(tmp_path), "TWEEN_FARM_CONFIG": str(cfg), **bad}
+    farm = [["status", "abc"], ["fill", shot], ["submit", shot], ["worker"],
+            ["submit-library", tmp_path, "--out", tmp_path / "lib"]]  # fmt: skip
+    for args in farm:
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, args)], env=env, capture_output=True,
+                           text=True, timeout=120)  # fmt: skip
+        assert r.returncode == 2, (args, r.stderr)
+        assert r.stderr.count("\n") == 1 and r.stderr.startswith("tween: error:"), (args, r.stderr)
+        assert "TWEEN_FILL_TIME_LIMIT" in r.stderr or "brokr_url" in r.stderr
+    # Commands that need no farm are not broken by its configuration.
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--out-dir",
+                        str(tmp_path / "out")], env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
