@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
 from pipeline.infer.spline import spline_keys
@@ -237,3 +239,35 @@ def test_tween_library_build_and_info_from_the_command_line(takes, tmp_path):
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", "library", "info", str(tmp_path)], capture_output=True,
                        text=True)  # fmt: skip
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and r.stderr.startswith("tween: error:")
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    content=st.one_of(
+        st.binary(max_size=300),
+        st.text(max_size=300).map(str.encode),
+        st.sampled_from(
+            [
+                b"HIERARCHY\nROOT Hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation\n}\nMOTION\nFrames: 1\n"
+                b"Frame Time: 0.0333\n0 0 0\n",
+                b"#usda 1.0\n",
+                b"\x1f\x8b\x08\x00garbage",
+            ]
+        ),  # fmt: skip
+    ),
+    suffix=st.sampled_from([".bvh", ".bvh.gz", ".usda", ".usd"]),
+)
+def test_any_unreadable_take_is_one_line_and_the_good_take_goes_in(tmp_path_factory, takes, content, suffix):
+    import contextlib
+    import io
+
+    folder = tmp_path_factory.mktemp("gen")
+    shutil.copy(takes / BANDAI[0], folder / BANDAI[0])
+    (folder / f"bad{suffix}").write_bytes(content)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        res = build(folder, folder / "lib", progress=False)
+    assert res["takes"] == 1 + (not res["failed"]) and res["added"] == res["takes"]
+    lines = [ln for ln in err.getvalue().splitlines() if f"bad{suffix}" in ln]
+    assert len(lines) == len(res["failed"]) <= 1
+    assert all(ln.startswith("tween: skipped take:") for ln in lines)
