@@ -198,6 +198,8 @@ def register(app: typer.Typer) -> None:
                 r = s.result or {}
                 typer.echo(f"{s.id} {s.shot}: success, {r.get('takes')} take(s), {r.get('hours', 0):.2f} h, "
                            f"hash {r.get('hash')} ({r.get('added')} added, {len(r.get('failed') or [])} failed)")  # fmt: skip
+            elif s.id.startswith("lib-") and s.state == "RUNNING":
+                typer.echo(f"{s.id} {s.shot}: running {s.stage}")
             elif s.id.startswith("rig-") and s.state == "RUNNING" and (s.result or {}).get("levels"):
                 r = s.result
                 typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "

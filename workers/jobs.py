@@ -367,9 +367,12 @@ def library_state(job_id: str) -> JobState:
     js = JobState(id=job_id, total=1)
     if st == SUBMITTED and isinstance(res, dict):
         js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", "library build"
-    elif st in (cstates.STARTED, cstates.RETRY):
+    elif st in (cstates.STARTED, "PROGRESS", cstates.RETRY):
         js.state, js.stage = "RUNNING", "library build"
-        js.shot = (res or {}).get("folder", "") if isinstance(res, dict) else ""
+        js.result = res if isinstance(res, dict) else None
+        js.shot = (js.result or {}).get("folder", "")
+        if (js.result or {}).get("total"):
+            js.stage = f"library build, take {js.result['done']}/{js.result['total']}"
     elif st == cstates.SUCCESS:
         js.state, js.done, js.result = "SUCCESS", 1, res
         js.shot = (res or {}).get("library", "")

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
+import tempfile
 
 from workers.app import train_app
 from workers.errors import JobError
@@ -19,6 +21,10 @@ def train(self, args: list[str]) -> dict:
         tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
         raise JobError(f"tween train {' '.join(map(str, args))}: exit {proc.returncode}: {tail}")
     return {"stdout": proc.stdout[-4000:]}
+
+
+#: pipeline.library.cli.PROGRESS_LINE, as read back.
+_PROGRESS = re.compile(r"^tween: library progress (\d+)/(\d+)")
 
 
 @train_app.task(name="tween.library_build", bind=True)
@@ -38,14 +44,22 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
             cmd += [f"--{key}", str(options[key])]
     cmd += ["--add"] if options.get("add") else []
     cmd += ["--mirror"] if options.get("mirror") else []
-    self.update_state(state="STARTED", meta={"stage": "library build", "folder": folder, "out": out})
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    meta = {"stage": "library build", "folder": folder, "out": out}
+    self.update_state(state="STARTED", meta=meta)
+    tail: list[str] = []
+    with tempfile.TemporaryFile("w+") as stdout:
+        proc = subprocess.Popen(cmd + ["--progress-lines"], stdout=stdout, stderr=subprocess.PIPE, text=True)
+        for line in proc.stderr:  # progress lines become the task's state; the rest is kept for errors
+            m = _PROGRESS.match(line)
+            if m:
+                self.update_state(state="PROGRESS", meta=meta | {"done": int(m[1]), "total": int(m[2])})
+            else:
+                tail = (tail + [line.rstrip()])[-20:]
+        proc.wait()
+        stdout.seek(0)
+        text = stdout.read()
     if proc.returncode != 0:
-        lines = [ln for ln in proc.stderr.strip().splitlines() if ln.startswith("tween: error:")]
-        tail = (
-            lines[-1].removeprefix("tween: error: ")
-            if lines
-            else "\n".join(proc.stderr.strip().splitlines()[-3:])
-        )
-        raise JobError(f"tween library build {folder}: {tail}")
-    return json.loads(proc.stdout)
+        lines = [ln for ln in tail if ln.startswith("tween: error:")]
+        why = lines[-1].removeprefix("tween: error: ") if lines else "\n".join(tail[-3:])
+        raise JobError(f"tween library build {folder}: {why}")
+    return json.loads(text)

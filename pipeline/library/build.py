@@ -68,10 +68,12 @@ def _rig_of(path: Path) -> str:
 
 
 def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
-          add: bool = False, files=None, progress: bool = True, mirror: bool = False) -> dict:  # fmt: skip
+          add: bool = False, files=None, progress: bool = True, mirror: bool = False,
+          on_progress=None) -> dict:  # fmt: skip
     """Reads the takes under ``folder`` (or the paths in ``files``) into the library ``out``;
     returns {"library", "added", "skipped", "failed", "frames", "hours", "hash"}. Without
-    ``add`` an existing library at ``out`` is refused (build into a new folder, or add)."""
+    ``add`` an existing library at ``out`` is refused (build into a new folder, or add).
+    ``on_progress(done, total, name)`` is called after each take (the farm's progress)."""
     from pipeline.usd.take import studio_take, take_files
 
     out = Path(out)
@@ -100,7 +102,9 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
                disable=not progress or None, mininterval=2.0)  # fmt: skip
     try:
-        for path in bar:
+        for done, path in enumerate(bar):
+            if on_progress is not None:
+                on_progress(done, len(todo), path.name)
             try:
                 motion = studio_take(path)
                 if len(motion) < 2:
@@ -122,6 +126,8 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                            take_arrays(mirrored(motion)))  # fmt: skip
             added += 1
         writer.commit()
+        if on_progress is not None:
+            on_progress(len(todo), len(todo), "")
     finally:
         writer.close()
         bar.close()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+import time
 from pathlib import Path
 
 import typer
@@ -28,15 +30,38 @@ def build_command(
     name: str = typer.Option(None, "--name", help="The library's name (default: the folder's)."),
     mirror: bool = typer.Option(False, "--mirror", help="Also add each take's left/right mirror image."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="A progress bar on stderr."),
+    progress_lines: bool = typer.Option(
+        False,
+        "--progress-lines",
+        hidden=True,
+        help="Progress as 'tween: library progress D/T' lines on stderr "
+        "(the farm's channel), at most two a second.",
+    ),
 ):
     """Read a studio's takes into a motion library for `tween fill --library`."""
     from pipeline.library.build import build
 
     res = build(folder, out, include=include, licence=licence, name=name, add=add, progress=progress,
-                mirror=mirror)  # fmt: skip
+                mirror=mirror, on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
     typer.echo(json.dumps(res, indent=1))
     if res["added"] == 0 and res["failed"] and not res["takes"]:
         raise TweenError(f"{folder}: no take could be read ({len(res['failed'])} failed)")
+
+
+#: The line ``--progress-lines`` writes (workers.train_tasks reads it).
+PROGRESS_LINE = "tween: library progress {done}/{total}"
+
+
+def _progress_lines():
+    last = [0.0]
+
+    def show(done: int, total: int, name: str) -> None:
+        now = time.monotonic()
+        if done == total or now - last[0] >= 0.5:
+            last[0] = now
+            print(PROGRESS_LINE.format(done=done, total=total), file=sys.stderr, flush=True)
+
+    return show
 
 
 def info_command(library: Path = typer.Argument(..., help="A library folder.")):

@@ -95,3 +95,27 @@ def test_a_library_job_that_fails_says_why(libfarm):
     empty.mkdir()
     r = _tween(env, "submit-library", empty, "--out", root / "nolib", "--wait")
     assert r.returncode == 2 and "no BVH or USD takes" in r.stderr.splitlines()[-1]
+
+
+def test_the_build_reports_its_progress_as_task_state(tmp_path, data_dir, monkeypatch):
+    """The task body on its own (no broker): each take's progress line becomes a PROGRESS
+    state, the last one all takes done; the result is the build's summary."""
+    from dataclasses import replace
+
+    from workers.app import app as fill_app
+    from workers.train_tasks import library_build
+
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    for name in TAKES:
+        shutil.copy(data_dir / "bandai_namco" / "dataset-2" / name, takes / name)
+    monkeypatch.setitem(fill_app.conf, "tween", replace(fill_app.conf.tween, shot_roots=(str(tmp_path),)))
+    states = []
+    monkeypatch.setattr(library_build, "update_state", lambda state, meta: states.append((state, dict(meta))))
+    res = library_build.run(str(takes), str(tmp_path / "lib"), {"licence": "studio"})
+    assert res["takes"] == 2 and open_library(tmp_path / "lib").manifest["licence"] == "studio"
+    assert states[0][0] == "STARTED"
+    progress = [m for s, m in states if s == "PROGRESS"]
+    assert progress and progress[-1]["done"] == progress[-1]["total"] == 2
+    with pytest.raises(Exception, match="outside the shot roots"):
+        library_build.run(str(data_dir), str(tmp_path / "lib2"), {})
