@@ -8,6 +8,7 @@ backend on SQLite files under the cache folder, so nothing needs a server.
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 import tomllib
@@ -110,7 +111,19 @@ _STR_KEYS = (
 )
 
 
-def _read_file(path: Path) -> dict:
+def _nearest(key: str) -> str:
+    near = difflib.get_close_matches(key, (*_INT_KEYS, *_STR_KEYS, "shot_roots"), n=1)
+    return f" (did you mean {near[0]}?)" if near else ""
+
+
+def _read_file(path: Path, named: bool = False) -> dict:
+    """The settings in the TOML file ``path``; none when it does not exist, unless the user
+    ``named`` it (``TWEEN_FARM_CONFIG``): a file named and missing is an error, not silence.
+    ``/dev/null`` (no file) is no settings."""
+    if not path.exists():
+        if named:
+            raise FarmConfigError(f"TWEEN_FARM_CONFIG={path}: no such farm config file")
+        return {}
     if not path.is_file():
         return {}
     try:
@@ -118,9 +131,17 @@ def _read_file(path: Path) -> dict:
             data = tomllib.load(f)
     except (OSError, tomllib.TOMLDecodeError) as e:
         raise FarmConfigError(f"{path}: cannot read farm config: {e}") from None
-    unknown = set(data) - set(_INT_KEYS) - set(_STR_KEYS) - {"shot_roots"}
+    unknown = sorted(set(data) - set(_INT_KEYS) - set(_STR_KEYS) - {"shot_roots"})
     if unknown:
-        raise FarmConfigError(f"{path}: unknown farm setting(s): {', '.join(sorted(unknown))}")
+        raise FarmConfigError(
+            f"{path}: unknown farm setting(s): " + ", ".join(k + _nearest(k) for k in unknown)
+        )
+    for key in _STR_KEYS:
+        if key in data and not isinstance(data[key], str):
+            raise FarmConfigError(f"{path}: {key} must be a string, not {data[key]!r}")
+    roots = data.get("shot_roots")
+    if roots is not None and not (isinstance(roots, list) and all(isinstance(r, str) for r in roots)):
+        raise FarmConfigError(f"{path}: shot_roots must be a list of folder paths, not {roots!r}")
     return data
 
 
@@ -134,7 +155,7 @@ def embedded_urls(folder: Path) -> tuple[str, str]:
 def load_settings(env: dict | None = None) -> FarmSettings:
     """Resolves the settings from ``env`` (default ``os.environ``) and the config file."""
     env = os.environ if env is None else env
-    data = _read_file(config_file(env))
+    data = _read_file(config_file(env), named=bool(env.get("TWEEN_FARM_CONFIG")))
     vals: dict = {}
     for key in _STR_KEYS + _INT_KEYS:
         raw = env.get(f"TWEEN_{key.upper()}")
@@ -143,10 +164,18 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         if raw is None:
             continue
         if key in _INT_KEYS:
+            where = (
+                f"TWEEN_{key.upper()}" if env.get(f"TWEEN_{key.upper()}") else f"{config_file(env)}: {key}"
+            )
             try:
+                if isinstance(raw, bool) or isinstance(raw, float):
+                    raise ValueError
                 raw = int(raw)
             except (TypeError, ValueError):
-                raise FarmConfigError(f"TWEEN_{key.upper()}: expected an integer, got {raw!r}") from None
+                raise FarmConfigError(f"{where}: expected an integer, got {raw!r}") from None
+            least = 0 if key == "max_retries" else 1
+            if raw < least:
+                raise FarmConfigError(f"{where}: must be {least} or more, got {raw}")
         vals[key] = raw
     roots = env.get("TWEEN_SHOT_ROOTS")
     if roots:

@@ -125,7 +125,7 @@ def run_case(folder: Path, shot_bytes: bytes, cache: Path, args: list[str], env:
     (folder / "s.usda").write_bytes(shot_bytes)
     before = listing(folder)
     run_env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
-    run_env.update(TWEEN_CACHE=str(cache), TWEEN_FARM_CONFIG=str(cache / "no-farm.toml"), **env)
+    run_env.update(TWEEN_CACHE=str(cache), TWEEN_FARM_CONFIG=os.devnull, **env)
     t0 = time.monotonic()
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", *args], cwd=folder, env=run_env,
                        capture_output=True, text=True, timeout=60)  # fmt: skip

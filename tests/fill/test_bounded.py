@@ -240,6 +240,7 @@ def test_a_fill_at_the_soft_limit_fails_with_that_message(tmp_path):
     shutil.copyfile(REPO / "examples" / "sh010_walk.usda", shot)
     env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
     cfg = tmp_path / "farm.toml"
+    cfg.write_text("")  # the studio's (empty) farm config, named as where to raise the limit
     env.update(
         TWEEN_CACHE=str(tmp_path / "cache"),
         TWEEN_FARM_CONFIG=str(cfg),

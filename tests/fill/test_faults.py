@@ -64,7 +64,7 @@ def _env(tmp_path: Path, **extra) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
     env.update(
         TWEEN_CACHE=str(tmp_path / "cache"),
-        TWEEN_FARM_CONFIG=str(tmp_path / "no-such-farm.toml"),
+        TWEEN_FARM_CONFIG=os.devnull,
         PYTHONPATH=os.pathsep.join([str(hooks), str(TESTS), str(REPO)]),
     )
     if "TWEEN_DATA" in os.environ:

@@ -135,7 +135,7 @@ def test_a_library_fill_takes_no_other_model(shot, library, tmp_path):
 def test_the_farms_library_setting_is_every_jobs_default(library, monkeypatch, tmp_path):
     from workers.cli import _opts
 
-    monkeypatch.setenv("TWEEN_FARM_CONFIG", str(tmp_path / "none.toml"))
+    monkeypatch.setenv("TWEEN_FARM_CONFIG", os.devnull)
     monkeypatch.setenv("TWEEN_LIBRARY", str(library))
     assert _opts(FillOptions())["library"] == os.path.abspath(library)
     own = tmp_path / "own"

@@ -12,7 +12,7 @@ from workers.settings import FarmConfigError, load_settings
 
 
 def _env(tmp_path, **kw):
-    return {"TWEEN_FARM_CONFIG": str(tmp_path / "none.toml"), "TWEEN_CACHE": str(tmp_path / "c"), **kw}
+    return {"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_CACHE": str(tmp_path / "c"), **kw}
 
 
 def test_embedded_default_needs_no_server(tmp_path):
@@ -241,3 +241,38 @@ def test_a_bad_farm_setting_is_one_line_for_farm_commands_and_nothing_for_the_ot
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--out-dir",
                         str(tmp_path / "out")], env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize(
+    "toml, env, says",
+    [
+        ('brokr_url = "redis://h"\n', {}, "unknown farm setting(s): brokr_url (did you mean broker_url?)"),
+        ('fill_time_limit = "soon"\n', {}, "fill_time_limit: expected an integer, got 'soon'"),
+        ("visibility_timeout = 1.5\n", {}, "visibility_timeout: expected an integer, got 1.5"),
+        ("queue = 5\n", {}, "queue must be a string, not 5"),
+        ('shot_roots = "/shows"\n', {}, "shot_roots must be a list of folder paths"),
+        ("queue = [\n", {}, "cannot read farm config"),
+        ("", {"TWEEN_FILL_TIME_LIMIT": "0"}, "TWEEN_FILL_TIME_LIMIT: must be 1 or more, got 0"),
+        ("", {"TWEEN_RESTORE_INTERVAL": "-5"}, "TWEEN_RESTORE_INTERVAL: must be 1 or more, got -5"),
+        ("", {"TWEEN_MAX_RETRIES": "x"}, "TWEEN_MAX_RETRIES: expected an integer, got 'x'"),
+    ],
+)
+def test_every_configuration_mistake_is_named(tmp_path, toml, env, says):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(toml)
+    with pytest.raises(FarmConfigError) as e:
+        load_settings({**_env(tmp_path), "TWEEN_FARM_CONFIG": str(cfg), **env})
+    assert says in str(e.value) and "\n" not in str(e.value)
+    if not env:
+        assert str(cfg) in str(e.value)
+
+
+def test_a_farm_config_named_but_missing_is_an_error_and_none_named_is_none(tmp_path):
+    missing = tmp_path / "farm.toml"
+    with pytest.raises(FarmConfigError, match=f"TWEEN_FARM_CONFIG={missing}: no such farm config file"):
+        load_settings({"TWEEN_FARM_CONFIG": str(missing), "TWEEN_CACHE": str(tmp_path / "c")})
+    assert load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_CACHE": str(tmp_path / "c")}).embedded
+    assert load_settings(
+        {"HOME": str(tmp_path), "TWEEN_CACHE": str(tmp_path / "c")}
+    ).embedded  # the default path
+    assert load_settings({**_env(tmp_path), "TWEEN_MAX_RETRIES": "0"}).max_retries == 0

@@ -33,7 +33,7 @@ def _env(tmp_path: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
     env.update(
         TWEEN_CACHE=str(tmp_path / "cache"),
-        TWEEN_FARM_CONFIG=str(tmp_path / "no-such-farm.toml"),
+        TWEEN_FARM_CONFIG=os.devnull,
         TWEEN_TEST_NET_LOG=str(tmp_path / "net.log"),
         PYTHONPATH=os.pathsep.join([str(guard_dir), str(REPO)]),
     )
