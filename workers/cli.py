@@ -11,6 +11,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.fill.api import trust_line
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from workers import jobs
@@ -70,7 +71,9 @@ def _decision(layer) -> str:
 
 
 def _report(states) -> int:
-    """Results to stdout, failures to stderr; returns the exit code."""
+    """Results to stdout (per shot: layer, review, each take's MP4 and contact sheet, the
+    timeline), the job id and each character's trust decision to stderr, failures to stderr;
+    returns the exit code."""
     failed = 0
     for s in states:
         if s.state == "SUCCESS":
@@ -78,8 +81,17 @@ def _report(states) -> int:
             line = f"{s.shot}: layer {r.get('layer')}"
             if r.get("review"):
                 line += f", review {r['review']}"
-            for i, rend in enumerate(r.get("renders") or []):
-                line += f", take {i} render {rend.get('mp4') or rend}"
+            renders = r.get("renders") or []
+            for i, rend in enumerate(renders):
+                mp4 = rend.get("mp4") if isinstance(rend, dict) else rend
+                line += f", take {i} render {mp4}"
+                if isinstance(rend, dict) and rend.get("contact_sheet"):
+                    line += f", take {i} contact sheet {rend['contact_sheet']}"
+            timelines = {
+                rend.get("timeline") for rend in renders if isinstance(rend, dict) and rend.get("timeline")
+            }
+            for t in sorted(timelines):
+                line += f", timeline {t}"
             if r.get("render_note"):
                 line += f" ({r['render_note']})"
             models = r.get("models") or {}
@@ -88,6 +100,10 @@ def _report(states) -> int:
             elif r.get("model"):
                 line += f", model {r['model']}"
             typer.echo(line)
+            print(f"tween: {s.shot}: job {s.id}", file=sys.stderr)
+            for anim, d in (r.get("trust") or {}).items():
+                if d:
+                    print(f"tween: {s.shot} {anim}: {trust_line(d)}", file=sys.stderr)
         else:
             failed += 1
             _err(s.error or f"{s.shot}: job {s.id} {s.state.lower()}")

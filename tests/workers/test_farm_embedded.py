@@ -126,3 +126,11 @@ def test_embedded_fill_single_take_with_render(tmp_path):
     mp4 = Path(res.stdout.split("render ", 1)[1].split()[0].strip(","))
     assert mp4.suffix == ".mp4" and mp4.stat().st_size > 10_000
     assert len(list(mp4.parent.glob("*.png"))) > 10
+    # Every output is said: the contact sheet and the timeline too; and on stderr the job id
+    # (what `tween status` takes) and the trusted fill's decision per character.
+    sheet = Path(res.stdout.split("contact sheet ", 1)[1].split()[0].strip(","))
+    otio = Path(res.stdout.split("timeline ", 1)[1].split()[0].strip(","))
+    assert sheet.is_file() and sheet.suffix == ".png" and otio.is_file() and otio.suffix == ".otio"
+    job = [ln for ln in res.stderr.splitlines() if ln.startswith(f"tween: {shot}: job ")]
+    assert len(job) == 1 and len(job[0].split()[-1]) == 32
+    assert any(ln.startswith(f"tween: {shot} ") and ": trust " in ln for ln in res.stderr.splitlines())
