@@ -35,6 +35,7 @@ def register(app: typer.Typer) -> None:
         up: str = typer.Option("y", "--up", help="Stage up axis: y or z."),
         frames: str = typer.Option(None, "--frames", help="Source frame span to keep, e.g. 0-120."),
         name: str = typer.Option("Character", "--name", help="Name of the SkelRoot prim."),
+        force: bool = typer.Option(False, "--force", help="Replace OUT if it exists."),
     ):
         """BVH → UsdSkel shot with a skinned box mannequin."""
 
@@ -82,6 +83,8 @@ def register(app: typer.Typer) -> None:
             raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
         if not out.parent.is_dir():
             raise TweenError(f"{out}: the folder {out.parent} does not exist")
+        if (out.exists() or out.is_symlink()) and not force:  # fill layers may sublayer it
+            raise TweenError(f"{out}: exists; pass --force to replace it (fills of it keep pointing at it)")
         motion = read_bvh(bvh)
         n = len(motion)
         if span:

@@ -113,3 +113,24 @@ def test_single_joint_clip_gets_a_cube_mannequin(tmp_path):
     pts = np.array(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Character/Mannequin")).GetPointsAttr().Get())
     assert pts.shape == (8, 3) and np.isfinite(pts).all()
     assert stage.GetTimeCodesPerSecond() == 24
+
+
+def test_an_existing_shot_is_replaced_only_with_force(tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "sh010.usda"
+    out.write_text("#usda 1.0\n# the shot the studio's fill layers sublayer\n")
+    before = out.read_bytes()
+    cmd = [sys.executable, "-m", "pipeline.cli", "convert", str(BANDAI_CLIP), str(out), "--frames", "0-20"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert (
+        res.returncode == 2
+        and res.stderr.count("\n") == 1
+        and "--force" in res.stderr
+        and str(out) in res.stderr
+    )
+    assert out.read_bytes() == before
+    res = subprocess.run([*cmd, "--force"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert out.read_bytes() != before and res.stdout.strip() == str(out)
