@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.fill.api import trust_line
+from pipeline.fill.api import composition, trust_line
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from workers import jobs
@@ -138,6 +138,8 @@ def register(app: typer.Typer) -> None:
             if not os.path.isfile(p):
                 _err(f"{p}: no such shot file")
                 raise typer.Exit(2)
+        for p in paths:  # said here, by the client: the workers' stderr is their log
+            composition(p, FillOptions(**opts))
         if not s.embedded:
             check_farm(celery_app)
             with farm_errors(celery_app):
@@ -171,6 +173,9 @@ def register(app: typer.Typer) -> None:
         if celery_app.conf.tween.embedded:
             _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
             raise typer.Exit(2)
+        for p in shots:
+            if p.is_file():
+                composition(str(p), FillOptions(**opts))
         check_farm(celery_app)
         with farm_errors(celery_app):
             ids = jobs.submit([str(p) for p in shots], opts, render=render)

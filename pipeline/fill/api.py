@@ -159,14 +159,30 @@ def _joined(values) -> str:
     return "+".join(dict.fromkeys(values))
 
 
+def composition(shot: str, opts: FillOptions) -> list[str]:
+    """The assets the shot names that cannot be found (pipeline.usd.read.missing_assets), one
+    warning line each on stderr; with ``opts.strict`` a ShotError instead."""
+    from pipeline.usd.read import missing_assets
+
+    missing = missing_assets(shot)
+    if missing and opts.strict:
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        raise ShotError(shot, f"missing sublayer, reference or payload {missing[0]}{more} (--strict)")
+    for asset in missing:
+        print(f"tween: warning: {shot}: {asset}: not found; the shot is filled without it", file=sys.stderr)
+    return missing
+
+
 def validate_shot(shot: str, opts: FillOptions) -> dict:
     """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled,
-    with the model of each character under ``models``."""
+    with the model of each character under ``models`` and the assets it names that are
+    missing under ``missing_assets``."""
 
     opts.check()  # before any model is loaded
     human = _human(opts)
     plan = _plan(shot, opts, human)
     summary = plan.summary()
+    summary["missing_assets"] = composition(shot, opts)
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     models = {}
     inbs = [_char_model(cp, human) for cp in plan.chars]
@@ -332,7 +348,7 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     """Writes the versioned fill layer (+ tweenTake variants when takes > 1) and the review
     root layer; returns {"layer", "review", "version", "takes", "model", "model_hash"}.
     Idempotent per ``job_id``."""
-    from pipeline.usd.read import open_stage
+    from pipeline.usd.read import missing_assets, open_stage
 
     out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
     if job_id and out_dir.is_dir():  # a fast path; write.write checks again under the folder lock
@@ -356,6 +372,8 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     result["trust"] = {c["anim"]: c.get("trust") for c in takes[0]["chars"]}
     # Per character: the key pairs its body teleports between (pipeline.fill.jumps).
     result["jumps"] = {c["anim"]: c.get("jumps", []) for c in takes[0]["chars"]}
+    # The sublayers, references and payloads the shot names that could not be found.
+    result["missing_assets"] = missing_assets(shot)
     return result
 
 

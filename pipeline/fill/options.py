@@ -73,6 +73,12 @@ class FillOptions:
         "Default: the farm's `library` setting (TWEEN_LIBRARY), else none.",
         path="dir",
     )
+    strict: bool = _opt(
+        False,
+        "--strict",
+        help="Refuse a shot whose sublayers, references or payloads are missing (default: a warning "
+        "line for each, recorded in the fill's JSON).",
+    )
     trust: str = _opt(
         "auto",
         "--trust",
@@ -123,6 +129,8 @@ def check_fill_options(opts: FillOptions) -> None:
         raise TweenError(
             f"--seed {opts.seed}: every take's seed (seed + take) must be at most 2**31-1 = {MAX_SEED}{last}"
         )
+    if not isinstance(opts.strict, bool):
+        raise TweenError(f"--strict {opts.strict!r}: must be true or false")
     if opts.fmt not in FORMATS:
         raise TweenError(f"--format {opts.fmt!r}: must be usda or usdc")
     if opts.trust not in TRUST_MODES:

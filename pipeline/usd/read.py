@@ -97,6 +97,16 @@ def open_stage(path: str | Path):
     return stage
 
 
+def missing_assets(path: str | Path) -> list[str]:
+    """The sublayers, references and payloads the shot (and the layers it brings in) names
+    that cannot be found: USD composes the stage without them and only warns, so a shot
+    whose set or props did not load would otherwise fill without a word."""
+    from pxr import UsdUtils
+
+    with usd_diagnostics():  # its own warnings are what this returns
+        return sorted(set(UsdUtils.ComputeAllDependencies(str(path))[2]))
+
+
 def _fk_bind(parents, rest_rot, rest_trans):
     from pipeline.motion.rotations import quat_apply, quat_mul
 
