@@ -13,7 +13,8 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {
     "pipeline.errors": 0,
     "usd_schemas": 0,
-    "pipeline.options": 0,  # options declared on dataclasses, as CLI options
+    "pipeline.options": 0,
+    "pipeline.jsonfile": 0,  # JSON a person wrote: duplicate keys refused  # options declared on dataclasses, as CLI options
     "pipeline.motion": 1,  # skeletons, clips, rotations, FK, BVH
     "pipeline.data": 2,  # the split, clip caches, the model skeleton, the protocol's windows
     "pipeline.infer": 3,  # in-betweeners at fill time: numpy + onnxruntime, never torch

@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pipeline import jsonfile
 from pipeline.adapt.conventions import CONVENTIONS
 
 MODEL_JOINTS = (
@@ -133,8 +134,8 @@ def load_override(path: str | Path | None) -> dict[str, str | None]:
     if not path:
         return {}
     try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as e:
+        d = jsonfile.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:  # a key twice (DuplicateKeyError) names it and its line
         raise MappingError(f"mapping file {path}: {e}") from None
     if not isinstance(d, dict) or any(k not in MODEL_JOINTS for k in d):
         bad = [k for k in d if k not in MODEL_JOINTS] if isinstance(d, dict) else ["(not an object)"]

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline import jsonfile
 from pipeline.errors import TweenError
 
 MANIFEST = "library.json"
@@ -140,7 +141,7 @@ def open_library(folder: str | Path) -> Library:
     if not folder.is_dir():
         raise LibraryError(f"{folder}: no such library folder (make one with `tween library build`)")
     try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
+        manifest = jsonfile.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise LibraryError(
             f"{folder}: not a library (no {MANIFEST}; make one with `tween library build`)"

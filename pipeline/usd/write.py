@@ -343,7 +343,7 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
         probe = probe.parent
     # The mode bits too: a published (read-only) shot folder stays untouched even for root.
     if not probe.is_dir() or not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
-        raise ShotError(shot, f"output folder {out} is read-only (use --out DIR)")
+        raise ShotError(shot, f"output folder {out} is read-only (give another with --out-dir DIR)")
     return out
 
 

@@ -1,0 +1,41 @@
+"""JSON a person wrote: a key given twice is refused, naming the key and its line."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from pipeline import jsonfile
+
+
+def test_a_key_twice_names_the_key_and_the_line_of_the_second():
+    text = '{\n "Hips": "pelvis",\n "Spine": "spine_01",\n "Hips": "root"\n}\n'
+    with pytest.raises(jsonfile.DuplicateKeyError, match=r"key 'Hips' given twice \(line 4\)"):
+        jsonfile.loads(text)
+    with pytest.raises(jsonfile.DuplicateKeyError, match="'b' given twice"):
+        jsonfile.loads('{"a": {"b": 1, "b": 2}}')  # nested objects too
+    assert jsonfile.loads('{"a": [1, {"a": 2}]}') == {"a": [1, {"a": 2}]}  # one key per object
+
+
+@given(st.recursive(st.none() | st.booleans() | st.integers() | st.text(max_size=5),
+                    lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=5), c, max_size=3),
+                    max_leaves=10))  # fmt: skip
+def test_json_without_duplicates_reads_as_json_does(value):
+    text = json.dumps(value, indent=1)
+    assert jsonfile.loads(text) == json.loads(text)
+
+
+def test_a_mapping_file_with_a_key_twice_is_one_line(tmp_path):
+    from usd_fixtures import bandai_shot
+
+    shot = bandai_shot(tmp_path / "sh.usda", frames=21)
+    mapping = tmp_path / "map.json"
+    mapping.write_text('{\n "Hips": "Hips",\n "Hips": "Spine"\n}\n')
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--mapping", str(mapping),
+                        "--out-dir", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert f"mapping file {mapping}: key 'Hips' given twice (line 3)" in r.stderr
+    assert not (tmp_path / "o").exists()
