@@ -83,6 +83,9 @@ def _report(states) -> int:
                 line += f", review {r['review']}"
             renders = r.get("renders") or []
             for i, rend in enumerate(renders):
+                if isinstance(rend, dict) and rend.get("same_as") is not None:
+                    line += f", take {i} = take {rend['same_as']}"
+                    continue
                 mp4 = rend.get("mp4") if isinstance(rend, dict) else rend
                 line += f", take {i} render {mp4}"
                 if isinstance(rend, dict) and rend.get("contact_sheet"):
@@ -101,6 +104,13 @@ def _report(states) -> int:
                 line += f", model {r['model']}"
             typer.echo(line)
             print(f"tween: {s.shot}: job {s.id}", file=sys.stderr)
+            same = r.get("same_as") or {}
+            if same:
+                pairs = ", ".join(
+                    f"take {k} = take {v}" for k, v in sorted(same.items(), key=lambda kv: int(kv[0]))
+                )
+                print(f"tween: {s.shot}: {pairs}, bit for bit (a fill without a seed, such as the spline's): "
+                      "rendered once", file=sys.stderr)  # fmt: skip
             for anim, d in (r.get("trust") or {}).items():
                 if d:
                     print(f"tween: {s.shot} {anim}: {trust_line(d)}", file=sys.stderr)

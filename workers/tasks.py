@@ -155,9 +155,16 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
         n_takes = int(layer.get("takes") or 1)
         # One take has no variant set to select: render the stage as composed.
         takes = list(range(n_takes)) if n_takes > 1 else [None]
-        result["renders"] = [
-            runtime.small_json(render_fn(layer["review"] or layer["layer"], out_dir, take=t)) for t in takes
-        ]
+        same = {int(k): int(v) for k, v in (layer.get("same_as") or {}).items()}
+        renders: list = []
+        for t in takes:  # a take identical to an earlier one is not rendered again
+            if t in same:
+                renders.append(dict(renders[same[t]], same_as=same[t]))
+            else:
+                renders.append(
+                    runtime.small_json(render_fn(layer["review"] or layer["layer"], out_dir, take=t))
+                )
+        result["renders"] = renders
     return result
 
 

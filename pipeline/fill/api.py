@@ -374,7 +374,29 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     result["jumps"] = {c["anim"]: c.get("jumps", []) for c in takes[0]["chars"]}
     # The sublayers, references and payloads the shot names that could not be found.
     result["missing_assets"] = missing_assets(shot)
+    # Takes that came out bit-identical to an earlier one (the trusted fill decided for the
+    # spline, which has no seed): said once and rendered once.
+    result["same_as"] = same_takes(takes)
     return result
+
+
+def same_takes(takes: list[dict]) -> dict[str, int]:
+    """{take: the earlier take it equals bit for bit} (str keys: it travels as JSON), for
+    takes as :func:`load_take` reads them (in take order)."""
+    out: dict[str, int] = {}
+    for i, t in enumerate(takes):
+        for j in range(i):
+            if str(j) in out:
+                continue
+            a, b = t["data"], takes[j]["data"]
+            if all(
+                np.array_equal(x[k], y[k])
+                for x, y in zip(a, b, strict=True)
+                for k in ("rot", "trans", "scale")
+            ):
+                out[str(t["take"])] = int(takes[j]["take"])
+                break
+    return out
 
 
 def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:

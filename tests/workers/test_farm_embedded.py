@@ -134,3 +134,19 @@ def test_embedded_fill_single_take_with_render(tmp_path):
     job = [ln for ln in res.stderr.splitlines() if ln.startswith(f"tween: {shot}: job ")]
     assert len(job) == 1 and len(job[0].split()[-1]) == 32
     assert any(ln.startswith(f"tween: {shot} ") and ": trust " in ln for ln in res.stderr.splitlines())
+
+
+def test_identical_takes_are_said_once_and_rendered_once(tmp_path):
+    """The trusted fill decided for the spline (here forced): every take is the same fill."""
+    env = _env(tmp_path)
+    shot = copy_shot(example_shot(), tmp_path / "shots", "same")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--takes", "2", "--trust", "spline",
+           "--render", "--out-dir", str(out), "--no-progress"]  # fmt: skip
+    res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "take 1 = take 0" in res.stdout and res.stdout.count(".mp4") == 1
+    assert any(
+        "take 1 = take 0, bit for bit" in ln and "rendered once" in ln for ln in res.stderr.splitlines()
+    )
+    assert len(list((out / "review").glob("*.mp4"))) == 1
