@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import math
 import re
+import sys
 from pathlib import Path
 
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.usd.write import latest_review
 from render.review import render_review
 from render.scene import list_takes
 
@@ -58,6 +60,20 @@ def _check_options(take: int | None, turns: float) -> None:
         raise TweenError(f"--turns {turns:g}: must be from -{MAX_TURNS:g} to {MAX_TURNS:g}")
 
 
+def _latest_fill(shot: str, fills: str | None) -> str:
+    """``shot`` itself when it is a fill's review or fill layer; for a plain shot, the review
+    layer of its latest fill (said on stderr), or the shot as it is when it has none yet
+    (said once it is rendered)."""
+    name = Path(shot).name
+    if ".review.v" in name or ".tween.v" in name or not Path(shot).is_file():
+        return shot
+    found = latest_review(shot, fills)
+    if found is None:
+        return shot
+    print(f"tween: review: {shot}: its latest fill, {found}", file=sys.stderr)
+    return str(found)
+
+
 def review(
     shot: str = typer.Argument(
         ..., help="Review stage (.usd/.usda/.usdc/.usdz): the shot with its fill layer."
@@ -82,6 +98,11 @@ def review(
     ghosts: bool = typer.Option(False, "--ghosts", help="Translucent key poses along the path."),
     no_frames: bool = typer.Option(False, "--no-frames", help="Only the MP4 and the contact sheet."),
     frames: str = typer.Option(None, "--frames", help="Render only time codes START:END."),
+    fills: str = typer.Option(
+        None,
+        "--fills",
+        help="Folder of the shot's fill layers, to find its latest fill (default: beside the shot).",
+    ),
 ) -> None:
     """Renders review media for a filled shot: H.264 MP4, numbered frames, contact sheet."""
 
@@ -98,6 +119,7 @@ def review(
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
 
+    given, shot = shot, _latest_fill(shot, fills)
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
     takes = [take]
     if all_takes:
@@ -112,6 +134,9 @@ def review(
         summary["frame_count"] = len(result["frame_numbers"])
         summary["frames_dir"] = out_dir if result["frames"] else None
         summaries.append(summary)
+    if not any(sm.get("model") for sm in summaries):
+        # Said once it rendered (a bad shot's error stays the only line): no fill in it.
+        print(f"tween: review: {given}: no fill of it yet; rendered the shot as it is", file=sys.stderr)
     typer.echo(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
 
 

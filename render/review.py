@@ -225,7 +225,7 @@ def render_review(
     track replaces its previous one, the other takes' are kept.
 
     Returns {"mp4", "contact_sheet", "timeline", "frames": [...], "frame_numbers", "timecodes",
-    "key_frames", "fps", "size", "take", "camera", "framing", "timings"}; ``fps`` is the
+    "key_frames", "fps", "size", "take", "model", "camera", "framing", "timings"}; ``fps`` is the
     playback rate (``scene.shot_timing``). Nothing is left in ``out_dir`` if rendering fails.
     """
     t0 = time.perf_counter()
@@ -341,6 +341,7 @@ def render_review(
         "fps": shot.fps,
         "size": (w, h),
         "take": shot.take,
+        "model": shot.facts.get("model"),  # what filled it (None: no fill in the stage)
         "camera": cam.mode,
         "framing": plan.framing,
         "timings": {"scene_s": round(t_scene, 3), "total_s": round(total, 3), "fps": round(T / total, 1)},

@@ -178,6 +178,18 @@ def _versions(out_dir: Path, stem: str) -> dict[int, Path]:
     return out
 
 
+def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
+    """The review layer of the shot's latest fill (``<stem>.review.vNNN``, beside its fill
+    layer in ``out_dir`` or the default folder), or None when the shot has no fill there."""
+    out = Path(out_dir) if out_dir else default_out_dir(shot)
+    versions = _versions(out, shot_stem(shot)) if out.is_dir() else {}
+    if not versions:
+        return None
+    n = max(versions)
+    found = sorted(out.glob(f"{shot_stem(shot)}.review.v{n:03d}.usd*"))
+    return found[0] if found else None
+
+
 def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
     """The result of a layer in ``out_dir`` already written by ``job_id``, if any."""
     from pxr import Sdf
