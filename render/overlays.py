@@ -75,17 +75,24 @@ def _over(dst: np.ndarray, src) -> None:
 
 
 def fill_sources(facts: dict) -> list[tuple[float, float, str]]:
-    """(from, to, label) per gap a motion library was asked to fill (``tween:libraryGaps`` and
-    ``tween:libraryShare``): "library", "spline", or "library NN%" for a blend."""
-    gaps, share = facts.get("library_gaps"), facts.get("library_share")
-    if gaps is None or share is None or len(gaps) != len(share):
-        return []
-    out = []
-    for (a, b), s in zip(gaps, share, strict=True):
-        s = float(s)
-        label = "library" if s >= 0.995 else "spline" if s <= 0.005 else f"library {100 * s:.0f}%"
-        out.append((float(a), float(b), label))
-    return out
+    """(from, to, label) per gap the trusted fill decided on: a motion library's gaps
+    (``tween:libraryGaps`` / ``tween:libraryShare``: "library", "spline", "library NN%"),
+    else the model's (``tween:trustGaps`` / ``tween:trustGapWeights``: "model", "spline",
+    "model NN%")."""
+    for name, gaps, share in (
+        ("library", "library_gaps", "library_share"),
+        ("model", "trust_gaps", "trust_gap_weights"),
+    ):
+        g, w = facts.get(gaps), facts.get(share)
+        if g is None or w is None or len(g) != len(w) or not len(g):
+            continue
+        out = []
+        for (a, b), s in zip(g, w, strict=True):
+            s = float(s)
+            label = name if s >= 0.995 else "spline" if s <= 0.005 else f"{name} {100 * s:.0f}%"
+            out.append((float(a), float(b), label))
+        return out
+    return []
 
 
 def source_at(sources: list[tuple[float, float, str]], t: float) -> str | None:

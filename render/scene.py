@@ -27,6 +27,8 @@ FACT_ATTRS = {
     "take": tokens.TAKE,
     "seed": tokens.SEED,
     "trust": tokens.TRUST,
+    "trust_gaps": tokens.TRUST_GAPS,
+    "trust_gap_weights": tokens.TRUST_GAP_WEIGHTS,
     "library_gaps": tokens.LIBRARY_GAPS,
     "library_share": tokens.LIBRARY_SHARE,
 }

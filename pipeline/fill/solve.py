@@ -157,6 +157,20 @@ def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fil
     return out
 
 
+def gap_record(decision, cp: CharPlan, tcps: float, fps: float) -> list[dict]:
+    """The decided model's weight over the spline in each gap between the character's keys,
+    with the gap's key time codes: what filled which frames (the layer's tween:trustGaps and
+    tween:trustGapWeights, the burn-ins)."""
+    m, keep = model_frames(cp.keys, tcps, fps)
+    at = {int(f): float(t) for f, t in zip(m[keep], cp.keys[keep], strict=True)}
+    frames = np.array(sorted(at), np.int64)
+    if len(frames) < 2:
+        return []
+    w = _gap_weights(decision, frames)
+    return [{"times": [at[a], at[b]], "weight": round(w[(a, b)], 4)}
+            for a, b in zip(frames[:-1], frames[1:], strict=True) if b - a > 1]  # fmt: skip
+
+
 def library_record(inb: TrustedInbetweener, cp: CharPlan, tcps: float, fps: float) -> dict:
     """What a per-gap in-betweener (a motion library) did in each gap of the character's fill:
     its record (``last_gaps``) with the key time codes of each gap, and the trusted fill's
@@ -279,6 +293,8 @@ def fill_character(
     order = np.argsort(times, kind="stable")
     decision = inb.last_decision if isinstance(inb, TrustedInbetweener) else None
     record = None if decision is None else decision.to_json()
+    if record is not None:
+        record["gap_weights"] = gap_record(decision, cp, shot.tcps, fps)
     if record is not None and inb.model.capabilities.per_gap:
         record["library"] = library_record(inb, cp, shot.tcps, fps)
     return {

@@ -289,6 +289,12 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                 _attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
                 _attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
                 _attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
+                gw = [g for g in tr.get("gap_weights") or [] if None not in g["times"]]
+                if gw:  # what filled which frames: the model's share in each gap
+                    _attr(spec, tokens.TRUST_GAPS, Sdf.ValueTypeNames.Double2Array,
+                          Vt.Vec2dArray([Gf.Vec2d(*g["times"]) for g in gw]))  # fmt: skip
+                    _attr(spec, tokens.TRUST_GAP_WEIGHTS, Sdf.ValueTypeNames.DoubleArray,
+                          Vt.DoubleArray([float(g["weight"]) for g in gw]))  # fmt: skip
                 lib = tr.get("library")
                 if lib:  # the library's version, and how much of each gap is its motion
                     _attr(spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})")

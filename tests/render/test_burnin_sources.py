@@ -32,3 +32,35 @@ def test_the_label_is_burnt_into_in_between_frames_only():
     out = np.zeros((360, 640, 3), np.uint8)
     burn.apply(out, 1020, False)  # outside every gap: as without a library
     assert np.array_equal(out[-burn.band :, mid], ref[-burn.band :, mid])
+
+
+def test_a_network_fill_names_the_model_the_spline_or_their_blend():
+    facts = {
+        "model": "tween-bandai-v5.3",
+        "trust_gaps": [(1, 11), (11, 21)],
+        "trust_gap_weights": [1.0, 0.25],
+    }
+    src = fill_sources(facts)
+    assert [source_at(src, t) for t in (5, 15)] == ["model", "model 25%"]
+    # A library fill's own gaps win over the trusted fill's.
+    both = dict(facts, library_gaps=[(1, 11), (11, 21)], library_share=[0.0, 1.0])
+    assert [source_at(fill_sources(both), t) for t in (5, 15)] == ["spline", "library"]
+
+
+def test_the_layer_records_what_filled_each_gap(tmp_path):
+    from pxr import Usd
+    from usd_fixtures import FILLED, bandai_shot
+
+    from pipeline.fill.api import FillOptions, fill_shot
+    from usd_schemas import tokens
+
+    shot = bandai_shot(tmp_path / "sh.usda", frames=41, keys_every=10)
+    res = fill_shot(str(shot), FillOptions(out_dir=str(tmp_path / "o")))
+    d = next(iter(res["trust"].values()))
+    stage = Usd.Stage.Open(res["layer"])
+    anim = stage.GetPrimAtPath(FILLED)
+    gaps = [tuple(g) for g in anim.GetAttribute(tokens.TRUST_GAPS).Get()]
+    weights = list(anim.GetAttribute(tokens.TRUST_GAP_WEIGHTS).Get())
+    assert gaps == [tuple(g["times"]) for g in d["gap_weights"]] and len(gaps) == 4
+    assert weights == [g["weight"] for g in d["gap_weights"]]
+    assert all(0.0 <= w <= 1.0 for w in weights)
