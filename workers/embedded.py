@@ -78,6 +78,23 @@ class EmbeddedWorker:
             return ""
 
     def __exit__(self, *exc) -> None:
+        try:
+            self._stop()
+        finally:
+            self._drop_queue()
+
+    def _drop_queue(self) -> None:
+        """This run's private queue leaves the broker with its messages (best effort: a
+        broker that cannot be written now keeps it, as before)."""
+        from workers.app import app
+
+        try:
+            with app.connection_for_write() as conn:
+                conn.default_channel.queue_delete(self.queue)
+        except Exception as e:  # the run's own outcome stands; say why the queue stayed
+            print(f"tween: warning: the embedded broker keeps queue {self.queue}: {e}", file=sys.stderr)
+
+    def _stop(self) -> None:
         if self.proc is None or self.proc.poll() is not None:
             return
         try:

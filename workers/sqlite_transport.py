@@ -5,6 +5,8 @@ changes from ``sqla`` that the stock transport cannot take as options (it passes
 transport option to ``create_engine``): a 0.1 s polling interval instead of 1 s, so a
 four-stage job does not wait seconds between stages; and SQLite connections that are never
 shared across ``fork`` (prefork children publish the next stage of a chain themselves).
+And a deleted queue really goes, with its delivered messages (the embedded farm deletes each
+run's private queue when the run ends).
 """
 
 from __future__ import annotations
@@ -18,6 +20,23 @@ ALIAS = "tweensqla"
 
 
 class Channel(kombu_sqla.Channel):
+    def queue_delete(self, queue, if_unused=False, if_empty=False, **kwargs):
+        """Deletes the queue whether or not this process declared it (the stock virtual
+        channel deletes only the bindings it knows of)."""
+        if if_empty and self._size(queue):
+            return
+        self._delete(queue)
+        self.state.queue_bindings_delete(queue)
+
+    def _delete(self, queue, *args, **kwargs):
+        """A deleted queue leaves the database with all its messages (the stock transport
+        keeps delivered messages, and the queue row, for good)."""
+        self._purge(queue)
+        self.session.query(self.queue_cls).filter(self.queue_cls.name == queue).delete(
+            synchronize_session=False
+        )
+        self.session.commit()
+
     def _engine_from_config(self):
         from sqlalchemy import create_engine
 

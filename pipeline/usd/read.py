@@ -103,7 +103,8 @@ def missing_assets(path: str | Path) -> list[str]:
     whose set or props did not load would otherwise fill without a word."""
     from pxr import UsdUtils
 
-    with usd_diagnostics():  # its own warnings are what this returns
+    # Its own warnings are what this returns; a file USD cannot parse is a one-line ShotError.
+    with usd_diagnostics(str(path)):
         return sorted(set(UsdUtils.ComputeAllDependencies(str(path))[2]))
 
 

@@ -150,3 +150,18 @@ def test_identical_takes_are_said_once_and_rendered_once(tmp_path):
         "take 1 = take 0, bit for bit" in ln and "rendered once" in ln for ln in res.stderr.splitlines()
     )
     assert len(list((out / "review").glob("*.mp4"))) == 1
+
+
+def test_a_run_leaves_no_queue_or_message_in_the_embedded_broker(tmp_path):
+    import sqlite3
+
+    env = _env(tmp_path)
+    shot = copy_shot(example_shot(), tmp_path / "shots", "q")
+    for n in range(2):
+        cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "interp", "--out-dir",
+               str(tmp_path / f"o{n}"), "--no-progress"]  # fmt: skip
+        res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
+        assert res.returncode == 0, res.stderr[-3000:]
+    db = sqlite3.connect(Path(env["TWEEN_CACHE"]) / "farm" / "broker.sqlite")
+    assert db.execute("select name from kombu_queue").fetchall() == []
+    assert db.execute("select count(*) from kombu_message").fetchall() == [(0,)]
