@@ -11,10 +11,11 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.fill.api import composition, trust_line
+from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from workers import jobs
+from workers import paths as jobpaths
 from workers.runtime import thread_env
 
 
@@ -148,9 +149,11 @@ def register(app: typer.Typer) -> None:
             if not os.path.isfile(p):
                 _err(f"{p}: no such shot file")
                 raise typer.Exit(2)
-        for p in paths:  # said here, by the client: the workers' stderr is their log
-            composition(p, FillOptions(**opts))
+        for p in paths:  # checked and said here, in seconds, by the client: the workers' stderr is their log
+            precheck(p, FillOptions(**opts))
         if not s.embedded:
+            for p in paths if s.shot_roots else ():  # before the broker is contacted: named as such
+                jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
             check_farm(celery_app)
             with farm_errors(celery_app):
                 ids = jobs.submit(paths, opts, render=render)
@@ -185,7 +188,9 @@ def register(app: typer.Typer) -> None:
             raise typer.Exit(2)
         for p in shots:
             if p.is_file():
-                composition(str(p), FillOptions(**opts))
+                precheck(str(p), FillOptions(**opts))
+                if celery_app.conf.tween.shot_roots:  # before the broker is contacted
+                    jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
         check_farm(celery_app)
         with farm_errors(celery_app):
             ids = jobs.submit([str(p) for p in shots], opts, render=render)

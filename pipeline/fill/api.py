@@ -173,6 +173,16 @@ def composition(shot: str, opts: FillOptions) -> list[str]:
     return missing
 
 
+def precheck(shot: str, opts: FillOptions) -> list[str]:
+    """What a farm client checks before it starts a farm or contacts a broker: the options,
+    the shot's content (characters, keys, rigs: the plan, without loading a model) and its
+    composition (:func:`composition`, said here). A ShotError/TweenError in one line, as the
+    worker would give it seconds later; returns the missing assets."""
+    opts.check()
+    _plan(shot, opts, None)
+    return composition(shot, opts)
+
+
 def validate_shot(shot: str, opts: FillOptions) -> dict:
     """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled,
     with the model of each character under ``models`` and the assets it names that are

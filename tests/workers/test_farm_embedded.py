@@ -165,3 +165,29 @@ def test_a_run_leaves_no_queue_or_message_in_the_embedded_broker(tmp_path):
     db = sqlite3.connect(Path(env["TWEEN_CACHE"]) / "farm" / "broker.sqlite")
     assert db.execute("select name from kombu_queue").fetchall() == []
     assert db.execute("select count(*) from kombu_message").fetchall() == [(0,)]
+
+
+def test_what_needs_no_farm_is_checked_before_any_farm(tmp_path):
+    """A shot without an animation, and (broker down) a path outside the shot roots, are
+    answered by the client in one line, before a worker starts or a broker is contacted."""
+    import time
+
+    env = _env(tmp_path)
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    noskel = shots / "noskel.usda"
+    noskel.write_text('#usda 1.0\ndef Xform "World" {}\n')
+    t0 = time.monotonic()
+    res = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill", str(noskel)], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert (
+        res.returncode == 2 and res.stderr.count("\n") == 1 and "no SkelRoot holds a skeleton" in res.stderr
+    )
+    assert time.monotonic() - t0 < 6.0  # no embedded worker was started (about 8 s)
+    assert not (tmp_path / "cache" / "farm" / "logs").exists()
+    shot = copy_shot(example_shot(), shots, "roots")
+    down = dict(env, TWEEN_BROKER_URL="redis://127.0.0.1:1/0", TWEEN_SHOT_ROOTS=str(shots))
+    res = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--out-dir", str(tmp_path / "x")],
+                         env=down, cwd=tmp_path, capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert res.returncode == 2 and res.stderr.count("\n") == 1
+    assert "outside the shot roots" in res.stderr and "connect" not in res.stderr
