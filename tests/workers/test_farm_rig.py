@@ -111,6 +111,10 @@ def test_train_rig_on_its_queue_with_progress_then_fill_with_it(rigfarm):
     assert all(0 <= p["fraction"] <= 1 and p["iterations"] > 0 for p in progress)
     assert [p["fraction"] for p in progress] == sorted(p["fraction"] for p in progress)
     assert fill_done_while_training, "the fill waited for the training"
+    # The worker logs "succeeded" just after it stores the result: give its log a moment.
+    t_log = time.monotonic()
+    while f"{job}] succeeded" not in rigfarm.rig_log.read_text() and time.monotonic() - t_log < 15:
+        time.sleep(0.2)
     assert f"{job}] succeeded" in rigfarm.rig_log.read_text()
     print(f"tiny train-rig on the farm: {took:.1f} s, {len(progress)} progress polls")
     # `tween status` knows training jobs.
