@@ -213,10 +213,11 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
         models=models,
     )
     for anim, m in models.items():
-        if opts.library and m["kind"] == "human":  # pipeline.library: the network is probed beside it
-            print(
-                f"tween: {shot} {anim}: {m['name']}, with the human network probed beside it", file=sys.stderr
-            )
+        if (
+            opts.library and m["kind"] == "human"
+        ):  # pipeline.library: with auto, the network is probed beside it
+            beside = ", with the human network probed beside it" if opts.trust == "auto" else ""
+            print(f"tween: {shot} {anim}: {m['name']}{beside}", file=sys.stderr)
         else:
             print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}", file=sys.stderr)
     return summary
