@@ -37,8 +37,14 @@ def pose_features(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> np.ndar
     skeleton's units. ``rots`` (M, J, 4) local rotations, ``roots`` (M, 3)."""
     skel = skeleton or bandai_skeleton()
     _, pos = fk(np.asarray(rots, np.float64), np.asarray(roots, np.float64), skel.parents, skel.offsets)
-    turn = facing_turn(pos, skel)
-    return quat_apply(turn[:, None], pos - pos[:, :1]).astype(np.float32)
+    return posed_features(pos, skel)[0]
+
+
+def posed_features(pos: np.ndarray, skeleton=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pose_features` of global joint positions (M, J, 3) already computed, and the
+    yaw quaternions (M, 4) that turned each pose to face +X."""
+    turn = facing_turn(pos, skeleton or bandai_skeleton())
+    return quat_apply(turn[:, None], pos - pos[:, :1]).astype(np.float32), turn
 
 
 def build(

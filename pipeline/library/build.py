@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
-from pipeline.library.features import contacts, facing, frame_features
+from pipeline.library.features import contacts, frame_features
 from pipeline.library.store import LibraryError, Writer, empty_manifest, is_library, open_library
 
 FPS = 30.0
@@ -30,13 +30,13 @@ def take_arrays(motion) -> dict[str, np.ndarray]:
     """The per-frame arrays of one take on the model skeleton at the library's rate."""
     rot = np.asarray(motion.rotations, np.float32)
     root = np.asarray(motion.root_positions, np.float32)
-    feats = frame_features(rot, root, motion.skeleton)
+    feats, turn = frame_features(rot, root, motion.skeleton)
     return {
         "rotations": rot,
         "roots": root,
         "features": feats,
         "sqnorm": (feats.astype(np.float64) ** 2).sum(1).astype(np.float32),
-        "facing": facing(rot, root, motion.skeleton).astype(np.float32),
+        "facing": turn.astype(np.float32),
         "contacts": contacts(rot, root, motion.skeleton),
     }
 

@@ -11,8 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.data.posebank import pose_features
-from pipeline.data.protocol import facing_turn
+from pipeline.data.posebank import posed_features
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
 from pipeline.motion.fk import fk
 
@@ -24,22 +23,21 @@ CONTACT_CM = 0.8
 BLOCK = 16384
 
 
-def frame_features(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> np.ndarray:
-    """(F, J*3 + 1) float32 features of (F, J, 4) local rotations and (F, 3) roots."""
+def frame_features(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> tuple[np.ndarray, np.ndarray]:
+    """(F, J*3 + 1) float32 features of (F, J, 4) local rotations and (F, 3) roots, and (F, 4)
+    the yaw quaternions turning each pose to face +X: one forward kinematics for both."""
     skel = skeleton or bandai_skeleton()
-    out = np.empty((len(rots), len(skel) * 3 + 1), np.float32)
+    feats = np.empty((len(rots), len(skel) * 3 + 1), np.float32)
+    turn = np.empty((len(rots), 4))
     for s in range(0, len(rots), BLOCK):
         b = slice(s, s + BLOCK)
-        out[b, :-1] = pose_features(rots[b], roots[b], skel).reshape(len(rots[b]), -1)
-        out[b, HEIGHT] = roots[b, 1]
-    return out
-
-
-def facing(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> np.ndarray:
-    """(F, 4) yaw quaternions turning each pose to face +X."""
-    skel = skeleton or bandai_skeleton()
-    _, pos = fk(np.asarray(rots, np.float64), np.asarray(roots, np.float64), skel.parents, skel.offsets)
-    return facing_turn(pos, skel)
+        _, pos = fk(
+            np.asarray(rots[b], np.float64), np.asarray(roots[b], np.float64), skel.parents, skel.offsets
+        )
+        f, turn[b] = posed_features(pos, skel)
+        feats[b, :-1] = f.reshape(len(f), -1)
+        feats[b, HEIGHT] = roots[b, 1]
+    return feats, turn
 
 
 def contacts(rots: np.ndarray, roots: np.ndarray, skeleton=None) -> np.ndarray:

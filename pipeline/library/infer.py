@@ -30,7 +30,7 @@ from pipeline.infer.api import Capabilities
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.infer.spline import spline_keys
 from pipeline.library import match
-from pipeline.library.features import facing
+from pipeline.library.features import frame_features
 from pipeline.library.store import Library, LibraryError, open_library
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import slerp_pairs
@@ -118,8 +118,7 @@ class LibraryInbetweener:
         contacts = np.zeros((len(rot), 2))
         k_rot = np.asarray(rotations[keys], np.float64)
         k_root = np.asarray(roots[keys], np.float64)
-        feats = match.key_features(k_rot, k_root, skel)
-        faces = facing(k_rot, k_root, skel)
+        feats, faces = frame_features(k_rot, k_root, skel)
         gaps: list[dict] = []
         todo = [g for g in range(len(keys) - 1) if 1 < keys[g + 1] - keys[g] <= MAX_GAP]
         for g in range(len(keys) - 1):

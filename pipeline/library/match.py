@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.library.features import frame_features
 from pipeline.motion.rotations import (
     batch_quat_apply,
     batch_quat_conj,
@@ -219,8 +218,3 @@ def average(rots: list[np.ndarray], roots: list[np.ndarray], weights: np.ndarray
         acc += w * sign * r
     root = sum(w * p for p, w in zip(roots, weights, strict=True))
     return batch_quat_normalize(acc), root
-
-
-def key_features(rots: np.ndarray, roots: np.ndarray, skeleton) -> np.ndarray:
-    """(K, D) features of key poses (the library's own kind)."""
-    return frame_features(np.asarray(rots, np.float32), np.asarray(roots, np.float32), skeleton)
