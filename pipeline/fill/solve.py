@@ -157,49 +157,37 @@ def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fil
     return out
 
 
-def gap_record(decision, cp: CharPlan, tcps: float, fps: float) -> list[dict]:
-    """The decided model's weight over the spline in each gap between the character's keys,
-    with the gap's key time codes: what filled which frames (the layer's tween:trustGaps and
-    tween:trustGapWeights, the burn-ins)."""
+def gap_table(decision, cp: CharPlan, tcps: float, fps: float) -> tuple[dict, dict]:
+    """({model frame: key time code} of the keys the in-betweener was given, {(a, b): the
+    decision's model weight in the gap between adjacent key frames a, b})."""
     m, keep = model_frames(cp.keys, tcps, fps)
     at = {int(f): float(t) for f, t in zip(m[keep], cp.keys[keep], strict=True)}
     frames = np.array(sorted(at), np.int64)
     if len(frames) < 2:
-        return []
-    w = _gap_weights(decision, frames)
-    return [{"times": [at[a], at[b]], "weight": round(w[(a, b)], 4)}
-            for a, b in zip(frames[:-1], frames[1:], strict=True) if b - a > 1]  # fmt: skip
+        return at, {}
+    w = gap_weights_at(decision, frames, (frames[:-1] + frames[1:]) / 2.0)
+    return at, {(int(a), int(b)): float(x) for a, b, x in zip(frames[:-1], frames[1:], w, strict=True)}
 
 
-def library_record(inb: TrustedInbetweener, cp: CharPlan, tcps: float, fps: float) -> dict:
+def gap_record(at: dict, weights: dict) -> list[dict]:
+    """The decided model's weight over the spline in each gap between the character's keys,
+    with the gap's key time codes (:func:`gap_table`): what filled which frames (the layer's
+    tween:trustGaps and tween:trustGapWeights, the burn-ins)."""
+    return [{"times": [at[a], at[b]], "weight": round(w, 4)} for (a, b), w in weights.items() if b - a > 1]
+
+
+def library_record(library_inb, at: dict, weights: dict) -> dict:
     """What a per-gap in-betweener (a motion library) did in each gap of the character's fill:
     its record (``last_gaps``) with the key time codes of each gap, and the trusted fill's
     weight there (the gap's share of the library over the spline is the product)."""
-    m, keep = model_frames(cp.keys, tcps, fps)
-    at = {int(f): float(t) for f, t in zip(m[keep], cp.keys[keep], strict=True)}
-    d = inb.last_decision
-    frames = np.array(sorted(at), np.int64)
-    trusted_w = _gap_weights(d, frames) if len(frames) > 1 else {}
     gaps = []
-    for row in inb.model.last_gaps:
+    for row in library_inb.last_gaps:
         a, b = row["frames"]
-        w = trusted_w.get((a, b), 1.0)
+        w = weights.get((a, b), 1.0)
         gaps.append(row | {"times": [at.get(a), at.get(b)], "trust_weight": round(w, 4),
                            "share": round(w * row["weight"], 4)})  # fmt: skip
-    lib = inb.model
-    return {
-        "name": lib.library.name,
-        "hash": lib.library.hash,
-        "folder": str(lib.library.folder),
-        "gaps": gaps,
-    }
-
-
-def _gap_weights(decision, frames: np.ndarray) -> dict:
-    """{(a, b): the decision's model weight in the gap between adjacent key frames a, b}."""
-    mid = (frames[:-1] + frames[1:]) / 2.0
-    w = gap_weights_at(decision, frames, mid)
-    return {(int(a), int(b)): float(x) for a, b, x in zip(frames[:-1], frames[1:], w, strict=True)}
+    lib = library_inb.library
+    return {"name": lib.name, "hash": lib.hash, "folder": str(lib.folder), "gaps": gaps}
 
 
 def fill_character(
@@ -294,9 +282,10 @@ def fill_character(
     decision = inb.last_decision if isinstance(inb, TrustedInbetweener) else None
     record = None if decision is None else decision.to_json()
     if record is not None:
-        record["gap_weights"] = gap_record(decision, cp, shot.tcps, fps)
-    if record is not None and inb.model.capabilities.per_gap:
-        record["library"] = library_record(inb, cp, shot.tcps, fps)
+        at, weights = gap_table(decision, cp, shot.tcps, fps)
+        record["gap_weights"] = gap_record(at, weights)
+        if inb.model.capabilities.per_gap:
+            record["library"] = library_record(inb.model, at, weights)
     return {
         "trust": record,
         "times": times[order],

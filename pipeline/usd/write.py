@@ -289,21 +289,17 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                 _attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
                 _attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
                 _attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
-                gw = [g for g in tr.get("gap_weights") or [] if None not in g["times"]]
-                if gw:  # what filled which frames: the model's share in each gap
-                    _attr(spec, tokens.TRUST_GAPS, Sdf.ValueTypeNames.Double2Array,
-                          Vt.Vec2dArray([Gf.Vec2d(*g["times"]) for g in gw]))  # fmt: skip
-                    _attr(spec, tokens.TRUST_GAP_WEIGHTS, Sdf.ValueTypeNames.DoubleArray,
-                          Vt.DoubleArray([float(g["weight"]) for g in gw]))  # fmt: skip
+                # What filled which frames: the model's share in each gap.
+                _gap_attrs(
+                    spec, tr.get("gap_weights") or [], "weight", tokens.TRUST_GAPS, tokens.TRUST_GAP_WEIGHTS
+                )
                 lib = tr.get("library")
                 if lib:  # the library's version, and how much of each gap is its motion
                     _attr(spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})")
                     _attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
-                    gaps = [g for g in lib["gaps"] if None not in g["times"]]
-                    _attr(spec, tokens.LIBRARY_GAPS, Sdf.ValueTypeNames.Double2Array,
-                          Vt.Vec2dArray([Gf.Vec2d(*g["times"]) for g in gaps]))  # fmt: skip
-                    _attr(spec, tokens.LIBRARY_SHARE, Sdf.ValueTypeNames.DoubleArray,
-                          Vt.DoubleArray([float(g["share"]) for g in gaps]))  # fmt: skip
+                    _gap_attrs(
+                        spec, lib["gaps"], "share", tokens.LIBRARY_GAPS, tokens.LIBRARY_SHARE, even_empty=True
+                    )
             rt = c.get("retarget")
             if rt:
                 _attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
@@ -351,6 +347,26 @@ def default_out_dir(shot: str) -> Path:
     """Beside the shot as the user gave it: a shot given through a symlink gets its layers in
     the link's folder, not in its target's."""
     return Path(os.path.abspath(shot)).parent
+
+
+def _gap_attrs(
+    spec, rows: list[dict], key: str, gaps_token: str, values_token: str, even_empty=False
+) -> None:
+    """Per gap row with key ``times`` (from, to time codes) and a value under ``key``: the
+    gaps as a double2[] and their values as a double[], in one order (rows whose key frame
+    has no time code are left out); nothing without rows unless ``even_empty``."""
+    from pxr import Gf, Sdf, Vt
+
+    rows = [r for r in rows if None not in r["times"]]
+    if not rows and not even_empty:
+        return
+    _attr(
+        spec,
+        gaps_token,
+        Sdf.ValueTypeNames.Double2Array,
+        Vt.Vec2dArray([Gf.Vec2d(*r["times"]) for r in rows]),
+    )
+    _attr(spec, values_token, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray([float(r[key]) for r in rows]))
 
 
 def check_out_dir(shot: str, out_dir: str | None) -> Path:
