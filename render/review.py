@@ -21,7 +21,7 @@ from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, png_rows, thumbnail, write_frame, write_png
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import Shot, evaluate, open_shot
+from render.scene import SUMMARY_FACTS, Shot, evaluate, open_shot
 from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
@@ -262,7 +262,10 @@ def render_review(
         ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
         rate = shot.timing.rate if shot.timing is not None else shot.fps
         movie = Movie(
-            str(tmp / f"{stem}.mp4"), (w, h), rate, comment=f"{shot.name} {shot.take or ''} {shot.facts}"
+            str(tmp / f"{stem}.mp4"),
+            (w, h),
+            rate,
+            comment=f"{shot.name} {shot.take or ''} {_summary(shot.facts)}",
         )
         n_thumbs = min(CONTACT_FRAMES, T)
         thumb_at = set(np.linspace(0, T - 1, n_thumbs).round().astype(int).tolist())
@@ -346,6 +349,11 @@ def render_review(
         "framing": plan.framing,
         "timings": {"scene_s": round(t_scene, 3), "total_s": round(total, 3), "fps": round(T / total, 1)},
     }
+
+
+def _summary(facts: dict) -> dict:
+    """The facts of the fill as a whole, not its per-gap arrays (which grow with the shot)."""
+    return {k: facts[k] for k in SUMMARY_FACTS if k in facts}
 
 
 __all__ = ["render_review", "RenderError"]

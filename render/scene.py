@@ -21,12 +21,13 @@ from render.overlays import timecode
 from usd_schemas import tokens
 
 TAKE_VARIANT_SET = tokens.TAKE_VARIANT_SET
+#: The facts that describe the fill as a whole (the MP4's comment); the others are per gap.
+SUMMARY_FACTS = ("model", "model_hash", "take", "seed")
 FACT_ATTRS = {
     "model": tokens.MODEL,
     "model_hash": tokens.MODEL_HASH,
     "take": tokens.TAKE,
     "seed": tokens.SEED,
-    "trust": tokens.TRUST,
     "trust_gaps": tokens.TRUST_GAPS,
     "trust_gap_weights": tokens.TRUST_GAP_WEIGHTS,
     "library_gaps": tokens.LIBRARY_GAPS,
