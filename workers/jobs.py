@@ -157,13 +157,13 @@ def submit(
     return [job["id"] for _, job in planned]
 
 
-def _drop_result_subscriptions() -> None:
+def _drop_result_subscriptions(celery_app=None) -> None:
     """Closes the Redis result pub/sub the backend opened for every sent task.
 
     This client polls results instead; left open, the AsyncResults finalised at interpreter
     exit try to unsubscribe on a dead connection and print tracebacks.
     """
-    rc = getattr(app.backend, "result_consumer", None)
+    rc = getattr((celery_app or app).backend, "result_consumer", None)
     if rc is not None and hasattr(rc, "subscribed_to"):
         rc.subscribed_to.clear()
         rc.stop()
@@ -277,33 +277,37 @@ def submit_train_rig(
     rig_app.backend.store_result(job_id, {"kind": "train-rig", "source": source, "out": out, "queue": queue,
                                           "time": time.time()}, SUBMITTED)  # fmt: skip
     rig_app.send_task("tween.train_rig", (source, out, options), task_id=job_id, queue=queue)
-    rc = getattr(rig_app.backend, "result_consumer", None)
-    if rc is not None and hasattr(rc, "subscribed_to"):
-        rc.subscribed_to.clear()
-        rc.stop()
+    _drop_result_subscriptions(rig_app)
     return job_id
 
 
-def train_rig_state(job_id: str) -> JobState:
-    """QUEUED, RUNNING (with progress in ``result``), SUCCESS, FAILURE or UNKNOWN."""
-    m = rig_app.backend.get_task_meta(job_id)
+def _long_job_state(celery_app, job_id: str, stage: str, what: str) -> JobState:
+    """The state of a one-task job on ``celery_app`` (a rig training, a library build): its
+    SUBMITTED record, then the task's own states; ``shot`` is its source (on success the
+    result's ``source``, or the ``library`` a build made)."""
+    m = celery_app.backend.get_task_meta(job_id)
     st, res = m.get("status", cstates.PENDING), m.get("result")
     js = JobState(id=job_id, total=1)
     if st == SUBMITTED and isinstance(res, dict):
-        js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", "train-rig"
+        js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", stage
     elif st in (cstates.STARTED, "PROGRESS", cstates.RETRY):
-        js.state, js.stage = "RUNNING", "train-rig"
+        js.state, js.stage = "RUNNING", stage
         js.result = res if isinstance(res, dict) else None
         js.shot = (js.result or {}).get("source", "")
     elif st == cstates.SUCCESS:
         js.state, js.done, js.result = "SUCCESS", 1, res
-        js.shot = (res or {}).get("source", "")
+        js.shot = (res or {}).get("source") or (res or {}).get("library", "")
     elif st == cstates.FAILURE:
-        exc = rig_app.backend.exception_to_python(res)
-        js.state, js.stage, js.error = "FAILURE", "train-rig", str(exc) or type(exc).__name__
+        exc = celery_app.backend.exception_to_python(res)
+        js.state, js.stage, js.error = "FAILURE", stage, str(exc) or type(exc).__name__
     else:
-        js.error = f"{job_id}: no such training job (unknown id, or its record expired)"
+        js.error = f"{job_id}: no such {what} (unknown id, or its record expired)"
     return js
+
+
+def train_rig_state(job_id: str) -> JobState:
+    """QUEUED, RUNNING (with progress in ``result``), SUCCESS, FAILURE or UNKNOWN."""
+    return _long_job_state(rig_app, job_id, "train-rig", "training job")
 
 
 def wait_train_rig(job_id: str, *, progress: bool = True, poll: float = 1.0, timeout=None) -> JobState:
@@ -357,30 +361,16 @@ def submit_library(
     train_app.backend.store_result(job_id, {"kind": "library", "source": folder, "out": out, "queue": queue,
                                             "time": time.time()}, SUBMITTED)  # fmt: skip
     train_app.send_task("tween.library_build", (folder, out, options), task_id=job_id, queue=queue)
+    _drop_result_subscriptions(train_app)
     return job_id
 
 
 def library_state(job_id: str) -> JobState:
-    """QUEUED, RUNNING, SUCCESS (the build's summary in ``result``), FAILURE or UNKNOWN."""
-    m = train_app.backend.get_task_meta(job_id)
-    st, res = m.get("status", cstates.PENDING), m.get("result")
-    js = JobState(id=job_id, total=1)
-    if st == SUBMITTED and isinstance(res, dict):
-        js.shot, js.state, js.stage = res.get("source", ""), "QUEUED", "library build"
-    elif st in (cstates.STARTED, "PROGRESS", cstates.RETRY):
-        js.state, js.stage = "RUNNING", "library build"
-        js.result = res if isinstance(res, dict) else None
-        js.shot = (js.result or {}).get("folder", "")
-        if (js.result or {}).get("total"):
-            js.stage = f"library build, take {js.result['done']}/{js.result['total']}"
-    elif st == cstates.SUCCESS:
-        js.state, js.done, js.result = "SUCCESS", 1, res
-        js.shot = (res or {}).get("library", "")
-    elif st == cstates.FAILURE:
-        exc = train_app.backend.exception_to_python(res)
-        js.state, js.stage, js.error = "FAILURE", "library build", str(exc) or type(exc).__name__
-    else:
-        js.error = f"{job_id}: no such library job (unknown id, or its record expired)"
+    """QUEUED, RUNNING (take D/T in ``stage``), SUCCESS (the build's summary in ``result``),
+    FAILURE or UNKNOWN."""
+    js = _long_job_state(train_app, job_id, "library build", "library job")
+    if js.state == "RUNNING" and (js.result or {}).get("total"):
+        js.stage = f"library build, take {js.result['done']}/{js.result['total']}"
     return js
 
 

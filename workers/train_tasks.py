@@ -44,7 +44,7 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
             cmd += [f"--{key}", str(options[key])]
     cmd += ["--add"] if options.get("add") else []
     cmd += ["--mirror"] if options.get("mirror") else []
-    meta = {"stage": "library build", "folder": folder, "out": out}
+    meta = {"stage": "library build", "source": folder, "out": out}
     self.update_state(state="STARTED", meta=meta)
     tail: list[str] = []
     with tempfile.TemporaryFile("w+") as stdout:
