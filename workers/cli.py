@@ -13,6 +13,7 @@ import typer
 from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
+from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from workers import jobs
 from workers import paths as jobpaths
@@ -343,6 +344,7 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"{r.get('out')}  ({r.get('model')}, hash {r.get('model_hash')})")
 
     @app.command("submit-library")
+    @with_library_options
     def submit_library(
         folder: Path = typer.Argument(
             ..., help="Folder of takes (BVH and USD), on storage every worker sees."
@@ -350,14 +352,8 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(
             ..., "--out", help="The library folder to write (or to add to, with --add)."
         ),
-        add: bool = typer.Option(False, "--add", help="Append the takes the library does not hold yet."),
-        include: str = typer.Option(
-            None, "--include", help="Only takes whose file name matches these globs."
-        ),
-        licence: str = typer.Option(None, "--licence", help="The takes' licence as the studio states it."),
-        name: str = typer.Option(None, "--name", help="The library's name (default: the folder's)."),
-        mirror: bool = typer.Option(False, "--mirror", help="Also add each take's mirror image."),
         wait: bool = typer.Option(False, "--wait", help="Wait, then print the library's summary."),
+        opts: LibraryBuildOptions = None,
     ):
         """Build a motion library on the farm's training queue (`tween worker --train`); prints
         the job id (`tween status ID` shows it)."""
@@ -373,9 +369,8 @@ def register(app: typer.Typer) -> None:
             _err(f"{folder}: no such folder of takes")
             raise typer.Exit(2)
         check_farm(train_app)
-        options = {"add": add, "include": include, "licence": licence, "name": name, "mirror": mirror}
         with farm_errors(train_app):
-            job_id = jobs.submit_library(str(folder), str(out), options)
+            job_id = jobs.submit_library(str(folder), str(out), opts.as_job())
         if not wait:
             typer.echo(job_id)
             return

@@ -19,6 +19,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from pipeline.fill.options import PATH_FIELDS, FillOptions
+from pipeline.library.options import command_args as library_args
 from pipeline.usd.write import clean_dead_temps
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
@@ -337,10 +338,6 @@ def wait_train_rig(job_id: str, *, progress: bool = True, poll: float = 1.0, tim
             time.sleep(poll)
 
 
-#: Options of ``tween library build`` a farm job may carry.
-LIBRARY_OPTIONS = ("include", "licence", "name", "add", "mirror")
-
-
 def submit_library(
     folder: str, out: str, options: dict | None = None, roots=None, queue: str | None = None
 ) -> str:
@@ -348,9 +345,7 @@ def submit_library(
     returns its id (``lib-…``) at once. Both paths are checked against the shot roots here and
     again on the worker."""
     options = {k: v for k, v in (options or {}).items() if v not in (None, False)}
-    unknown = set(options) - set(LIBRARY_OPTIONS)
-    if unknown:
-        raise ValueError(f"unknown library build option(s): {', '.join(sorted(unknown))}")
+    library_args(options)  # unknown options are refused here, not on the worker
     folder, out = os.path.abspath(folder), os.path.abspath(out)
     roots = train_app.conf.tween.shot_roots if roots is None else roots
     if roots:

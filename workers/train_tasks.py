@@ -8,6 +8,7 @@ import subprocess
 import sys
 import tempfile
 
+from pipeline.library.options import command_args
 from workers.app import train_app
 from workers.errors import JobError
 
@@ -39,11 +40,7 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
     folder = check_under_roots(folder, roots, "takes folder")
     out = check_under_roots(out, roots, "library")
     cmd = [sys.executable, "-m", "pipeline.cli", "library", "build", folder, "--out", out, "--no-progress"]
-    for key in ("include", "licence", "name"):
-        if options.get(key):
-            cmd += [f"--{key}", str(options[key])]
-    cmd += ["--add"] if options.get("add") else []
-    cmd += ["--mirror"] if options.get("mirror") else []
+    cmd += command_args(options)
     meta = {"stage": "library build", "source": folder, "out": out}
     self.update_state(state="STARTED", meta=meta)
     tail: list[str] = []

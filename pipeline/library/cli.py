@@ -10,9 +10,11 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.library.store import open_library
 
 
+@with_library_options
 def build_command(
     folder: Path = typer.Argument(
         ..., help="Folder of takes (BVH and USD, any humanoid rig; searched recursively)."
@@ -20,15 +22,6 @@ def build_command(
     out: Path = typer.Option(
         ..., "--out", help="The library folder to write (new, or an existing library with --add)."
     ),
-    add: bool = typer.Option(False, "--add", help="Append the takes the library does not hold yet."),
-    include: str = typer.Option(
-        None, "--include", help="Only takes whose file name matches these globs (a,b)."
-    ),
-    licence: str = typer.Option(
-        None, "--licence", help="The takes' licence as the studio states it (recorded)."
-    ),
-    name: str = typer.Option(None, "--name", help="The library's name (default: the folder's)."),
-    mirror: bool = typer.Option(False, "--mirror", help="Also add each take's left/right mirror image."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="A progress bar on stderr."),
     progress_lines: bool = typer.Option(
         False,
@@ -37,12 +30,14 @@ def build_command(
         help="Progress as 'tween: library progress D/T' lines on stderr "
         "(the farm's channel), at most two a second.",
     ),
+    opts: LibraryBuildOptions = None,
 ):
     """Read a studio's takes into a motion library for `tween fill --library`."""
     from pipeline.library.build import build
 
-    res = build(folder, out, include=include, licence=licence, name=name, add=add, progress=progress,
-                mirror=mirror, on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
+    res = build(folder, out, include=opts.include, licence=opts.licence, name=opts.name, add=opts.add,
+                progress=progress, mirror=opts.mirror,
+                on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
     typer.echo(json.dumps(res, indent=1))
     if res["added"] == 0 and res["failed"] and not res["takes"]:
         raise TweenError(f"{folder}: no take could be read ({len(res['failed'])} failed)")

@@ -1,0 +1,51 @@
+"""The options of a library build, each declared once: ``tween library build`` (in this
+process) and ``tween submit-library`` (the farm) offer the same ones
+(:func:`with_library_options`), and the farm task turns a job's options back into the
+``tween library build`` command line from the same fields (:func:`command_args`)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+from pipeline.options import option, with_options
+
+
+@dataclass
+class LibraryBuildOptions:
+    """How takes go into a library (JSON-serialisable: it travels to the farm)."""
+
+    add: bool = option(False, "--add", help="Append the takes the library does not hold yet.")
+    include: str | None = option(
+        None, "--include", help="Only takes whose file name matches these globs (a,b)."
+    )
+    licence: str | None = option(
+        None, "--licence", help="The takes' licence as the studio states it (recorded)."
+    )
+    name: str | None = option(None, "--name", help="The library's name (default: the folder's).")
+    mirror: bool = option(False, "--mirror", help="Also add each take's left/right mirror image.")
+
+    def as_job(self) -> dict:
+        """The options a farm job carries (the ones set)."""
+        return {k: v for k, v in asdict(self).items() if v not in (None, False, "")}
+
+
+#: option name → its ``tween library build`` flag.
+FLAGS: dict[str, str] = {f.name: f.metadata["flags"][0] for f in fields(LibraryBuildOptions)}
+
+
+def command_args(options: dict) -> list[str]:
+    """The ``tween library build`` flags of a job's options (unknown names are a ValueError)."""
+    unknown = sorted(set(options) - set(FLAGS))
+    if unknown:
+        raise ValueError(f"unknown library build option(s): {', '.join(unknown)}")
+    out: list[str] = []
+    for k, v in options.items():
+        if v is True:
+            out.append(FLAGS[k])
+        elif v not in (None, False, ""):
+            out += [FLAGS[k], str(v)]
+    return out
+
+
+#: The typer command with every LibraryBuildOptions field as an option (``opts``).
+with_library_options = with_options(LibraryBuildOptions, lead=2)
