@@ -8,11 +8,12 @@ setup(
     description="Fill the frames between an animator's keys with a learned in-betweener, "
     "written back as a non-destructive USD layer.",
     python_requires=">=3.11",
-    packages=find_packages(include=["pipeline*", "workers*", "render*", "usd_schemas*"]),
+    packages=find_packages(include=["pipeline*", "workers*", "render*", "usd_schemas*", "dailies*"]),
     package_data={
         "usd_schemas": ["*.usda", "*/resources/*.json", "*/resources/*.usda", "*/*.usda"],
         "pipeline.data": ["*.json"],
         "pipeline.adapt": ["*.json"],
+        "dailies": ["templates/*.html", "static/*"],
     },
     include_package_data=True,
     install_requires=[
@@ -29,12 +30,16 @@ setup(
         "moderngl>=5.10",
         "av>=12",
         "opentimelineio>=0.17",
+        # the dailies review page (dailies/): server, templates
+        "fastapi>=0.115",
+        "uvicorn>=0.29",
+        "jinja2>=3",
     ],
     extras_require={
         # torch is pinned: these machines install exactly this CPU build from local disk;
         # any other request pulls a multi-GB CUDA build.
         "train": ["torch==2.13.0", "roma>=1.5", "onnx>=1.16", "onnxscript>=0.2"],
-        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3", "threadpoolctl>=3", "hypothesis>=6"],
+        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3", "threadpoolctl>=3", "hypothesis>=6", "httpx>=0.27"],
     },
     entry_points={
         "console_scripts": ["tween=pipeline.cli:main"],
@@ -48,6 +53,7 @@ setup(
             "render = render.cli:register",
             "rig = pipeline.rig.cli:register",
             "library = pipeline.library.cli:register",
+            "dailies = dailies.cli:register",
         ],
         # Model families by kind (pipeline.infer.api's registry): the in-betweener class of a
         # model.json / rig.json kind, called with its folder; folderless ones under every name.

@@ -14,7 +14,9 @@ LAYERS = {
     "pipeline.errors": 0,
     "usd_schemas": 0,
     "pipeline.options": 0,
-    "pipeline.jsonfile": 0,  # JSON a person wrote: duplicate keys refused  # options declared on dataclasses, as CLI options
+    "pipeline.jsonfile": 0,
+    "pipeline.staging": 1,
+    "pipeline.command": 1,  # the one error handler every entry point runs its commands through  # model folders made beside their destination, moved in when complete  # JSON a person wrote: duplicate keys refused  # options declared on dataclasses, as CLI options
     "pipeline.motion": 1,  # skeletons, clips, rotations, FK, BVH
     "pipeline.data": 2,  # the split, clip caches, the model skeleton, the protocol's windows
     "pipeline.infer": 3,  # in-betweeners at fill time: numpy + onnxruntime, never torch
@@ -29,6 +31,7 @@ LAYERS = {
     "render": 8,  # reads composed USD only
     "workers": 9,  # the farm: runs the fill API and the renderer
     "pipeline.cli": 10,  # the CLI on top; its commands come from entry points
+    "dailies": 10,  # the review page in the browser: over the farm, the renderer and the dailies step
 }
 #: Modules allowed one import across their layer's rule, and why.
 EXCEPTIONS = {
@@ -45,7 +48,7 @@ def _package(module: str) -> str:
 
 
 def _modules():
-    for top in ("pipeline", "workers", "render", "usd_schemas"):
+    for top in ("pipeline", "workers", "render", "usd_schemas", "dailies"):
         for path in sorted((ROOT / top).rglob("*.py")):
             mod = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
             yield mod, path
@@ -66,7 +69,7 @@ def _imports(path: Path):
 def _project_edges():
     for mod, path in _modules():
         for name, line in _imports(path):
-            if name.split(".")[0] in ("pipeline", "workers", "render", "usd_schemas") and name != "pipeline":
+            if name.split(".")[0] in ("pipeline", "workers", "render", "usd_schemas", "dailies") and name != "pipeline":
                 yield mod, _package(mod), _package(name), f"{path.relative_to(ROOT)}:{line} imports {name}"
 
 
@@ -133,7 +136,7 @@ def test_core_cli_imports_neither_farm_nor_renderer():
 #: on a host that only fills), scipy (a quarter second, off the CLI's start-up path).
 DEFERRED = {"torch", "roma", "onnx", "onnxscript", "pxr", "onnxruntime", "moderngl", "OpenImageIO", "av",
             "opentimelineio", "celery", "kombu", "redis", "amqp", "sqlalchemy", "billiard", "scipy", "bpy",
-            "threadpoolctl", "jinja2"}  # fmt: skip
+            "threadpoolctl", "jinja2", "fastapi", "starlette", "uvicorn", "httpx", "gazu"}  # fmt: skip
 
 
 def _top_imports(path: Path) -> list[str]:

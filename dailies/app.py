@@ -1,0 +1,102 @@
+"""The dailies web app: the review page (``/``, ``/shot/KEY``), its media (``/media``) and the
+JSON API that mirrors it (``/api``, schema at ``/api/openapi.json``), all behind the login."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import Body, FastAPI, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse
+from fastapi.staticfiles import StaticFiles
+from fastapi.templating import Jinja2Templates
+from pydantic import BaseModel, Field
+
+from dailies import decide, media
+from dailies.auth import Login, LoginMiddleware
+from dailies.detail import detail
+from dailies.shots import find, listing
+
+HERE = Path(__file__).parent
+
+
+class Approval(BaseModel):
+    take: int = Field(ge=0, description="The approved take.")
+    note: str | None = Field(None, max_length=10000, description="The reviewer's note.")
+    version: int | None = Field(
+        None, description="The fill version the page showed; refused if no longer the latest."
+    )
+
+
+class Publication(BaseModel):
+    version: int | None = Field(None, description="The fill version the page showed.")
+
+
+def _with_urls(roots: list[Path], d: dict) -> dict:
+    for t in d["takes"]:
+        t["mp4_url"] = media.url(roots, t["mp4"])
+        t["contact_sheet_url"] = media.url(roots, t["contact_sheet"])
+        t["mp4"] = str(t["mp4"]) if t["mp4"] else None
+        t["contact_sheet"] = str(t["contact_sheet"]) if t["contact_sheet"] else None
+    return d
+
+
+def create_app(roots: list[Path], login: Login) -> FastAPI:
+    """The app for shots under ``roots`` (absolute folders), answering only with ``login``."""
+    roots = [Path(r) for r in roots]
+    app = FastAPI(title="usd-tween dailies", openapi_url="/api/openapi.json", docs_url=None, redoc_url=None)
+    templates = Jinja2Templates(directory=str(HERE / "templates"))
+    app.mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")
+
+    def _shot(key: str) -> dict:
+        shot = find(roots, key)
+        if shot is None:
+            raise HTTPException(404, f"{key}: no such shot under the roots")
+        return _with_urls(roots, detail(shot))
+
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
+    def index(request: Request):
+        return templates.TemplateResponse(
+            request, "index.html", {"shots": listing(roots), "roots": roots, "csrf": login.csrf}
+        )
+
+    @app.get("/shot/{key:path}", response_class=HTMLResponse, include_in_schema=False)
+    def shot_page(request: Request, key: str):
+        return templates.TemplateResponse(request, "shot.html", {"shot": _shot(key), "csrf": login.csrf})
+
+    @app.get("/media/{index}/{rel:path}", include_in_schema=False)
+    def media_file(index: int, rel: str):
+        path = media.resolve(roots, index, rel)
+        if path is None:
+            raise HTTPException(404, "no such media under the roots")
+        # FileResponse answers Range requests (206) so players can seek.
+        return FileResponse(path, media_type=media.TYPES[path.suffix.lower()])
+
+    @app.get("/api/shots", summary="Shots with fills under the roots: pending first, newest first")
+    def api_shots() -> list[dict]:
+        return listing(roots)
+
+    @app.post(
+        "/api/shots/{key:path}/approve", summary="Approve a take of the shot's latest fill (tween approve)"
+    )
+    def api_approve(key: str, body: Approval = Body(...)) -> dict:
+        try:
+            return decide.approve(roots, key, body.take, body.note, body.version)
+        except LookupError:
+            raise HTTPException(404, f"{key}: no such shot under the roots") from None
+        except decide.Refused as e:
+            raise HTTPException(409, str(e)) from None
+
+    @app.post("/api/shots/{key:path}/publish", summary="Publish the approved take (tween publish)")
+    def api_publish(key: str, body: Publication = Body(...)) -> dict:
+        try:
+            return decide.publish(roots, key, body.version)
+        except LookupError:
+            raise HTTPException(404, f"{key}: no such shot under the roots") from None
+        except decide.Refused as e:
+            raise HTTPException(409, str(e)) from None
+
+    @app.get("/api/shots/{key:path}", summary="One shot: takes and media, keys, fill sources, history")
+    def api_shot(key: str) -> dict:
+        return _shot(key)
+
+    return LoginMiddleware(app, login)

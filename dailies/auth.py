@@ -1,0 +1,101 @@
+"""Login for the dailies server: a token made at start-up, given once in the URL (like
+Jupyter's), then a cookie; changing requests also carry a CSRF token.
+
+Every request needs the cookie, the token as ``?token=`` (answered by setting the cookie and
+redirecting to the same URL without it, so it leaves the address bar and history), or an
+``Authorization: Bearer`` header (scripts; no CSRF token needed: a browser never adds that
+header by itself).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import secrets
+from http.cookies import SimpleCookie
+from urllib.parse import parse_qsl, urlencode
+
+SAFE = ("GET", "HEAD", "OPTIONS")
+CSRF_HEADER = b"x-csrf-token"
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(32)
+
+
+class Login:
+    """The server's secrets: the login token, its cookie's name and the CSRF token."""
+
+    def __init__(self, token: str, secure: bool = False):
+        self.token, self.secure = token, secure
+        digest = hashlib.sha256(token.encode()).hexdigest()
+        # Cookies ignore ports: servers on one host each get their own cookie name.
+        self.cookie = f"tween_dailies_{digest[:10]}"
+        self.session = hmac.new(token.encode(), b"session", hashlib.sha256).hexdigest()
+        self.csrf = hmac.new(token.encode(), b"csrf", hashlib.sha256).hexdigest()
+
+    def same(self, given: str | None, expected: str) -> bool:
+        return given is not None and hmac.compare_digest(given.encode(), expected.encode())
+
+
+def _headers(scope) -> dict[bytes, bytes]:
+    return {k.lower(): v for k, v in scope.get("headers", [])}
+
+
+async def _send_text(send, status: int, text: str, headers=(), as_json=False) -> None:
+    body = json.dumps({"detail": text}).encode() if as_json else text.encode()
+    kind = b"application/json" if as_json else b"text/plain; charset=utf-8"
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", kind), (b"content-length", str(len(body)).encode()),
+                            (b"cache-control", b"no-store"), *headers]})  # fmt: skip
+    await send({"type": "http.response.body", "body": body})
+
+
+class LoginMiddleware:
+    """ASGI middleware: nothing passes without a login; changing requests need the CSRF token."""
+
+    def __init__(self, app, login: Login):
+        self.app, self.login = app, login
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        h, login = _headers(scope), self.login
+        api = scope["path"].startswith("/api")
+        query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
+        bearer = h.get(b"authorization", b"").decode("latin-1")
+        if bearer.lower().startswith("bearer ") and login.same(bearer[7:].strip(), login.token):
+            return await self.app(scope, receive, send)
+        if "token" in query and scope["method"] in SAFE:
+            if not login.same(query["token"], login.token):
+                return await _send_text(
+                    send, 401, "wrong token: open the URL tween dailies printed", as_json=api
+                )
+            rest = urlencode(
+                [(k, v) for k, v in parse_qsl(scope["query_string"].decode("latin-1")) if k != "token"]
+            )
+            where = scope["path"] + (f"?{rest}" if rest else "")
+            flags = "; HttpOnly; SameSite=Strict; Path=/" + ("; Secure" if login.secure else "")
+            cookie = f"{login.cookie}={login.session}{flags}".encode()
+            return await _send_text(
+                send, 303, "logged in", [(b"location", where.encode()), (b"set-cookie", cookie)]
+            )
+        jar = SimpleCookie()
+        try:
+            jar.load(h.get(b"cookie", b"").decode("latin-1"))
+        except Exception:  # a malformed Cookie header is no login
+            jar = SimpleCookie()
+        morsel = jar.get(login.cookie)
+        if not login.same(morsel.value if morsel else None, login.session):
+            return await _send_text(
+                send,
+                401,
+                "login needed: open the URL tween dailies printed (it carries the token)",
+                as_json=api,
+            )
+        if scope["method"] not in SAFE and not login.same(
+            h.get(CSRF_HEADER, b"").decode("latin-1"), login.csrf
+        ):
+            return await _send_text(send, 403, "missing or wrong CSRF token: reload the page", as_json=api)
+        return await self.app(scope, receive, send)

@@ -1,0 +1,121 @@
+"""``tween dailies SHOT_ROOT...``: the review page for the fills under the roots."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import socket
+import ssl
+import sys
+from pathlib import Path
+
+import typer
+
+from dailies.auth import Login, new_token
+from pipeline.errors import TweenError
+
+DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
+
+
+def check_roots(roots: list[Path]) -> list[Path]:
+    """The roots as absolute folders (links kept: media are checked against both)."""
+    out = []
+    for r in roots:
+        if not r.exists():
+            raise TweenError(f"{r}: no such folder")
+        if not r.is_dir():
+            raise TweenError(f"{r}: not a folder (give the folders the shots are under)")
+        out.append(Path(os.path.abspath(r)))
+    return out
+
+
+def _loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_tls(certfile: Path | None, keyfile: Path | None) -> None:
+    if (certfile is None) != (keyfile is None):
+        raise TweenError(
+            "--certfile and --keyfile: give both (the certificate and its private key) or neither"
+        )
+    for opt, p in (("--certfile", certfile), ("--keyfile", keyfile)):
+        if p is not None and not p.is_file():
+            raise TweenError(f"{opt} {p}: no such file")
+    if certfile is not None:  # a bad pair is one line now, not a traceback once serving
+        try:
+            ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(str(certfile), str(keyfile))
+        except (ssl.SSLError, OSError) as e:
+            raise TweenError(
+                f"--certfile {certfile} --keyfile {keyfile}: cannot load: {e.strerror or e}"
+            ) from None
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A listening socket on ``host:port`` (port 0: any free one), or one line saying why not."""
+    if not 0 <= port <= 65535:
+        raise TweenError(f"--port {port}: must be from 0 to 65535")
+    try:
+        info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except socket.gaierror as e:
+        raise TweenError(f"--host {host}: {e.strerror}") from None
+    sock = socket.socket(info[0], socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(info[4])
+    except OSError as e:
+        sock.close()
+        raise TweenError(f"{host}:{port}: cannot listen there: {e.strerror} (another --port?)") from None
+    sock.listen(128)
+    sock.set_inheritable(True)
+    return sock
+
+
+def dailies(
+    roots: list[Path] = typer.Argument(..., help="Folders the shots and their fills are under."),
+    host: str = typer.Option(
+        DEFAULT_HOST, "--host", help="Address to listen on (default: this machine only)."
+    ),
+    port: int = typer.Option(DEFAULT_PORT, "--port", help="Port (0: any free one)."),
+    certfile: Path = typer.Option(None, "--certfile", help="TLS certificate (PEM): serve https."),
+    keyfile: Path = typer.Option(None, "--keyfile", help="The certificate's private key (PEM)."),
+    token: str = typer.Option(
+        None, "--token", envvar="TWEEN_DAILIES_TOKEN", help="Login token (default: a new one, in the URL)."
+    ),
+):
+    """Serve the dailies review page: takes side by side in sync, approve and publish."""
+    # Everything checked before anything heavy is imported or the port is taken.
+    roots = check_roots(roots)
+    check_tls(certfile, keyfile)
+    if token is not None and len(token) < 16:
+        raise TweenError("--token: at least 16 characters (it is the only login)")
+    import uvicorn
+
+    from dailies.app import create_app
+
+    tls = certfile is not None
+    if not _loopback(host) and not tls:
+        print(f"tween: dailies: warning: listening on {host} without TLS: the login token and the pages "
+              "cross the network in clear (use --certfile/--keyfile)", file=sys.stderr)  # fmt: skip
+    sock = bind(host, port)
+    login = Login(token or new_token(), secure=tls)
+    name = socket.gethostname() if host in ("0.0.0.0", "::") else host
+    shown = f"[{name}]" if ":" in name else name
+    url = f"{'https' if tls else 'http'}://{shown}:{sock.getsockname()[1]}/?token={login.token}"
+    typer.echo(url)  # the first line of stdout: what to open
+    sys.stdout.flush()
+    print(f"tween: dailies: serving {', '.join(map(str, roots))}; Ctrl-C stops", file=sys.stderr)
+    config = uvicorn.Config(
+        create_app(roots, login), log_level="warning", access_log=False,
+        ssl_certfile=str(certfile) if tls else None, ssl_keyfile=str(keyfile) if tls else None,
+    )  # fmt: skip
+    uvicorn.Server(config).run(sockets=[sock])
+
+
+def register(app: typer.Typer) -> None:
+    """Adds this package's commands to ``app``."""
+    app.command("dailies")(dailies)

@@ -1,0 +1,159 @@
+"""The shots under the review roots: every folder's fill layers ``<stem>.tween.vNNN``, grouped
+by shot, with the latest version's decision. Reads layer metadata only, cached by file
+stamp, so listing many shots stays cheap."""
+
+from __future__ import annotations
+
+import os
+import re
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.usd.dailies import decision
+
+FILL = re.compile(r"^(?P<stem>[^.]+)\.tween\.v(?P<n>\d+)\.usd[ac]?$")
+#: Folders never holding a shot's fills: the farm's work folders, review media.
+SKIP_DIRS = ("review",)
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One shot's fills: ``key`` names it in URLs (root index, folder under the root, stem)."""
+
+    key: str
+    root: Path
+    folder: Path
+    stem: str
+    versions: tuple[tuple[int, Path], ...]  # ascending
+
+    @property
+    def latest(self) -> tuple[int, Path]:
+        return self.versions[-1]
+
+
+_cache: dict[tuple, object] = {}
+_cache_lock = threading.Lock()
+
+
+def cached(path: Path, fn):
+    """``fn(path)``, remembered while the file's size and modification time stay the same
+    (layers are never rewritten in place, so a stamp names one content)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    key = (fn.__qualname__, str(path), st.st_mtime_ns, st.st_size)
+    with _cache_lock:
+        if key in _cache:
+            return _cache[key]
+    value = fn(path)
+    with _cache_lock:
+        if len(_cache) > 20000:  # a long-running server: old stamps go
+            _cache.clear()
+        _cache[key] = value
+    return value
+
+
+def layer_info(path: Path) -> dict:
+    """The layer's ``customLayerData["tween"]`` and sublayers (metadata only)."""
+    from pxr import Sdf, Tf
+
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), True)
+    except Tf.ErrorException:
+        return {}
+    if layer is None:
+        return {}
+    info = dict(layer.customLayerData.get("tween", {}))
+    info["_sublayers"] = list(layer.subLayerPaths)
+    return info
+
+
+def scan(roots: list[Path]) -> list[Shot]:
+    """Every shot with a fill under ``roots`` (hidden folders and ``review`` skipped)."""
+    found: dict[tuple[int, Path, str], dict[int, Path]] = {}
+    for i, root in enumerate(roots):
+        for folder, dirs, files in os.walk(root):
+            dirs[:] = sorted(d for d in dirs if not d.startswith(".") and d not in SKIP_DIRS)
+            for name in files:
+                m = FILL.match(name)
+                if m:
+                    found.setdefault((i, Path(folder), m["stem"]), {})[int(m["n"])] = Path(folder) / name
+    shots = []
+    for (i, folder, stem), versions in found.items():
+        rel = folder.relative_to(roots[i]).as_posix()
+        key = f"{i}/{stem}" if rel == "." else f"{i}/{rel}/{stem}"
+        shots.append(Shot(key, roots[i], folder, stem, tuple(sorted(versions.items()))))
+    return shots
+
+
+def find(roots: list[Path], key: str) -> Shot | None:
+    """The shot named ``key`` (as :func:`scan` names it), or None: only shots found under the
+    roots are ever answered, so a key cannot point anywhere else."""
+    head, _, rest = key.partition("/")
+    if not head.isdigit() or int(head) >= len(roots) or not rest:
+        return None
+    root = roots[int(head)]
+    folder, _, stem = rest.rpartition("/")
+    if not stem or ".." in rest.split("/") or stem.startswith("."):
+        return None
+    path = root / folder if folder else root
+    if not path.is_dir():
+        return None
+    versions = {}
+    for p in path.glob(f"{stem}.tween.v*.usd*"):
+        m = FILL.match(p.name)
+        if m and m["stem"] == stem:
+            versions[int(m["n"])] = p
+    return Shot(key, root, path, stem, tuple(sorted(versions.items()))) if versions else None
+
+
+def shot_file(shot: Shot) -> Path | None:
+    """The animator's shot of the latest fill: the review layer's last sublayer (the shot
+    under the fill), else the shot the fill recorded."""
+    info = cached(shot.latest[1], layer_info) or {}
+    review = shot.folder / str(info.get("review", ""))
+    if info.get("review") and review.is_file():
+        subs = (cached(review, layer_info) or {}).get("_sublayers", [])
+        for sub in reversed(subs):
+            if not FILL.match(Path(sub).name):
+                p = Path(sub) if os.path.isabs(sub) else review.parent / sub
+                return Path(os.path.normpath(p))
+    recorded = info.get("shot")
+    if recorded and os.path.isabs(recorded) and Path(recorded).is_file():
+        return Path(recorded)
+    return None
+
+
+def summary(shot: Shot) -> dict:
+    """What the list shows of a shot: its latest version, status, model, time."""
+    n, path = shot.latest
+    d = cached(path, decision)
+    info = cached(path, layer_info) or {}
+    published = any(shot.folder.glob(f"{shot.stem}.publish.v{n:03d}.usd*"))
+    try:
+        mtime = path.stat().st_mtime
+    except OSError:
+        mtime = 0.0
+    return {
+        "key": shot.key,
+        "stem": shot.stem,
+        "folder": str(shot.folder),
+        "version": n,
+        "versions": len(shot.versions),
+        "status": (d or {}).get("status") or "pending",
+        "decision": {k: v for k, v in (d or {}).items() if k != "layer"} or None,
+        "published": published,
+        "model": str(info.get("model", "")),
+        "takes": int(info.get("takes", 1) or 1),
+        "created": str(info.get("createdAt") or ""),
+        "mtime": mtime,
+    }
+
+
+def listing(roots: list[Path]) -> list[dict]:
+    """Every shot's summary, newest first: those waiting for a decision, then the decided."""
+    rows = [summary(s) for s in scan(roots)]
+    rows.sort(key=lambda r: (r["status"] != "pending", -r["mtime"], r["key"]))
+    return rows

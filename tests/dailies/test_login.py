@@ -1,0 +1,58 @@
+"""Nothing is readable or changeable without the login; changing requests need the CSRF token."""
+
+import pytest
+from conftest import TOKEN, client_for
+
+PATHS = ["/", "/shot/0/seq01/sh010", "/media/0/seq01/review/sh010_v001_take0.mp4", "/api/shots",
+         "/api/shots/0/seq01/sh010", "/api/openapi.json", "/static/dailies.js", "/docs"]  # fmt: skip
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_nothing_without_the_token(roots, path):
+    c = client_for(roots, login=False)
+    r = c.get(path)
+    assert r.status_code == 401
+    assert b"sh010" not in r.content and b"ftyp" not in r.content
+    assert c.get(path, headers={"Authorization": "Bearer wrong"}).status_code == 401
+    c.cookies.set(c.login.cookie, "forged")
+    assert c.get(path).status_code == 401
+
+
+def test_a_wrong_token_is_refused(roots):
+    c = client_for(roots, login=False)
+    r = c.get("/?token=" + "x" * 40, follow_redirects=False)
+    assert r.status_code == 401 and "set-cookie" not in r.headers
+
+
+def test_the_token_sets_a_cookie_and_leaves_the_url(roots):
+    c = client_for(roots, login=False)
+    r = c.get(f"/shot/0/seq01/sh010?token={TOKEN}", follow_redirects=False)
+    assert r.status_code == 303
+    assert r.headers["location"] == "/shot/0/seq01/sh010"  # the token leaves the address bar
+    cookie = r.headers["set-cookie"]
+    assert "HttpOnly" in cookie and "SameSite=Strict" in cookie and TOKEN not in cookie
+    assert c.get("/shot/0/seq01/sh010").status_code == 200  # the cookie from now on
+
+
+def test_changing_requests_need_the_csrf_token(client, roots):
+    body = {"take": 1, "note": "no csrf"}
+    r = client.post("/api/shots/0/seq01/sh010/approve", json=body)
+    assert r.status_code == 403 and "CSRF" in r.json()["detail"]
+    r = client.post("/api/shots/0/seq01/sh010/approve", json=body, headers={"X-CSRF-Token": "0" * 64})
+    assert r.status_code == 403
+    assert not list((roots[0] / "seq01").glob("sh010.tween.v002.*"))  # nothing was decided
+    # The page carries the token for its scripts.
+    assert client.login.csrf in client.get("/shot/0/seq01/sh010").text
+
+
+def test_a_script_logs_in_with_a_bearer_header(roots):
+    c = client_for(roots, login=False)
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    assert c.get("/api/shots", headers=auth).json()[0]["key"] == "0/seq01/sh010"
+    r = c.post("/api/shots/0/seq01/sh010/approve", json={"take": 0}, headers=auth)
+    assert r.status_code == 200, r.text  # no cookie, so no CSRF token needed
+
+
+def test_two_servers_on_one_host_keep_their_own_cookie(roots):
+    a, b = client_for(roots, "a" * 40, login=False), client_for(roots, "b" * 40, login=False)
+    assert a.login.cookie != b.login.cookie
