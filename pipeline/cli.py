@@ -1,23 +1,18 @@
 """The ``tween`` command line. Each package registers its own commands.
 
-Errors the user can act on (:class:`pipeline.errors.TweenError`) print one line on
-stderr and exit with status 2; progress goes to stderr, results to stdout.
+Every command's errors end in one handler (:func:`pipeline.command.run`): one ``tween:
+error:`` line and exit status 2 for what the user can act on, a line naming the log for a
+bug of ours. Progress goes to stderr, results to stdout.
 """
 
 from __future__ import annotations
 
-import sys
+from importlib.metadata import entry_points
 
 import typer
 
-try:  # typer 0.2x carries its own copy of click
-    from typer._click.exceptions import BadParameter, ClickException, UsageError
-except ImportError:  # older typer uses click itself
-    from click.exceptions import BadParameter, ClickException, UsageError
-
-from importlib.metadata import entry_points
-
-from pipeline.errors import TweenError
+from pipeline import command
+from pipeline.data.cache import cache_root
 
 app = typer.Typer(
     name="tween",
@@ -54,44 +49,10 @@ def _register() -> None:
 _register()
 
 
-def _usage_line(e: ClickException) -> str:
-    """Click's usage error as one line: the message, with the command it is about."""
-    msg = " ".join(e.format_message().split())
-    ctx = getattr(e, "ctx", None)
-    if isinstance(e, UsageError) and ctx is not None and ctx.parent is not None:
-        msg = f"{ctx.info_name}: {msg}"
-        if not isinstance(e, BadParameter):
-            msg += f" (see `tween {ctx.info_name} --help`)"
-    return msg
-
-
 def main(argv: list[str] | None = None) -> None:
     """The entry point: always exits (0, the command's own status, 2 for errors the user can
-    act on, each one line on stderr, or 130 when interrupted)."""
-    try:
-        # standalone_mode=False: click's usage errors come here instead of printing a usage
-        # box, so that a bad option value is one line like every other bad input.
-        rc = app(args=argv, prog_name="tween", standalone_mode=False)
-    except UsageError as e:
-        if type(e).__name__ == "NoArgsIsHelpError":  # `tween` alone: its help, as before
-            text = e.format_message()  # (typer's rich help is already printed, text is "")
-            if text.strip():
-                typer.echo(text)
-        else:
-            print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
-        sys.exit(2)
-    except TweenError as e:
-        print(f"tween: error: {e}", file=sys.stderr)
-        sys.exit(2)
-    except ClickException as e:
-        print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
-        sys.exit(2)
-    except (KeyboardInterrupt, typer.Abort):
-        print("tween: interrupted", file=sys.stderr)
-        sys.exit(130)
-    if rc == 130:
-        print("tween: interrupted", file=sys.stderr)
-    sys.exit(rc if isinstance(rc, int) else 0)
+    act on, 1 for a bug of ours, 130 when interrupted)."""
+    command.run(app, argv, log_dir=cache_root() / "logs")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from celery.exceptions import SoftTimeLimitExceeded
 from pipeline.rig.options import FLAGS, command_args
 from pipeline.rig.progress import JsonLinesReader, Progress
 from pipeline.rig.store import read_rig_json
+from pipeline.staging import StagedFolder
 from workers import paths as jobpaths
 from workers.app import rig_app
 from workers.errors import JobError
@@ -138,7 +139,8 @@ def run_train_rig(task, source: str, out: str, options: dict) -> dict:
             _stop(proc)
             raise JobError(
                 f"{source}: training stopped at its time limit ({s.train_rig_time_limit} s); checkpoints "
-                f"are kept in {out}/checkpoints: submit the same job again to resume"
+                f"are kept in {StagedFolder(out, force=True).work}/checkpoints: submit the same job "
+                "again to resume"
             ) from None
         except BaseException:
             _stop(proc)

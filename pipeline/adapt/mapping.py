@@ -22,6 +22,7 @@ import numpy as np
 
 from pipeline import jsonfile
 from pipeline.adapt.conventions import CONVENTIONS
+from pipeline.errors import TweenError
 
 MODEL_JOINTS = (
     "Hips", "Spine", "Chest", "Neck", "Head",
@@ -45,13 +46,15 @@ _END = re.compile(r"(end|nub|top|tip)\d*$", re.I)  # an end site's name (HeadTop
 _NOT_PLACED_SHOWN = 8  # rig joints an error message lists
 
 
-class MappingError(Exception):
-    """The rig's joints cannot be mapped onto the model skeleton (message says why).
-    ``unplaced``: the REQUIRED model joints the names did not place, when that is why."""
+class MappingError(TweenError):
+    """The rig's joints cannot be mapped onto the model skeleton (message says why; the
+    caller that knows the file names it). ``unplaced``: the REQUIRED model joints the names
+    did not place, when that is why; ``reason``: the message without ``hint`` (the
+    ``--mapping`` file to write), for commands that take no mapping file."""
 
-    def __init__(self, message: str, unplaced: tuple[str, ...] = ()):
-        super().__init__(message)
-        self.unplaced = tuple(unplaced)
+    def __init__(self, message: str, unplaced: tuple[str, ...] = (), hint: str | None = None):
+        super().__init__(f"{message}; {hint}" if hint else message)
+        self.unplaced, self.reason, self.hint = tuple(unplaced), message, hint
 
 
 class JointMapping(NamedTuple):
@@ -188,7 +191,8 @@ def map_joints_info(
     _torso(out, names, parents, removed)
     missing = [r for r in REQUIRED if r not in out]
     if missing:
-        raise MappingError(_missing_message(missing, names, out, explained, conv), tuple(missing))
+        reason, hint = _missing_message(missing, names, out, explained, conv)
+        raise MappingError(reason, tuple(missing), hint)
     for a, b in _CHAINS:
         for s in "LR":
             ra, rb = a.format(s=s), b.format(s=s)
@@ -209,8 +213,8 @@ def map_joints_info(
     return JointMapping(roles, conv, tuple(m for m in MODEL_JOINTS if m not in out))
 
 
-def _missing_message(missing, names, out, explained, conv) -> str:
-    """One line: the model joints not placed, the rig joints that might be them, the file to write."""
+def _missing_message(missing, names, out, explained, conv) -> tuple[str, str]:
+    """The model joints not placed and the rig joints that might be them; the file to write."""
     placed = set(out.values())
     free = [i for i in range(len(names)) if i not in placed and i not in explained]
     free = free or [i for i in range(len(names)) if i not in placed]
@@ -228,7 +232,8 @@ def _missing_message(missing, names, out, explained, conv) -> str:
     line = json.dumps({m: "<rig joint>" for m in missing})
     return (
         f"joints do not map onto the model skeleton: no {', '.join(missing)}{read}; "
-        f"rig joints not placed: {listed}; write them in a --mapping JSON file: {line}"
+        f"rig joints not placed: {listed}",
+        f"write them in a --mapping JSON file: {line}",
     )
 
 

@@ -8,9 +8,12 @@ from pathlib import Path
 
 import typer
 
+from pipeline import command
+from pipeline.data.cache import cache_root
 from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.rig.progress import JsonLinesWriter, ProgressBar
+from pipeline.staging import StagedFolder
 
 
 def register(app: typer.Typer) -> None:
@@ -21,7 +24,10 @@ def register(app: typer.Typer) -> None:
             ..., help="The reference clip: a USD shot or a BVH (.bvh/.bvh.gz), or an .npz from rig-extract."
         ),
         out: Path = typer.Option(
-            ..., "--out", help="Model folder (checkpoints in OUT/checkpoints; re-running resumes)."
+            ...,
+            "--out",
+            help="Model folder, written only when complete (training checkpoints in "
+            ".OUT.partial/checkpoints until then; re-running resumes).",
         ),
         checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
         no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
@@ -39,9 +45,12 @@ def register(app: typer.Typer) -> None:
         from pipeline.rig.train import TrainConfig
 
         o = opts.check()
+        # Refuses a finished model in --out before anything is read or written; the new
+        # model is made beside it and moved into place when complete (pipeline.staging).
+        stage = StagedFolder(out, o.force)
         cfg = TrainConfig(
             source=str(source),
-            out=str(out),
+            out=str(stage.work),
             skeleton=o.skeleton,
             frames=parse_frames(o.frames),
             fps=o.fps,
@@ -58,11 +67,14 @@ def register(app: typer.Typer) -> None:
             checkpoints=str(checkpoints) if checkpoints else None,
         )
         tr = _train_shown(cfg, progress_fd)
-        if not no_export:
-            from pipeline.rig.export import export
+        if no_export:
+            typer.echo(f"{tr.ckpt_dir}  (trained; run again without --no-export to export into {out})")
+            return
+        from pipeline.rig.export import export
 
-            meta = export(tr, out)
-            typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
+        meta = export(tr, stage.work)
+        stage.commit()
+        typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
 
     @app.command("rig-extract")
     def rig_extract(
@@ -126,11 +138,7 @@ def main() -> None:
         name="tween-rig", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False
     )
     register(app)
-    try:
-        app()
-    except TweenError as e:
-        print(f"tween: error: {e}", file=sys.stderr)
-        sys.exit(2)
+    command.run(app, prog="tween-rig", log_dir=cache_root() / "logs")
 
 
 if __name__ == "__main__":

@@ -53,6 +53,11 @@ class TrainRigOptions:
         None, "--credit", "Attribution for the model card (default: known assets' credit)."
     )
     name: str | None = _opt(None, "--name", "Model name (default: the --out folder's name).")
+    force: bool = _opt(
+        False,
+        "--force",
+        "Replace the finished model in --out (it stays in use until the new one is complete).",
+    )
 
     def check(self) -> TrainRigOptions:
         """Raises TweenError (one line naming the option) unless every field is valid."""
@@ -73,7 +78,7 @@ class TrainRigOptions:
 
     def as_job(self) -> dict:
         """The options a farm job carries (the ones set)."""
-        return {k: v for k, v in asdict(self).items() if v is not None and v != ""}
+        return {k: v for k, v in asdict(self).items() if v is not None and v != "" and v is not False}
 
 
 #: option name → its ``tween train-rig`` flag.
@@ -88,7 +93,9 @@ def command_args(options: dict) -> list[str]:
     args: list[str] = []
     for key, flag in FLAGS.items():
         v = options.get(key)
-        if v is not None and v != "":
+        if isinstance(v, bool):  # a switch: its flag alone when set
+            args += [flag] if v else []
+        elif v is not None and v != "":
             args += [flag, str(v)]
     return args
 

@@ -6,6 +6,9 @@ from pathlib import Path
 
 import typer
 
+from pipeline.errors import TweenError
+from pipeline.staging import StagedFolder
+
 
 def export(
     run: Path = typer.Argument(..., help="Run folder written by `tween train`."),
@@ -19,10 +22,17 @@ def export(
     min_window: int = typer.Option(64, help="Shortest padded window, frames."),
     feet_anchor: bool = typer.Option(True, help="Lock contacts that hold a key at the key's foot position."),
     feet_orient: bool = typer.Option(True, help="Locked feet hold their orientation too (toes stay put)."),
+    force: bool = typer.Option(
+        False, "--force", help="Replace the model in --out (it stays in use until the new one is verified)."
+    ),
 ):
     """Export both networks to ONNX and check onnxruntime against torch."""
     from pipeline.train.export import export as do_export
     from pipeline.train.export import verify
+
+    if not (run / "generator.pt").is_file():
+        raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
+    stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written
 
     settings = {
         "root": root,
@@ -32,8 +42,13 @@ def export(
         "feet_anchor": feet_anchor,
         "feet_orient": feet_orient,
     }
-    meta = do_export(run, out, name or out.name, settings)
-    err = verify(run, out)
+    try:
+        meta = do_export(run, stage.make(), name or out.resolve().name, settings)
+        err = verify(run, stage.work)
+    except BaseException:
+        stage.discard()  # a failed export leaves --out as it was
+        raise
+    stage.commit()
     typer.echo(
         f"{out}: model {meta['name']} hash {meta['hash']}; onnx and torch agree within {err:.2e} (export.verify)"
     )

@@ -184,6 +184,31 @@ class TrainConfig:
     def __post_init__(self):
         if self.partial_layout not in PARTIAL_LAYOUTS:
             raise ValueError(f"partial_layout {self.partial_layout!r}: expected one of {PARTIAL_LAYOUTS}")
+        for name, (lo, hi) in _RANGES.items():
+            v = getattr(self, name)
+            values = v if isinstance(v, tuple) else (v,)
+            if v is None and name in ("limit_clips", "adv_start"):
+                continue
+            if not values or not all(isinstance(x, int | float) and lo <= x <= hi for x in values):
+                flag = "--" + name.replace("_", "-")
+                raise ValueError(f"{flag} {v!r}: must be from {lo:g} to {hi:g}")
+        if self.gap_end < self.gap_start:
+            raise ValueError(f"--gap-end {self.gap_end}: must be at least --gap-start {self.gap_start}")
+
+
+_SHARE, _WEIGHT = (0.0, 1.0), (0.0, 1e6)
+#: Each numeric knob's accepted range (a NaN fails every one). The one-cycle schedule needs
+#: 4 steps; windows shorter than 16 frames hold no gap worth training.
+_RANGES = {
+    "steps": (4, 1e9), "batch": (1, 1e5), "lengths": (16, 10_000), "lr": (1e-12, 10.0),
+    "gap_start": (1, 10_000), "gap_end": (1, 10_000), "curriculum": _SHARE,
+    "w_rot": _WEIGHT, "w_pos": _WEIGHT, "w_root": _WEIGHT, "w_vel": _WEIGHT, "w_contact": _WEIGHT,
+    "w_br": _WEIGHT, "w_adv": _WEIGHT, "w_dna": _WEIGHT, "noise_prob": _SHARE, "adv_start": (0, 1e9),
+    "d_lr": (1e-12, 10.0), "seed": (0, 2**31 - 1), "threads": (1, 256), "checkpoint_minutes": (1e-3, 1e6),
+    "limit_clips": (1, 1e9), "gap_weighting": (0.0, 10.0), "mirror": _SHARE, "posture": (0.0, 180.0),
+    "posture_prob": _SHARE, "tempo": (0.0, 10.0), "tempo_prob": _SHARE, "partial": _SHARE,
+    "dna_prob": _SHARE, "dna_max": (1, 1000), "dna_from": _SHARE, "new_lr": (1e-6, 1e6), "workers": (0, 256),
+}  # fmt: skip
 
 
 def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
@@ -229,6 +254,23 @@ def init_checkpoint(init: str) -> Path:
     if not p.is_file():
         raise TweenError(f"{p}: --init checkpoint not found")
     return p
+
+
+def load_init(init: str, map_location="cpu") -> dict:
+    """The ``--init`` checkpoint's state (``init_checkpoint``), refused in one line when the
+    file is not one that ``tween train`` wrote (an ONNX export, a truncated or foreign file)."""
+    p = init_checkpoint(init)
+    what = "an ONNX export" if p.suffix == ".onnx" else "not a checkpoint that `tween train` wrote"
+    try:
+        state = torch.load(p, weights_only=False, map_location=map_location)
+    except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
+        raise TweenError(
+            f"{p}: --init: {what} ({type(e).__name__}); give a run folder's generator.pt "
+            "or a model folder with torch/generator.pt"
+        ) from None
+    if not isinstance(state, dict) or not isinstance(state.get("model"), dict):
+        raise TweenError(f"{p}: --init: a torch file without a generator's weights ('model')")
+    return state
 
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the
@@ -440,7 +482,6 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
 
     from pipeline.motion.fk import fk_torch
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     dev = torch.device(cfg.device)
@@ -463,12 +504,13 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         )
     init = None
     if cfg.init:
-        state = torch.load(init_checkpoint(cfg.init), weights_only=False, map_location=dev)
+        state = load_init(cfg.init, dev)
         init = state["model"]
         saved = state.get("config", {}).get("model") or {}
         cfg = replace(cfg, model=inherit_model(cfg.model, saved))
         if cfg.model.delta and not saved.get("delta", False):
             init = to_delta_inputs(init, cfg.model.n_joints)
+    out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
     model = Generator(cfg.model).to(dev)
     # Weights an --init checkpoint lacks (a DNA encoder, key mask or adapter added to it) start
     # from scratch beside trained ones: Adam moves every weight by about the learning rate a

@@ -52,7 +52,6 @@ def multiscale_loss(vel: torch.Tensor, root: torch.Tensor, scales) -> torch.Tens
 def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     from pipeline.models.layers import batch_regularisation
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     skel = bandai_skeleton()
@@ -62,6 +61,7 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
         clips = load_takes(cfg.data, cfg.data_include)
     else:
         clips = load_split("train", limit=cfg.limit_clips)
+    out_dir.mkdir(parents=True, exist_ok=True)  # the data read first: a refusal writes nothing
     model = PathPredictor(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.steps)

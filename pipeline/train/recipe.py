@@ -53,6 +53,7 @@ from typing import Any
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.staging import refuse_model
 from pipeline.train.commands import export_command
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
@@ -190,6 +191,21 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
     return train_generator(cfg, out)
 
 
+def check_run(out: Path, cfg) -> None:
+    """What `tween train` reads, checked before it writes anything: the run folder is not a
+    model (a model is written by `tween export`), the takes folder holds takes, and --init is
+    a checkpoint that `tween train` wrote."""
+    from pipeline.usd.take import take_files
+
+    refuse_model(out, "--out (a run folder)", force_hint=None)
+    if cfg.data and not cfg.data_pack:
+        take_files(cfg.data, cfg.data_include)
+    if cfg.init:
+        from pipeline.train.generator import load_init
+
+        load_init(cfg.init)
+
+
 def _train(ctx: typer.Context, **values) -> None:
     out, recipe = values.pop("out"), values.pop("recipe")
     from_stage, dry_run = values.pop("from_stage"), values.pop("dry_run")
@@ -197,7 +213,9 @@ def _train(ctx: typer.Context, **values) -> None:
         if from_stage is not None or dry_run:
             raise typer.BadParameter("--from-stage and --dry-run go with --recipe")
         cfg, path_cfg = configs(values)
-        typer.echo(str(train_run(out or Path("runs/default"), cfg, path_cfg)))
+        out = out or Path("runs/default")
+        check_run(out, cfg)
+        typer.echo(str(train_run(out, cfg, path_cfg)))
         return
     given = [n for n in values if ctx.get_parameter_source(n).name in ("COMMANDLINE", "ENVIRONMENT")]
     if "init" in given or "data_pack" in given:

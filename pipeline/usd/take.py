@@ -14,22 +14,31 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.adapt.mapping import map_joints
+from pipeline.adapt.mapping import MappingError, map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import ShotError
 from pipeline.motion.clip import Motion
 
 
-def _usd_take(path: Path, fps: float, name: str) -> Motion:
+def _usd_take(path: Path, fps: float, name: str, source: Path | None = None) -> Motion:
+    """``source``: the file the user named, when ``path`` is its conversion (a BVH's)."""
     from pipeline.adapt.retarget import Retarget
     from pipeline.usd.read import anim_values, read_shot, to_skeleton_order
 
     shot = read_shot(path)
     c = shot.characters[0]
-    rt = Retarget(c, map_joints(c.joints, c.parents), shot.up_axis, shot.meters_per_unit)
+    try:
+        rt = Retarget(c, map_joints(c.joints, c.parents), shot.up_axis, shot.meters_per_unit)
+    except MappingError as e:
+        # No --mapping here (training, libraries, DNA read takes by their names alone).
+        raise ShotError(
+            source or path,
+            f"{e.reason} (takes are read by their joint names alone)",
+            None if source else c.skel_path,
+        ) from None
     times = np.arange(shot.start, shot.end + 1e-6, shot.tcps / fps)
     if len(times) < 2:
-        raise ShotError(path, "the take has fewer than two frames")
+        raise ShotError(source or path, "the take has fewer than two frames")
     rot, tr = to_skeleton_order(c, *anim_values(shot.stage, c, times)[:2])
     q, root = rt.to_model(rot, tr)
     return Motion(bandai_skeleton(), q, root, fps, name).continuous()
@@ -49,7 +58,7 @@ def model_take(path: str | Path, fps: float = 30.0) -> Motion:
         except (ValueError, IndexError, OSError) as e:
             raise ShotError(path, f"cannot read the BVH: {e}") from None
         with tempfile.TemporaryDirectory() as tmp:
-            return _usd_take(write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name)
+            return _usd_take(write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name, path)
     return _usd_take(path, fps, path.name)
 
 

@@ -1,0 +1,115 @@
+"""The one error handler every ``tween`` entry point runs its commands through.
+
+Errors the user can act on (:class:`pipeline.errors.TweenError` from any layer, click's usage
+errors, an operating-system error on a named file: disk full, read-only, permission) print
+one ``tween: error:`` line on stderr and exit with status 2. Anything else is a bug of ours:
+one line that says so and names the log file holding the traceback, exit status 1.
+"""
+
+from __future__ import annotations
+
+import datetime
+import errno
+import os
+import sys
+import traceback
+from pathlib import Path
+
+import typer
+
+try:  # typer 0.2x carries its own copy of click
+    from typer._click.exceptions import BadParameter, ClickException, UsageError
+except ImportError:  # older typer uses click itself
+    from click.exceptions import BadParameter, ClickException, UsageError
+
+from pipeline.errors import TweenError
+
+
+def _usage_line(e: ClickException) -> str:
+    """Click's usage error as one line: the message, with the command it is about."""
+    msg = " ".join(e.format_message().split())
+    ctx = getattr(e, "ctx", None)
+    if isinstance(e, UsageError) and ctx is not None and ctx.parent is not None:
+        msg = f"{ctx.info_name}: {msg}"
+        if not isinstance(e, BadParameter):
+            msg += f" (see `tween {ctx.info_name} --help`)"
+    return msg
+
+
+_DISK_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
+
+
+def _os_error_line(e: OSError) -> str | None:
+    """An operating-system error on a file as one line naming it (``None``: no file named,
+    so not something this handler can word; the caller treats it as a bug)."""
+    if not e.filename:
+        if e.errno in _DISK_ERRNOS:  # a write that ran out of room names no file
+            return f"{e.strerror}: the disk (or the file-size limit) is full; free space and run again"
+        return None
+    where = f"{e.filename} -> {e.filename2}" if e.filename2 else str(e.filename)
+    return f"{where}: {e.strerror or e}"
+
+
+def _log_bug(e: BaseException, logs: Path | None) -> str:
+    """Writes the traceback of an unexpected error to a log file in ``logs``; returns where."""
+    if logs is None:
+        sys.stderr.write("".join(traceback.format_exception(e)))
+        return "above"
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = logs / f"tween-{stamp}-{os.getpid()}.log"
+    text = f"tween {' '.join(sys.argv[1:])}\n\n" + "".join(traceback.format_exception(e))
+    try:
+        logs.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError:  # no log either: the traceback goes to stderr after all
+        sys.stderr.write(text)
+        return "above"
+    return str(path)
+
+
+def _bug_line(e: BaseException, logs: Path | None) -> str:
+    first = (str(e).strip().splitlines() or [""])[0][:300]
+    what = f"{type(e).__name__}: {first}" if first else type(e).__name__
+    return (
+        f"tween: internal error (a bug in usd-tween, not in your input): {what}; "
+        f"the traceback is in {_log_bug(e, logs)}"
+    )
+
+
+def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", log_dir: Path | None = None):
+    """Runs ``app`` and exits: 0 or the command's own status, 2 for an error the user can act
+    on, 1 for a bug of ours (its traceback written under ``log_dir``), 130 when interrupted."""
+    try:
+        # standalone_mode=False: click's usage errors come here instead of printing a usage
+        # box, so that a bad option value is one line like every other bad input.
+        rc = app(args=argv, prog_name=prog, standalone_mode=False)
+    except UsageError as e:
+        if type(e).__name__ == "NoArgsIsHelpError":  # `tween` alone: its help, as before
+            text = e.format_message()  # (typer's rich help is already printed, text is "")
+            if text.strip():
+                typer.echo(text)
+        else:
+            print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
+        sys.exit(2)
+    except TweenError as e:
+        print(f"tween: error: {e}", file=sys.stderr)
+        sys.exit(2)
+    except ClickException as e:
+        print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
+        sys.exit(2)
+    except (KeyboardInterrupt, typer.Abort):
+        print("tween: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except OSError as e:
+        line = _os_error_line(e)
+        if line is None:
+            print(_bug_line(e, log_dir), file=sys.stderr)
+            sys.exit(1)
+        print(f"tween: error: {line}", file=sys.stderr)
+        sys.exit(2)
+    except Exception as e:
+        print(_bug_line(e, log_dir), file=sys.stderr)
+        sys.exit(1)
+    if rc == 130:
+        print("tween: interrupted", file=sys.stderr)
+    sys.exit(rc if isinstance(rc, int) else 0)

@@ -1,0 +1,152 @@
+"""Training and export never damage a model a studio has: bad input is refused before anything
+is written, a finished model is replaced only with --force, and only once the new one is
+complete (pipeline.staging)."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import shutil
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+
+from cli_contract import failed, refused  # noqa: E402
+from test_rig_fill import creature_shot  # noqa: E402
+
+from pipeline.cli import main  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ["--steps", "4", "--path-steps", "0", "--batch", "2", "--lengths", "64", "--limit-clips", "1"]
+NOT_HUMAN = """HIERARCHY
+ROOT body
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT legA
+  {
+    OFFSET 10 -10 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 -20 0
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.033333
+0 30 0 0 0 0 0 0 0
+0 30 1 0 0 0 5 0 0
+"""
+
+
+def _digest(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}  # fmt: skip
+
+
+def _ok(argv, capsys) -> str:
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert e.value.code == 0, err[-3000:]
+    return out
+
+
+@pytest.fixture
+def model_folder(tmp_path) -> Path:
+    """A copy of a finished generator model folder (its model.json and card)."""
+    m = tmp_path / "studio_model"
+    m.mkdir()
+    for f in ("model.json", "MODEL_CARD.md"):
+        shutil.copy(ROOT / "models" / "default" / f, m / f)
+    return m
+
+
+def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, model_folder):
+    out = tmp_path / "run"
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "creature").mkdir()
+    (tmp_path / "creature" / "q.bvh").write_text(NOT_HUMAN)
+    (tmp_path / "junk.pt").write_bytes(b"\x80\x04 not a checkpoint")
+    cases = {
+        "no such folder of takes": ["--data", tmp_path / "missing"],
+        "no BVH or USD takes": ["--data", tmp_path / "empty"],
+        "q.bvh: joints do not map onto the model skeleton": ["--data", tmp_path / "creature"],
+        "generator.onnx: --init: an ONNX export": ["--init", ROOT / "models/default/generator.onnx"],
+        "junk.pt: --init: not a checkpoint that `tween train` wrote": ["--init", tmp_path / "junk.pt"],
+    }
+    for want, args in cases.items():
+        line = refused(["train", "--out", out, *args, *TINY], capsys, tmp_path)
+        assert want in line, line
+    assert not out.exists()
+    line = refused(["train", "--out", model_folder, *TINY], capsys, tmp_path)
+    assert f"{model_folder}: --out (a run folder) holds a finished model (model.json)" in line
+
+
+def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path, capsys, model_folder):
+    run = tmp_path / "run"
+    _ok(["train", "--out", run, *TINY], capsys)
+    before = _digest(model_folder)
+    line = refused(["export", run, "--out", model_folder], capsys, tmp_path)
+    assert "holds a finished model (model.json); give --force to replace it" in line
+    line = refused(["export", tmp_path / "nowhere", "--out", tmp_path / "new"], capsys, tmp_path)
+    assert "no generator.pt here" in line
+    assert _digest(model_folder) == before
+    _ok(["export", run, "--out", model_folder, "--force", "--name", "replaced"], capsys)
+    assert '"name": "replaced"' in (model_folder / "model.json").read_text()
+    assert (model_folder / "generator.onnx").is_file() and not (model_folder / "MODEL_CARD.md").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "studio_model"]  # no .partial, no .old
+
+
+def test_a_failed_export_leaves_the_model_as_it_was(tmp_path, capsys, model_folder, monkeypatch):
+    import pipeline.train.export as export
+
+    run = tmp_path / "run"
+    _ok(["train", "--out", run, *TINY], capsys)
+    before = _digest(model_folder)
+
+    def full_disk(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(model_folder / "generator.onnx"))
+
+    monkeypatch.setattr(export, "verify", full_disk)
+    line = failed(["export", run, "--out", model_folder, "--force"], capsys)
+    assert "No space left on device" in line
+    assert _digest(model_folder) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "studio_model"]
+
+
+def test_train_rig_never_trains_over_a_finished_model(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    clip = creature_shot(tmp_path / "clip.usda", T=61, keys_every=1)
+    out = tmp_path / "models" / "creature"
+    _ok(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys)
+    first = _digest(out)
+    assert "rig.json" in first and not list(out.parent.glob(".*"))
+    line = refused(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys, tmp_path)
+    assert f"{out}: --out holds a finished model (rig.json); give --force" in line
+    # --force: a refusal (a clip too short) and a failure while exporting leave it as it was.
+    short = creature_shot(tmp_path / "short.usda", T=13, keys_every=1)
+    refused(["train-rig", short, "--out", out, "--force", "--schedule", "tiny"], capsys, tmp_path)
+    import pipeline.rig.export as rig_export
+
+    def full_disk(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out / "level_1.onnx"))
+
+    with monkeypatch.context() as m:
+        m.setattr(rig_export, "export", full_disk)
+        line = failed(
+            ["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--seed", "3"], capsys
+        )
+        assert line.endswith("level_1.onnx: No space left on device")
+    assert _digest(out) == first
+    partial = out.parent / ".creature.partial"
+    assert (partial / "checkpoints" / "state.pt").is_file()  # where the same command resumes
+    # The same command again resumes there, exports, and swaps the new model in.
+    _ok(["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--seed", "3"], capsys)
+    assert _digest(out) != first and (out / "rig.json").is_file()
+    assert sorted(p.name for p in out.parent.iterdir()) == ["creature"]
