@@ -32,7 +32,9 @@ def test_bad_input_is_one_line(tmp_path):
     (tmp_path / "f.usda").write_text("#usda 1.0\n")
     _one_error(_run(tmp_path / "f.usda"), "not a folder")
     _one_error(_run(tmp_path, "--certfile", tmp_path / "f.usda"), "--certfile and --keyfile")
-    _one_error(_run(tmp_path, "--certfile", tmp_path / "f.usda", "--keyfile", tmp_path / "f.usda"), "cannot load")
+    _one_error(
+        _run(tmp_path, "--certfile", tmp_path / "f.usda", "--keyfile", tmp_path / "f.usda"), "cannot load"
+    )
     _one_error(_run(tmp_path, "--port", "70000"), "--port 70000")
     _one_error(_run(tmp_path, "--token", "short"), "--token")
     with socket.socket() as busy:

@@ -50,7 +50,10 @@ def test_refusals_are_one_message(client, roots):
     assert again.status_code == 409 and "already approved (take 0 by" in again.json()["detail"]
     stale = _post(client, APPROVE, {"take": 1, "version": 1})  # the page showed v001
     assert stale.status_code == 409 and "already approved: take 0" in stale.json()["detail"]
-    assert sorted(p.name for p in folder.glob("sh010.tween.v*")) == ["sh010.tween.v001.usda", "sh010.tween.v002.usda"]
+    assert sorted(p.name for p in folder.glob("sh010.tween.v*")) == [
+        "sh010.tween.v001.usda",
+        "sh010.tween.v002.usda",
+    ]
 
 
 def test_a_newer_fill_makes_the_page_stale(client, roots):

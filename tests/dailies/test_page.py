@@ -7,7 +7,9 @@ from conftest import filled_shot
 
 
 def _data(html: str) -> dict:
-    return json.loads(re.search(r'<script id="shot-data" type="application/json">(.*?)</script>', html, re.S)[1])
+    return json.loads(
+        re.search(r'<script id="shot-data" type="application/json">(.*?)</script>', html, re.S)[1]
+    )
 
 
 def test_every_take_has_a_player_and_an_approve_button(client):
@@ -68,6 +70,8 @@ def test_an_unknown_shot_is_404(client):
 def test_the_api_has_its_openapi_schema(client):
     schema = client.get("/api/openapi.json").json()
     paths = schema["paths"]
-    assert {"/api/shots", "/api/shots/{key}", "/api/shots/{key}/approve", "/api/shots/{key}/publish"} <= set(paths)
+    assert {"/api/shots", "/api/shots/{key}", "/api/shots/{key}/approve", "/api/shots/{key}/publish"} <= set(
+        paths
+    )
     assert "take" in json.dumps(schema["components"]["schemas"]["Approval"])
     assert not any(p.startswith(("/media", "/shot")) for p in paths)
