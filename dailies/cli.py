@@ -7,6 +7,7 @@ import os
 import socket
 import ssl
 import sys
+import threading
 from pathlib import Path
 
 import typer
@@ -75,6 +76,15 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+def _warm(roots: list[Path]) -> None:
+    from dailies.shots import listing
+
+    try:
+        listing(roots)
+    except Exception:  # a cache warm-up only: the page reports what it finds itself
+        pass
+
+
 def dailies(
     roots: list[Path] = typer.Argument(..., help="Folders the shots and their fills are under."),
     host: str = typer.Option(
@@ -109,6 +119,8 @@ def dailies(
     typer.echo(url)  # the first line of stdout: what to open
     sys.stdout.flush()
     print(f"tween: dailies: serving {', '.join(map(str, roots))}; Ctrl-C stops", file=sys.stderr)
+    # Every layer's metadata read once now, so that the first page is as quick as the next.
+    threading.Thread(target=_warm, args=(roots,), daemon=True).start()
     config = uvicorn.Config(
         create_app(roots, login), log_level="warning", access_log=False,
         ssl_certfile=str(certfile) if tls else None, ssl_keyfile=str(keyfile) if tls else None,
