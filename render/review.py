@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.usd.write import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
 from render.geometry import Geometry
 from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, png_rows, thumbnail, write_frame, write_png
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import SUMMARY_FACTS, Shot, evaluate, open_shot
+from render.scene import SUMMARY_FACTS, Shot, evaluate, frame_times, open_shot, shot_timing
 from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
@@ -216,6 +217,7 @@ def render_review(
     frame_range: tuple[float, float] | None = None,
     progress: bool = False,
     framing: str | None = None,
+    job: str = "local",
 ) -> dict:
     """Renders every animated skeleton of ``stage_path`` into ``out_dir``.
 
@@ -227,6 +229,11 @@ def render_review(
     Returns {"mp4", "contact_sheet", "timeline", "frames": [...], "frame_numbers", "timecodes",
     "key_frames", "fps", "size", "take", "model", "camera", "framing", "timings"}; ``fps`` is the
     playback rate (``scene.shot_timing``). Nothing is left in ``out_dir`` if rendering fails.
+
+    The media are rendered in a hidden scratch folder of ``out_dir``,
+    ``.tween-review-<job>.<pid>@<host>.<random>.tmp`` (``job``: the farm job's id), then moved
+    into place; the scratch of a writer that died on this host is removed first, and a farm
+    worker that takes a job over removes the job's own (``workers.cleanup.clean_scratch``).
     """
     t0 = time.perf_counter()
     plan = plan_review(stage_path, take, size, side_by_side, camera, turns, frame_range, framing)
@@ -252,7 +259,8 @@ def render_review(
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     stem = shot.name.replace(" ", "_") + (f"_{shot.take}" if shot.take else "")
-    tmp = Path(tempfile.mkdtemp(prefix=".tween-review-", dir=out))
+    clean_dead_temps(out, quiet=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
     renderer = movie = None
     try:
         renderer = Renderer((w, h), panels=len(panels))
@@ -349,6 +357,29 @@ def render_review(
         "framing": plan.framing,
         "timings": {"scene_s": round(t_scene, 3), "total_s": round(total, 3), "fps": round(T / total, 1)},
     }
+
+
+def review_frames(stage_path: str) -> int:
+    """How many frames a review of ``stage_path`` renders per take (the stage's authored time
+    code range, else its SkelAnimations' samples, at the playback rate), read without
+    evaluating anything: what the farm sizes the render's time limits by."""
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(stage_path), load=Usd.Stage.LoadNone)
+    if stage is None:
+        return 1
+    if stage.HasAuthoredTimeCodeRange():
+        start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+    else:
+        ts = [
+            t
+            for prim in stage.Traverse()
+            if prim.GetTypeName() == "SkelAnimation"
+            for attr in prim.GetAttributes()
+            for t in attr.GetTimeSamples()
+        ]
+        start, end = (min(ts), max(ts)) if ts else (0.0, 0.0)
+    return len(frame_times(start, end, shot_timing(stage))[0])
 
 
 def _summary(facts: dict) -> dict:

@@ -1,10 +1,13 @@
-"""Farm commands of the ``tween`` CLI: fill, submit, submit-train-rig, status, worker, bench-farm."""
+"""Farm commands of the ``tween`` CLI: fill, submit, submit-train-rig, status, cancel, worker,
+bench-farm."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
+import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -70,6 +73,130 @@ def _decision(layer) -> str:
     note = " ".join(str(d.get("note") or "").split())
     return (f", {d['status']} take {d['take']} by {d.get('by') or 'unknown'} at {d.get('at')}"
             + (f' ("{note}")' if note else "") + f" in {d['layer']}")  # fmt: skip
+
+
+#: Exit status of a fill that was cancelled (128 + SIGINT, what a shell gives Ctrl-C).
+EXIT_CANCELLED = 130
+#: How long an interrupted fill, or `tween cancel`, waits for running stages to stop.
+CANCEL_WAIT_S = 60.0
+
+
+class _Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM while ``tween fill`` waits for its jobs."""
+
+
+class _Interrupts:
+    """SIGINT and SIGTERM handlers for ``tween fill``: they raise :class:`_Interrupted` while
+    ``armed`` (waiting), and are only counted while jobs are being sent (a job half sent is
+    never left running), or while the cancel settles (a second one stops the waiting)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.count, self.armed, self.old = 0, True, {}
+
+    def __enter__(self) -> _Interrupts:
+        for sig in self.SIGNALS:
+            self.old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, h in self.old.items():
+            signal.signal(sig, h)
+
+    def _handler(self, signum, frame):
+        self.count += 1
+        if self.armed:
+            self.armed = False
+            raise _Interrupted()
+
+
+def _clock(t) -> str:
+    return time.strftime("%H:%M:%S", time.localtime(float(t))) if t else "?"
+
+
+def _settle(ids: list[str], intr: _Interrupts | None = None, alive=None, timeout: float = CANCEL_WAIT_S):
+    """Polls cancelled jobs until none of their stages runs (or ``timeout``, or a second
+    interrupt); then removes what each cancelled job wrote. Returns the last states."""
+    t0 = time.monotonic()
+    seen = intr.count if intr else 0
+    while True:
+        states = [jobs.state(j) for j in ids]
+        if all(s.finished for s in states) or time.monotonic() - t0 > timeout:
+            break
+        if intr is not None and intr.count > seen:
+            break
+        if alive is not None:
+            try:
+                alive()
+            except TweenError:
+                break
+        time.sleep(0.2)
+    for s in states:
+        jobs.undo_cancelled(s)
+    return states
+
+
+def _cancelled_line(s) -> str:
+    by = (s.cancel or {}).get("by")
+    return f"tween: {s.shot}: job {s.id} cancelled" + (f" by {by}" if by else "") + ", nothing of it kept"
+
+
+def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> int:
+    """Waits for the jobs and reports them; on SIGINT/SIGTERM cancels them, waits until they
+    have stopped and undone their work, and returns 130."""
+    try:
+        intr.armed = True
+        if intr.count:  # interrupted while the jobs were being sent
+            intr.armed = False
+            raise _Interrupted()
+        states = jobs.wait(ids, progress=progress, alive=alive)
+        intr.armed = False
+    except _Interrupted:
+        intr.armed = False
+        print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
+        jobs.cancel(ids, why="tween fill interrupted")
+        states = _settle(ids, intr, alive)
+        for s in states:
+            if s.state == "SUCCESS":  # it finished before the cancel reached it
+                _report([s])
+            elif s.state == "CANCELLED":
+                print(_cancelled_line(s), file=sys.stderr)
+            else:
+                print(
+                    f"tween: {s.shot}: job {s.id} is still stopping (`tween status {s.id}`)", file=sys.stderr
+                )
+        return EXIT_CANCELLED
+    code = _report([s for s in states if s.state != "CANCELLED"])
+    for s in states:
+        if s.state == "CANCELLED":  # cancelled elsewhere (`tween cancel`)
+            jobs.undo_cancelled(s)
+            print(_cancelled_line(s), file=sys.stderr)
+            code = EXIT_CANCELLED
+    return code
+
+
+def _status_line(s) -> str:
+    """The line of a fill job in ``tween status`` while it is not finished, or cancelled."""
+    if s.state == "CANCELLED":
+        by = (s.cancel or {}).get("by") or "someone"
+        return f"{s.id} {s.shot}: cancelled by {by} at {_clock((s.cancel or {}).get('time'))}"
+    if s.state == "CANCELLING":
+        return f"{s.id} {s.shot}: cancelling ({s.stage} still stopping)"
+    line = f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)"
+    if s.lost:
+        lost = s.lost
+        line = (f"{s.id} {s.shot}: worker lost: {lost['worker']} (host {lost['host']}, pid {lost['pid']}) sent "
+                f"no heartbeat for {lost['silent_s']:.0f} s, since {_clock(lost['last_beat'])}, in stage "
+                f"{lost['stage']} ({s.done}/{s.total} stages done); ")  # fmt: skip
+        if lost.get("requeue_by"):
+            line += f"the broker requeues it by {_clock(lost['requeue_by'])}"
+        else:
+            line += "the broker requeues it when it sees the worker's connection drop"
+    if s.requeued:
+        r = s.requeued[-1]
+        line += f"; requeued at {_clock(r.get('at'))} after worker {r.get('from')} was lost"
+    return line
 
 
 def _report(states) -> int:
@@ -156,9 +283,11 @@ def register(app: typer.Typer) -> None:
             for p in paths if s.shot_roots else ():  # before the broker is contacted: named as such
                 jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
             check_farm(celery_app)
-            with farm_errors(celery_app):
+            # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs.
+            with farm_errors(celery_app), _Interrupts() as intr:
+                intr.armed = False  # counted, not raised, while the jobs are sent
                 ids = jobs.submit(paths, opts, render=render)
-                code = _report(jobs.wait(ids, progress=progress))
+                code = _run_jobs(ids, intr, progress)
             raise typer.Exit(code)
         from workers.embedded import EmbeddedWorker
 
@@ -166,9 +295,15 @@ def register(app: typer.Typer) -> None:
         for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
             if opts.get(key):
                 roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
-        with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
-            ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
-            code = _report(jobs.wait(ids, progress=progress, alive=w.alive))
+        # Interrupted while the worker starts: it is stopped, nothing was sent.
+        with _Interrupts() as intr:
+            try:
+                with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
+                    intr.armed = False
+                    ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
+                    code = _run_jobs(ids, intr, progress, alive=w.alive)
+            except _Interrupted:
+                code = EXIT_CANCELLED
         raise typer.Exit(code)
 
     @app.command()
@@ -248,9 +383,59 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"{s.id}: unknown: {s.error}")
             elif s.state == "FAILURE":
                 typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
-            else:
+            elif s.id.startswith(("rig-", "lib-")):
                 typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
-            code = code or (2 if s.state in ("FAILURE", "UNKNOWN") else 0)
+            else:
+                typer.echo(_status_line(s))
+            code = code or (2 if s.state in ("FAILURE", "UNKNOWN", "CANCELLED") else 0)
+        raise typer.Exit(code)
+
+    @app.command()
+    def cancel(
+        job_ids: list[str] = typer.Argument(..., help="Fill job ids (from `tween submit` or `tween fill`)."),
+        wait_s: float = typer.Option(
+            CANCEL_WAIT_S, "--wait", help="Seconds to wait for running stages to stop."
+        ),
+    ):
+        """Cancel fill jobs on the farm that runs them: queued stages never run (even on a worker
+        started later), a running stage stops at its next heartbeat, and nothing the job wrote
+        is kept (no new version, no work or review files)."""
+        from workers.app import app as celery_app
+        from workers.app import check_farm, farm_errors
+
+        if not 0 <= wait_s <= 24 * 3600:
+            raise TweenError(f"--wait {wait_s:g}: must be from 0 to 86400 seconds")
+        check_farm(celery_app, broker=False)  # the records are in the result backend
+        bad = [j for j in job_ids if j.startswith(("rig-", "lib-"))]
+        if bad:
+            raise TweenError(f"{bad[0]}: only fill jobs can be cancelled")
+        code = 0
+        with farm_errors(celery_app):
+            before = jobs.cancel(job_ids, why="tween cancel")
+            live = []
+            for j in job_ids:
+                s = before[j]
+                if s.state == "UNKNOWN":
+                    _err(s.error or f"{j}: no such job")
+                    code = 2
+                elif s.state == "CANCELLED":
+                    typer.echo(f"{j} {s.shot}: already cancelled")
+                elif s.finished:
+                    _err(f"{j} {s.shot}: already finished ({s.state.lower()}), nothing to cancel")
+                    code = 2
+                else:
+                    live.append(j)
+            for s in _settle(live, timeout=wait_s) if live else []:
+                if s.state == "CANCELLED":
+                    typer.echo(f"{s.id} {s.shot}: cancelled")
+                elif s.state == "SUCCESS":
+                    _err(f"{s.id} {s.shot}: finished before the cancel reached it")
+                    code = 2
+                else:
+                    _err(
+                        f"{s.id} {s.shot}: cancel requested; {s.stage} still stopping (`tween status {s.id}`)"
+                    )
+                    code = 2
         raise typer.Exit(code)
 
     @app.command()

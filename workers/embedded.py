@@ -52,16 +52,20 @@ class EmbeddedWorker:
         cmd += ["--hostname", f"{self.queue}@%h", "--logfile", str(self.log), *self.extra_args]
         # Own session: the whole worker (main process and pool children) stops as one group.
         # Its output goes to the log: stdout of `tween fill` carries only results.
-        with open(self.log, "ab") as logf:
-            self.proc = subprocess.Popen(
-                cmd,
-                env=env,
-                start_new_session=True,
-                stdin=subprocess.DEVNULL,
-                stdout=logf,
-                stderr=logf,
-                preexec_fn=functools.partial(runtime.die_with, os.getpid()),
-            )
+        try:
+            with open(self.log, "ab") as logf:
+                self.proc = subprocess.Popen(
+                    cmd,
+                    env=env,
+                    start_new_session=True,
+                    stdin=subprocess.DEVNULL,
+                    stdout=logf,
+                    stderr=logf,
+                    preexec_fn=functools.partial(runtime.die_with, os.getpid()),
+                )
+        except BaseException:  # interrupted while it starts: no worker is left behind
+            self.__exit__(None, None, None)
+            raise
         return self
 
     def alive(self) -> None:

@@ -21,31 +21,40 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from pipeline.fill.options import PATH_FIELDS, FillOptions
 from pipeline.library.options import command_args as library_args
 from pipeline.usd.write import clean_dead_temps
+from workers import cleanup, control
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
-from workers.limits import failure_message
+from workers.limits import failure_message, render_limits
 
 
 @dataclass
 class JobState:
     id: str
     shot: str = ""
-    state: str = "UNKNOWN"  # UNKNOWN, QUEUED, RUNNING, SUCCESS, FAILURE
+    # UNKNOWN, QUEUED, RUNNING, SUCCESS, FAILURE, CANCELLING (cancelled, a stage still
+    # stopping), CANCELLED
+    state: str = "UNKNOWN"
     done: int = 0
     total: int = 0
     stage: str = ""
     error: str | None = None
     result: dict | None = None
     stages: dict = field(default_factory=dict)
+    #: The running stage's worker when it stopped sending heartbeats: {"worker", "host",
+    #: "pid", "last_beat" (epoch s), "silent_s", "requeue_by" (epoch s, or None)}.
+    lost: dict | None = None
+    #: Each time the running stage was requeued after its worker was lost: {"at", "from", …}.
+    requeued: list = field(default_factory=list)
+    cancel: dict | None = None  # the job's cancel record ({"time", "by"})
+    record: dict = field(default_factory=dict)  # the job record (shot, takes, paths)
 
     @property
     def finished(self) -> bool:
-        return self.state in ("SUCCESS", "FAILURE", "UNKNOWN")
+        return self.state in ("SUCCESS", "FAILURE", "UNKNOWN", "CANCELLED")
 
     def as_dict(self) -> dict:
-        return {
-            k: getattr(self, k) for k in ("id", "shot", "state", "done", "total", "stage", "error", "result")
-        }
+        keys = ("id", "shot", "state", "done", "total", "stage", "error", "result", "lost", "requeued")
+        return {k: getattr(self, k) for k in keys}
 
 
 def stage_ids(job_id: str, takes: int) -> list[tuple[str, str]]:
@@ -93,9 +102,12 @@ def clean_dead_work(shot: str, opts: dict) -> None:
 
 
 def build(shot: str, opts: dict, job: dict, queue: str):
-    """The job's canvas, with deterministic task ids and an explicit queue on every stage."""
+    """The job's canvas, with deterministic task ids and an explicit queue on every stage.
+    The fill stages run under the fill limits (the worker's ``task_time_limit``); the review
+    render under its own, ``job["limits"]["review"]`` = (soft, hard) seconds."""
     ids = dict(stage_ids(job["id"], job["takes"]))
     o = {"queue": queue}
+    soft, hard = (job.get("limits") or {}).get("review") or render_limits(1, job["takes"])
     takes = group(
         app.signature("tween.fill_take", (shot, opts, t, job), immutable=True, task_id=ids[name], **o)
         for t, name in enumerate(n for n in ids if n.startswith("take"))
@@ -104,7 +116,14 @@ def build(shot: str, opts: dict, job: dict, queue: str):
     return chain(
         app.signature("tween.validate", (shot, opts, job), immutable=True, task_id=ids["validate"], **o),
         chord(takes, layer),
-        app.signature("tween.render_review", (shot, opts, job), task_id=ids["review"], **o),
+        app.signature(
+            "tween.render_review",
+            (shot, opts, job),
+            task_id=ids["review"],
+            soft_time_limit=soft,
+            time_limit=hard,
+            **o,
+        ),  # fmt: skip
     )
 
 
@@ -136,6 +155,9 @@ def submit(
         job = {"id": job_id, "takes": int(opts.get("takes") or 1), "render": bool(render)}
         job["work_dir"] = work_dir_for(shot, opts, job_id, owner)
         job["made_dirs"] = missing_dirs(opts.get("out_dir"))
+        if render:  # the render's limits, sized by its work: frames × takes
+            job["work"] = {"frames": _review_frames(shot), "takes": job["takes"]}
+            job["limits"] = {"review": list(render_limits(job["work"]["frames"], job["takes"]))}
         if roots:  # the worker checks again against its own roots
             jobpaths.check_job(shot, opts, roots, job["work_dir"])
         planned.append((shot, job))
@@ -150,12 +172,27 @@ def submit(
                 "render": job["render"],
                 "queue": queue,
                 "time": time.time(),
+                # what a client that cancels needs to undo the job (workers/cleanup.py)
+                "out_dir": opts.get("out_dir") or "",
+                "work_dir": job["work_dir"],
+                "made_dirs": job["made_dirs"],
+                "work": job.get("work"),
             }
             app.backend.store_result(job["id"], rec, SUBMITTED)
             build(shot, opts, job, queue).apply_async()
     finally:
         _drop_result_subscriptions()
     return [job["id"] for _, job in planned]
+
+
+def _review_frames(shot: str) -> int:
+    """Frames per take of the shot's review (render.review.review_frames); 1 when unknown."""
+    try:
+        from render.review import review_frames
+
+        return max(1, review_frames(shot))
+    except Exception:  # the worker says what is wrong with the shot; the base limit stands
+        return 1
 
 
 def _drop_result_subscriptions(celery_app=None) -> None:
@@ -182,8 +219,10 @@ def state(job_id: str) -> JobState:
         js.error = f"{job_id}: no such job (unknown id, or its record expired)"
         return js
     info = rec["result"]
+    js.record = info
     js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
     js.total, js.state = len(stages), "QUEUED"
+    js.cancel = control.cancel_record(app, job_id)
     failures = []
     # Stages are read one by one while the worker writes them: a failure is written to the
     # failing stage, then to every later one, so a later stage can read FAILURE while an
@@ -206,15 +245,71 @@ def state(job_id: str) -> JobState:
             failures.append((name, app.backend.exception_to_python(m.get("result"))))
     if js.done and js.state == "QUEUED" and js.done < js.total:
         js.state = "RUNNING"
-    if failures:
+    running = [(n, tid) for n, tid in stages if js.stages[n] in (cstates.STARTED, cstates.RETRY)]
+    if running:
+        _heartbeats(js, running)
+    if js.done == js.total and not failures:
+        js.state, js.stage = "SUCCESS", ""
+        js.result = _meta(stages[-1][1]).get("result")
+    elif js.cancel is not None:
+        # Cancelled: done once no stage runs any more (a running one stops at its next
+        # heartbeat; one whose worker is lost will never report).
+        live = [n for n, _ in running if js.lost is None]
+        js.state = "CANCELLING" if live else "CANCELLED"
+        js.stage = live[0] if live else ""
+        js.error = f"{js.shot}: job {job_id} cancelled" + (
+            f" by {js.cancel['by']}" if js.cancel.get("by") else ""
+        )
+    elif failures:
         # A failed take also fails the chord body with a ChordError; report the cause.
         name, exc = ([f for f in failures if type(f[1]).__name__ != "ChordError"] or failures)[0]
         js.state, js.stage = "FAILURE", name
-        js.error = failure_message(exc, js.shot)
-    elif js.done == js.total:
-        js.state, js.stage = "SUCCESS", ""
-        js.result = _meta(stages[-1][1]).get("result")
+        js.error = failure_message(exc, js.shot, stage=name, work=info.get("work"))
     return js
+
+
+def _heartbeats(js: JobState, running: list[tuple[str, str]]) -> None:
+    """Reads the running stages' heartbeats: a stage whose worker stopped sending them is
+    ``lost`` (with when the broker requeues it); one requeued before says so."""
+    s = app.conf.tween
+    now = time.time()
+    for name, tid in running:
+        beat = control.read_beat(app, tid)
+        if not beat:
+            continue  # started a moment ago: no beat yet
+        js.requeued = list(beat.get("requeued") or [])
+        silent = now - float(beat.get("time") or now)
+        if not beat.get("ended") and silent > control.dead_after(s):
+            # Redis restores the message visibility_timeout after its last renewal, at the
+            # next restore sweep; other brokers redeliver when the connection drops.
+            by = float(beat["time"]) + s.visibility_timeout + s.restore_interval if s.is_redis else None
+            js.lost = {"stage": name, "worker": beat.get("worker"), "host": beat.get("host"),
+                       "pid": beat.get("pid"), "last_beat": beat.get("time"), "silent_s": round(silent, 1),
+                       "requeue_by": by}  # fmt: skip
+            js.stage = name
+            return
+
+
+def cancel(job_ids: list[str], why: str = "") -> dict[str, JobState]:
+    """Writes each unfinished job's cancel record; returns each job's state before it. A job
+    that finished (or is unknown) is left as it is."""
+    out = {}
+    for j in job_ids:
+        js = state(j)
+        if not js.finished:
+            control.request_cancel(app, j, why)
+        out[j] = js
+    return out
+
+
+def undo_cancelled(js: JobState) -> list[str]:
+    """The client's share of a cancel: once none of its stages runs, removes what the job
+    wrote (idempotent; a stage that runs later undoes it too)."""
+    rec = js.record
+    if js.state != "CANCELLED" or not rec:
+        return []
+    job = {"id": js.id, "work_dir": rec.get("work_dir"), "made_dirs": rec.get("made_dirs") or ()}
+    return cleanup.undo(js.shot, {"out_dir": rec.get("out_dir") or None}, job)
 
 
 def wait(
@@ -244,7 +339,8 @@ def wait(
                 if not states[j].finished:
                     states[j] = state(j)
                 s = states[j]
-                bar.update(bars[j], completed=s.done, stage=(s.stage or s.state).lower())
+                label = (s.stage or s.state).lower() + (": worker lost" if s.lost else "")
+                bar.update(bars[j], completed=s.done, stage=label)
             if all(s.finished for s in states.values()):
                 return [states[j] for j in job_ids]
             if alive is not None:

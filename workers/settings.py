@@ -70,6 +70,14 @@ class FarmSettings:
     restore_interval: int = 5
     fill_time_limit: int = 50
     fill_soft_time_limit: int = 40
+    # The review render's own limits (workers/limits.py): these bases plus render_frame_ms
+    # for every frame of every take, so a long shot gets the time it needs.
+    render_time_limit: int = 120
+    render_soft_time_limit: int = 100
+    render_frame_ms: int = 250
+    # How often a running stage says it is alive (and renews its Redis lease), and reads
+    # whether its job was cancelled (workers/control.py).
+    heartbeat_interval: int = 2
     train_time_limit: int = 12 * 3600
     train_visibility_timeout: int = 13 * 3600
     # Per-rig model training (`tween train-rig`, hours per clip on CPU): its own app, queue,
@@ -93,6 +101,10 @@ _INT_KEYS = (
     "restore_interval",
     "fill_time_limit",
     "fill_soft_time_limit",
+    "render_time_limit",
+    "render_soft_time_limit",
+    "render_frame_ms",
+    "heartbeat_interval",
     "train_time_limit",
     "train_visibility_timeout",
     "train_rig_time_limit",
@@ -206,6 +218,16 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         raise FarmConfigError(
             f"fill_time_limit ({s.fill_time_limit} s) must be below visibility_timeout "
             f"({s.visibility_timeout} s), or Redis hands a running task to a second worker"
+        )
+    if s.render_soft_time_limit >= s.render_time_limit:
+        raise FarmConfigError(
+            f"render_soft_time_limit ({s.render_soft_time_limit} s) must be below render_time_limit "
+            f"({s.render_time_limit} s)"
+        )
+    if s.is_redis and 3 * s.heartbeat_interval > s.visibility_timeout:
+        raise FarmConfigError(
+            f"heartbeat_interval ({s.heartbeat_interval} s) must be at most a third of visibility_timeout "
+            f"({s.visibility_timeout} s): a running stage renews its Redis lease at each heartbeat"
         )
     if s.is_redis and s.train_time_limit >= s.train_visibility_timeout:
         raise FarmConfigError("train_time_limit must be below train_visibility_timeout")

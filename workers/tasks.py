@@ -4,13 +4,20 @@ Each stage is a thin wrapper over :mod:`pipeline.fill` (looked up at call time, 
 functions serve Celery, a direct in-process run and any other farm adapter). Errors are
 sorted in one place: transient I/O and connection errors retry with back-off; anything else
 (a bad shot above all) fails the job at once with its message stored on the task.
+
+Every stage runs under :func:`workers.control.watch`: a heartbeat (and on Redis a renewed
+message lease) while it runs, and the job's cancel record read when it starts and at every
+heartbeat. A cancelled job's stage undoes the job (:func:`workers.cleanup.undo`) and fails
+with "cancelled"; so does a failed review render, and the main process of a worker whose
+stage hit its hard time limit (``FarmTask.on_failure``): a job that does not finish leaves
+nothing behind.
 """
 
 from __future__ import annotations
 
 import errno
 import os
-import shutil
+import sys
 from contextlib import contextmanager
 
 from celery import Task
@@ -20,11 +27,11 @@ from celery.signals import worker_init, worker_process_init
 from pipeline.errors import TweenError
 from pipeline.fill import api as fill
 from pipeline.fill.api import FillOptions
+from workers import cleanup, control, runtime
 from workers import paths as jobpaths
-from workers import runtime
 from workers.app import app
 from workers.errors import JobError, TransientError
-from workers.limits import soft_limit_error
+from workers.limits import render_limit_message, soft_limit_error
 
 # errnos that mean "try again later" on shared storage (NFS, SMB) or a busy host; anything
 # else, FileNotFoundError above all, is the job's own fault and is not retried.
@@ -43,9 +50,16 @@ TRANSIENT_ERRNOS = {
 }
 
 
+class JobCancelledError(JobError):
+    """The stage's job was cancelled (``tween cancel``, or its ``tween fill`` interrupted)."""
+
+
 @contextmanager
-def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] = ()):
-    """Turns exceptions into TransientError (retried) or JobError (final, JSON-safe message)."""
+def _sorted_errors(
+    shot: str, work_dir: str | None = None, made_dirs: list[str] = (), work: dict | None = None
+):
+    """Turns exceptions into TransientError (retried) or JobError (final, JSON-safe message).
+    With ``work`` ({"frames", "takes"}) a soft time limit is the review render's."""
 
     try:
         yield
@@ -56,6 +70,8 @@ def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] 
         raise JobError(str(e)) from None
     except SoftTimeLimitExceeded:
         _drop(work_dir, made_dirs)
+        if work is not None:
+            raise JobError(render_limit_message(shot, "soft", work["frames"], work["takes"])) from None
         raise soft_limit_error(shot) from None
     except OSError as e:
         if e.errno in TRANSIENT_ERRNOS or isinstance(e, ConnectionError | TimeoutError):
@@ -70,29 +86,61 @@ def _sorted_errors(shot: str, work_dir: str | None = None, made_dirs: list[str] 
 def _drop(work_dir: str | None, made_dirs: list[str] = ()) -> None:
     """Removes the job's work folder, and (``made_dirs``, on failure) the output folders that
     did not exist when the job was submitted, if nothing else is in them."""
-    if work_dir:
-        shutil.rmtree(work_dir, ignore_errors=True)
-        try:
-            os.rmdir(os.path.dirname(work_dir))  # .tween-work itself, once no other job uses it
-        except OSError:
-            pass
-    for d in made_dirs:  # deepest first
-        try:
-            os.rmdir(d)
-        except OSError:
-            break
+    cleanup.drop_work(work_dir, made_dirs)
+
+
+def _job_args(name: str, args) -> tuple[str, dict, dict] | None:
+    """(shot, opts, job) from a fill stage's arguments, by task name."""
+    args = list(args or ())
+    try:
+        if name in ("tween.validate", "tween.fill_take"):
+            return args[0], args[1], args[-1]
+        if name in ("tween.write_layer", "tween.render_review"):
+            return args[1], args[2], args[3]
+    except IndexError:
+        return None
+    return None
 
 
 class FarmTask(Task):
     """Retries transient errors with exponential back-off and jitter, nothing else."""
 
     autoretry_for = (TransientError,)
+    # The job's own errors (a bad shot, a cancel, a time limit's line) are logged as one line.
+    throws = (JobError,)
     retry_backoff = 2
     retry_jitter = True
 
     max_retries = app.conf.tween.max_retries
     # A retry is an ETA message held by a worker; keep it well inside the visibility timeout.
     retry_backoff_max = min(app.conf.tween.retry_backoff_max, max(1, app.conf.tween.visibility_timeout // 2))
+
+    def on_failure(self, exc, task_id, args, kwargs, einfo):
+        # Celery calls this in the worker's main process for a stage killed at its hard time
+        # limit (its pool process is gone: nothing ran its cleanup); the job is undone here.
+        if type(exc).__name__ != "TimeLimitExceeded":
+            return
+        found = _job_args(self.name, args)
+        if found:
+            shot, opts, job = found
+            try:
+                cleanup.undo(shot, opts, job)
+            except Exception as e:  # the failure itself is recorded; say why files stayed
+                print(f"tween worker: {shot}: job {job.get('id')} not cleaned up: {e}", file=sys.stderr)
+
+
+@contextmanager
+def _stage(task, shot: str, opts: dict, job: dict, stage: str):
+    """Runs a stage under the job's watch (heartbeat, lease, cancel); a cancelled job is
+    undone and the stage fails with its one line."""
+    try:
+        with control.watch(app, job["id"], task.request.id, stage, task.request.hostname or ""):
+            yield
+    except control.JobCancelled:
+        cleanup.undo(shot, opts, job)
+        rec = control.cancel_record(app, job["id"]) or {}
+        by = f" by {rec['by']}" if rec.get("by") else ""
+        raise JobCancelledError(f"{shot}: job {job['id']} cancelled{by}") from None
 
 
 def _opts(opts: dict):
@@ -108,7 +156,7 @@ def _check(shot: str, opts: dict, job: dict) -> None:
 def validate(self, shot: str, opts: dict, job: dict) -> dict:
     """Refuses paths outside the shot roots, then checks the shot can be filled."""
 
-    with _sorted_errors(shot):
+    with _stage(self, shot, opts, job, "validate"), _sorted_errors(shot):
         _check(shot, opts, job)
         info = fill.validate_shot(shot, _opts(opts))
     return runtime.small_json({"shot": shot, **(info or {})})
@@ -118,17 +166,24 @@ def validate(self, shot: str, opts: dict, job: dict) -> dict:
 def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
     """Fills one take; returns the path of its .npz under the job's work folder."""
 
-    with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
+    with (
+        _stage(self, shot, opts, job, f"take {take + 1}"),
+        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())),
+    ):
         _check(shot, opts, job)
         os.makedirs(job["work_dir"], exist_ok=True)
-        return str(fill.fill_take(shot, _opts(opts), take, job["work_dir"]))
+        out = str(fill.fill_take(shot, _opts(opts), take, job["work_dir"]))
+    return out
 
 
 @app.task(name="tween.write_layer", base=FarmTask, bind=True)
 def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -> dict:
     """The chord body: writes the filled layer (and review layer) from every take."""
 
-    with _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())):
+    with (
+        _stage(self, shot, opts, job, "layer"),
+        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())),
+    ):
         _check(shot, opts, job)
         out = fill.write_layers(shot, _opts(opts), list(take_files), job_id=job["id"])
     return runtime.small_json(out)
@@ -136,22 +191,38 @@ def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -
 
 @app.task(name="tween.render_review", base=FarmTask, bind=True)
 def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
-    """Drops the work folder, then renders the review of each take when asked to."""
-    # The work folder goes here and not in write_layer: if write_layer is delivered twice,
-    # its take files must still be there.
-    _drop(job["work_dir"])
-    result = dict(layer)
-    if not job.get("render"):
-        return result
-    with _sorted_errors(shot):
-        _check(shot, opts, job)
+    """Drops the work folder, then renders the review of each take when asked to. Its time
+    limits are the render's, sized by the job's frames × takes (``job["limits"]``)."""
+    with _stage(self, shot, opts, job, "review"):
+        # The work folder goes here and not in write_layer: if write_layer is delivered twice,
+        # its take files must still be there.
+        _drop(job["work_dir"])
+        result = dict(layer)
+        if not job.get("render"):
+            return result
         try:
-            from render.review import render_review as render_fn
+            result["renders"] = _render_takes(layer, shot, opts, job)
         except ImportError:
             result["renders"] = None
             result["render_note"] = "render.review is not available on this worker; review not rendered"
-            return result
-        out_dir = os.path.join(os.path.dirname(layer["review"] or layer["layer"]), "review")
+        except BaseException:
+            # A job that fails leaves no partial media (nor the version it wrote).
+            cleanup.undo(shot, opts, job)
+            raise
+    return result
+
+
+def _render_takes(layer: dict, shot: str, opts: dict, job: dict) -> list:
+    work = job.get("work") or {"frames": 1, "takes": int(layer.get("takes") or 1)}
+    with _sorted_errors(shot, work=work):
+        _check(shot, opts, job)
+        from render.review import render_review as render_fn
+
+        out_dir = cleanup.review_dir(layer)
+        # A run of this stage that died (its worker killed) left its scratch: the stage is
+        # being run again, so that run is over.
+        for p in cleanup.clean_scratch(out_dir, job["id"]):
+            print(f"tween worker: removed {p}, left by an earlier run of job {job['id']}", file=sys.stderr)
         n_takes = int(layer.get("takes") or 1)
         # One take has no variant set to select: render the stage as composed.
         takes = list(range(n_takes)) if n_takes > 1 else [None]
@@ -161,11 +232,9 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
             if t in same:
                 renders.append(dict(renders[same[t]], same_as=same[t]))
             else:
-                renders.append(
-                    runtime.small_json(render_fn(layer["review"] or layer["layer"], out_dir, take=t))
-                )
-        result["renders"] = renders
-    return result
+                out = render_fn(layer["review"] or layer["layer"], out_dir, take=t, job=job["id"])
+                renders.append(runtime.small_json(out))
+    return renders
 
 
 _WORKER_PID = None

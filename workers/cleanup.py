@@ -1,0 +1,98 @@
+"""Undoing a fill job that failed or was cancelled: nothing of it stays on disk.
+
+A job writes, in this order: take files in its work folder (``.tween-work/<job>``), its
+versioned layers (the fill layer and the review layer, ``<shot>.tween.vNNN`` /
+``<shot>.review.vNNN``, tagged with the job id), then per take its review media, rendered in
+a hidden scratch folder of the review folder (``review/.tween-review-<job>.<pid>@<host>.*.tmp``)
+and moved into place (``<shot>_vNNN_takeN.mp4``, frames, contact sheet, ``<shot>_vNNN.otio``).
+:func:`undo` removes all of it; every step is idempotent, so the worker that fails, the main
+process of a worker whose stage hit its hard time limit, and the client that cancelled may all
+run it. :func:`clean_scratch` removes a dead run's scratch of one job (the worker that takes a
+stage over runs it first).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from render.scene import shot_label
+
+SCRATCH_PREFIX = ".tween-review-"
+
+
+def drop_work(work_dir: str | None, made_dirs=()) -> None:
+    """Removes the job's work folder, and the output folders in ``made_dirs`` (the ones that
+    did not exist when the job was submitted, deepest first) if nothing else is in them."""
+    if work_dir:
+        shutil.rmtree(work_dir, ignore_errors=True)
+        try:
+            os.rmdir(os.path.dirname(work_dir))  # .tween-work itself, once no other job uses it
+        except OSError:
+            pass
+    for d in made_dirs or ():
+        try:
+            os.rmdir(d)
+        except OSError:
+            break
+
+
+def review_dir(layer: dict) -> str:
+    """The folder a job's review media go to: ``review/`` beside its review layer."""
+    return os.path.join(os.path.dirname(layer.get("review") or layer["layer"]), "review")
+
+
+def clean_scratch(folder: str | Path, job_id: str) -> list[str]:
+    """Removes the render scratch folders of ``job_id`` in ``folder`` (whoever made them)."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for e in entries:
+        if e.name.startswith(f"{SCRATCH_PREFIX}{job_id}."):
+            shutil.rmtree(e.path, ignore_errors=True)
+            removed.append(e.path)
+    return removed
+
+
+def version_media(review_layer: str, folder: str | Path) -> list[Path]:
+    """The review media of one fill version in ``folder``: the files named after the review
+    layer's label (``sh010_v003.otio``, ``sh010_v003_take1.mp4``, ``sh010_v003_take1.1001.png``…)."""
+    label = shot_label(review_layer).replace(" ", "_")
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return []
+    return [Path(folder) / n for n in names if n.startswith((f"{label}.", f"{label}_"))]
+
+
+def undo(shot: str, opts: dict, job: dict) -> list[str]:
+    """Removes everything job ``job`` wrote for ``shot``: review media and scratch, layers,
+    work folder, and the output folders it made when they are empty. Returns what it removed."""
+    from pipeline.usd import write
+
+    removed: list[str] = []
+    out_dir = Path(opts.get("out_dir") or write.default_out_dir(shot))
+    done = write.find_job(out_dir, write.shot_stem(shot), job["id"]) if out_dir.is_dir() else None
+    if done:
+        folder = review_dir(done)
+        removed += clean_scratch(folder, job["id"])
+        if done.get("review"):
+            for p in version_media(done["review"], folder):
+                p.unlink(missing_ok=True)
+                removed.append(str(p))
+        try:
+            os.rmdir(folder)  # the review folder, if this job's media were all it held
+        except OSError:
+            pass
+        for key in ("review", "layer"):  # the layer last: it is how the job's files are found
+            p = done.get(key)
+            if p and os.path.isfile(p):
+                os.unlink(p)
+                removed.append(p)
+    else:  # no layers: a scratch may still be there if the layers went first
+        removed += clean_scratch(out_dir / "review", job["id"])
+    drop_work(job.get("work_dir"), job.get("made_dirs", ()))
+    return removed
