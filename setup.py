@@ -39,7 +39,10 @@ setup(
         # torch is pinned: these machines install exactly this CPU build from local disk;
         # any other request pulls a multi-GB CUDA build.
         "train": ["torch==2.13.0", "roma>=1.5", "onnx>=1.16", "onnxscript>=0.2"],
-        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3", "threadpoolctl>=3", "hypothesis>=6", "httpx>=0.27", "playwright>=1.40"],
+        # Signed farm messages (Celery's auth serializer; docs/farm.md, "Securing the farm").
+        "secure": ["celery[auth]>=5.4"],
+        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3", "threadpoolctl>=3", "hypothesis>=6", "httpx>=0.27", "playwright>=1.40",
+                "cryptography>=42"],
     },
     entry_points={
         "console_scripts": ["tween=pipeline.cli:main"],

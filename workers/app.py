@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from celery import Celery
 
 import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
+from workers import security
 from workers.errors import FarmConnectionError
 from workers.settings import FarmConfigError, FarmSettings, load_settings, redact_url, url_passwords
 
@@ -99,6 +100,8 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = 
         # The SQLite broker has no broadcast; remote control only makes sense on a real farm.
         worker_enable_remote_control=not s.embedded,
     )
+    # TLS to the broker and backend, signed task messages: workers/security.py.
+    security.apply(app, s)
     app.conf.tween = s
     return app
 

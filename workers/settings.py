@@ -12,12 +12,13 @@ import difflib
 import os
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from urllib.parse import unquote
 
 from pipeline.data.cache import cache_root
 from pipeline.errors import TweenError
+from workers import security
 
 
 class FarmConfigError(TweenError):
@@ -25,7 +26,7 @@ class FarmConfigError(TweenError):
 
 
 _USERINFO = re.compile(r"(?P<head>[A-Za-z][A-Za-z0-9+.-]*://[^:/@;?#]*):(?P<pw>[^@/;?#]*)@")
-_QUERY_PW = re.compile(r"(?P<head>[?&](?:password|passwd|sentinel_kwargs_password)=)(?P<pw>[^&;#]*)", re.I)
+_QUERY_PW = re.compile(r"(?P<head>[?&](?:\w*password|passwd)=)(?P<pw>[^&;#]*)", re.I)
 
 
 def redact_url(url: str) -> str:
@@ -89,7 +90,22 @@ class FarmSettings:
     library: str = ""
     max_retries: int = 4
     retry_backoff_max: int = 30
+    # A secured farm (workers/security.py): the CA that verifies the broker's and backend's
+    # TLS certificates, and the key, certificate and trusted certificates of signed jobs.
+    tls_ca_file: str = ""
+    security_key: str = ""
+    security_certificate: str = ""
+    security_cert_store: str = ""
+    security_digest: str = "sha256"
     extra: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:  # the URLs may hold passwords: never in a log or a traceback
+        vals = {f.name: getattr(self, f.name) for f in fields(self)}
+        vals["broker_url"], vals["result_backend"] = (
+            redact_url(self.broker_url),
+            redact_url(self.result_backend),
+        )
+        return "FarmSettings(" + ", ".join(f"{k}={v!r}" for k, v in vals.items()) + ")"
 
     @property
     def is_redis(self) -> bool:
@@ -120,6 +136,11 @@ _STR_KEYS = (
     "train_rig_queue",
     "key_prefix",
     "library",
+    "tls_ca_file",
+    "security_key",
+    "security_certificate",
+    "security_cert_store",
+    "security_digest",
 )
 
 
@@ -169,12 +190,20 @@ def load_settings(env: dict | None = None) -> FarmSettings:
     env = os.environ if env is None else env
     data = _read_file(config_file(env), named=bool(env.get("TWEEN_FARM_CONFIG")))
     vals: dict = {}
+    origin: dict[str, str] = {}  # where each setting came from, for the error lines
     for key in _STR_KEYS + _INT_KEYS:
         raw = env.get(f"TWEEN_{key.upper()}")
+        origin[key] = f"TWEEN_{key.upper()}"
         if raw is None or raw == "":
             raw = data.get(key)
+            origin[key] = f"{config_file(env)}: {key}"
         if raw is None:
             continue
+        if key in security.PATH_KEYS and raw:
+            from_file = not origin[key].startswith("TWEEN_")
+            raw = security.resolve_path(
+                raw, os.path.dirname(os.path.abspath(config_file(env))) if from_file else None
+            )
         if key in _INT_KEYS:
             where = (
                 f"TWEEN_{key.upper()}" if env.get(f"TWEEN_{key.upper()}") else f"{config_file(env)}: {key}"
@@ -238,4 +267,8 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         )
     if len({s.queue, s.train_queue, s.train_rig_queue}) < 3:
         raise FarmConfigError("queue, train_queue and train_rig_queue must be three different queues")
+    try:
+        security.check(s, origin)
+    except security.FarmConfigError as e:
+        raise FarmConfigError(str(e)) from None
     return s
