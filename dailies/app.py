@@ -40,8 +40,10 @@ def _with_urls(roots: list[Path], d: dict) -> dict:
     return d
 
 
-def create_app(roots: list[Path], login: Login) -> FastAPI:
-    """The app for shots under ``roots`` (absolute folders), answering only with ``login``."""
+def create_app(roots: list[Path], login: Login, tracker=None, mapping: dict | None = None) -> FastAPI:
+    """The app for shots under ``roots`` (absolute folders), answering only with ``login``;
+    with ``tracker`` (:class:`dailies.tracker.Tracker`) approved takes can be sent to it,
+    its shots named through ``mapping`` (:func:`dailies.tracker.names`)."""
     roots = [Path(r) for r in roots]
     app = FastAPI(title="usd-tween dailies", openapi_url="/api/openapi.json", docs_url=None, redoc_url=None)
     templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -61,7 +63,11 @@ def create_app(roots: list[Path], login: Login) -> FastAPI:
 
     @app.get("/shot/{key:path}", response_class=HTMLResponse, include_in_schema=False)
     def shot_page(request: Request, key: str):
-        return templates.TemplateResponse(request, "shot.html", {"shot": _shot(key), "csrf": login.csrf})
+        return templates.TemplateResponse(
+            request,
+            "shot.html",
+            {"shot": _shot(key), "csrf": login.csrf, "tracker": tracker and tracker.name},
+        )
 
     @app.get("/media/{index}/{rel:path}", include_in_schema=False)
     def media_file(index: int, rel: str):
@@ -90,6 +96,17 @@ def create_app(roots: list[Path], login: Login) -> FastAPI:
     def api_publish(key: str, body: Publication = Body(...)) -> dict:
         try:
             return decide.publish(roots, key, body.version)
+        except LookupError:
+            raise HTTPException(404, f"{key}: no such shot under the roots") from None
+        except decide.Refused as e:
+            raise HTTPException(409, str(e)) from None
+
+    @app.post("/api/shots/{key:path}/tracker", summary="Send the approved take's MP4 and note to the tracker")
+    def api_tracker(key: str, body: Publication = Body(...)) -> dict:
+        if tracker is None:
+            raise HTTPException(409, "no tracker configured (tween dailies --tracker kitsu)")
+        try:
+            return decide.send(roots, key, body.version, tracker, mapping)
         except LookupError:
             raise HTTPException(404, f"{key}: no such shot under the roots") from None
         except decide.Refused as e:

@@ -96,6 +96,14 @@ def dailies(
     token: str = typer.Option(
         None, "--token", envvar="TWEEN_DAILIES_TOKEN", help="Login token (default: a new one, in the URL)."
     ),
+    tracker: str = typer.Option(
+        None,
+        "--tracker",
+        help="Send approved takes to this tracker from the page: kitsu (TWEEN_KITSU_* settings).",
+    ),
+    tracker_map: Path = typer.Option(
+        None, "--tracker-map", help="JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT file names)."
+    ),
 ):
     """Serve the dailies review page: takes side by side in sync, approve and publish."""
     # Everything checked before anything heavy is imported or the port is taken.
@@ -103,6 +111,12 @@ def dailies(
     check_tls(certfile, keyfile)
     if token is not None and len(token) < 16:
         raise TweenError("--token: at least 16 characters (it is the only login)")
+    from dailies.tracker import make, read_mapping
+
+    if tracker_map is not None and tracker is None:
+        raise TweenError("--tracker-map: give --tracker too")
+    mapping = read_mapping(tracker_map)
+    sink = make(tracker) if tracker else None  # its settings checked now, not at the first click
     import uvicorn
 
     from dailies.app import create_app
@@ -122,7 +136,7 @@ def dailies(
     # Every layer's metadata read once now, so that the first page is as quick as the next.
     threading.Thread(target=_warm, args=(roots,), daemon=True).start()
     config = uvicorn.Config(
-        create_app(roots, login), log_level="warning", access_log=False,
+        create_app(roots, login, sink, mapping), log_level="warning", access_log=False,
         ssl_certfile=str(certfile) if tls else None, ssl_keyfile=str(keyfile) if tls else None,
     )  # fmt: skip
     uvicorn.Server(config).run(sockets=[sock])

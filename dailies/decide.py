@@ -12,11 +12,14 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+from dailies import tracker as trackers
 from dailies.shots import Shot, find, shot_file
 from pipeline.errors import TweenError
 from pipeline.usd import dailies
 
 _lock = threading.Lock()
+#: Approval layers this server sent to a tracker (an upload is a comment: never twice).
+_sent: dict[str, dict] = {}
 
 
 class Refused(TweenError):
@@ -63,3 +66,19 @@ def publish(roots: list[Path], key: str, version: int | None) -> dict:
             return dailies.publish(shot_path, out_dir=str(shot.folder))
         except TweenError as e:
             raise Refused(str(e)) from None
+
+
+def send(roots: list[Path], key: str, version: int | None, tracker, mapping: dict | None = None) -> dict:
+    """Sends the approved take of the shot's latest fill (``version``) to ``tracker``, once."""
+    with _lock:
+        shot, _ = _current(roots, key, version)
+        done = _sent.get(str(shot.latest[1]))
+        if done:
+            raise Refused(f"{shot.stem}: v{shot.latest[0]:03d} was already sent to {done['tracker']} "
+                          f"({done['sequence']}/{done['shot']})")  # fmt: skip
+        try:
+            out = trackers.send(roots, key, tracker, mapping)
+        except trackers.TrackerError as e:
+            raise Refused(str(e)) from None
+        _sent[str(shot.latest[1])] = out
+        return out

@@ -148,6 +148,18 @@
     }
   });
 
+  const trackerButton = document.querySelector('[data-action="tracker"]');
+  if (trackerButton) trackerButton.addEventListener("click", async () => {
+    trackerButton.disabled = true; // one upload per click
+    try {
+      const r = await post("tracker", { version: data.version });
+      say(`sent take ${r.take} to ${r.tracker}: ${r.sequence}/${r.shot}, status ${r.status}`, true);
+    } catch (e) {
+      say(e.message, false);
+      trackerButton.disabled = false;
+    }
+  });
+
   document.addEventListener("keydown", (e) => {
     if (e.target.closest("textarea, input[type=text], dialog[open]") || e.ctrlKey || e.metaKey || e.altKey) return;
     if (e.key === " ") { e.preventDefault(); playing() ? pause() : play(); }

@@ -42,14 +42,14 @@ def roots(rendered_source, tmp_path) -> list[Path]:
     return [root]
 
 
-def client_for(roots, token: str = TOKEN, login: bool = True):
+def client_for(roots, token: str = TOKEN, login: bool = True, tracker=None, mapping=None):
     from fastapi.testclient import TestClient
 
     from dailies.app import create_app
     from dailies.auth import Login
 
     auth = Login(token)
-    c = TestClient(create_app(roots, auth))
+    c = TestClient(create_app(roots, auth, tracker, mapping))
     c.login = auth
     if login:
         assert c.get(f"/?token={token}").status_code == 200
