@@ -118,6 +118,7 @@ def creds(tmp_path_factory):
         {
             f"BROKER={SITE_HOST}": "BROKER=localhost",
             "subjectAltName=DNS:$BROKER": "subjectAltName=DNS:$BROKER,IP:127.0.0.1",
+            "rsa:3072": "rsa:2048",  # test keys: quicker to make on busy cores, same commands
         },
     )
     for f in (
@@ -193,7 +194,7 @@ def _base_env() -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def farm(creds, tls_redis, tmp_path_factory):
+def farm(creds, tls_redis, rabbit_boot, tmp_path_factory):
     """The doc's farm settings file, and a real ``tween worker`` started from it."""
     root = tmp_path_factory.mktemp("shows")
     logs = tmp_path_factory.mktemp("seclogs")
@@ -409,6 +410,10 @@ def test_configure_applies_tls_and_signing(creds):
         configure(app, load_settings(_senv(broker_url="redis://h/0")))
         assert c.task_serializer == "json" and c.accept_content == ["json"]
         assert c.broker_use_ssl is None and c.redis_backend_use_ssl is None and c.security_key is None
+        # The embedded farm signs too when the keys are set (its worker reads the same settings).
+        embedded = {k: v for k, v in signing.items() if k != "tls_ca_file"}
+        configure(app, s := load_settings({**_senv(**embedded), "TWEEN_CACHE": str(creds.dir / "cache")}))
+        assert s.embedded and c.task_serializer == "auth" and c.broker_use_ssl is None
         # TLS without a CA file: the system's CAs, still verified.
         configure(app, load_settings(_senv(broker_url="rediss://:pw@h:6380/0")))
         assert c.broker_use_ssl == {"ssl_cert_reqs": ssl.CERT_REQUIRED}
@@ -606,15 +611,14 @@ def _amqp_up(port: int) -> bool:
         return False
 
 
-@pytest.fixture
-def rabbit_tls(creds):
+@pytest.fixture(scope="module")
+def rabbit_boot(creds):
     """A private RabbitMQ node (its own name, ports and data) with the doc's TLS listener
-    config, and the doc's `rabbitmqctl` commands run against it."""
+    config, started early (the ``farm`` fixture asks for it) so that its boot overlaps the
+    Redis tests; ``wait()`` waits for it and runs the doc's ``rabbitmqctl`` commands."""
     exe = shutil.which("rabbitmq-server")
-    assert exe, "rabbitmq-server is not installed (apt-get install rabbitmq-server)"
-    d = Path(
-        tempfile.mkdtemp(prefix="tween-rmq-")
-    )  # the node runs as the rabbitmq user: not under pytest's 0700 tmp
+    # The node runs as the rabbitmq user: its files are not under pytest's 0700 tmp folder.
+    d = Path(tempfile.mkdtemp(prefix="tween-rmq-"))
     d.chmod(0o755)
     for f in ("ca.pem", "broker.pem", "broker.key"):
         shutil.copy(creds.dir / f, d / f)
@@ -632,35 +636,47 @@ def rabbit_tls(creds):
     for sub in ("mnesia", "log"):
         (d / sub).mkdir()
         (d / sub).chmod(0o777)
-    node = f"tween-tls-{port}@localhost"
-    env = {**os.environ, "RABBITMQ_NODENAME": node, "RABBITMQ_NODE_PORT": str(_free_port()),
+    env = {**os.environ, "RABBITMQ_NODENAME": f"tween-tls-{port}@localhost", "RABBITMQ_NODE_PORT": str(_free_port()),
            "RABBITMQ_DIST_PORT": str(dist), "RABBITMQ_CONFIG_FILE": str(d / "rabbitmq.conf"),
            "RABBITMQ_MNESIA_BASE": str(d / "mnesia"), "RABBITMQ_LOG_BASE": str(d / "log"),
            "RABBITMQ_ENABLED_PLUGINS_FILE": str(d / "enabled_plugins"), "RABBITMQ_PID_FILE": str(d / "pid")}  # fmt: skip
     t0 = time.monotonic()
     out = open(d / "server.out", "wb")
-    proc = subprocess.Popen([exe], env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    proc = None
+    if exe:
+        proc = subprocess.Popen([exe], env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    state = {"ready": False}
+
+    def wait() -> int:
+        assert proc is not None, "rabbitmq-server is not installed (apt-get install rabbitmq-server)"
+        if not state["ready"]:
+            while not _amqp_up(port):
+                assert proc.poll() is None, (d / "server.out").read_text()[-2000:]
+                assert time.monotonic() - t0 < 90, "the private RabbitMQ node did not open its TLS port"
+                time.sleep(0.3)
+            (users,) = [b for b in _blocks() if b.startswith("rabbitmqctl add_user")]
+            _run_doc_block(users, creds.dir, {}, env=env)
+            state["ready"] = True
+            print(
+                f"private RabbitMQ node with TLS and its user, {time.monotonic() - t0:.1f} s after its start"
+            )
+        return port
+
     try:
-        while not _amqp_up(port):
-            assert proc.poll() is None, (d / "server.out").read_text()[-2000:]
-            assert time.monotonic() - t0 < 60, "the private RabbitMQ node did not open its TLS port"
-            time.sleep(0.3)
-        (users,) = [b for b in _blocks() if b.startswith("rabbitmqctl add_user")]
-        _run_doc_block(users, creds.dir, {}, env=env)
-        print(f"private RabbitMQ node with TLS and its user: {time.monotonic() - t0:.1f} s")
-        yield SimpleNamespace(port=port, node=node)
+        yield SimpleNamespace(wait=wait)
     finally:
-        subprocess.run(["rabbitmqctl", "stop"], env=env, capture_output=True, timeout=60)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, 9)
-            proc.wait()
+        if proc is not None:
+            subprocess.run(["rabbitmqctl", "stop"], env=env, capture_output=True, timeout=60)
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, 9)
+                proc.wait()
         out.close()
         shutil.rmtree(d, ignore_errors=True)
 
 
-def test_amqps_farm_with_a_user(farm, rabbit_tls, tmp_path):
+def test_amqps_farm_with_a_user(farm, rabbit_boot, tmp_path):
     """The doc's RabbitMQ set-up: amqps:// with the farm's user, the TLS Redis as the result
     backend, signed jobs; guest and a wrong password are refused."""
     from celery import Celery
@@ -669,7 +685,7 @@ def test_amqps_farm_with_a_user(farm, rabbit_tls, tmp_path):
     from workers.errors import FarmConnectionError
     from workers.settings import load_settings
 
-    pw, port = farm.creds.password, rabbit_tls.port
+    pw, port = farm.creds.password, rabbit_boot.wait()
     amqps = f"amqps://tween:{pw}@localhost:{port}//"
     env = {**farm.env, "TWEEN_BROKER_URL": amqps, "TWEEN_QUEUE": "tween.fill.amqps",
            "TWEEN_RESULT_BACKEND": f"rediss://:{pw}@localhost:{farm.redis.port}/0"}  # fmt: skip
