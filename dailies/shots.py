@@ -99,7 +99,9 @@ def find(roots: list[Path], key: str) -> Shot | None:
     if not stem or ".." in rest.split("/") or stem.startswith("."):
         return None
     path = root / folder if folder else root
-    if not path.is_dir():
+    real = Path(os.path.realpath(path))
+    # A linked folder leading out of the roots is not a shot of theirs (the scan never follows one).
+    if not path.is_dir() or not any(real.is_relative_to(os.path.realpath(r)) for r in roots):
         return None
     versions = {}
     for p in path.glob(f"{stem}.tween.v*.usd*"):

@@ -75,3 +75,16 @@ def test_the_api_has_its_openapi_schema(client):
     )
     assert "take" in json.dumps(schema["components"]["schemas"]["Approval"])
     assert not any(p.startswith(("/media", "/shot")) for p in paths)
+
+
+def test_a_linked_folder_out_of_the_roots_is_no_shot(client, roots, tmp_path):
+    import os
+
+    outside = tmp_path / "elsewhere"
+    filled_shot(outside, "sh050", takes=1, render=False)
+    os.symlink(outside, roots[0] / "linked")
+    assert "sh050" not in client.get("/").text  # the scan does not follow it
+    assert client.get("/api/shots/0/linked/sh050").status_code == 404  # nor does a key
+    r = client.post("/api/shots/0/linked/sh050/approve", json={"take": 0},
+                    headers={"X-CSRF-Token": client.login.csrf})  # fmt: skip
+    assert r.status_code == 404 and not list(outside.glob("sh050.tween.v002*"))
