@@ -155,6 +155,11 @@ def _check_url(where: str, url: str, ca_file: str) -> None:
             f"{where}: ssl_cert_reqs={reqs} does not check the server's certificate; leave it out "
             "and name the CA that signed it in tls_ca_file"
         )
+    if query.get("ssl_check_hostname", "").lower() == "false":
+        raise FarmConfigError(
+            f"{where}: ssl_check_hostname=false accepts any certificate the CA signed, for any host; "
+            "give the broker a certificate with its name (subjectAltName)"
+        )
     if "ssl_ca_certs" in query and ca_file:
         raise FarmConfigError(
             f"{where}: the URL's ssl_ca_certs and tls_ca_file both name a CA; keep one (tls_ca_file)"

@@ -140,7 +140,7 @@ def creds(tmp_path_factory):
     return SimpleNamespace(dir=d, password=(d / "broker.password").read_text().strip())
 
 
-def _tls_ping(url: str) -> bool:
+def _ping(url: str) -> bool:
     try:
         return bool(redis.Redis.from_url(url, socket_connect_timeout=1, socket_timeout=2).ping())
     except (redis.RedisError, OSError):
@@ -168,7 +168,7 @@ def tls_redis(creds, tmp_path_factory):
     proc = subprocess.Popen(cmd.split(), cwd=d, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     url = f"rediss://:{creds.password}@localhost:{port}/0?ssl_ca_certs={creds.dir}/ca.pem"
     for _ in range(100):
-        if _tls_ping(url):
+        if _ping(url):
             break
         if proc.poll() is not None:
             pytest.fail(
@@ -347,6 +347,8 @@ def test_security_settings_are_checked_in_one_line(creds, tmp_path):
          r"^TWEEN_BROKER_URL: ssl_cert_reqs=none does not check the server's certificate"),
         (dict(broker_url=rediss, result_backend=rediss + "?ssl_cert_reqs=CERT_OPTIONAL"),
          r"^TWEEN_RESULT_BACKEND: ssl_cert_reqs=CERT_OPTIONAL does not check"),
+        (dict(broker_url=rediss + "?ssl_check_hostname=false"),
+         r"^TWEEN_BROKER_URL: ssl_check_hostname=false accepts any certificate"),
         (dict(broker_url=rediss + f"?ssl_ca_certs={d}/ca.pem", tls_ca_file=d / "ca.pem"),
          r"^TWEEN_BROKER_URL: the URL's ssl_ca_certs and tls_ca_file both name a CA"),
         (dict(broker_url=rediss + "?ssl_cert_reqs=required&ssl_ca_certs=/nope/ca.pem"),
@@ -496,23 +498,23 @@ def test_unsigned_foreign_forged_and_tampered_jobs_are_refused(farm):
         (["submit", str(shots["forged"])], forged),
         (["submit", str(shots["unsigned"])], unsigned),
         (["submit", str(shots["tampered"])], {**farm.env, "TWEEN_QUEUE": side}),
+        (["submit", str(shots["good"])], farm.env),
     ])  # fmt: skip
     for x in res:
         assert x.returncode == 0, x.stderr
-    ids = dict(
-        zip(("intruder", "forged", "unsigned", "tampered"), (x.stdout.strip() for x in res), strict=True)
-    )
+    names = ("intruder", "forged", "unsigned", "tampered", "good")
+    ids = dict(zip(names, (x.stdout.strip() for x in res), strict=True))
+    good = ids.pop("good")
     # The captured job, made to fill another shot, put on the workers' queue.
     side_key = next(k for k in _queue_keys(r) if k.endswith(side))
     raw = r.rpop(side_key)
     assert r.llen(side_key) == 0
     fill_key = side_key[: -len(side)] + "tween.fill"
     r.lpush(fill_key, _tamper(raw, str(shots["tampered"]), str(shots["redirected"])))
-    good = _tween("submit", str(shots["good"]), env=farm.env)
-    assert good.returncode == 0, good.stderr
     app = _results_app(farm)
-    _wait_success(app, good.stdout.strip(), 1, timeout=60)
-    # FIFO, one process: every message before the good job has been taken and dropped.
+    _wait_success(app, good, 1, timeout=60)  # the worker goes on working between refusals
+    while farm.worker.log_text().count("Can't decode message body") < 3 and time.monotonic() - t0 < 90:
+        time.sleep(0.2)
     log = farm.worker.log_text()
     unsigned_lines = [ln for ln in log.splitlines() if "Received invalid task message" in ln]
     assert (
@@ -536,8 +538,71 @@ def test_unsigned_foreign_forged_and_tampered_jobs_are_refused(farm):
         assert set(st.values()) == {"PENDING"}, (name, st)  # no stage ever started
     status = _tween("status", ids["intruder"], env=farm.env)
     assert status.returncode == 0 and "queued" in status.stdout.lower() and "success" not in status.stdout
-    farm.outputs += [*res, good, status]
+    farm.outputs += [*res, status]
     print(f"four refused jobs and a good one: {time.monotonic() - t0:.1f} s")
+
+
+def _outgoing_ip() -> str:
+    """This host's address on its network (not loopback): what another host would reach."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.connect(("192.0.2.1", 9))  # no packet is sent: only picks the interface
+        ip = s.getsockname()[0]
+    assert not ip.startswith("127."), "this host has no network address to test from"
+    return ip
+
+
+def test_plain_broker_line_of_the_doc_answers_other_hosts(tmp_path):
+    """docs/farm.md "Running a farm" starts a password-less Redis for a closed network: it must
+    answer a client that comes from another address (Redis 7's protected mode refuses such
+    clients unless told not to: the doc's line once lacked --protected-mode no)."""
+    text = DOC.read_text()
+    block = text[text.index("\n## Running a farm\n") :]
+    block = re.search(r"```bash\n(.*?)```", block, re.S)[1]
+    (line,) = [ln.split("#")[0].strip() for ln in block.splitlines() if ln.startswith("redis-server ")]
+    port, ip = _free_port(), _outgoing_ip()
+    for flags, answers in (
+        (line.split()[1:], True),
+        ([f for f in line.split()[1:] if f not in ("--protected-mode", "no")], False),
+    ):
+        proc = subprocess.Popen([shutil.which("redis-server"), *flags, "--port", str(port), "--save", ""], cwd=tmp_path,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        try:
+            for _ in range(100):
+                if _ping(f"redis://127.0.0.1:{port}/0"):
+                    break
+                time.sleep(0.05)
+            client = redis.Redis(host=ip, port=port, socket_timeout=2)
+            if answers:
+                assert client.ping()
+            else:
+                with pytest.raises(redis.RedisError, match="DENIED"):
+                    client.ping()
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+def test_unsigned_remote_control_is_ignored(farm):
+    """Remote control (ping, shutdown, …) uses the task serializer: a worker answers a signed
+    ping and ignores unsigned commands, shutdown included."""
+    from celery import Celery
+
+    from workers.app import configure
+    from workers.settings import load_settings
+
+    d = farm.creds.dir
+    plain = load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_TLS_CA_FILE": str(d / "ca.pem"),
+                           "TWEEN_BROKER_URL": f"rediss://:{farm.creds.password}@localhost:{farm.redis.port}/0"})  # fmt: skip
+    app = configure(Celery("tween-secure-unsigned-control"), plain)
+    assert app.control.ping(timeout=1.5) == []  # unsigned: no answer
+    app.control.broadcast("shutdown")
+    code = "from workers.app import app; print(len(app.control.ping(timeout=5, limit=1)))"
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=farm.env, capture_output=True, text=True,
+                         timeout=60)  # fmt: skip
+    assert res.returncode == 0 and res.stdout.split()[-1] == "1", res.stderr[
+        -2000:
+    ]  # signed: the worker answers
+    assert farm.worker.proc.poll() is None  # still running after the unsigned shutdown
 
 
 def test_unauthenticated_clients_cannot_enqueue(farm, tmp_path):
