@@ -302,6 +302,7 @@ def register(app: typer.Typer) -> None:
                     intr.armed = False
                     ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
                     code = _run_jobs(ids, intr, progress, alive=w.alive)
+                    w.cold = code == EXIT_CANCELLED
             except _Interrupted:
                 code = EXIT_CANCELLED
         raise typer.Exit(code)
@@ -484,8 +485,8 @@ def register(app: typer.Typer) -> None:
             argv += ["-n", hostname]
         if logfile:
             argv += ["--logfile", str(logfile)]
-        for mod in include:
-            argv += ["-I", mod]
+        if include:  # Celery keeps the last -I only: every module in one comma-separated list
+            argv += ["-I", ",".join(include)]
         print(f"tween worker: {redact_url(s.broker_url)} queue {q}, {n} processes", file=sys.stderr)
         celery_app.worker_main(argv)
 

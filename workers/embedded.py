@@ -30,6 +30,7 @@ class EmbeddedWorker:
         self.extra_args = list(extra_args or [])
         self.log = cache_dir() / "farm" / "logs" / f"{self.queue}.log"
         self.proc: subprocess.Popen | None = None
+        self.cold = False  # set once its jobs were cancelled and have stopped
 
     def __enter__(self) -> EmbeddedWorker:
         self.log.parent.mkdir(parents=True, exist_ok=True)
@@ -102,6 +103,10 @@ class EmbeddedWorker:
         if self.proc is None or self.proc.poll() is not None:
             return
         try:
+            if self.cold:  # its jobs were cancelled and have stopped: nothing is left to finish
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+                return
             # Warm shutdown of the main process (it stops its pool); nothing is running now.
             self.proc.send_signal(signal.SIGTERM)
             self.proc.wait(timeout=20)

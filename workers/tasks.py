@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import errno
 import os
+import socket
 import sys
+import threading
+import time
 from contextlib import contextmanager
 
 from celery import Task
@@ -122,11 +125,24 @@ class FarmTask(Task):
             return
         found = _job_args(self.name, args)
         if found:
-            shot, opts, job = found
-            try:
-                cleanup.undo(shot, opts, job)
-            except Exception as e:  # the failure itself is recorded; say why files stayed
-                print(f"tween worker: {shot}: job {job.get('id')} not cleaned up: {e}", file=sys.stderr)
+            # The killed process may write for a moment more (billiard kills it after a grace
+            # period): the job is undone once it is gone, on a thread of this main process.
+            beat = control.read_beat(app, task_id) or {}
+            pid = beat.get("pid") if beat.get("host") == socket.gethostname() else None
+            threading.Thread(target=_undo_after, args=(pid, *found), daemon=True).start()
+
+
+def _undo_after(pid: int | None, shot: str, opts: dict, job: dict, wait_s: float = 30.0) -> None:
+    """Undoes ``job`` once process ``pid`` (the stage's, killed) has died."""
+    from pipeline.usd.write import pid_alive
+
+    deadline = time.monotonic() + wait_s
+    while pid and pid_alive(int(pid)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    try:
+        cleanup.undo(shot, opts, job)
+    except Exception as e:  # the failure itself is recorded; say why files stayed
+        print(f"tween worker: {shot}: job {job.get('id')} not cleaned up: {e}", file=sys.stderr)
 
 
 @contextmanager

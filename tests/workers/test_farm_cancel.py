@@ -1,0 +1,229 @@
+"""Cancel means cancel: Ctrl-C (SIGINT) or SIGTERM on `tween fill`, and `tween cancel JOB`,
+stop the job on the farm that runs it, at whatever point it is; exit status 130; no version
+appears, then or later (a worker started after the cancel does not run it), and nothing is
+left in the shot's, work or review folders. On the embedded farm and on Redis with a real
+worker; the fill and the render are slowed (tests/farm_slowfill.py, farm_slowrender.py) so
+that the signal lands in the stage named."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from types import SimpleNamespace
+
+import pytest
+from embedded_farm import embedded_env, worker_log
+from redis_server import REPO, WorkerPool, copy_shot, example_shot, farm_env, leftovers, start_redis
+
+SLOW = dict(TWEEN_TEST_FILL_DELAY=3, TWEEN_TEST_FRAME_DELAY=0.2)
+
+
+def _wait_for(path_glob, folder, timeout=90, proc=None):
+    t0 = time.monotonic()
+    while not list(folder.glob(path_glob)):
+        if proc is not None and proc.poll() is not None:
+            raise AssertionError(f"exited early ({proc.returncode}): {proc.stderr.read()[-3000:]}")
+        assert time.monotonic() - t0 < timeout, f"no {path_glob} in {folder} after {timeout} s"
+        time.sleep(0.05)
+
+
+def _only_the_shot(folder, name):
+    """Nothing but the shot: no version, no review folder or scratch, no .tween-work."""
+    assert sorted(p.name for p in folder.iterdir()) == [name], sorted(str(p) for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize(
+    "point, sig, marker",
+    [("take", signal.SIGINT, "*.take0"), ("render", signal.SIGTERM, "*.render")],
+)
+def test_interrupted_embedded_fill_cancels_its_job(tmp_path, point, sig, marker):
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    env = embedded_env(
+        tmp_path, slow=("farm_slowfill", "farm_slowrender"), TWEEN_TEST_MARKERS=markers, **SLOW
+    )
+    shots = tmp_path / "shots"
+    shot = copy_shot(example_shot(), shots, "cancel")
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "fill",
+        str(shot),
+        "--takes",
+        "2",
+        "--render",
+        "--no-progress",
+    ]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for(marker, markers, proc=proc)
+        time.sleep(0.5)
+        if point == "render":  # its scratch holds frames now
+            assert list((shots / "review").glob(".tween-review-*/*.png"))
+        t_sig = time.monotonic()
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    took = time.monotonic() - t_sig
+    assert proc.returncode == 130, err[-3000:]
+    print(f"\n{point}: {signal.Signals(sig).name} to exit {took:.1f} s")
+    assert out == ""
+    assert "tween: interrupted: cancelling 1 job(s)" in err and "cancelled by" in err
+    assert "nothing of it kept" in err
+    _only_the_shot(shots, "cancel.usda")
+    log = worker_log(tmp_path)
+    stage = "take0" if point == "take" else "review"
+    assert f"{stage}] raised expected: JobCancelledError" in log or f"{stage}] raised" in log, log[-3000:]
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in _worker_pids(tmp_path))  # stopped with it
+
+
+def _worker_pids(tmp_path) -> list[int]:
+    """Pids of this run's processes still there (the embedded worker and its pool): any
+    process whose environment names the run's cache folder."""
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/environ", "rb") as f:
+                    if str(tmp_path / "cache").encode() in f.read():
+                        out.append(int(d))
+            except OSError:
+                continue
+    return out
+
+
+# --- Redis, real workers ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def farm(tmp_path_factory):
+    server = start_redis()
+    root = tmp_path_factory.mktemp("shots")
+    logs = tmp_path_factory.mktemp("logs")
+    markers = tmp_path_factory.mktemp("markers")
+    env = farm_env(server, [str(root)], TWEEN_VISIBILITY_TIMEOUT=16, TWEEN_RESTORE_INTERVAL=2,
+                   TWEEN_FILL_TIME_LIMIT=14, TWEEN_FILL_SOFT_TIME_LIMIT=12, TWEEN_HEARTBEAT_INTERVAL=1)  # fmt: skip
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
+    from workers.app import app, configure
+    from workers.settings import load_settings
+
+    old = app.conf.tween
+    configure(app, load_settings({**os.environ, **env}))
+    pool = WorkerPool(env, logs)
+    try:
+        yield SimpleNamespace(server=server, root=root, env=env, pool=pool, markers=markers, app=app)
+    finally:
+        pool.stop_all()
+        configure(app, old)
+        server.cleanup()
+
+
+def _cli(*args):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app as cli
+
+    return CliRunner().invoke(cli, list(args))
+
+
+def _worker(farm):
+    """The module's worker (slowed fill and render), started on first use."""
+    if not farm.pool.workers:
+        farm.pool.start(concurrency=1, include=["farm_slowfill", "farm_slowrender"],
+                        TWEEN_TEST_MARKERS=farm.markers, **SLOW)  # fmt: skip
+        farm.pool.wait_ready()
+    return farm.pool.workers[0]
+
+
+def test_cancelled_before_any_worker_runs_on_no_worker_started_later(farm):
+    from workers import jobs
+
+    assert not farm.pool.workers  # the farm has no worker yet: the job waits in the queue
+    folder = farm.root / "queued"
+    shot = copy_shot(example_shot(), folder, "queued")
+    (job,) = jobs.submit([str(shot)], jobs.make_opts(takes=2, out_dir=str(folder / "out")), render=True)
+    res = _cli("cancel", job)
+    assert res.exit_code == 0 and res.stdout == f"{job} {shot}: cancelled\n", res.output
+    res = _cli("status", job)
+    assert res.exit_code == 2 and f"{job} {shot}: cancelled by " in res.stdout
+    w = _worker(farm)  # started after the cancel: it gets the job's first stage and drops it
+    t0 = time.monotonic()
+    while f"{job}.validate] raised" not in w.log_text():
+        assert time.monotonic() - t0 < 30, w.log_text()[-2000:]
+        time.sleep(0.1)
+    time.sleep(1.0)
+    assert f"{job}.take0] received" not in w.log_text()
+    assert jobs.state(job).state == "CANCELLED"
+    _only_the_shot(folder, "queued.usda")
+    # Cancelling again says so; a job that is not there is one line, exit 2.
+    assert _cli("cancel", job).stdout == f"{job} {shot}: already cancelled\n"
+    res = _cli("cancel", "0" * 32)
+    assert res.exit_code == 2
+
+
+def test_tween_cancel_stops_a_running_render(farm):
+    from workers import jobs
+
+    w = _worker(farm)
+    folder = farm.root / "running"
+    shot = copy_shot(example_shot(), folder, "running")
+    for m in farm.markers.iterdir():
+        m.unlink()
+    (job,) = jobs.submit([str(shot)], jobs.make_opts(takes=1, out_dir=str(folder / "out")), render=True)
+    _wait_for("*.render", farm.markers)
+    assert list((folder / "out").glob("running.tween.v001.usd*"))  # the layers were written
+    t0 = time.monotonic()
+    res = _cli("cancel", job)
+    took = time.monotonic() - t0
+    assert res.exit_code == 0 and res.stdout == f"{job} {shot}: cancelled\n", res.output
+    print(f"\ntween cancel of a running render: {took:.1f} s")
+    assert took < 10
+    assert f"{job}.review] raised expected: JobCancelledError" in w.log_text()
+    _only_the_shot(folder, "running.usda")
+    assert leftovers(folder) == []
+
+
+def test_ctrl_c_on_a_farm_fill_cancels_its_job(farm, tmp_path):
+    from workers import jobs
+
+    _worker(farm)
+    folder = farm.root / "client"
+    shot = copy_shot(example_shot(), folder, "client")
+    for m in farm.markers.iterdir():
+        m.unlink()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    env.update(farm.env)
+    cmd = [
+        sys.executable,
+        "-m",
+        "pipeline.cli",
+        "fill",
+        str(shot),
+        "--takes",
+        "2",
+        "--render",
+        "--no-progress",
+    ]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for("*.take*", farm.markers, proc=proc)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-3000:]
+    assert "cancelled by" in err and out == ""
+    job = err.split("cancelling 1 job(s) (", 1)[1].split(")", 1)[0]
+    assert jobs.state(job).state == "CANCELLED"
+    _only_the_shot(folder, "client.usda")
