@@ -399,6 +399,14 @@ def test_configure_applies_tls_and_signing(creds):
         assert c.security_key == str(d / "farm-signing.key") and c.security_digest == "sha256"
         tls = {"ssl_cert_reqs": ssl.CERT_REQUIRED, "ssl_ca_certs": str(d / "ca.pem")}
         assert c.broker_use_ssl == tls and c.redis_backend_use_ssl == tls
+        s = load_settings(_senv(broker_url="rediss://:pw@h:6380/0", **signing))
+        for kw in ({"train": True}, {"rig": True}):  # the training apps sign and verify alike
+            other = configure(Celery("tween-secure-conf-" + next(iter(kw))), s, **kw).conf
+            assert (
+                other.task_serializer == "auth"
+                and other.accept_content == ["auth"]
+                and other.broker_use_ssl == tls
+            )
         amqps = load_settings(_senv(broker_url="amqps://tween:pw@h:5671//", result_backend="rediss://:pw@h/0",
                                     **signing))  # fmt: skip
         configure(app, amqps)
