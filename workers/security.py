@@ -108,6 +108,8 @@ def apply(app, s) -> None:
     serializer with this host's key (kombu's serializer registry is one per process)."""
     app.conf.update(celery_conf(s))
     if signed(s):
+        # Leaves JSON (and 'auth', registered right after) the only decoders of the process;
+        # 'auth' signs and verifies JSON bodies.
         app.setup_security(allowed_serializers=["json"], serializer="json")
 
 
