@@ -5,16 +5,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fastapi import Body, FastAPI, HTTPException, Request
+from fastapi import Body, FastAPI, HTTPException, Query, Request
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from pydantic import BaseModel, Field
 
-from dailies import decide, media
+from dailies import decide, farm, media
 from dailies.auth import Login, LoginMiddleware
 from dailies.detail import detail
 from dailies.shots import find, listing
+from pipeline.errors import TweenError
 
 HERE = Path(__file__).parent
 
@@ -110,6 +111,24 @@ def create_app(roots: list[Path], login: Login, tracker=None, mapping: dict | No
         except LookupError:
             raise HTTPException(404, f"{key}: no such shot under the roots") from None
         except decide.Refused as e:
+            raise HTTPException(409, str(e)) from None
+
+    @app.get("/api/jobs", summary="The farm's fill jobs for shots under the roots: queued, running, failed")
+    def api_jobs(shot: str | None = Query(None, description="Only this shot's (its key).")) -> dict:
+        if shot is None:
+            return farm.listing(roots)
+        found = find(roots, shot)
+        if found is None:
+            raise HTTPException(404, f"{shot}: no such shot under the roots")
+        return farm.listing(roots, found.folder, found.stem)
+
+    @app.post("/api/jobs/{job_id}/cancel", summary="Cancel a fill job (tween cancel): nothing of it kept")
+    def api_cancel(job_id: str) -> dict:
+        try:
+            return farm.cancel(roots, job_id)
+        except LookupError:
+            raise HTTPException(404, f"{job_id}: no such job for a shot under the roots") from None
+        except TweenError as e:
             raise HTTPException(409, str(e)) from None
 
     @app.get("/api/shots/{key:path}", summary="One shot: takes and media, keys, fill sources, history")

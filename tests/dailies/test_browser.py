@@ -81,6 +81,7 @@ def test_review_and_approve_in_the_browser(server, browser, roots, tmp_path):
         "Array.from(document.querySelectorAll('video[data-take]')).every(v => !v.seeking && "
         "Math.floor(v.currentTime * 30 + 1e-3) === 30)", timeout=10000
     )  # fmt: skip
+    page.wait_for_selector("#jobs .note:has-text('no farm configured')")  # the farm's jobs: none here
     if os.environ.get("TWEEN_DAILIES_SCREENSHOT"):  # the README's picture
         page.screenshot(path=os.environ["TWEEN_DAILIES_SCREENSHOT"], full_page=True)
     # Approve take 1 through the page, with a note.
