@@ -81,6 +81,17 @@ def test_review_and_approve_in_the_browser(server, browser, roots, tmp_path):
         "Array.from(document.querySelectorAll('video[data-take]')).every(v => !v.seeking && "
         "Math.floor(v.currentTime * 30 + 1e-3) === 30)", timeout=10000
     )  # fmt: skip
+    # Space plays every take together; space again pauses them all on one frame.
+    page.eval_on_selector("video[data-take='0']", "v => { v.currentTime = 0.25 / 30; }")
+    page.keyboard.press("Space")
+    page.wait_for_function("Array.from(document.querySelectorAll('video[data-take]')).every(v => !v.paused && v.currentTime > 0.2)",
+                           timeout=10000)  # fmt: skip
+    page.keyboard.press("Space")
+    page.wait_for_function(
+        "(() => { const f = Array.from(document.querySelectorAll('video[data-take]')).map(v => v.paused && !v.seeking "
+        "? Math.floor(v.currentTime * 30 + 1e-3) : -1); return f[0] >= 0 && f.every(x => x === f[0]); })()",
+        timeout=10000,
+    )  # fmt: skip
     page.wait_for_selector("#jobs .note:has-text('no farm configured')")  # the farm's jobs: none here
     if os.environ.get("TWEEN_DAILIES_SCREENSHOT"):  # the README's picture
         page.screenshot(path=os.environ["TWEEN_DAILIES_SCREENSHOT"], full_page=True)
