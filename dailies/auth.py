@@ -76,7 +76,10 @@ class LoginMiddleware:
                 [(k, v) for k, v in parse_qsl(scope["query_string"].decode("latin-1")) if k != "token"]
             )
             where = scope["path"] + (f"?{rest}" if rest else "")
-            flags = "; HttpOnly; SameSite=Strict; Path=/" + ("; Secure" if login.secure else "")
+            # Lax, not Strict: the URL is often opened from another site (a chat, a mail), and
+            # a Strict cookie set there is not sent on the redirect that follows; cross-site
+            # changes are stopped by the CSRF token (and Lax sends no cookie on a foreign POST).
+            flags = "; HttpOnly; SameSite=Lax; Path=/" + ("; Secure" if login.secure else "")
             cookie = f"{login.cookie}={login.session}{flags}".encode()
             return await _send_text(
                 send, 303, "logged in", [(b"location", where.encode()), (b"set-cookie", cookie)]

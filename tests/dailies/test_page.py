@@ -88,3 +88,13 @@ def test_a_linked_folder_out_of_the_roots_is_no_shot(client, roots, tmp_path):
     r = client.post("/api/shots/0/linked/sh050/approve", json={"take": 0},
                     headers={"X-CSRF-Token": client.login.csrf})  # fmt: skip
     assert r.status_code == 404 and not list(outside.glob("sh050.tween.v002*"))
+
+
+def test_a_note_is_text_never_markup(client):
+    note = '<script>alert("x")</script> & </script><b>'
+    r = client.post("/api/shots/0/seq01/sh010/approve", json={"take": 0, "note": note, "version": 1},
+                    headers={"X-CSRF-Token": client.login.csrf})  # fmt: skip
+    assert r.status_code == 200
+    for page in (client.get("/").text, client.get("/shot/0/seq01/sh010").text):
+        assert "<script>alert" not in page and "</script><b>" not in page
+        assert "&lt;script&gt;alert" in page
