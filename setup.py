@@ -34,6 +34,7 @@ setup(
         "fastapi>=0.115",
         "uvicorn>=0.29",
         "jinja2>=3",
+        "gazu>=1.0",  # the Kitsu client: approved takes to the tracker (dailies/kitsu.py)
     ],
     extras_require={
         # torch is pinned: these machines install exactly this CPU build from local disk;

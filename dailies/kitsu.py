@@ -39,6 +39,10 @@ class Kitsu:
         missing = [ENV[k] for k in ("url", "user", "password", "project") if not s.get(k)]
         if missing:
             raise TrackerError(f"kitsu: not configured: set {', '.join(missing)}")
+        try:
+            import gazu  # noqa: F401
+        except ImportError:
+            raise TrackerError("kitsu: the gazu client is not installed (pip install gazu)") from None
         return cls(*(str(s[k]) for k in ("url", "user", "password", "project", "task_type", "status")))
 
     def _client(self):

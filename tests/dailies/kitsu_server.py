@@ -47,6 +47,16 @@ def _zou_venv() -> Path:
     return ZOU_VENV / "bin"
 
 
+def _ffmpeg() -> None:
+    """zou reads every uploaded movie with ffmpeg/ffprobe: installed with apt when missing."""
+    if not shutil.which("ffprobe") and os.geteuid() == 0 and shutil.which("apt-get"):
+        env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+        subprocess.run(["apt-get", "install", "-y", "-q", "--no-install-recommends", "ffmpeg"], env=env,
+                       capture_output=True, timeout=900)  # fmt: skip
+    if not shutil.which("ffprobe"):
+        raise RuntimeError("zou needs ffmpeg (apt-get install ffmpeg) to read uploaded previews")
+
+
 def _as_postgres(cmd: list[str], **kw):
     run_as = ["runuser", "-u", "postgres", "--"] if os.geteuid() == 0 else []
     return subprocess.run(run_as + cmd, check=True, capture_output=True, text=True, **kw)
@@ -66,6 +76,7 @@ class KitsuServer:
         if not initdb or not pg_ctl:
             pytest.skip("PostgreSQL (initdb, pg_ctl) is not installed: no Kitsu server to test against")
         bin_ = _zou_venv()
+        _ffmpeg()
         os.chmod(self.work, 0o755)
         self.pgdata.mkdir()
         sock = self.work / "sock"
