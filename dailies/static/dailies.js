@@ -98,7 +98,7 @@
     message.className = ok ? "ok" : "error";
   }
   async function post(action, body) {
-    const r = await fetch(`/api/shots/${encodeURI(data.key)}/${action}`, {
+    const r = await fetch(`/api/shots/${data.key.split("/").map(encodeURIComponent).join("/")}/${action}`, {
       method: "POST",
       headers: { "Content-Type": "application/json", "X-CSRF-Token": csrf },
       body: JSON.stringify(body),

@@ -98,3 +98,16 @@ def test_a_note_is_text_never_markup(client):
     for page in (client.get("/").text, client.get("/shot/0/seq01/sh010").text):
         assert "<script>alert" not in page and "</script><b>" not in page
         assert "&lt;script&gt;alert" in page
+
+
+def test_odd_folder_names_make_working_links(client, roots):
+    filled_shot(roots[0] / "seq 04#b", "sh090", takes=2)
+    html = client.get("/").text
+    link = re.search(r'href="(/shot/0/seq[^"]*sh090)"', html)[1]
+    assert link == "/shot/0/seq%2004%23b/sh090"
+    page = client.get(link).text
+    for url in re.findall(r'<video data-take="\d" src="([^"]+)"', page):
+        assert client.get(url, headers={"Range": "bytes=0-11"}).status_code == 206, url
+    r = client.post("/api/shots/0/seq%2004%23b/sh090/approve", json={"take": 1, "version": 1},
+                    headers={"X-CSRF-Token": client.login.csrf})  # fmt: skip
+    assert r.status_code == 200 and r.json()["layer"].endswith("seq 04#b/sh090.tween.v002.usda")
