@@ -13,7 +13,7 @@ import threading
 from pathlib import Path
 
 from dailies import tracker as trackers
-from dailies.shots import Shot, find, shot_file
+from dailies.shots import Shot, find, forget, shot_file
 from pipeline.errors import TweenError
 from pipeline.usd import dailies
 
@@ -56,6 +56,8 @@ def approve(roots: list[Path], key: str, take: int, note: str | None, version: i
             return dailies.approve(shot_path, take, note=note, out_dir=str(shot.folder))
         except TweenError as e:
             raise Refused(str(e)) from None
+        finally:
+            forget()
 
 
 def publish(roots: list[Path], key: str, version: int | None) -> dict:
@@ -66,6 +68,8 @@ def publish(roots: list[Path], key: str, version: int | None) -> dict:
             return dailies.publish(shot_path, out_dir=str(shot.folder))
         except TweenError as e:
             raise Refused(str(e)) from None
+        finally:
+            forget()
 
 
 def send(roots: list[Path], key: str, version: int | None, tracker, mapping: dict | None = None) -> dict:

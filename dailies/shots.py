@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import re
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,7 +71,32 @@ def layer_info(path: Path) -> dict:
     return info
 
 
-def scan(roots: list[Path]) -> list[Shot]:
+#: Seconds a walk of the roots is reused: many viewers on a large show tree walk it once.
+SCAN_AGE = 5.0
+_scans: dict[tuple, tuple[float, list]] = {}
+_scan_lock = threading.Lock()
+
+
+def scan(roots: list[Path], max_age: float | None = None) -> list[Shot]:
+    """Every shot with a fill under ``roots``, as walked at most ``max_age`` (default
+    ``SCAN_AGE``) seconds ago."""
+    max_age = SCAN_AGE if max_age is None else max_age
+    key = tuple(map(str, roots))
+    with _scan_lock:  # one walk at a time: the others wait for its result
+        t, found = _scans.get(key, (0.0, []))
+        if time.monotonic() - t > max_age:
+            found = _walk(roots)
+            _scans[key] = (time.monotonic(), found)
+        return found
+
+
+def forget() -> None:
+    """Drops the remembered walks (after a decision, so the list shows it at once)."""
+    with _scan_lock:
+        _scans.clear()
+
+
+def _walk(roots: list[Path]) -> list[Shot]:
     """Every shot with a fill under ``roots`` (hidden folders and ``review`` skipped)."""
     found: dict[tuple[int, Path, str], dict[int, Path]] = {}
     for i, root in enumerate(roots):

@@ -27,6 +27,12 @@ def filled_shot(folder: Path, name: str, takes: int = 2, render: bool = True, fr
     return {"shot": shot, **r}
 
 
+@pytest.fixture(autouse=True)
+def fresh_scans(monkeypatch):
+    """Every list walks the roots again (tests add fills behind the server's back)."""
+    monkeypatch.setattr("dailies.shots.SCAN_AGE", 0.0)
+
+
 @pytest.fixture(scope="session")
 def rendered_source(tmp_path_factory) -> Path:
     """One shot, two takes rendered: built once, copied per test (approvals change it)."""

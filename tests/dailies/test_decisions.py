@@ -122,3 +122,15 @@ def test_the_list_puts_pending_shots_first_newest_first(client, roots):
     ]  # fmt: skip
     page = client.get("/").text
     assert page.index("sh020") < page.index("sh010") < page.index("sh030")
+
+
+def test_the_walk_is_reused_but_a_decision_shows_at_once(client, roots, monkeypatch):
+    from dailies import shots
+
+    monkeypatch.setattr(shots, "SCAN_AGE", 60.0)
+    assert [s["key"] for s in client.get("/api/shots").json()] == [KEY]
+    filled_shot(roots[0] / "seq05", "sh100", takes=1, render=False)
+    assert [s["key"] for s in client.get("/api/shots").json()] == [KEY]  # within SCAN_AGE: the last walk
+    assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
+    rows = {s["key"]: s["status"] for s in client.get("/api/shots").json()}
+    assert rows == {KEY: "approved", "0/seq05/sh100": "pending"}  # a decision: walked again
