@@ -254,3 +254,21 @@ def leftovers(folder: Path) -> list[str]:
         if n.startswith(".tmp") or n.endswith((".tmp", ".partial")) or n == ".tween-work" or ".tmp-" in n:
             bad.append(str(p))
     return bad
+
+
+def configure_app(app, settings) -> None:
+    """Points this test process's Celery ``app`` at ``settings`` (workers.app.configure), and
+    drops what it cached under earlier settings: its result backend and its connection and
+    producer pools (each test module's farm has its own Redis key prefix)."""
+    from kombu import pools
+
+    from workers.app import configure
+
+    configure(app, settings)
+    app._backend_cache = None
+    app._local.__dict__.pop("backend", None)
+    app._pool = None
+    amqp = app.__dict__.get("amqp")
+    if amqp is not None:
+        amqp._producer_pool = None
+    pools.reset()

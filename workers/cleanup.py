@@ -13,6 +13,7 @@ stage over runs it first).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -36,6 +37,34 @@ def drop_work(work_dir: str | None, made_dirs=()) -> None:
             os.rmdir(d)
         except OSError:
             break
+
+
+NOTE = "job.json"
+
+
+def note_job(work_dir: str, shot: str, opts: dict, job: dict) -> None:
+    """Writes ``job.json`` (the job id, shot and output folder) into the job's work folder,
+    once: what the next run needs to undo a job whose embedded farm was killed."""
+    path = os.path.join(work_dir, NOTE)
+    if os.path.exists(path):
+        return
+    rec = {"id": job["id"], "shot": shot, "out_dir": opts.get("out_dir") or ""}
+    tmp = f"{path}.{os.getpid()}.part"
+    with open(tmp, "w") as f:
+        json.dump(rec, f)
+    os.replace(tmp, path)
+
+
+def undo_dead(work_dir: str) -> tuple[dict, list[str]] | None:
+    """Undoes the job whose work folder ``work_dir`` is (its writer is dead: the caller
+    checked); returns its note and what was removed, or None without a note."""
+    try:
+        with open(os.path.join(work_dir, NOTE)) as f:
+            rec = json.load(f)
+        shot, job_id = str(rec["shot"]), str(rec["id"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return rec, undo(shot, {"out_dir": rec.get("out_dir") or None}, {"id": job_id, "work_dir": work_dir})
 
 
 def review_dir(layer: dict) -> str:

@@ -51,12 +51,16 @@ def _backend(app):
     return app.backend
 
 
+def record(meta: dict, state: str) -> dict | None:
+    """The record in a result-backend entry ``meta`` stored under ``state``, or None."""
+    if meta.get("status") == state and isinstance(meta.get("result"), dict):
+        return meta["result"]
+    return None
+
+
 def cancel_record(app, job_id: str) -> dict | None:
     """The job's cancel record ({"time", "by"}), or None."""
-    m = _backend(app).get_task_meta(cancel_id(job_id))
-    if m.get("status") == CANCEL_STATE and isinstance(m.get("result"), dict):
-        return m["result"]
-    return None
+    return record(_backend(app).get_task_meta(cancel_id(job_id)), CANCEL_STATE)
 
 
 def request_cancel(app, job_id: str, why: str = "") -> dict:
@@ -70,10 +74,7 @@ def request_cancel(app, job_id: str, why: str = "") -> dict:
 
 
 def read_beat(app, task_id: str) -> dict | None:
-    m = _backend(app).get_task_meta(beat_id(task_id))
-    if m.get("status") == BEAT_STATE and isinstance(m.get("result"), dict):
-        return m["result"]
-    return None
+    return record(_backend(app).get_task_meta(beat_id(task_id)), BEAT_STATE)
 
 
 def dead_after(settings) -> float:

@@ -9,6 +9,7 @@ from any host with nothing but the id.
 from __future__ import annotations
 
 import os
+import sys
 import time
 import uuid
 from dataclasses import asdict, dataclass, field
@@ -20,11 +21,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from pipeline.fill.options import PATH_FIELDS, FillOptions
 from pipeline.library.options import command_args as library_args
-from pipeline.usd.write import clean_dead_temps
+from pipeline.usd.write import clean_dead_temps, dead_temp
 from workers import cleanup, control
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
-from workers.limits import failure_message, render_limits
+from workers.limits import failure_message, render_limits, train_limit_message
 
 
 @dataclass
@@ -90,10 +91,19 @@ def missing_dirs(path: str | None) -> list[str]:
 
 
 def clean_dead_work(shot: str, opts: dict) -> None:
-    """Removes the work folders of embedded jobs whose client has died (killed mid-job)."""
+    """Undoes the embedded jobs whose client has died (killed mid-job): their work folders,
+    and what they wrote (a version's layers, review media, scratch), found by the job id in
+    each work folder's ``job.json``."""
 
     work = os.path.join(opts.get("out_dir") or os.path.dirname(shot), ".tween-work")
     if os.path.isdir(work):
+        for e in list(os.scandir(work)):
+            if e.is_dir(follow_symlinks=False) and dead_temp(e.name):
+                undone = cleanup.undo_dead(e.path)
+                if undone:
+                    rec, removed = undone
+                    print(f"tween: removed job {rec['id']} of {rec['shot']}, left unfinished by a tween fill "
+                          f"that was killed ({len(removed)} file(s) and folder(s))", file=sys.stderr)  # fmt: skip
         clean_dead_temps(work, quiet=True)
         try:
             os.rmdir(work)
@@ -222,7 +232,7 @@ def state(job_id: str) -> JobState:
     js.record = info
     js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
     js.total, js.state = len(stages), "QUEUED"
-    js.cancel = control.cancel_record(app, job_id)
+    js.cancel = control.record(_meta(control.cancel_id(job_id)), control.CANCEL_STATE)
     failures = []
     # Stages are read one by one while the worker writes them: a failure is written to the
     # failing stage, then to every later one, so a later stage can read FAILURE while an
@@ -274,7 +284,7 @@ def _heartbeats(js: JobState, running: list[tuple[str, str]]) -> None:
     s = app.conf.tween
     now = time.time()
     for name, tid in running:
-        beat = control.read_beat(app, tid)
+        beat = control.record(_meta(control.beat_id(tid)), control.BEAT_STATE)
         if not beat:
             continue  # started a moment ago: no beat yet
         js.requeued = list(beat.get("requeued") or [])
@@ -397,6 +407,9 @@ def _long_job_state(celery_app, job_id: str, stage: str, what: str) -> JobState:
     elif st == cstates.FAILURE:
         exc = celery_app.backend.exception_to_python(res)
         js.state, js.stage, js.error = "FAILURE", stage, str(exc) or type(exc).__name__
+        if type(exc).__name__ in ("TimeLimitExceeded", "SoftTimeLimitExceeded"):  # named, with the way up
+            setting = "train_rig_time_limit" if celery_app is rig_app else "train_time_limit"
+            js.error = train_limit_message(f"{stage} {job_id}", setting, celery_app.conf.tween)
     else:
         js.error = f"{job_id}: no such {what} (unknown id, or its record expired)"
     return js

@@ -188,6 +188,7 @@ def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
     ):
         _check(shot, opts, job)
         os.makedirs(job["work_dir"], exist_ok=True)
+        cleanup.note_job(job["work_dir"], shot, opts, job)
         out = str(fill.fill_take(shot, _opts(opts), take, job["work_dir"]))
     return out
 
@@ -210,21 +211,21 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
     """Drops the work folder, then renders the review of each take when asked to. Its time
     limits are the render's, sized by the job's frames × takes (``job["limits"]``)."""
     with _stage(self, shot, opts, job, "review"):
-        # The work folder goes here and not in write_layer: if write_layer is delivered twice,
-        # its take files must still be there.
-        _drop(job["work_dir"])
         result = dict(layer)
-        if not job.get("render"):
-            return result
-        try:
-            result["renders"] = _render_takes(layer, shot, opts, job)
-        except ImportError:
-            result["renders"] = None
-            result["render_note"] = "render.review is not available on this worker; review not rendered"
-        except BaseException:
-            # A job that fails leaves no partial media (nor the version it wrote).
-            cleanup.undo(shot, opts, job)
-            raise
+        if job.get("render"):
+            try:
+                result["renders"] = _render_takes(layer, shot, opts, job)
+            except ImportError:
+                result["renders"] = None
+                result["render_note"] = "render.review is not available on this worker; review not rendered"
+            except BaseException:
+                # A job that fails leaves no partial media (nor the version it wrote).
+                cleanup.undo(shot, opts, job)
+                raise
+        # The work folder goes last: if write_layer is delivered twice, its take files must
+        # still be there; and an embedded job whose client was killed before this point is
+        # found by it (its job.json), and undone, by the next run (jobs.clean_dead_work).
+        _drop(job["work_dir"])
     return result
 
 

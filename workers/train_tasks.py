@@ -8,9 +8,12 @@ import subprocess
 import sys
 import tempfile
 
+from celery.exceptions import SoftTimeLimitExceeded
+
 from pipeline.library.options import command_args
 from workers.app import train_app
 from workers.errors import JobError
+from workers.limits import train_limit_message
 
 
 @train_app.task(name="tween.train", bind=True)
@@ -46,12 +49,19 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
     tail: list[str] = []
     with tempfile.TemporaryFile("w+") as stdout:
         proc = subprocess.Popen(cmd + ["--progress-lines"], stdout=stdout, stderr=subprocess.PIPE, text=True)
-        for line in proc.stderr:  # progress lines become the task's state; the rest is kept for errors
-            m = _PROGRESS.match(line)
-            if m:
-                self.update_state(state="PROGRESS", meta=meta | {"done": int(m[1]), "total": int(m[2])})
-            else:
-                tail = (tail + [line.rstrip()])[-20:]
+        try:
+            for line in proc.stderr:  # progress lines become the task's state; the rest is kept for errors
+                m = _PROGRESS.match(line)
+                if m:
+                    self.update_state(state="PROGRESS", meta=meta | {"done": int(m[1]), "total": int(m[2])})
+                else:
+                    tail = (tail + [line.rstrip()])[-20:]
+        except SoftTimeLimitExceeded:  # the build stops with the task, and says which limit
+            proc.kill()
+            proc.wait()
+            raise JobError(
+                train_limit_message(f"library build of {folder}", "train_time_limit", train_app.conf.tween)
+            ) from None
         proc.wait()
         stdout.seek(0)
         text = stdout.read()

@@ -16,7 +16,16 @@ from types import SimpleNamespace
 
 import pytest
 from embedded_farm import embedded_env, worker_log
-from redis_server import REPO, WorkerPool, copy_shot, example_shot, farm_env, leftovers, start_redis
+from redis_server import (
+    REPO,
+    WorkerPool,
+    configure_app,
+    copy_shot,
+    example_shot,
+    farm_env,
+    leftovers,
+    start_redis,
+)
 
 SLOW = dict(TWEEN_TEST_FILL_DELAY=3, TWEEN_TEST_FRAME_DELAY=0.2)
 
@@ -112,17 +121,17 @@ def farm(tmp_path_factory):
     env = farm_env(server, [str(root)], TWEEN_VISIBILITY_TIMEOUT=16, TWEEN_RESTORE_INTERVAL=2,
                    TWEEN_FILL_TIME_LIMIT=14, TWEEN_FILL_SOFT_TIME_LIMIT=12, TWEEN_HEARTBEAT_INTERVAL=1)  # fmt: skip
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
-    from workers.app import app, configure
+    from workers.app import app
     from workers.settings import load_settings
 
     old = app.conf.tween
-    configure(app, load_settings({**os.environ, **env}))
+    configure_app(app, load_settings({**os.environ, **env}))
     pool = WorkerPool(env, logs)
     try:
         yield SimpleNamespace(server=server, root=root, env=env, pool=pool, markers=markers, app=app)
     finally:
         pool.stop_all()
-        configure(app, old)
+        configure_app(app, old)
         server.cleanup()
 
 

@@ -11,7 +11,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from redis_server import REPO, WorkerPool, copy_shot, example_shot, farm_env, leftovers, start_redis
+from redis_server import (
+    REPO,
+    WorkerPool,
+    configure_app,
+    copy_shot,
+    example_shot,
+    farm_env,
+    leftovers,
+    start_redis,
+)
 
 # Test-sized timings: takeover VT + RESTORE after the last heartbeat (HB); a stage with no
 # heartbeat for 3 × HB is shown as lost.
@@ -27,15 +36,15 @@ def farm(tmp_path_factory):
     env = farm_env(server, [str(root)], TWEEN_VISIBILITY_TIMEOUT=VT, TWEEN_RESTORE_INTERVAL=RESTORE,
                    TWEEN_HEARTBEAT_INTERVAL=HB, TWEEN_FILL_TIME_LIMIT=HARD, TWEEN_FILL_SOFT_TIME_LIMIT=SOFT)  # fmt: skip
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
-    from workers.app import app, configure
+    from workers.app import app
     from workers.settings import load_settings
 
     old = app.conf.tween
-    configure(app, load_settings({**os.environ, **env}))
+    configure_app(app, load_settings({**os.environ, **env}))
     try:
         yield SimpleNamespace(server=server, root=root, env=env, logs=logs, app=app)
     finally:
-        configure(app, old)
+        configure_app(app, old)
         server.cleanup()
 
 
@@ -102,3 +111,65 @@ def test_worker_killed_in_the_render_is_seen_requeued_and_cleaned(farm, tmp_path
         assert leftovers(folder) == []
     finally:
         pool.stop_all()
+
+
+def test_a_killed_embedded_fill_is_undone_by_the_next_run(tmp_path):
+    """`kill -9` of an embedded `tween fill` in its render takes its worker with it; the next
+    run of the shot removes what the dead job wrote (its version, scratch and work folder),
+    and a render removes the scratch of any dead writer on its host."""
+    import signal
+    import subprocess
+    import sys
+
+    from embedded_farm import embedded_env
+
+    from pipeline.usd.write import _HOST
+
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    env = embedded_env(
+        tmp_path, slow=("farm_slowrender",), TWEEN_TEST_MARKERS=markers, TWEEN_TEST_FRAME_DELAY=0.2
+    )
+    shots = tmp_path / "shots"
+    shot = copy_shot(example_shot(), shots, "killed")
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--render", "--no-progress"]
+    proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        t0 = time.monotonic()
+        while not any(markers.iterdir()):
+            assert proc.poll() is None and time.monotonic() - t0 < 90
+            time.sleep(0.05)
+        time.sleep(0.5)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    time.sleep(1.0)  # its worker and pool die with it (PR_SET_PDEATHSIG)
+    (scratch,) = (shots / "review").glob(".tween-review-*")
+    (work,) = (shots / ".tween-work").iterdir()
+    assert (shots / "killed.tween.v001.usda").is_file() and any(scratch.glob("*.png"))
+    # A scratch some other writer on this host left when it died (a `tween review` killed).
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    other = shots / "review" / f".tween-review-local.{int(dead.stdout)}@{_HOST}.x1.tmp"
+    other.mkdir()
+    env.pop("TWEEN_TEST_SLOW_MODULES")
+    res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr[-3000:]
+    job = scratch.name.split(".")[1].removeprefix("tween-review-")
+    assert (
+        f"tween: removed job {job} of {shot}, left unfinished by a tween fill that was killed" in res.stderr
+    )
+    assert not scratch.exists() and not work.exists() and not other.exists()
+    assert not list((shots / "review").glob(".tween-review-*"))
+    # One version: the new run's (the dead job's v001 went, so it is v001 again).
+    assert sorted(p.name for p in shots.glob("*.usd*")) == [
+        "killed.review.v001.usda",
+        "killed.tween.v001.usda",
+        "killed.usda",
+    ]
+    assert sorted(p.name for p in (shots / "review").iterdir() if not p.name.endswith(".png")) == [
+        "killed_v001.mp4",
+        "killed_v001.otio",
+    ]
+    assert leftovers(shots) == []

@@ -13,7 +13,16 @@ from types import SimpleNamespace
 
 import pytest
 from embedded_farm import embedded_env, worker_log
-from redis_server import REPO, WorkerPool, copy_shot, example_shot, farm_env, leftovers, start_redis
+from redis_server import (
+    REPO,
+    WorkerPool,
+    configure_app,
+    copy_shot,
+    example_shot,
+    farm_env,
+    leftovers,
+    start_redis,
+)
 
 
 def _settings(**env):
@@ -55,6 +64,26 @@ def test_hard_limit_messages_name_the_stage_that_hit_it():
     assert "TWEEN_RENDER_TIME_LIMIT" in render
     fill = failure_message(TimeLimitExceeded(50), "sh.usda", s, stage="take 1/2")
     assert "fill of sh.usda hit the farm's hard time limit (fill_time_limit = 50 s)" in fill
+
+
+def test_a_training_past_its_limit_names_the_setting():
+    from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
+
+    from workers import jobs
+
+    s = _settings()
+    for exc in (TimeLimitExceeded(43200), SoftTimeLimitExceeded()):
+        backend = SimpleNamespace(
+            get_task_meta=lambda tid, exc=exc: {"status": "FAILURE", "result": exc},
+            exception_to_python=lambda r: r,
+        )
+        js = jobs._long_job_state(SimpleNamespace(backend=backend, conf=SimpleNamespace(tween=s)),
+                                  "lib-1", "library build", "library job")  # fmt: skip
+        assert js.state == "FAILURE"
+        assert js.error.startswith(
+            "library build lib-1 hit the farm's time limit (train_time_limit = 43200 s;"
+        )
+        assert "or TWEEN_TRAIN_TIME_LIMIT" in js.error
 
 
 @pytest.mark.parametrize(
@@ -142,13 +171,13 @@ def farm(tmp_path_factory):
     env = farm_env(server, [str(root)], TWEEN_VISIBILITY_TIMEOUT=16, TWEEN_RESTORE_INTERVAL=2,
                    TWEEN_FILL_TIME_LIMIT=14, TWEEN_FILL_SOFT_TIME_LIMIT=12)  # fmt: skip
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
-    from workers.app import app, configure
+    from workers.app import app
 
     old = app.conf.tween
     try:
-        yield SimpleNamespace(server=server, root=root, env=env, logs=logs, app=app, configure=configure)
+        yield SimpleNamespace(server=server, root=root, env=env, logs=logs, app=app)
     finally:
-        configure(app, old)
+        configure_app(app, old)
         server.cleanup()
 
 
@@ -160,7 +189,7 @@ def test_render_killed_at_its_hard_limit_is_undone(farm, tmp_path):
 
     # The client's settings size the render's limits: soft 2 s + 97 ms, hard 4 s + 97 ms.
     limits = dict(TWEEN_RENDER_SOFT_TIME_LIMIT=2, TWEEN_RENDER_TIME_LIMIT=4, TWEEN_RENDER_FRAME_MS=1)
-    farm.configure(farm.app, load_settings({**os.environ, **farm.env, **limits}))
+    configure_app(farm.app, load_settings({**os.environ, **farm.env, **limits}))
     markers = tmp_path / "markers"
     markers.mkdir()
     pool = WorkerPool(farm.env, farm.logs)
