@@ -236,3 +236,40 @@ def test_ctrl_c_on_a_farm_fill_cancels_its_job(farm, tmp_path):
     job = err.split("cancelling 1 job(s) (", 1)[1].split(")", 1)[0]
     assert jobs.state(job).state == "CANCELLED"
     _only_the_shot(folder, "client.usda")
+
+
+def test_a_fill_whose_job_is_cancelled_elsewhere_exits_130(farm, tmp_path):
+    _worker(farm)
+    folder = farm.root / "elsewhere"
+    shot = copy_shot(example_shot(), folder, "elsewhere")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    env.update(farm.env)
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--takes", "2", "--no-progress"]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for(".tween-work/*", folder, proc=proc)  # the job's work folder is named after it
+        (work,) = (folder / ".tween-work").iterdir()
+        res = _cli("cancel", work.name)
+        assert res.exit_code == 0 and res.stdout == f"{work.name} {shot}: cancelled\n", res.output
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-3000:]
+    assert f"tween: {shot}: job {work.name} cancelled by " in err and out == ""
+    _only_the_shot(folder, "elsewhere.usda")
+
+
+def test_cancel_of_a_finished_job_is_one_line(farm, monkeypatch):
+    from workers import jobs
+
+    done = jobs.JobState(id="f" * 32, shot="/x/sh.usda", state="SUCCESS")
+    monkeypatch.setattr(jobs, "state", lambda j: done)
+    res = _cli("cancel", done.id)
+    assert res.exit_code == 2
+    assert (
+        res.stderr == f"tween: error: {done.id} /x/sh.usda: already finished (success), nothing to cancel\n"
+    )
+    assert jobs.control.cancel_record(farm.app, done.id) is None  # nothing was written
