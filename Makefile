@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint format clean system-deps
+.PHONY: demo test test-nightly bench lint format clean system-deps
 
 $(STAMP): setup.py
 	$(PY) -m venv $(VENV)
@@ -23,6 +23,10 @@ demo: $(STAMP) system-deps
 
 test: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q tests
+
+# The generated bad-input tests with ten times the examples per command (about 5 minutes).
+test-nightly: $(STAMP) system-deps
+	TWEEN_HYPOTHESIS_EXAMPLES=2000 $(BIN)/python -m pytest -q tests/test_bad_input_generated.py
 
 bench: $(STAMP)
 	$(BIN)/tween bench --methods zero,interp

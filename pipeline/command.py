@@ -50,14 +50,15 @@ def _os_error_line(e: OSError) -> str | None:
     return f"{where}: {e.strerror or e}"
 
 
-def _log_bug(e: BaseException, logs: Path | None) -> str:
+def _log_bug(e: BaseException, logs: Path | None, argv: list[str] | None = None) -> str:
     """Writes the traceback of an unexpected error to a log file in ``logs``; returns where."""
     if logs is None:
         sys.stderr.write("".join(traceback.format_exception(e)))
         return "above"
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     path = logs / f"tween-{stamp}-{os.getpid()}.log"
-    text = f"tween {' '.join(sys.argv[1:])}\n\n" + "".join(traceback.format_exception(e))
+    args = sys.argv[1:] if argv is None else argv
+    text = f"tween {' '.join(map(str, args))}\n\n" + "".join(traceback.format_exception(e))
     try:
         logs.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
@@ -67,12 +68,12 @@ def _log_bug(e: BaseException, logs: Path | None) -> str:
     return str(path)
 
 
-def _bug_line(e: BaseException, logs: Path | None) -> str:
+def _bug_line(e: BaseException, logs: Path | None, argv: list[str] | None = None) -> str:
     first = (str(e).strip().splitlines() or [""])[0][:300]
     what = f"{type(e).__name__}: {first}" if first else type(e).__name__
     return (
         f"tween: internal error (a bug in usd-tween, not in your input): {what}; "
-        f"the traceback is in {_log_bug(e, logs)}"
+        f"the traceback is in {_log_bug(e, logs, argv)}"
     )
 
 
@@ -97,18 +98,21 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
     except ClickException as e:
         print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
         sys.exit(2)
-    except (KeyboardInterrupt, typer.Abort):
+    except (KeyboardInterrupt, typer.Abort) as e:
+        if isinstance(e.__context__, EOFError):  # click turns an EOFError into Abort
+            print(_bug_line(e.__context__, log_dir, argv), file=sys.stderr)
+            sys.exit(1)
         print("tween: interrupted", file=sys.stderr)
         sys.exit(130)
     except OSError as e:
         line = _os_error_line(e)
         if line is None:
-            print(_bug_line(e, log_dir), file=sys.stderr)
+            print(_bug_line(e, log_dir, argv), file=sys.stderr)
             sys.exit(1)
         print(f"tween: error: {line}", file=sys.stderr)
         sys.exit(2)
     except Exception as e:
-        print(_bug_line(e, log_dir), file=sys.stderr)
+        print(_bug_line(e, log_dir, argv), file=sys.stderr)
         sys.exit(1)
     if rc == 130:
         print("tween: interrupted", file=sys.stderr)

@@ -11,6 +11,7 @@ the takes the library does not hold yet (by resolved path) and keeps the rest as
 from __future__ import annotations
 
 import gzip
+import shutil
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -67,6 +68,10 @@ def _rig_of(path: Path) -> str:
     return f"BVH, {joints} joints from {root}{rate}"
 
 
+def _skipped(line: str) -> None:
+    print(f"tween: skipped take: {line}", file=sys.stderr)
+
+
 def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
           add: bool = False, files=None, progress: bool = True, mirror: bool = False,
           on_progress=None) -> dict:  # fmt: skip
@@ -97,10 +102,13 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
         if str(p.resolve()) not in have:
             have.add(str(p.resolve()))
             todo.append(p)
+    # What this call makes goes again if it ends with nothing: the folder, or what it put in
+    # an empty one the user gave.
+    created, was_empty = not out.exists(), out.is_dir() and not any(out.iterdir())
     writer = Writer(out, manifest)
-    failed, added = [], 0
+    failed, added, held = [], 0, []
     bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
-               disable=not progress or None, mininterval=2.0)  # fmt: skip
+               disable=not progress or None, mininterval=2.0, delay=1.0)  # fmt: skip
     try:
         for done, path in enumerate(bar):
             if on_progress is not None:
@@ -114,8 +122,10 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
             except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
                 msg = str(e).splitlines()[0] if str(e) else type(e).__name__
                 line = msg if str(path) in msg else f"{path}: {msg}"
-                print(f"tween: skipped take: {line}", file=sys.stderr)
                 failed.append({"file": str(path), "why": msg})
+                # Said once a take has been read: until then a folder of nothing readable is
+                # refused in one line that names its first bad take.
+                held.append(line) if not (added or manifest["takes"]) else _skipped(line)
                 continue
             entry = {"name": path.name, "file": str(path.resolve()), "rig": rig}
             if licence:
@@ -125,9 +135,25 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                 writer.add(entry | {"name": f"{path.name} (mirrored)", "mirrored": True},
                            take_arrays(mirrored(motion)))  # fmt: skip
             added += 1
+            for line in held:
+                _skipped(line)
+            held.clear()
+        if not manifest["takes"] and failed:
+            raise LibraryError(
+                f"{folder if files is None else out}: no take could be read ({len(failed)} failed; "
+                f"the first: {held[0]})"
+            )
         writer.commit()
         if on_progress is not None:
             on_progress(len(todo), len(todo), "")
+    except BaseException:
+        writer.close()
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        elif was_empty:
+            for p in out.iterdir():
+                shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+        raise
     finally:
         writer.close()
         bar.close()

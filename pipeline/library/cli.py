@@ -9,7 +9,6 @@ from pathlib import Path
 
 import typer
 
-from pipeline.errors import TweenError
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.library.store import open_library
 
@@ -39,8 +38,6 @@ def build_command(
                 progress=progress, mirror=opts.mirror,
                 on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
     typer.echo(json.dumps(res, indent=1))
-    if res["added"] == 0 and res["failed"] and not res["takes"]:
-        raise TweenError(f"{folder}: no take could be read ({len(res['failed'])} failed)")
 
 
 #: The line ``--progress-lines`` writes (workers.train_tasks reads it).

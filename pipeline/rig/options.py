@@ -71,6 +71,9 @@ class TrainRigOptions:
                                ("--threads", self.threads, 1, 256)):  # fmt: skip
             if v is not None and not (isinstance(v, int) and lo <= v <= hi):
                 raise TweenError(f"{opt} {v}: must be from {lo} to {hi}")
+        for opt, v, lo, hi in (("--fps", self.fps, 1.0, 1000.0), ("--ratio", self.ratio, 1e-3, 1.0)):
+            if v is not None and not (isinstance(v, int | float) and lo <= v <= hi):  # NaN fails too
+                raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
         if not re.fullmatch(r"cpu|cuda(:\d+)?", str(self.device)):
             raise TweenError(f"--device {self.device!r}: must be cpu or cuda (cuda:N)")
         parse_frames(self.frames)

@@ -184,5 +184,7 @@ def load_npz(path: str | Path) -> Motion:
             float(z["meters_per_unit"]),
         )
         return Motion(skel, z["rotations"], z["root_positions"], float(z["fps"]), str(z["name"]))
-    except (OSError, KeyError, ValueError) as e:
-        raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {e}") from None
+    except (OSError, KeyError, ValueError, EOFError, IndexError, TypeError) as e:
+        # np.load raises EOFError for an empty file and ValueError/OSError for most others.
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None

@@ -17,11 +17,12 @@ from pipeline.data.split import list_clips
 from pipeline.infer.dna import n_dna_channels
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.path import PathConfig, PathPredictor
+from pipeline.train.generator import read_checkpoint
 from pipeline.usd.take import load_takes
 
 
 def _load(cls, cfg_cls, ckpt: Path, key="model"):
-    state = torch.load(ckpt, weights_only=False, map_location="cpu")
+    state = read_checkpoint(ckpt, "the run's checkpoint")
     mcfg = state["config"]["model"]
     cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
     net = cls(cfg)

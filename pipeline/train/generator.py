@@ -256,21 +256,24 @@ def init_checkpoint(init: str) -> Path:
     return p
 
 
-def load_init(init: str, map_location="cpu") -> dict:
-    """The ``--init`` checkpoint's state (``init_checkpoint``), refused in one line when the
-    file is not one that ``tween train`` wrote (an ONNX export, a truncated or foreign file)."""
-    p = init_checkpoint(init)
-    what = "an ONNX export" if p.suffix == ".onnx" else "not a checkpoint that `tween train` wrote"
+def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "") -> dict:
+    """A checkpoint that ``tween train`` wrote, refused in one line naming the file and its
+    ``role`` (``--init``, the run's own) when it is not one: an ONNX export, a truncated or
+    foreign file."""
+    what = "an ONNX export" if path.suffix == ".onnx" else "not a checkpoint that `tween train` wrote"
     try:
-        state = torch.load(p, weights_only=False, map_location=map_location)
+        state = torch.load(path, weights_only=False, map_location=map_location)
     except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
-        raise TweenError(
-            f"{p}: --init: {what} ({type(e).__name__}); give a run folder's generator.pt "
-            "or a model folder with torch/generator.pt"
-        ) from None
-    if not isinstance(state, dict) or not isinstance(state.get("model"), dict):
-        raise TweenError(f"{p}: --init: a torch file without a generator's weights ('model')")
+        raise TweenError(f"{path}: {role}: {what} ({type(e).__name__}){hint}") from None
+    if not isinstance(state, dict) or not isinstance(state.get("model"), dict) or "config" not in state:
+        raise TweenError(f"{path}: {role}: a torch file without a network's weights and config{hint}")
     return state
+
+
+def load_init(init: str, map_location="cpu") -> dict:
+    """The ``--init`` checkpoint's state (``init_checkpoint``, ``read_checkpoint``)."""
+    hint = "; give a run folder's generator.pt or a model folder with torch/generator.pt"
+    return read_checkpoint(init_checkpoint(init), "--init", map_location, hint)
 
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the
@@ -546,7 +549,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
         print(f"initialised from {cfg.init}", file=sys.stderr)
     if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False, map_location=dev)
+        state = read_checkpoint(ckpt, "the run's checkpoint", dev, "; remove it to start this run afresh")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])

@@ -166,7 +166,13 @@ def configs(values: dict):
 
     kw, model = {}, {}
     for fl in train_flags():
-        (model if fl.model else kw)[fl.field] = fl.to_config(values[fl.name])
+        try:
+            (model if fl.model else kw)[fl.field] = fl.to_config(values[fl.name])
+        except ValueError:
+            like = "comma-separated numbers" if isinstance(fl.default, tuple) else "a value"
+            raise typer.BadParameter(
+                f"{fl.option} {values[fl.name]!r}: expected {like} like {fl.cli_default()}"
+            ) from None
         choices = fl.meta.get("choices")
         if choices and kw[fl.field] not in choices:
             raise typer.BadParameter(f"{fl.option} must be one of {', '.join(choices)}")
