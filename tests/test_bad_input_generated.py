@@ -129,18 +129,20 @@ def convert_case(draw, ws: Path, a: Assets):
 
 
 def fill_case(draw, ws: Path, a: Assets):
+    # `tween fill` and `submit` check all this before a farm starts or a broker is contacted.
+    cmd = draw(st.sampled_from(["fill-local", "fill", "submit"]))
     which = draw(
         st.sampled_from(["shot", "range", "takes", "seed", "mapping", "model", "trust", "keys", "out"])
     )
     if which == "shot":
-        return ["fill-local", draw(bad_file(ws, draw(st.sampled_from([".usda", ".usd", ".bvh"])), a.shot))]
+        return [cmd, draw(bad_file(ws, draw(st.sampled_from([".usda", ".usd", ".bvh"])), a.shot))]
     if which == "mapping":
-        return ["fill-local", a.shot, "--mapping", draw(st.one_of(bad_json(ws), bad_file(ws, ".json")))]
+        return [cmd, a.shot, "--mapping", draw(st.one_of(bad_json(ws), bad_file(ws, ".json")))]
     if which == "out":  # a read-only folder (mode bits: refused even for root)
         ro = ws / "published"
         ro.mkdir()
         ro.chmod(0o555)
-        return ["fill-local", a.shot, "--out", ro / "fills"]
+        return [cmd, a.shot, "--out", ro / "fills"]
     value = {
         "range": st.sampled_from(["abc", "20:10", "1:", ":", "99999:100000", "1001:1001:1"]),
         "takes": st.one_of(not_number, negative, st.sampled_from(["0", "65", "1.5"])),
@@ -149,7 +151,7 @@ def fill_case(draw, ws: Path, a: Assets):
         "trust": words.filter(lambda s: s not in ("auto", "model", "spline", "off", "on")),
         "keys": st.sampled_from(["abc", "1001,abc", "-5", "1001,1001", "999999"]),
     }[which]
-    return ["fill-local", a.shot, f"--{which}", draw(value)]
+    return [cmd, a.shot, f"--{which}", draw(value)]
 
 
 def dailies_case(draw, ws: Path, a: Assets):
@@ -264,7 +266,7 @@ def export_case(draw, ws: Path, a: Assets):
 
 CASES = {
     "convert": convert_case,
-    "fill-local": fill_case,
+    "fill-local/fill/submit": fill_case,
     "approve/publish/review": dailies_case,
     "train": train_case,
     "train-rig": train_rig_case,

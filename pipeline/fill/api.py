@@ -176,10 +176,19 @@ def composition(shot: str, opts: FillOptions) -> list[str]:
 def precheck(shot: str, opts: FillOptions) -> list[str]:
     """What a farm client checks before it starts a farm or contacts a broker: the options,
     the shot's content (characters, keys, rigs: the plan, without loading a model) and its
-    composition (:func:`composition`, said here). A ShotError/TweenError in one line, as the
+    composition (:func:`composition`, said here), and that the layers' folder can be
+    written. A ShotError/TweenError in one line, as the
     worker would give it seconds later; returns the missing assets."""
+    from pipeline.infer.api import builtin_names, model_folder
+
     opts.check()
+    if opts.model != "default" and opts.model not in builtin_names() and model_folder(opts.model) is None:
+        raise TweenError(
+            f"--model {opts.model}: no such model (a folder with model.json or rig.json, or the name "
+            f"of one under {models_root()})"
+        )
     _plan(shot, opts, None)
+    check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts
     return composition(shot, opts)
 
 
