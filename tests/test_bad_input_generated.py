@@ -264,6 +264,31 @@ def export_case(draw, ws: Path, a: Assets):
     return ["export", run, "--out", ws / "model", f"--{which}", draw(value)]
 
 
+def farm_and_page_case(draw, ws: Path, a: Assets):
+    """``rig-extract``, ``status`` and ``cancel`` of unknown jobs, and ``dailies`` (never a
+    value that would start its server)."""
+    cmd = draw(st.sampled_from(["rig-extract", "cancel", "dailies"]))
+    if cmd == "rig-extract":
+        if draw(st.booleans()):
+            return [cmd, draw(bad_file(ws, draw(st.sampled_from([".bvh", ".usda"])), a.bvh)), ws / "clip.npz"]
+        return [
+            cmd,
+            a.bvh,
+            ws / "clip.npz",
+            "--frames",
+            draw(st.sampled_from(["abc", "10:5", "5:5", "1:2:3"])),
+        ]
+    if cmd == "cancel":
+        return [cmd, draw(st.from_regex(r"[a-z0-9-]{1,20}", fullmatch=True))]
+    if draw(st.booleans()):  # no such folder, or a file: never a folder it would serve
+        root = ws / "shots"
+        if draw(st.booleans()):
+            root.write_bytes(draw(st.binary(max_size=50)))
+        return [cmd, root, "--port", "0"]
+    port = draw(st.one_of(st.integers(max_value=-1), st.integers(min_value=65536)).map(str) | not_number)
+    return [cmd, ws, "--port", port]
+
+
 CASES = {
     "convert": convert_case,
     "fill-local/fill/submit": fill_case,
@@ -272,6 +297,7 @@ CASES = {
     "train-rig": train_rig_case,
     "library": library_case,
     "export": export_case,
+    "rig-extract/cancel/dailies": farm_and_page_case,
 }
 
 
