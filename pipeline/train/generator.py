@@ -256,7 +256,7 @@ def init_checkpoint(init: str) -> Path:
     return p
 
 
-def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "") -> dict:
+def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", config: bool = True) -> dict:
     """A checkpoint that ``tween train`` wrote, refused in one line naming the file and its
     ``role`` (``--init``, the run's own) when it is not one: an ONNX export, a truncated or
     foreign file."""
@@ -265,7 +265,11 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "") -
         state = torch.load(path, weights_only=False, map_location=map_location)
     except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
         raise TweenError(f"{path}: {role}: {what} ({type(e).__name__}){hint}") from None
-    if not isinstance(state, dict) or not isinstance(state.get("model"), dict) or "config" not in state:
+    if (
+        not isinstance(state, dict)
+        or not isinstance(state.get("model"), dict)
+        or (config and "config" not in state)
+    ):
         raise TweenError(f"{path}: {role}: a torch file without a network's weights and config{hint}")
     return state
 
@@ -273,7 +277,9 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "") -
 def load_init(init: str, map_location="cpu") -> dict:
     """The ``--init`` checkpoint's state (``init_checkpoint``, ``read_checkpoint``)."""
     hint = "; give a run folder's generator.pt or a model folder with torch/generator.pt"
-    return read_checkpoint(init_checkpoint(init), "--init", map_location, hint)
+    return read_checkpoint(
+        init_checkpoint(init), "--init", map_location, hint, config=False
+    )  # weights suffice
 
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the

@@ -6,7 +6,7 @@ import subprocess
 import sys
 import threading
 
-from conftest import filled_shot
+from dailies_fixtures import filled_shot
 
 from pipeline.usd.dailies import decision
 
@@ -66,7 +66,7 @@ def test_a_newer_fill_makes_the_page_stale(client, roots):
 
 
 def test_two_browsers_approving_at_once_one_wins(roots):
-    from conftest import client_for
+    from dailies_fixtures import client_for
 
     a, b = client_for(roots), client_for(roots)
     results = {}

@@ -5,7 +5,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import client_for, filled_shot
+from dailies_fixtures import client_for, filled_shot
 from kitsu_server import ADMIN, PASSWORD, KitsuServer
 
 from dailies.tracker import TrackerError, make, names

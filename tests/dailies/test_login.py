@@ -1,7 +1,7 @@
 """Nothing is readable or changeable without the login; changing requests need the CSRF token."""
 
 import pytest
-from conftest import TOKEN, client_for
+from dailies_fixtures import TOKEN, client_for
 
 PATHS = ["/", "/shot/0/seq01/sh010", "/media/0/seq01/review/sh010_v001_take0.mp4", "/api/shots",
          "/api/shots/0/seq01/sh010", "/api/openapi.json", "/static/dailies.js", "/docs"]  # fmt: skip

@@ -3,7 +3,7 @@
 import json
 import re
 
-from conftest import filled_shot
+from dailies_fixtures import filled_shot
 
 
 def _data(html: str) -> dict:
