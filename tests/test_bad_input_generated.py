@@ -289,6 +289,19 @@ def farm_and_page_case(draw, ws: Path, a: Assets):
     return [cmd, ws, "--port", port]
 
 
+def bench_case(draw, ws: Path, a: Assets):
+    """``tween bench`` refuses before it reads any data (never a value that would run it)."""
+    which = draw(st.sampled_from(["methods", "limit", "posture"]))
+    value = {
+        "methods": st.from_regex(r"[a-z]{2,8}-nosuch(,interp)?", fullmatch=True),
+        "limit": st.integers(max_value=0).map(str),
+        "posture": st.one_of(
+            st.floats(max_value=0, exclude_max=True), st.floats(min_value=180, exclude_min=True), non_finite
+        ).map(str),
+    }[which]
+    return ["bench", "--out", ws / "bench", f"--{which}", draw(value)]
+
+
 CASES = {
     "convert": convert_case,
     "fill-local/fill/submit": fill_case,
@@ -298,6 +311,7 @@ CASES = {
     "library": library_case,
     "export": export_case,
     "rig-extract/cancel/dailies": farm_and_page_case,
+    "bench": bench_case,
 }
 
 

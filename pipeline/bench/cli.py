@@ -49,6 +49,14 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
+        from pipeline.bench.methods import check_methods
+
+        # Checked before any data is read (a cold cache reads the train split for minutes).
+        check_methods([m.strip() for m in methods.split(",") if m.strip()])
+        if limit is not None and limit < 1:
+            raise TweenError(f"--limit {limit}: must be 1 or more")
+        if not 0.0 <= posture <= 180.0:  # NaN fails too
+            raise TweenError(f"--posture {posture}: must be from 0 to 180 degrees")
         if speed:
             picked = [m.strip() for m in methods.split(",")]
             picked = [m for m in picked if m and m not in ("zero", "interp", "model")]

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from pipeline.errors import TweenError
 from pipeline.infer.api import fill_windows
 from pipeline.infer.interp import interpolate_between
 from pipeline.infer.spline import spline_keys
@@ -63,6 +64,25 @@ def inbetweener_method(inbetweener, batch: int = 64) -> Method:
 
 
 BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation, "spline": spline}
+
+
+def check_methods(names: list[str]) -> None:
+    """Raises TweenError (one line naming ``--methods``) unless every name can be resolved:
+    a baseline, ``model``, a folderless kind, or a model folder."""
+    from pipeline.infer.api import builtin_names, model_folder
+
+    if not names:
+        raise TweenError("--methods: give at least one method")
+    for name in names:
+        if (
+            name not in BASELINES
+            and name != "model"
+            and name not in builtin_names()
+            and not model_folder(name)
+        ):
+            raise TweenError(
+                f"--methods {name!r}: not {', '.join(BASELINES)}, model, or a model folder (model.json/rig.json)"
+            )
 
 
 def resolve(name: str) -> Method:
