@@ -42,8 +42,16 @@ setup(
         "train": ["torch==2.13.0", "roma>=1.5", "onnx>=1.16", "onnxscript>=0.2"],
         # Signed farm messages (Celery's auth serializer; docs/farm.md, "Securing the farm").
         "secure": ["celery[auth]>=5.4"],
-        "dev": ["pytest>=8", "ruff>=0.6", "jinja2>=3", "threadpoolctl>=3", "hypothesis>=6", "httpx>=0.27", "playwright>=1.40",
-                "cryptography>=42"],
+        "dev": [
+            "pytest>=8",
+            "ruff>=0.6",
+            "jinja2>=3",
+            "threadpoolctl>=3",
+            "hypothesis>=6",
+            "httpx>=0.27",
+            "playwright>=1.40",
+            "cryptography>=42",
+        ],
     },
     entry_points={
         "console_scripts": ["tween=pipeline.cli:main"],

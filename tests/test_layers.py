@@ -69,7 +69,10 @@ def _imports(path: Path):
 def _project_edges():
     for mod, path in _modules():
         for name, line in _imports(path):
-            if name.split(".")[0] in ("pipeline", "workers", "render", "usd_schemas", "dailies") and name != "pipeline":
+            if (
+                name.split(".")[0] in ("pipeline", "workers", "render", "usd_schemas", "dailies")
+                and name != "pipeline"
+            ):
                 yield mod, _package(mod), _package(name), f"{path.relative_to(ROOT)}:{line} imports {name}"
 
 

@@ -175,7 +175,9 @@ def test_train_rig_task_reports_progress_and_stops_the_trainer_at_the_soft_limit
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
-    assert "stopped at its time limit" in str(ei.value) and f"{tmp_path / '.m.partial'}/checkpoints" in str(ei.value)
+    assert "stopped at its time limit" in str(ei.value) and f"{tmp_path / '.m.partial'}/checkpoints" in str(
+        ei.value
+    )
     assert updates and all(s == "PROGRESS" for s, _ in updates)
     assert updates[-1][1]["iteration"] == 30 and updates[-1][1]["fraction"] == 0.5
     pid = int(pidfile.read_text())
