@@ -111,7 +111,8 @@ def dailies(
     check_tls(certfile, keyfile)
     if token is not None and len(token) < 16:
         raise TweenError("--token: at least 16 characters (it is the only login)")
-    from dailies.tracker import make, read_mapping
+    from dailies.tracker import read_mapping
+    from dailies.trackers import make
 
     if tracker_map is not None and tracker is None:
         raise TweenError("--tracker-map: give --tracker too")

@@ -8,7 +8,8 @@ import pytest
 from dailies_fixtures import client_for, filled_shot
 from kitsu_server import ADMIN, PASSWORD, KitsuServer
 
-from dailies.tracker import TrackerError, make, names
+from dailies.tracker import TrackerError, names
+from dailies.trackers import make
 
 PROJECT = "tween-dailies"
 
