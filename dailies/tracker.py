@@ -1,8 +1,8 @@
 """Sending an approved take to the studio's tracker: the interface, and what is sent.
 
-A tracker is anything with ``send(take) -> dict`` (:class:`Tracker`); ``TRACKERS`` names the
-ones built in (Kitsu, :mod:`dailies.kitsu`). The page and the CLI only ever see this module,
-so ftrack or ShotGrid is one more class here, not a change to them.
+A tracker is anything with ``send(take) -> dict`` (:class:`Tracker`); :mod:`dailies.trackers`
+names the ones built in (Kitsu, :mod:`dailies.kitsu`), so ftrack or ShotGrid is one more
+class and one entry there, not a change to the page or the CLI.
 """
 
 from __future__ import annotations
@@ -89,15 +89,6 @@ def approved_take(shot: Shot, mapping: dict | None = None) -> ApprovedTake:
     seq, name = names(shot.stem, shot.folder, mapping)
     return ApprovedTake(seq, name, take, mp4, str(appr.get("note") or ""), str(appr.get("by") or ""),
                         str(appr.get("at") or ""), path.name)  # fmt: skip
-
-
-def make(name: str, settings: dict | None = None) -> Tracker:
-    """The tracker called ``name``, configured from ``settings`` (else its environment)."""
-    if name == "kitsu":
-        from dailies.kitsu import Kitsu
-
-        return Kitsu.from_settings(settings)
-    raise TrackerError(f"--tracker {name!r}: unknown tracker (known: kitsu)")
 
 
 def send(roots: list[Path], key: str, tracker: Tracker, mapping: dict | None = None) -> dict:
