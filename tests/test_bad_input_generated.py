@@ -279,7 +279,7 @@ def farm_and_page_case(draw, ws: Path, a: Assets):
             draw(st.sampled_from(["abc", "10:5", "5:5", "1:2:3"])),
         ]
     if cmd == "cancel":
-        return [cmd, draw(st.from_regex(r"[a-z0-9-]{1,20}", fullmatch=True))]
+        return [cmd, draw(st.from_regex(r"[a-z0-9][a-z0-9-]{0,19}", fullmatch=True))]  # (not an option)
     if draw(st.booleans()):  # no such folder, or a file: never a folder it would serve
         root = ws / "shots"
         if draw(st.booleans()):
