@@ -19,6 +19,27 @@ def option(default, *flags: str, help: str, **meta):
     return field(default=default, metadata={"flags": flags, "help": help, **meta})
 
 
+def flags_of(cls) -> dict[str, str]:
+    """Field name → its first command-line flag, for every field of the dataclass ``cls``."""
+    return {f.name: f.metadata["flags"][0] for f in fields(cls)}
+
+
+def job_args(options: dict, flags: dict[str, str], command: str) -> list[str]:
+    """The command-line flags that give a farm job's ``options`` back to ``command`` (in
+    ``flags``' order; a switch is its flag alone when set). Unknown names are a ValueError."""
+    unknown = sorted(set(options) - set(flags))
+    if unknown:
+        raise ValueError(f"unknown {command} option(s): {', '.join(unknown)}")
+    args: list[str] = []
+    for key, flag in flags.items():
+        v = options.get(key)
+        if isinstance(v, bool):
+            args += [flag] if v else []
+        elif v is not None and v != "":
+            args += [flag, str(v)]
+    return args
+
+
 def with_options(cls, lead: int = 1):
     """A decorator: the typer command gets every field of the dataclass ``cls`` as an option
     (after its first ``lead`` parameters) and takes them as one ``opts: cls`` keyword,

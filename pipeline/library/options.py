@@ -5,9 +5,9 @@ process) and ``tween submit-library`` (the farm) offer the same ones
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
-from pipeline.options import option, with_options
+from pipeline.options import flags_of, job_args, option, with_options
 
 
 @dataclass
@@ -30,21 +30,12 @@ class LibraryBuildOptions:
 
 
 #: option name → its ``tween library build`` flag.
-FLAGS: dict[str, str] = {f.name: f.metadata["flags"][0] for f in fields(LibraryBuildOptions)}
+FLAGS: dict[str, str] = flags_of(LibraryBuildOptions)
 
 
 def command_args(options: dict) -> list[str]:
     """The ``tween library build`` flags of a job's options (unknown names are a ValueError)."""
-    unknown = sorted(set(options) - set(FLAGS))
-    if unknown:
-        raise ValueError(f"unknown library build option(s): {', '.join(unknown)}")
-    out: list[str] = []
-    for k, v in options.items():
-        if v is True:
-            out.append(FLAGS[k])
-        elif v not in (None, False, ""):
-            out += [FLAGS[k], str(v)]
-    return out
+    return job_args(options, FLAGS, "library build")
 
 
 #: The typer command with every LibraryBuildOptions field as an option (``opts``).

@@ -9,10 +9,10 @@ process) and ``tween submit-train-rig`` (the farm) offer the same options
 from __future__ import annotations
 
 import re
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 from pipeline.errors import TweenError
-from pipeline.options import option, with_options
+from pipeline.options import flags_of, job_args, option, with_options
 
 SCHEDULES = ("tiny", "reduced", "paper")
 MAX_SEED = 2**31 - 1
@@ -85,22 +85,12 @@ class TrainRigOptions:
 
 
 #: option name → its ``tween train-rig`` flag.
-FLAGS: dict[str, str] = {f.name: f.metadata["flags"][0] for f in fields(TrainRigOptions)}
+FLAGS: dict[str, str] = flags_of(TrainRigOptions)
 
 
 def command_args(options: dict) -> list[str]:
     """The ``tween train-rig`` flags of a job's options (unknown names are a ValueError)."""
-    unknown = sorted(set(options) - set(FLAGS))
-    if unknown:
-        raise ValueError(f"unknown train-rig option(s): {', '.join(unknown)}")
-    args: list[str] = []
-    for key, flag in FLAGS.items():
-        v = options.get(key)
-        if isinstance(v, bool):  # a switch: its flag alone when set
-            args += [flag] if v else []
-        elif v is not None and v != "":
-            args += [flag, str(v)]
-    return args
+    return job_args(options, FLAGS, "train-rig")
 
 
 #: The typer command with every TrainRigOptions field as an option (``opts:
