@@ -1,6 +1,7 @@
-"""The research scripts use public APIs only (issue 18): each imports without running, takes
-``--help``, and imports nothing but the standard library, installed libraries and the
-project's packages (no ``sys.path`` edits, no script importing another). Code they shared
+"""The scripts (``scripts/``: tools for what ships) and the experiments (``experiments/``: one-off
+studies, outside the installed packages) use public APIs only (issue 18): each imports without
+running, takes ``--help``, and imports nothing but the standard library, installed libraries and
+the project's packages (no ``sys.path`` edits, no script importing another). Code they shared
 lives in the package (pipeline.bench.selection, pipeline.bench.ratios), tested here."""
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SCRIPTS = sorted((REPO / "scripts").glob("*.py"))
+FOLDERS = ("scripts", "experiments")
+SCRIPTS = sorted(p for folder in FOLDERS for p in (REPO / folder).glob("*.py"))
 #: Needs Blender's ``bpy`` for two of its commands (imported lazily): checked with --help only.
 BPY = "blender_roundtrip.py"
 PLAIN = [p for p in SCRIPTS if p.name != BPY]
@@ -22,11 +24,21 @@ PROJECT = ("pipeline", "workers", "render", "usd_schemas")
 
 
 def _id(p: Path) -> str:
-    return p.stem
+    return f"{p.parent.name}/{p.stem}"
 
 
 def test_there_are_scripts():
     assert len(SCRIPTS) >= 2 and any(p.name == BPY for p in SCRIPTS)
+
+
+def test_every_experiment_says_what_it_measured():
+    """experiments/README.md has a row for each experiment (what it measured, where the
+    result is), and the package does not ship the folder."""
+    readme = (REPO / "experiments" / "README.md").read_text()
+    for p in (REPO / "experiments").glob("*.py"):
+        assert f"| `{p.name}` |" in readme, f"experiments/README.md: no row for {p.name}"
+    setup = (REPO / "setup.py").read_text()
+    assert "find_packages(include=" in setup and "experiments" not in setup
 
 
 @pytest.mark.parametrize("path", PLAIN, ids=_id)
@@ -78,7 +90,8 @@ def test_public_imports_only(path):
         spec = importlib.util.find_spec(top)  # an installed library
         assert spec is not None, f"line {line}: {module} is not installed"
         origin = Path(spec.origin or next(iter(spec.submodule_search_locations or []), "")).resolve()
-        assert REPO / "scripts" not in origin.parents, f"line {line}: {module} comes from scripts/"
+        for folder in FOLDERS:
+            assert REPO / folder not in origin.parents, f"line {line}: {module} comes from {folder}/"
 
 
 @pytest.mark.parametrize("path", SCRIPTS, ids=_id)

@@ -1,6 +1,6 @@
 """What a motion DNA does to a fill, on the protocol's eval windows.
 
-python scripts/dna_effect.py MODEL_DIR [--poses R] [--every K] [--out FILE.json]
+python experiments/dna_effect.py MODEL_DIR [--poses R] [--every K] [--out FILE.json]
 
 For each window and transition length (30 and 45 frames, where there is room for a pose to
 show), the generator fills the gap with no DNA and with R representative poses

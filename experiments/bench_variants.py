@@ -1,6 +1,6 @@
 """Extra benchmark rows for the model card: post-processing and root-source switches.
 
-python scripts/bench_variants.py MODEL_DIR [SUPERVISED_MODEL_DIR] [--out runs/bench_variants.json] > rows.md
+python experiments/bench_variants.py MODEL_DIR [SUPERVISED_MODEL_DIR] [--out runs/bench_variants.json] > rows.md
 
 Each row is the full protocol (PROTOCOL.md) with one inference switch changed.
 """

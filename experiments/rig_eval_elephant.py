@@ -11,7 +11,7 @@ that are not keys, against the held-back clip:
 - foot skate: mean horizontal (XZ in the Y-up frame) displacement per frame of each
   contact joint over the frames where the ground truth is in contact (at t−1 and t).
 
-    .venv/bin/python scripts/rig_eval_elephant.py --model models/elephant [--seeds 5] [--write]
+    .venv/bin/python experiments/rig_eval_elephant.py --model models/elephant [--seeds 5] [--write]
 
 ``--write`` stores the numbers in rig.json["metrics"] and re-renders MODEL_CARD.md.
 """
@@ -130,7 +130,7 @@ def main() -> None:
         f"second) {fill_10s:.3f} s; unconditional synthesis of 10 s {synth_10s:.3f} s. "
         f"Fill of the {len(test)}-frame test half: {timing['model keys']:.3f} s.",
         "",
-        "Made by `.venv/bin/python scripts/rig_eval_elephant.py --model "
+        "Made by `.venv/bin/python experiments/rig_eval_elephant.py --model "
         f"{args.model} --seeds {args.seeds}"
         + (f" --reference {args.reference}" if args.reference else "")
         + " --write`.",

@@ -1,4 +1,4 @@
-"""How far apart the takes of one model are: python scripts/take_spread.py MODEL_DIR [MODEL_DIR ...]
+"""How far apart the takes of one model are: python experiments/take_spread.py MODEL_DIR [MODEL_DIR ...]
 
 Fills an eval walk (keys every 30 frames) with seeds 0, 3 and 4 and prints the mean and largest
 joint distance (cm) between each pair of takes.

@@ -1,6 +1,6 @@
 """GANimator's Table 1 metrics for a per-rig model trained on the Bandai dance clip.
 
-    python scripts/rig_bench_dance.py MODEL_DIR [--samples 20] [--factor 2] [--clip BVH]
+    python experiments/rig_bench_dance.py MODEL_DIR [--samples 20] [--factor 2] [--clip BVH]
                                       [--frames A:B] [--no-contacts] [--out bench_results/rig_dance.json]
 
 Synthesises ``--samples`` unconditional motions of ``--factor`` × the clip's length (the

@@ -1,6 +1,6 @@
 """Choose the generator's pad layout without the eval split.
 
-python scripts/pad_layouts.py MODEL_DIR [--cmu] [--eval] [--every K]
+python experiments/pad_layouts.py MODEL_DIR [--cmu] [--eval] [--every K]
 
 The network takes windows a multiple of 32 frames long, so a shot is padded. The layouts of
 ``OnnxInbetweener(pad=...)``, and the padded window's length (``pad_tail`` frames at least

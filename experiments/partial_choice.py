@@ -1,6 +1,6 @@
 """Choose a partial-key model without the eval split.
 
-python scripts/partial_choice.py MODEL_DIR [MODEL_DIR ...] [--every K] [--json OUT]
+python experiments/partial_choice.py MODEL_DIR [MODEL_DIR ...] [--every K] [--json OUT]
 
 Each model is measured on protocol windows cut from every K-th train clip (default 8; see
 ``pipeline.bench.selection.train_windows``): the protocol's task with full keys (L2P and foot

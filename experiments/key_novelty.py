@@ -7,7 +7,7 @@ model's pose bank, cm; pipeline.infer.novelty) as quantiles, and the share of sh
 trusted fill counts as familiar, unseen and in between. This is what FAMILIAR_CM and
 NOVEL_CM were set from.
 
-``python scripts/key_novelty.py [--model default] [--every 30] [--sources eval,cmu,posture30]``
+``python experiments/key_novelty.py [--model default] [--every 30] [--sources eval,cmu,posture30]``
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Choose the foot lock's settings without the eval split.
 
-python scripts/foot_lock_variants.py MODEL_DIR [--every K]
+python experiments/foot_lock_variants.py MODEL_DIR [--every K]
 
 Compares ``OnnxInbetweener(feet_anchor=..., feet_orient=...)`` on the protocol's task on
 windows cut from every 4th train clip (``pipeline.bench.selection.train_windows``): L2P and

@@ -5,7 +5,7 @@ a model/spline blend at nine fixed weights, saved as ``OUT/d_<source>_<every>.np
 per source and spacing, the task's mean log ratio (spline / model error between the keys) in
 bins of the probes' mean log ratio. Offline study, not a test or a benchmark.
 
-``python scripts/trust_sweep.py OUT [--sources eval,cmu,...] [--every 8,10,15,20,30,40]``
+``python experiments/trust_sweep.py OUT [--sources eval,cmu,...] [--every 8,10,15,20,30,40]``
 """
 
 from __future__ import annotations
