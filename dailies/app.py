@@ -113,6 +113,22 @@ def create_app(roots: list[Path], login: Login, tracker=None, mapping: dict | No
         except decide.Refused as e:
             raise HTTPException(409, str(e)) from None
 
+    @app.post("/api/shots/{key:path}/render", summary="Render the takes without review media on the farm")
+    def api_render(key: str, body: Publication = Body(...)) -> dict:
+        shot = find(roots, key)
+        if shot is None:
+            raise HTTPException(404, f"{key}: no such shot under the roots")
+        d = detail(shot)
+        if body.version is not None and body.version != d["version"]:
+            raise HTTPException(
+                409, f"{key}: v{body.version:03d} is no longer the latest (v{d['version']:03d} is)"
+            )
+        version = d["takes"][0]["version"]  # the fill version whose media the page shows
+        try:
+            return farm.render(roots, shot, version, [t["take"] for t in d["takes"] if t["mp4"] is None])
+        except TweenError as e:
+            raise HTTPException(409, str(e)) from None
+
     @app.get("/api/jobs", summary="The farm's fill jobs for shots under the roots: queued, running, failed")
     def api_jobs(shot: str | None = Query(None, description="Only this shot's (its key).")) -> dict:
         if shot is None:

@@ -134,3 +134,38 @@ def cancel(roots: list[Path], job_id: str) -> dict:
             time.sleep(0.2)
         jobs.undo_cancelled(js)
     return _row(js)
+
+
+def render(roots: list[Path], shot, version: int, unrendered: list[int]) -> dict:
+    """Submits the render-only job of ``shot``'s fill ``version`` (its takes ``unrendered``
+    have no media yet): the page's "render". Refused when the version is rendered, when a
+    render of it is already on the farm, or without a farm."""
+    import workers.jobs as jobs
+    from workers.app import check_farm, farm_errors
+
+    if not unrendered:
+        raise TweenError(f"{shot.stem} v{version:03d}: every take is rendered already")
+    review = sorted(shot.folder.glob(f"{shot.stem}.review.v{version:03d}.usd*"))
+    if not review:
+        raise TweenError(
+            f"{shot.stem} v{version:03d}: its review layer is gone; fill the shot again to render it"
+        )
+    celery_app = _farm()
+    if celery_app.conf.tween.embedded:
+        raise TweenError(
+            "no farm configured (TWEEN_BROKER_URL): render it here with "
+            f"tween review {review[0]} --all-takes --out {shot.folder / 'review'}"
+        )
+    check_farm(celery_app)
+    with farm_errors(celery_app):
+        ids = _job_ids(celery_app.backend) or []
+        for j in ids:
+            rec = celery_app.backend.get_task_meta(j).get("result")
+            if isinstance(rec, dict) and rec.get("kind") == "review" and rec.get("review") == str(review[0]):
+                js = jobs.state(j)
+                if not js.finished:
+                    raise TweenError(
+                        f"{shot.stem} v{version:03d}: already rendering, job {j} ({js.state.lower()})"
+                    )
+        job_id = jobs.submit_review(str(review[0]), roots=[str(r) for r in roots])
+        return _row(jobs.state(job_id))

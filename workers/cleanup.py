@@ -99,9 +99,12 @@ def version_media(review_layer: str, folder: str | Path) -> list[Path]:
 
 def undo(shot: str, opts: dict, job: dict) -> list[str]:
     """Removes everything job ``job`` wrote for ``shot``: review media and scratch, layers,
-    work folder, and the output folders it made when they are empty. Returns what it removed."""
+    work folder, and the output folders it made when they are empty. Returns what it removed.
+    A render-only job (``job["kind"] == "review"``) removes only the media it made."""
     from pipeline.usd import write
 
+    if job.get("kind") == "review":
+        return undo_render(job)
     removed: list[str] = []
     out_dir = Path(opts.get("out_dir") or write.default_out_dir(shot))
     done = write.find_job(out_dir, write.shot_stem(shot), job["id"]) if out_dir.is_dir() else None
@@ -124,4 +127,22 @@ def undo(shot: str, opts: dict, job: dict) -> list[str]:
     else:  # no layers: a scratch may still be there if the layers went first
         removed += clean_scratch(out_dir / "review", job["id"])
     drop_work(job.get("work_dir"), job.get("made_dirs", ()))
+    return removed
+
+
+def undo_render(job: dict) -> list[str]:
+    """Removes what a render-only job made: its scratch, and the media of its version that were
+    not there when it was submitted (``job["existing"]``). The fill version itself stays."""
+    review = job["review"]
+    folder = os.path.join(os.path.dirname(review), "review")
+    removed = clean_scratch(folder, job["id"])
+    keep = set(job.get("existing") or ())
+    for p in version_media(review, folder):
+        if p.name not in keep:
+            p.unlink(missing_ok=True)
+            removed.append(str(p))
+    try:
+        os.rmdir(folder)  # the review folder, if this job's media were all it held
+    except OSError:
+        pass
     return removed

@@ -58,8 +58,10 @@ class JobState:
         return {k: getattr(self, k) for k in keys}
 
 
-def stage_ids(job_id: str, takes: int) -> list[tuple[str, str]]:
-    """(stage name, task id) in execution order."""
+def stage_ids(job_id: str, takes: int, kind: str = "fill") -> list[tuple[str, str]]:
+    """(stage name, task id) in execution order; a render-only job (``kind="review"``) has one."""
+    if kind == "review":
+        return [("review", f"{job_id}.review")]
     return (
         [("validate", f"{job_id}.validate")]
         + [(f"take {t + 1}/{takes}", f"{job_id}.take{t}") for t in range(takes)]
@@ -195,6 +197,46 @@ def submit(
     return [job["id"] for _, job in planned]
 
 
+def submit_review(review: str, *, roots=None, queue: str | None = None) -> str:
+    """Sends a render-only job: the review media of the fill version whose review layer is
+    ``review`` (``<stem>.review.vNNN``), into ``review/`` beside it; returns its id at once.
+    Its render limits are sized like a fill's render (frames × takes)."""
+    from render.scene import list_takes
+
+    roots = app.conf.tween.shot_roots if roots is None else roots
+    queue = queue or app.conf.task_default_queue
+    review = os.path.abspath(review)
+    if roots:
+        jobpaths.check_under_roots(review, roots, "review layer")
+    takes = len(list_takes(review)) or 1
+    job_id = uuid.uuid4().hex
+    folder = os.path.join(os.path.dirname(review), "review")
+    job = {
+        "id": job_id,
+        "kind": "review",
+        "review": review,
+        "takes": takes,
+        "render": True,
+        # what an undo keeps: the version's media that were there before this job
+        "existing": sorted(p.name for p in cleanup.version_media(review, folder)),
+        "work": {"frames": _review_frames(review), "takes": takes},
+    }
+    job["limits"] = {"review": list(render_limits(job["work"]["frames"], takes))}
+    soft, hard = job["limits"]["review"]
+    rec = {"shot": review, "kind": "review", "review": review, "existing": job["existing"], "takes": takes,
+           "render": True, "queue": queue, "time": time.time(), "out_dir": os.path.dirname(review),
+           "work": job["work"]}  # fmt: skip
+    try:
+        app.backend.store_result(job_id, rec, SUBMITTED)
+        app.signature(
+            "tween.render_version", (review, job), task_id=f"{job_id}.review", queue=queue,
+            soft_time_limit=soft, time_limit=hard,
+        ).apply_async()  # fmt: skip
+    finally:
+        _drop_result_subscriptions()
+    return job_id
+
+
 def _review_frames(shot: str) -> int:
     """Frames per take of the shot's review (render.review.review_frames); 1 when unknown."""
     try:
@@ -230,7 +272,7 @@ def state(job_id: str) -> JobState:
         return js
     info = rec["result"]
     js.record = info
-    js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]))
+    js.shot, stages = info["shot"], stage_ids(job_id, int(info["takes"]), info.get("kind") or "fill")
     js.total, js.state = len(stages), "QUEUED"
     js.cancel = control.record(_meta(control.cancel_id(job_id)), control.CANCEL_STATE)
     failures = []
@@ -318,7 +360,8 @@ def undo_cancelled(js: JobState) -> list[str]:
     rec = js.record
     if js.state != "CANCELLED" or not rec:
         return []
-    job = {"id": js.id, "work_dir": rec.get("work_dir"), "made_dirs": rec.get("made_dirs") or ()}
+    job = {"id": js.id, "work_dir": rec.get("work_dir"), "made_dirs": rec.get("made_dirs") or (),
+           "kind": rec.get("kind") or "fill", "review": rec.get("review"), "existing": rec.get("existing")}  # fmt: skip
     return cleanup.undo(js.shot, {"out_dir": rec.get("out_dir") or None}, job)
 
 

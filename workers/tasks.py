@@ -100,6 +100,8 @@ def _job_args(name: str, args) -> tuple[str, dict, dict] | None:
             return args[0], args[1], args[-1]
         if name in ("tween.write_layer", "tween.render_review"):
             return args[1], args[2], args[3]
+        if name == "tween.render_version":
+            return args[0], {}, args[1]
     except IndexError:
         return None
     return None
@@ -227,6 +229,23 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
         # found by it (its job.json), and undone, by the next run (jobs.clean_dead_work).
         _drop(job["work_dir"])
     return result
+
+
+@app.task(name="tween.render_version", base=FarmTask, bind=True)
+def render_version(self, review: str, job: dict) -> dict:
+    """A render-only job: the review media of a fill version written earlier (the dailies
+    page's "render"). Failed or cancelled, it removes the media it made, never the version."""
+    with _stage(self, review, {}, job, "review"):
+        from render.scene import list_takes
+
+        try:
+            with _sorted_errors(review):
+                n_takes = len(list_takes(review)) or 1
+            layer = {"review": review, "layer": review, "takes": n_takes}
+            return {"review": review, "renders": _render_takes(layer, review, {}, job)}
+        except BaseException:
+            cleanup.undo(review, {}, job)
+            raise
 
 
 def _render_takes(layer: dict, shot: str, opts: dict, job: dict) -> list:

@@ -148,6 +148,29 @@
     }
   });
 
+  // "Render on the farm": one render-only job for every take without media; the page
+  // reloads once the shot's takes all have their turntable.
+  async function rendered() {
+    const url = `/api/shots/${data.key.split("/").map(encodeURIComponent).join("/")}`;
+    const r = await fetch(url, { credentials: "same-origin" });
+    return r.ok && (await r.json()).takes.every((t) => t.mp4_url);
+  }
+  document.querySelectorAll('[data-action="render"]').forEach((b) =>
+    b.addEventListener("click", async () => {
+      const all = document.querySelectorAll('[data-action="render"]');
+      all.forEach((x) => (x.disabled = true)); // one job renders every take
+      try {
+        const r = await post("render", { version: data.version });
+        say(`render job ${r.id.slice(0, 8)}: ${r.state.toLowerCase()}`, true);
+        document.dispatchEvent(new Event("tween:jobs"));
+        const poll = async () => ((await rendered()) ? location.reload() : setTimeout(poll, 5000));
+        setTimeout(poll, 5000);
+      } catch (e) {
+        say(e.message, false);
+        all.forEach((x) => (x.disabled = false));
+      }
+    }));
+
   const trackerButton = document.querySelector('[data-action="tracker"]');
   if (trackerButton) trackerButton.addEventListener("click", async () => {
     trackerButton.disabled = true; // one upload per click

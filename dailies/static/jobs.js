@@ -52,4 +52,5 @@
     if (data.jobs.some((j) => ["QUEUED", "RUNNING", "CANCELLING"].includes(j.state))) setTimeout(refresh, 5000);
   }
   refresh();
+  document.addEventListener("tween:jobs", refresh); // a job submitted from the page
 })();
