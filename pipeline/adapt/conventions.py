@@ -102,10 +102,12 @@ CONVENTIONS: dict[str, dict] = {
                    "pinky_{n}_{l}", "ball_leg_{l}"),
     },
     # Blender Rigify metarig (spine = the hips, spine.003 the chest region, spine.004-.005 the
-    # neck, spine.006 the head), its generated DEF- deform bones, and converters' spine_001.
+    # neck, spine.006 the head), its generated DEF- deform and ORG- original bones, and
+    # converters' spine_001. Rigs that root the legs elsewhere (a pelvis) get their hips from
+    # the topology (pipeline.adapt.mapping._hips).
     "rigify": {
         "label": "Rigify",
-        "prefixes": ("DEF-",),
+        "prefixes": ("DEF-", "ORG-"),
         "roles": {
             "Hips": ("spine",), "Head": ("spine.006",),
             "Shoulder": ("shoulder.{L}",), "UpperArm": ("upper_arm.{L}",), "LowerArm": ("forearm.{L}",),

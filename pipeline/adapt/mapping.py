@@ -188,6 +188,8 @@ def map_joints_info(
         if not hit:
             raise MappingError(f"mapping override {role} -> {target!r}: no such joint in the skeleton")
         out[role] = hit[0]
+    if "Hips" not in (override or {}):  # a hips the user named is taken as it is
+        _hips(out, parents)
     _torso(out, names, parents, removed)
     missing = [r for r in REQUIRED if r not in out]
     if missing:
@@ -248,6 +250,33 @@ def _vocabulary(model_joint: str) -> tuple[str, ...]:
                 p = p.replace(ph, text)
             words.add(_norm(p.replace("{n}", "").replace("*", "")).strip("_"))
     return tuple(sorted(words))
+
+
+def _common_ancestor(parents: np.ndarray, joints) -> int | None:
+    """The lowest joint every one of ``joints`` is (or descends from); None in a forest."""
+    paths = [_ancestors(parents, j) for j in joints]
+    shared = set(paths[0]).intersection(*paths[1:])
+    return next((a for a in paths[0] if a in shared), None)
+
+
+def _hips(out: dict[str, int], parents: np.ndarray) -> None:
+    """The hips from the topology where the names' hips is not one: the joint where both legs
+    and the spine (up to the chest, the arms' common ancestor) branch. A named hips that both
+    legs and the chest descend from is kept (CC's and Genesis' pelvis, Biped's spine between)."""
+    if not all(k in out for k in ("UpperLeg_L", "UpperLeg_R", "UpperArm_L", "UpperArm_R")):
+        return  # the missing limbs are the error
+    arms = [out.get(f"Shoulder_{s}", out[f"UpperArm_{s}"]) for s in "LR"]
+    legs = [out["UpperLeg_L"], out["UpperLeg_R"]]
+    chest = _common_ancestor(parents, arms)
+    branch = None if chest is None else _common_ancestor(parents, [*legs, chest])
+    if branch is None:
+        raise MappingError(
+            "no hips: the legs and the arms are not in one hierarchy (no joint both legs and the spine descend from)"
+        )
+    named = out.get("Hips")
+    if named is not None and all(named in _ancestors(parents, j)[1:] for j in (*legs, chest)):
+        return
+    out["Hips"] = branch
 
 
 def _torso(out: dict[str, int], names: list[str], parents: np.ndarray, removed: set[str]) -> None:
