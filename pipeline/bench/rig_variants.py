@@ -373,8 +373,9 @@ def filled_positions(review: str, rig: Rig) -> np.ndarray:
     return out
 
 
-def _fill(shot: Path, model: str, out: Path) -> str:
-
+def fill_review(shot: Path, model: str, out: Path) -> str:
+    """The bench's fill of a shot: the product's own (``tween fill-local SHOT --model MODEL
+    --out-dir OUT``, bit for bit); returns the review stage's path."""
     return fill_shot(str(shot), FillOptions(model=model, out_dir=str(out)))["review"]
 
 
@@ -413,7 +414,7 @@ def run_rig_bench(
                     dr = np.abs(root - base_in[1]).max() / 100.0  # cm → m... as a fraction of a metre
                     net[v] = max(net.get(v, 0.0), float(dq), float(dr))
                 for m in methods:
-                    pos = filled_positions(_fill(shot, "default" if m == "model" else m, d / m), rig)
+                    pos = filled_positions(fill_review(shot, "default" if m == "model" else m, d / m), rig)
                     e = np.linalg.norm(pos[inside] - truth[inside], axis=-1).mean() * 100
                     err[v][m].append(float(e))
                 print(f"tween: rig bench clip {ci + 1}/{len(clips)} {v}: done", file=sys.stderr)

@@ -10,7 +10,7 @@ import numpy as np
 from pipeline.adapt.rigmap import OwnRig
 from pipeline.errors import ShotError
 from pipeline.fill.plan import MAX_MODEL_FRAMES, CharPlan, Plan, own_rate
-from pipeline.infer.trust import TrustedInbetweener, blend_arrays, fill_across_cuts, gap_weights_at, trusted
+from pipeline.infer.trust import TrustedInbetweener, blend_arrays, gap_weights_at, trusted, trusted_fill
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_normalize
 from pipeline.usd.keys import merge_times
@@ -110,16 +110,16 @@ def key_channels(cp: CharPlan, rig_keys: tuple[np.ndarray, np.ndarray] | None) -
     return None if mask.all() else mask
 
 
-def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fill) -> dict:
-    """One in-betweener's fill of the character turned back onto its rig: ``fill(motion,
-    frames)`` fills ``motion`` (the keys on ``skeleton``, through ``retarget``, at ``fps``) from the key
-    frames; None from it (nothing to fill) gives no ``rot``/``tr``. Returns the fill range's
-    time codes ``inside``, their model frames ``u``, the keys' model frames ``m``, and the
-    rig's ``rot``/``tr``/``sc`` there. ``keyed``: the rig's rotations and translations at every
-    key (``anim_values`` at ``cp.keys``, read once by the caller)."""
-    shot, c = plan.shot, cp.char
-    k = cp.keys
-    m, keep = model_frames(k, shot.tcps, fps)  # one key a model frame
+def _keyed_motion(
+    plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float
+) -> tuple[Motion, np.ndarray]:
+    """The character's keys on ``skeleton`` (through ``retarget``) at ``fps``: a Motion over
+    the key span whose key frames hold the keys (the frames between any value: they are
+    filled), and the model frames of the keys it holds (one a model frame: model_frames).
+    ``keyed``: the rig's rotations and translations at every key (``anim_values`` at
+    ``cp.keys``, read once by the caller)."""
+    c = cp.char
+    m, keep = model_frames(cp.keys, plan.shot.tcps, fps)
     rot_k, tr_k = (v[keep] for v in keyed)
     loc_k, root_k = retarget.to_model(*to_skeleton_order(c, rot_k, tr_k))
     m = m[keep]
@@ -127,8 +127,18 @@ def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fil
     near = np.clip(np.searchsorted(m, np.arange(T)), 0, len(m) - 1)  # any value; frames off keys are filled
     motion = Motion(skeleton, loc_k[near], root_k[near], fps, c.anim_path)
     motion.rotations[m], motion.root_positions[m] = loc_k, root_k
-    filled = fill(motion, m)
+    return motion, m
 
+
+def _onto_rig(plan: Plan, cp: CharPlan, retarget, fps: float, filled: Motion | None, m: np.ndarray) -> dict:
+    """A fill on the model skeleton (at ``fps``, keyed at model frames ``m``:
+    :func:`_keyed_motion`) turned back onto the rig through ``retarget``; None (nothing
+    filled) gives no ``rot``/``tr``. Returns the fill range's time codes ``inside``, their
+    model frames ``u``, the keys' model frames ``m``, and the rig's ``rot``/``tr``/``sc``
+    there."""
+    shot, c = plan.shot, cp.char
+    k = cp.keys
+    T = int(m[-1]) + 1
     lo, hi = cp.fill_range
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
     u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
@@ -155,6 +165,36 @@ def _on_rig(plan: Plan, cp: CharPlan, keyed, retarget, skeleton, fps: float, fil
     rot, tr, sc_o = parts[0] if len(parts) == 1 else (np.concatenate(p) for p in zip(*parts, strict=True))
     out.update(rot=rot, tr=tr, sc=sc_o)
     return out
+
+
+class OnRig:
+    """Where the fill layer's trusted fill (infer.trust.trusted_fill) meets its two fills: the
+    character's rig, at every frame of its fill range. The network's fill is turned back onto
+    the rig; the spline fills on the rig itself at the shot's own rate, exactly as ``--model
+    spline`` fills it (so a decision for the spline gives that fill bit for bit); the two are
+    blended gap by gap there."""
+
+    def __init__(self, plan: Plan, cp: CharPlan, keyed, fps: float, m: np.ndarray):
+        self.plan, self.cp, self.keyed, self.fps, self.m = plan, cp, keyed, fps, m
+
+    def model(self, fill: Motion) -> dict:
+        return _onto_rig(self.plan, self.cp, self.cp.retarget, self.fps, fill, self.m)
+
+    def spline(self, spline) -> dict:
+        own, rate = OwnRig(self.cp.char), own_rate(self.plan.shot.tcps, self.cp.keys)
+        motion, m = _keyed_motion(self.plan, self.cp, self.keyed, own, own.skeleton, rate)
+        return _onto_rig(self.plan, self.cp, own, rate, spline.fill(motion, m), m)
+
+    def blend(self, decision, model: dict | None, spline: dict | None) -> dict:
+        if model is None or spline is None:
+            return spline if model is None else model
+        w = gap_weights_at(decision, model["m"], model["u"])
+        for s in range(0, len(w), SOLVE_BLOCK):  # float64 temporaries follow the block
+            b = slice(s, s + SOLVE_BLOCK)
+            model["rot"][b], model["tr"][b] = blend_arrays(
+                w[b], model["rot"][b], model["tr"][b], spline["rot"][b], spline["tr"][b]
+            )
+        return model
 
 
 def gap_table(decision, cp: CharPlan, tcps: float, fps: float) -> tuple[dict, dict]:
@@ -221,40 +261,20 @@ def fill_character(
         kept[[0, -1]] = True  # the first and last keys given stay full poses
         extra["joint_keys"] = kept
     trusting = isinstance(inb, TrustedInbetweener)
-    if trusting:  # gaps the body teleports across: the spline's, and no network window spans one
-        extra["cuts"] = jump_gaps(cp, shot.tcps, fps)
     on_rig = trusting and mask is None and dna is None
     rate = own_rate(shot.tcps, k)
     if on_rig and (k[-1] - k[0]) / shot.tcps * rate > MAX_MODEL_FRAMES:
         on_rig = False  # the rig's spline at the shot's rate would pass the plan's bound
     skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
-    if not on_rig:
-        res = _on_rig(
-            plan, cp, (rot_k, tr_k), cp.retarget, skel, fps, lambda mo, m: inb.fill(mo, m, seed=seed, **extra)
-        )
+    motion, m = _keyed_motion(plan, cp, (rot_k, tr_k), cp.retarget, skel, fps)
+    if not trusting:
+        res = _onto_rig(plan, cp, cp.retarget, fps, inb.fill(motion, m, seed=seed, **extra), m)
     else:
-
-        def network(motion, m):
-            d = inb.decide(motion, m, extra["cuts"])
-            return fill_across_cuts(inb.model, motion, m, d.cuts, seed=seed) if d.weight > 0.0 else None
-
-        res = _on_rig(plan, cp, (rot_k, tr_k), cp.retarget, skel, fps, network)
-        d = inb.last_decision
-        if d.weight < 1.0:
-            own = OwnRig(c)
-            spline = _on_rig(
-                plan, cp, (rot_k, tr_k), own, own.skeleton, rate, lambda mo, m: inb.spline.fill(mo, m)
-            )
-            if res["rot"] is None:
-                res["rot"], res["tr"] = spline["rot"], spline["tr"]
-            else:
-                w = gap_weights_at(d, res["m"], res["u"])
-                for s in range(0, len(w), SOLVE_BLOCK):  # float64 temporaries follow the block
-                    b = slice(s, s + SOLVE_BLOCK)
-                    res["rot"][b], res["tr"][b] = blend_arrays(
-                        w[b], res["rot"][b], res["tr"][b], spline["rot"][b], spline["tr"][b]
-                    )
-                del spline
+        cuts = jump_gaps(cp, shot.tcps, fps)  # the spline's, and no network window spans one
+        meet = OnRig(plan, cp, (rot_k, tr_k), fps, m) if on_rig else None
+        res = trusted_fill(inb, motion, m, seed, cuts=cuts, meet=meet, **extra)
+        if meet is None:  # met on the model skeleton: turned back onto the rig as a whole
+            res = _onto_rig(plan, cp, cp.retarget, fps, res, m)
     inside, rot, tr, sc_o = res["inside"], res["rot"], res["tr"], res["sc"]
     lo, hi = cp.fill_range
     if not (np.isfinite(rot).all() and np.isfinite(tr).all()):

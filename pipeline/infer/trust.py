@@ -33,7 +33,9 @@ root position linearly and every joint's local rotation by SLERP (:func:`apply`)
 bitwise exact.
 
 :class:`TrustedInbetweener` wraps a model in the same ``fill`` interface and keeps
-``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record.
+``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record;
+:func:`trusted_fill` is the one trusted fill (decide, cut, fill, blend), on the model skeleton
+or, from the fill layer, on the character's rig.
 How the constants were chosen, and what they give on the benchmark: docs/trust.md.
 """
 
@@ -634,8 +636,8 @@ class TrustedInbetweener:
     ``trust``: ``"auto"`` (probe, then the model, the spline or a blend), ``"model"`` or
     ``"spline"`` (no probes: that one's fill). Same ``fill`` interface, skeleton, frame rate,
     name and hash as ``model``; ``last_decision`` is the :class:`TrustDecision` of the latest
-    ``fill`` or ``decide`` (``.to_json()`` for a layer attribute). The fill API calls
-    ``decide`` itself and blends on the character's rig (pipeline.fill.solve).
+    ``fill`` or ``decide`` (``.to_json()`` for a layer attribute). The fill layer calls
+    :func:`trusted_fill` itself, to blend on the character's rig (pipeline.fill.solve).
 
     ``alternatives``: other in-betweeners on the same skeleton and rate (a motion library's
     network). With ``"auto"`` each is probed on the shot's own keys as ``model`` is, and the
@@ -713,18 +715,58 @@ class TrustedInbetweener:
             d.reason += f"; {model.name} chosen by the probes (score {d.score:+.2f}; {others})"
         return d
 
-    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, cuts=(), **kw) -> Motion:
-        keys = np.asarray(keys, np.int64)
-        extra = dict(kw)
-        if joint_keys is not None:
-            extra["joint_keys"] = joint_keys
-        if dna is not None:
-            extra["dna"] = dna
-        full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
-        d = self.decide(motion, full, cuts)
-        m = fill_across_cuts(self.model, motion, keys, d.cuts, seed=seed, **extra) if d.weight > 0.0 else None
-        s = spline_fill(self.spline, motion, keys, joint_keys) if d.weight < 1.0 else None
-        return apply(d, m, s, full)
+    def fill(self, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None, cuts=()) -> Motion:
+        """:func:`trusted_fill` on the model skeleton."""
+        return trusted_fill(self, motion, keys, seed, joint_keys, dna, cuts)
+
+
+class OnSkeleton:
+    """Where :func:`trusted_fill` meets its two fills by default: the model skeleton, as
+    ``motion`` (the shot the network fills) is. The spline's fill holds the same keys as the
+    network's (:func:`spline_fill`); :func:`apply` blends them gap by gap."""
+
+    def __init__(self, motion: Motion, keys, joint_keys=None):
+        self.motion, self.keys, self.joint_keys = motion, np.asarray(keys, np.int64), joint_keys
+
+    def model(self, fill: Motion) -> Motion:
+        return fill
+
+    def spline(self, spline) -> Motion:
+        return spline_fill(spline, self.motion, self.keys, self.joint_keys)
+
+    def blend(self, decision: TrustDecision, m: Motion | None, s: Motion | None) -> Motion:
+        full = (
+            self.keys if self.joint_keys is None else self.keys[np.asarray(self.joint_keys, bool).all(axis=1)]
+        )
+        return apply(decision, m, s, full)
+
+
+def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, joint_keys=None, dna=None,
+                 cuts=(), meet=None):  # fmt: skip
+    """The trusted fill of one character, the only one (``tween fill``, the farm and every
+    bench that fills shots come here): ``inb`` decides from the full keys how far its network
+    is trusted over its spline (:meth:`TrustedInbetweener.decide`; ``cuts`` go to the spline),
+    the network fills each stretch between cuts on its own (:func:`fill_across_cuts`; not at
+    all where the spline has every gap), the spline fills (not where the network has every
+    gap), and the two are blended gap by gap at the decided weights.
+
+    ``meet``: where the two fills meet, an object with ``model(fill)`` (the network's fill,
+    a Motion on the model skeleton, carried there), ``spline(spline)`` (the spline's fill
+    there) and ``blend(decision, model, spline)`` (either may be None: the other is the
+    fill); :class:`OnSkeleton` by default. The fill layer meets them on the character's own
+    rig (pipeline.fill.solve), where its spline is the animator's curves."""
+    keys = np.asarray(keys, np.int64)
+    full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
+    d = inb.decide(motion, full, cuts)
+    meet = OnSkeleton(motion, keys, joint_keys) if meet is None else meet
+    extra = {k: v for k, v in (("joint_keys", joint_keys), ("dna", dna)) if v is not None}
+    m = (
+        meet.model(fill_across_cuts(inb.model, motion, keys, d.cuts, seed=seed, **extra))
+        if d.weight > 0.0
+        else None
+    )
+    s = meet.spline(inb.spline) if d.weight < 1.0 else None
+    return meet.blend(d, m, s)
 
 
 def trusted(inbetweener, trust: str = "auto", alternatives=()):
