@@ -176,6 +176,15 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> 
     return code
 
 
+def _said(paths: list[str], ids: list[str], progress: bool) -> None:
+    """With progress on, each job id as it is sent, so that `tween status` can follow a fill
+    that is waited for (the Blender extension polls it); --no-progress keeps stderr as it was."""
+    if not progress:
+        return
+    for p, j in zip(paths, ids, strict=True):
+        print(f"tween: job {j} submitted ({p})", file=sys.stderr, flush=True)
+
+
 def _status_line(s) -> str:
     """The line of a fill job in ``tween status`` while it is not finished, or cancelled."""
     if s.state == "CANCELLED":
@@ -287,6 +296,7 @@ def register(app: typer.Typer) -> None:
             with farm_errors(celery_app), _Interrupts() as intr:
                 intr.armed = False  # counted, not raised, while the jobs are sent
                 ids = jobs.submit(paths, opts, render=render)
+                _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress)
             raise typer.Exit(code)
         from workers.embedded import EmbeddedWorker
@@ -301,6 +311,7 @@ def register(app: typer.Typer) -> None:
                 with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
                     intr.armed = False
                     ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
+                    _said(paths, ids, progress)
                     code = _run_jobs(ids, intr, progress, alive=w.alive)
                     w.cold = code == EXIT_CANCELLED
             except _Interrupted:

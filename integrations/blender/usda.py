@@ -1,0 +1,176 @@
+"""The two USD text files the extension touches, read and edited as text (Blender's Python
+has no ``pxr``): Blender's export of the blocking, and the fill layer's takes. No ``bpy``.
+
+Both are written by USD's own text writer (Sdf), which puts every time sample on its own line
+and closes every block at the indentation that opened it; these functions rely on that and
+refuse (ValueError, one line) what does not look so.
+
+The blocking: Blender's USD exporter samples every frame of the scene range. The fill reads a
+shot's keys from its animation's samples, so :func:`keep_keys` keeps the rotation samples
+only on the animator's keyed frames, the translations only where a location is keyed (a key
+where only rotations are keyed leaves the root's position free), and writes
+``tween:keyedJoints`` where only some bones are keyed (a partial key).
+"""
+
+from __future__ import annotations
+
+import re
+
+_ANIM = re.compile(r'^(?P<indent>\s*)def SkelAnimation "(?P<name>[^"]+)"')
+_SAMPLES = re.compile(r"^(?P<indent>\s*)(?:custom\s+)?\S+\s+(?P<attr>[\w:]+)\.timeSamples\s*=\s*\{\s*$")
+_SAMPLE = re.compile(r"^\s*(?P<t>[-+0-9.eE]+|-?inf|nan)\s*:\s*(?P<v>.*?),?\s*$")
+_TUPLE = re.compile(r"\(([^()]*)\)")
+_JOINTS = re.compile(r"^\s*uniform token\[\] joints\s*=\s*\[(?P<v>.*)\]\s*$")
+_TOKEN = re.compile(r'"([^"]*)"')
+EPS = 1e-4  # time codes this close are one frame (as the fill reads them)
+
+
+def _end(lines: list[str], i: int, indent: str) -> int:
+    """The index of the line closing the block opened at or after line ``i``."""
+    for j in range(i + 1, len(lines)):
+        if lines[j].rstrip() == indent + "}":
+            return j
+    raise ValueError(f"unclosed block at line {i + 1}")
+
+
+def _prim_block(lines: list[str], name: str | None = None, suffix: str = "") -> tuple[int, int, str, str]:
+    """(first line, closing line, indent, name) of the one SkelAnimation ``def`` (by name)."""
+    found = []
+    for i, ln in enumerate(lines):
+        m = _ANIM.match(ln)
+        if m and (name is None or m.group("name") == name) and m.group("name").endswith(suffix):
+            found.append((i, m.group("indent"), m.group("name")))
+    if len(found) != 1:
+        what = f"SkelAnimation {name!r}" if name else "SkelAnimation" + (f" *{suffix}" if suffix else "")
+        raise ValueError(f"expected one {what} in the file, found {len(found)}")
+    i, indent, nm = found[0]
+    return i, _end(lines, i, indent), indent, nm
+
+
+def _within(t: float, times) -> bool:
+    return any(abs(t - k) < EPS for k in times)
+
+
+def animation_joints(text: str, name: str | None = None) -> list[str]:
+    """The joint tokens of the file's SkelAnimation."""
+    lines = text.splitlines()
+    a, b, _, _ = _prim_block(lines, name)
+    for ln in lines[a:b]:
+        m = _JOINTS.match(ln)
+        if m:
+            return _TOKEN.findall(m.group("v"))
+    raise ValueError("the SkelAnimation lists no joints")
+
+
+def keep_keys(text: str, keys, located=None, keyed_joints: dict | None = None) -> str:
+    """Blender's export with samples only on the keys.
+
+    ``keys``: the keyed frames (rotations and scales keep these samples); ``located``: the
+    frames where a location is keyed (translations keep these; default ``keys``; the first
+    and last key always); ``keyed_joints``: {frame: joint tokens keyed there} for the partial
+    keys (a key absent from it keys every joint).
+    """
+    keys = sorted({float(k) for k in keys})
+    if len(keys) < 2:
+        raise ValueError(f"{len(keys)} keyed frame(s): the fill needs at least two keys")
+    located = sorted({float(k) for k in (keys if located is None else located)} | {keys[0], keys[-1]})
+    lines = text.splitlines()
+    a, b, indent, _ = _prim_block(lines)
+    joints = set(animation_joints(text))
+    keep = {"rotations": keys, "scales": keys, "translations": located}
+    out, i, seen = lines[: a + 1], a + 1, set()
+    while i < b:
+        ln = lines[i]
+        m = _SAMPLES.match(ln)
+        if not m or m.group("attr") not in keep:
+            out.append(ln)
+            i += 1
+            continue
+        j = _end(lines, i, m.group("indent"))
+        kept = []
+        for s in lines[i + 1 : j]:
+            sm = _SAMPLE.match(s)
+            if not sm:
+                raise ValueError(f"line {lines.index(s) + 1}: not a time sample")
+            if _within(float(sm.group("t")), keep[m.group("attr")]):
+                kept.append(s)
+        seen.add(m.group("attr"))
+        out += [ln, *kept, lines[j]]
+        i = j + 1
+    if "rotations" not in seen:
+        raise ValueError("the armature's animation has no rotation samples (is the action keyed?)")
+    partial = {float(t): list(v) for t, v in (keyed_joints or {}).items() if _within(float(t), keys)}
+    bad = sorted({j for v in partial.values() for j in v} - joints)
+    if bad:
+        raise ValueError(f"keyed joint {bad[0]!r} is not a joint of the animation")
+    if partial:
+        pad = indent + "    "
+        block = [f"{pad}custom token[] tween:keyedJoints.timeSamples = {{"]
+        for t in sorted(partial):
+            toks = ", ".join(f'"{j}"' for j in partial[t])
+            block.append(f"{pad}    {t:g}: [{toks}],")
+        block.append(f"{pad}}}")
+        at = next(k for k in range(a + 1, len(out)) if out[k].strip() == "{") + 1
+        out[at:at] = block
+    out += lines[b:]
+    return "\n".join(out) + "\n"
+
+
+def _samples(lines: list[str], a: int, b: int) -> dict[str, dict[float, list[tuple[float, ...]]]]:
+    """{attribute: {time: [tuple, …]}} of every ``.timeSamples`` between lines a and b."""
+    out: dict[str, dict[float, list[tuple[float, ...]]]] = {}
+    i = a
+    while i < b:
+        m = _SAMPLES.match(lines[i])
+        if not m:
+            i += 1
+            continue
+        j = _end(lines, i, m.group("indent"))
+        vals: dict[float, list[tuple[float, ...]]] = {}
+        for s in lines[i + 1 : j]:
+            sm = _SAMPLE.match(s)
+            if sm:
+                vals[float(sm.group("t"))] = [
+                    tuple(float(x) for x in tup.split(",")) for tup in _TUPLE.findall(sm.group("v"))
+                ]
+        out[m.group("attr")] = vals
+        i = j + 1
+    return out
+
+
+def read_takes(text: str, anim: str | None = None) -> tuple[list[str], dict[int, dict]]:
+    """A fill layer's takes: (joint tokens, {take: {"rotations"|"translations"|"scales":
+    {time: [(w, x, y, z) | (x, y, z), …]}}}). ``anim``: the filled animation's name
+    (``<anim>_tween``; default: the layer's only one). A fill of one take has no variant set:
+    its samples are take 0."""
+    lines = text.splitlines()
+    a, b, _, name = _prim_block(lines, f"{anim}_tween" if anim else None, "_tween")
+    joints = animation_joints(text, name)
+    takes: dict[int, dict] = {}
+    vs = next((i for i, ln in enumerate(lines) if re.match(r'^\s*variantSet "tweenTake" = \{\s*$', ln)), None)
+    if vs is None:
+        takes[0] = _samples(lines, a, b)
+    else:
+        indent = re.match(r"^(\s*)", lines[vs]).group(1)
+        end = _end(lines, vs, indent)
+        i = vs + 1
+        while i < end:
+            m = re.match(r'^(?P<indent>\s*)"take(?P<n>\d+)" \{\s*$', lines[i])
+            if not m:
+                i += 1
+                continue
+            j = _end(lines, i, m.group("indent"))
+            # the over of this animation inside the variant
+            over = next(
+                (k for k in range(i, j) if re.match(rf'^\s*over "{re.escape(name)}"\s*$', lines[k])), None
+            )
+            if over is not None:
+                o_ind = re.match(r"^(\s*)", lines[over]).group(1)
+                takes[int(m.group("n"))] = _samples(lines, over, _end(lines, over, o_ind))
+            i = j + 1
+    for t, s in takes.items():
+        if not s.get("rotations"):
+            raise ValueError(f"take {t} of {name} has no rotation samples")
+    if not takes:
+        raise ValueError(f"the fill layer holds no take of {name}")
+    return joints, takes

@@ -1,0 +1,199 @@
+"""The Blender extension in a real, headless Blender (``bpy`` from PyPI), against the farm.
+
+Run by a Python that has ``bpy`` (test_blender_real.py runs it; by hand:
+``BPY_PYTHON tests/integrations/blender_check.py --tween .venv/bin/tween --out DIR``). For each
+clip it installs the extension from a zip (Blender's own "Install from Disk"), imports the
+BVH with Blender's BVH importer, deletes every key but each 10th frame's (the blocking),
+presses Fill, polls until the takes are back, and checks: a take action per take, the keyed
+frames the blocking's exactly, the in-betweens not Blender's Bezier. It prints one JSON line
+per clip with the world-position error (cm, every joint, every in-between frame) of the fill's
+takes and of Blender's Bezier against the clip.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import os
+import sys
+import tempfile
+import time
+import zipfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+DATA = REPO.parent / "shared" / "data"
+EXT = REPO / "integrations" / "blender"
+MODULE = "bl_ext.user_default.usd_tween"
+
+# A Blender-named character (Rigify's names, .L/.R): the Bandai rig renamed, rooted at a
+# pelvis whose thighs hang beside the spine chain (the rig the issue says was refused).
+RIGIFY = {"joint_Root": "root", "Hips": "pelvis", "Spine": "spine", "Chest": "spine.001", "Neck": "neck",
+          "Head": "head"} | {f"{a}_{s}": f"{b}.{s}" for s in "LR" for a, b in
+          (("Shoulder", "shoulder"), ("UpperArm", "upper_arm"), ("LowerArm", "forearm"), ("Hand", "hand"),
+           ("UpperLeg", "thigh"), ("LowerLeg", "shin"), ("Foot", "foot"), ("Toes", "toe"))}  # fmt: skip
+
+CLIPS = {
+    "bandai": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_walk_normal_002.bvh.gz", None),
+    "cmu_iclone": (DATA / "cmu_iclone" / "001_01.bvh.gz", None),
+    "rigify_named": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_walk_normal_002.bvh.gz", RIGIFY),
+}
+
+
+def _zip(dest: Path) -> Path:
+    with zipfile.ZipFile(dest, "w") as z:
+        for p in sorted(EXT.rglob("*")):
+            if p.is_file() and "__pycache__" not in p.parts and p.name != "README.md":
+                z.write(p, p.relative_to(EXT).as_posix())
+    return dest
+
+
+def install(tmp: Path):
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.extensions.package_install_files(
+        filepath=str(_zip(tmp / "usd_tween.zip")), repo="user_default", enable_on_install=True
+    )
+    assert MODULE in bpy.context.preferences.addons, "the extension did not install"
+    return bpy.context.preferences.addons[MODULE].preferences
+
+
+def _clear():
+    import bpy
+
+    for coll in (bpy.data.objects, bpy.data.armatures, bpy.data.actions):
+        for x in list(coll):
+            coll.remove(x)
+
+
+def _world(arm, frames) -> list:
+    """World positions (metres) of every bone's head at each frame."""
+    import bpy
+
+    out = []
+    for f in frames:
+        bpy.context.scene.frame_set(f)
+        mw = arm.matrix_world
+        out.append([tuple(mw @ pb.head) for pb in arm.pose.bones])
+    return out
+
+
+def _err_cm(a, b, frames, keys) -> float:
+    import numpy as np
+
+    a, b = np.array(a), np.array(b)
+    inside = ~np.isin(np.array(frames), list(keys))
+    return float(np.linalg.norm(a - b, axis=-1)[inside].mean() * 100)
+
+
+def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path, timeout: float) -> dict:
+    import bpy
+
+    ext = sys.modules[MODULE]
+    _clear()
+    src = tmp / bvh.name.removesuffix(".gz")
+    src.write_bytes(gzip.decompress(bvh.read_bytes()))
+    bpy.ops.import_anim.bvh(
+        filepath=str(src), global_scale=0.01, update_scene_fps=True, update_scene_duration=True
+    )
+    arm = next(o for o in bpy.context.scene.objects if o.type == "ARMATURE")
+    arm.name = name
+    for old, new in (rename or {}).items():
+        arm.data.bones[old].name = new  # Blender renames the action's F-curve paths too
+    scene = bpy.context.scene
+    act = arm.animation_data.action
+    first = round(act.frame_range[0])
+    scene.frame_start, scene.frame_end = first, first + frames - 1
+    span = list(range(scene.frame_start, scene.frame_end + 1))
+    truth = _world(arm, span)
+    keys = set(span[::every]) | {span[-1]}
+    for fc in ext.blend.fcurves(act, arm):
+        drop = [k for k in fc.keyframe_points if round(k.co[0]) not in keys]
+        for k in reversed(drop):
+            fc.keyframe_points.remove(k)
+        for k in fc.keyframe_points:  # Blender's default keys: Bezier, auto-clamped handles
+            k.interpolation = "BEZIER"
+            k.handle_left_type = k.handle_right_type = "AUTO_CLAMPED"
+        fc.update()
+    blocking = {(fc.data_path, fc.array_index): [tuple(k.co) for k in fc.keyframe_points]
+                for fc in ext.blend.fcurves(act, arm)}  # fmt: skip
+    bezier = _world(arm, span)
+
+    for o in scene.objects:
+        o.select_set(o == arm)
+    bpy.context.view_layer.objects.active = arm
+    t0 = time.monotonic()
+    assert bpy.ops.tween.fill() == {"FINISHED"}, "Fill refused"
+    submitted = time.monotonic() - t0
+    job = ext.ui.TRACK[arm.name]["job"]
+    while not job.finished or arm.tween.status in ("", "submitting"):
+        if time.monotonic() - t0 > timeout:
+            raise SystemExit(f"{name}: no result after {timeout:.0f} s ({job.text()})")
+        time.sleep(0.5)
+        bpy.ops.tween.tick()
+        if job.finished:
+            bpy.ops.tween.tick()
+            break
+    if job.state != "done":
+        raise SystemExit(f"{name}: fill failed: {job.error}")
+    waited = time.monotonic() - t0
+    takes = ext.ui.takes_of(arm)
+    assert takes, "no take actions"
+    assert arm.animation_data.action == takes[0]
+    assert act.name in bpy.data.actions and [
+        tuple(k.co) for fc in ext.blend.fcurves(act, arm) for k in fc.keyframe_points
+    ] == [c for v in blocking.values() for c in v], "the animator's action changed"
+
+    out = {"clip": name, "bvh": bvh.name, "joints": len(arm.pose.bones), "frames": len(span), "keys": len(keys),
+           "fps": scene.render.fps, "submit_s": round(submitted, 2), "fill_s": round(waited, 1),
+           "takes": [], "bezier_cm": round(_err_cm(bezier, truth, span, keys), 3)}  # fmt: skip
+    for take in takes:
+        ext.blend.assign(arm, take)
+        curves = {(fc.data_path, fc.array_index): fc for fc in ext.blend.fcurves(take, arm)}
+        exact, moved = 0, 0.0
+        for ch, pts in blocking.items():
+            fc = curves[ch]
+            got = {round(k.co[0]): k.co[1] for k in fc.keyframe_points}
+            for f, v in pts:
+                assert got[round(f)] == v, (
+                    f"{take.name} {ch} at frame {f}: {got[round(f)]!r} != blocking {v!r}"
+                )
+                exact += 1
+            orig = next(c for c in ext.blend.fcurves(act, arm) if (c.data_path, c.array_index) == ch)
+            for f in span:
+                if f not in keys:
+                    moved = max(moved, abs(fc.evaluate(f) - orig.evaluate(f)))
+        assert moved > 1e-3, f"{take.name}: the in-betweens are Blender's Bezier"
+        pos = _world(arm, span)
+        out["takes"].append({"action": take.name, "decision": take.get("tween_decision"),
+                             "error_cm": round(_err_cm(pos, truth, span, keys), 3), "keys_exact": exact,
+                             "max_channel_change_vs_bezier": round(moved, 4)})  # fmt: skip
+    ext.blend.assign(arm, act)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tween", required=True, help="The tween executable the extension runs.")
+    ap.add_argument("--out", type=Path, default=None, help="Output folder (default: a temporary one).")
+    ap.add_argument("--clips", default=",".join(CLIPS), help=f"Which of {', '.join(CLIPS)}.")
+    ap.add_argument("--frames", type=int, default=241, help="Frames of each clip (from its first).")
+    ap.add_argument("--every", type=int, default=10, help="Keep the keys of every N-th frame.")
+    ap.add_argument("--takes", type=int, default=2)
+    ap.add_argument("--model", default="default")
+    ap.add_argument("--timeout", type=float, default=900.0)
+    a = ap.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="tween-blender-"))
+    prefs = install(tmp)
+    prefs.tween, prefs.farm, prefs.takes, prefs.model = a.tween, "EMBEDDED", a.takes, a.model
+    prefs.out_dir = str(a.out or tmp / "out")
+    for name in a.clips.split(","):
+        bvh, rename = CLIPS[name]
+        print(json.dumps(check_clip(name, bvh, rename, a.frames, a.every, tmp, a.timeout)), flush=True)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("TWEEN_BLENDER_CHECK", "1")
+    main()
