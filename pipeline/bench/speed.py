@@ -238,27 +238,6 @@ def time_levels(path: str | Path | bytes, feats: np.ndarray, repeats: int = 5, r
     return rows
 
 
-def fill_difference(q, r, q_ref, r_ref) -> dict:
-    """How far a fill (q, r) is from ``(q_ref, r_ref)``: the largest quaternion component
-    difference (sign-free) and its 99.9th percentile over frames and joints, the largest
-    rotation angle between them (degrees), the largest root difference (cm) and that
-    relative to the root's largest coordinate."""
-    q, q_ref = np.asarray(q, np.float64), np.asarray(q_ref, np.float64)
-    dq = np.minimum(np.abs(q - q_ref).max(-1), np.abs(q + q_ref).max(-1))
-    dot = np.clip(
-        np.abs((q * q_ref).sum(-1)) / np.linalg.norm(q, axis=-1) / np.linalg.norm(q_ref, axis=-1), 0, 1
-    )
-    dr = np.abs(np.asarray(r, np.float64) - r_ref)
-    return {
-        "quat_max": float(dq.max()),
-        "quat_p999": float(np.quantile(dq, 0.999)),
-        "angle_max_deg": float(np.degrees(2 * np.arccos(dot)).max()),
-        "root_max_cm": float(dr.max()),
-        "root_max_rel": float(dr.max() / max(np.abs(r_ref).max(), 1e-30)),
-        "bitwise": bool(np.array_equal(q, q_ref) and np.array_equal(r, r_ref)),
-    }
-
-
 def run_speed(
     model_name: str = "default",
     frames: int = 4096,
@@ -268,7 +247,6 @@ def run_speed(
 ) -> str:
     """The speed benchmark; returns its Markdown (and writes speed.json / speed.md to ``out``)."""
     from pipeline.infer.features import adapter_free_graph, build_features, feature_options, n_input_channels
-    from pipeline.infer.graph import cached_fast_graph
     from pipeline.infer.model import OnnxInbetweener, find_model
 
     folder = find_model(model_name)
@@ -282,11 +260,8 @@ def run_speed(
         fpf = float(shipped.meta.get("flops_per_frame", {}).get("generator", 0.0))
         counted = {"total": fpf, "adapter": 0.0, "source": "model.json (onnx not installed)"}
     rot, root, keys = demo_shot(frames)
-    shipped.fast_graph = False  # what ships: the graph as exported (model.OnnxInbetweener.fast_graph)
     whole = OnnxInbetweener(folder)
-    whole.fast_graph, whole.skip_adapter = False, False
-    rewritten = OnnxInbetweener(folder)
-    rewritten.fast_graph = True
+    whole.skip_adapter = False
     lean_graph = adapter_free_graph(gen_path, len(shipped.skeleton), 2 * int(shipped.meta["multiple"]))
     rows = []
     fills = {}
@@ -294,20 +269,14 @@ def run_speed(
     lean_name = "shipped: graph as exported (adapter skipped)" if lean_graph else "shipped: graph as exported"
     for name, model, fpf in (
         (lean_name, shipped, lean_fpf),
-        (
-            lean_name.replace("shipped: graph as exported", "opt-in load-time rewrite (TWEEN_FAST_GRAPH=1)"),
-            rewritten,
-            lean_fpf,
-        ),
         ("whole graph as exported (adapter on zeros)", whole, counted["total"]),
     ):
         res = time_fill(model, rot, root, keys, repeats)
         fills[name] = res.pop("output")
         at_peak = fpf * frames / (peak["gflops"] * 1e9)
         rows.append({"path": name, "flops_per_frame": fpf, "at_peak_s": at_peak, **res})
-    (q0, r0), (qf, rf), (q1, r1) = (fills[r["path"]] for r in rows)
+    (q0, r0), (q1, r1) = (fills[r["path"]] for r in rows)
     same = {"max_abs_diff": float(max(np.abs(q0 - q1).max(), np.abs(r0 - r1).max()))}
-    rewrite = fill_difference(qf, rf, q0, r0)
     # The network alone under each graph-optimisation level, on this fill's padded window.
     gcfg = shipped.meta.get("generator", {})
     mult = int(shipped.meta["multiple"])
@@ -328,11 +297,6 @@ def run_speed(
         for row in time_levels(lean_graph, lean_feats, repeats, ref):
             row["level"] += " (adapter skipped)"
             levels.append(row)
-        fast = cached_fast_graph(lean_graph)
-        if fast is not None:
-            row = time_levels(fast, lean_feats, repeats, ref)[0]
-            row["level"] += " (adapter skipped, opt-in load-time rewrite)"
-            levels.append(row)
     report = {
         "frames": frames,
         "keys_every": 10,
@@ -341,7 +305,6 @@ def run_speed(
         "generator_flops_per_frame": counted,
         "fills": [{k: v for k, v in r.items() if k != "runs"} | {"runs": r["runs"]} for r in rows],
         "shipped_vs_whole_graph": same,
-        "rewrite_vs_shipped": rewrite,
         "network_by_ort_level": levels,
         "padded_frames": int(n_pad),
     }
@@ -380,8 +343,6 @@ def speed_markdown(rep: dict) -> str:
         "",
         f"Shipped vs whole graph: max |Δ| {rep['shipped_vs_whole_graph']['max_abs_diff']:.3g} (the same fills).",
         "",
-        _rewrite_line(rep.get("rewrite_vs_shipped")),
-        "",
         f"Network alone by onnxruntime graph optimisation ({rep['padded_frames']} padded frames):",
         "",
         "| level | network (s) | max Δ vs ENABLE_ALL | bitwise |",
@@ -392,16 +353,3 @@ def speed_markdown(rep: dict) -> str:
             f"| {r['level']} | {r['seconds']:.4f} | {r['max_diff']:.3g} | {'yes' if r['bitwise'] else 'no'} |"
         )
     return "\n".join(lines) + "\n"
-
-
-def _rewrite_line(d: dict | None) -> str:
-    if not d:
-        return ""
-    if d["bitwise"]:
-        return "Opt-in rewrite vs shipped (the graph as exported): bitwise the same fills."
-    return (
-        "Opt-in rewrite vs shipped (the graph as exported; the rewrite sums in another order): quaternions "
-        f"max |Δ| {d['quat_max']:.2g} (99.9th percentile {d['quat_p999']:.2g}, largest angle "
-        f"{d['angle_max_deg']:.2g}°), root max |Δ| {d['root_max_cm']:.2g} cm ({d['root_max_rel']:.1g} of its "
-        "largest coordinate)."
-    )

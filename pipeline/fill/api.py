@@ -34,7 +34,6 @@ from pipeline.fill.options import (  # noqa: F401
     FillOptions,
     check_fill_options,
 )
-from pipeline.infer.graph import fast_graph_requested
 from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
@@ -259,12 +258,10 @@ def trust_line(d: dict) -> str:
 
 def _fill_identity(inb) -> str:
     """What of a model decides its fills beyond its hash: its pose bank (the trusted fill's
-    decisions) and the generator graph it runs (TWEEN_FAST_GRAPH)."""
+    decisions)."""
     out = inb.model_hash
     if inb.capabilities.novelty:
         out += "+bank:" + hashlib.sha256(np.ascontiguousarray(inb.pose_bank).tobytes()).hexdigest()[:12]
-    if fast_graph_requested():
-        out += "+fast-graph"
     return out
 
 

@@ -27,7 +27,6 @@ import os
 
 import numpy as np
 
-from pipeline.infer.graph import prune
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import (
     batch_quat_apply,
@@ -370,6 +369,21 @@ class AdapterFreeSession:
 
     def __getattr__(self, name):  # get_inputs() and the rest: the whole graph's
         return getattr(self.full, name)
+
+
+def prune(g) -> None:
+    """Drop the nodes and initializers of an ONNX graph that no graph output needs."""
+    need = {o.name for o in g.output}
+    live = []
+    for n in reversed(list(g.node)):
+        if need & set(n.output):
+            live.append(n)
+            need.update(n.input)
+    del g.node[:]
+    g.node.extend(reversed(live))
+    inits = [t for t in g.initializer if t.name in need]
+    del g.initializer[:]
+    g.initializer.extend(inits)
 
 
 def build_adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | None:

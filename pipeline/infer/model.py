@@ -36,7 +36,6 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     models_root,
     read_model_json,
 )
-from pipeline.infer.graph import cached_fast_graph, fast_graph_requested
 from pipeline.infer.post import integrate_path, lock_feet, match_keys
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import (
@@ -144,19 +143,6 @@ class OnnxInbetweener:
         self._pose_bank = self._load_pose_bank()
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
 
-    #: False (the default): the generator runs as exported, so fills are bitwise those of the
-    #: exported graph. True (or ``TWEEN_FAST_GRAPH=1``): rewritten at load time for
-    #: onnxruntime's NCHWc kernels (graph.fast_graph: the same weights, sums in another order,
-    #: about 20 % less network time). Opt-in because no reordering keeps every fill within 1e-5:
-    #: where the network's two 6D columns are nearly parallel the decoding amplifies float32
-    #: rounding ~100-fold (up to 1e-4 per quaternion component; README, Fill speed).
-    fast_graph = fast_graph_requested()
-
-    def _fast_session(self, graph):
-        """The session for a generator graph (file or bytes): its rewrite where there is one."""
-        fast = cached_fast_graph(graph) if self.fast_graph else None
-        return ort_session(graph if fast is None else fast)
-
     #: Fills without partial keys run the generator without its partial-key adapter (the
     #: same output, 0.30 MFLOP a frame less: features.adapter_free_graph); False: always the
     #: whole graph.
@@ -182,13 +168,10 @@ class OnnxInbetweener:
                 raise ModelFolderError(
                     f"{path}: not this model's {which} (inputs {names}, expected {want!r})"
                 )
-            fast = which == "generator" and self.fast_graph and cached_fast_graph(path)
-            if fast:  # the rewrite for onnxruntime's kernels (graph.fast_graph), checked
-                sess = ort_session(fast)
             graph = self.skip_adapter and which == "generator" and self._adapter_free_graph()
             if graph:  # fills without partial keys skip the adapter (features.adapter_free_graph)
                 width = n_input_channels(len(self.skeleton))
-                sess = AdapterFreeSession(sess, graph, width, self._fast_session)
+                sess = AdapterFreeSession(sess, graph, width, ort_session)
             self._sessions[which] = sess
         return self._sessions[which]
 
