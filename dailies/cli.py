@@ -1,8 +1,11 @@
-"""``tween dailies SHOT_ROOT...``: the review page for the fills under the roots."""
+"""The dailies commands: ``tween dailies SHOT_ROOT...`` (the review page for the fills under
+the roots), and ``tween approve`` / ``tween publish`` (the same decisions from a shell; publish
+can also send the approved take to the studio's tracker)."""
 
 from __future__ import annotations
 
 import ipaddress
+import json
 import os
 import socket
 import ssl
@@ -143,6 +146,73 @@ def dailies(
     uvicorn.Server(config).run(sockets=[sock])
 
 
+OUT_DIR_HELP = "Folder of the fill layers (default: beside the shot)."
+
+
+def approve(
+    shot: Path = typer.Argument(..., help="USD shot whose latest fill is approved."),
+    take: int = typer.Option(..., "--take", help="The approved take (0, 1, ...)."),
+    note: str = typer.Option(None, "--note", help="The reviewer's note."),
+    out_dir: Path = typer.Option(None, "--out-dir", help=OUT_DIR_HELP),
+):
+    """Dailies: record the approval of a take in a new fill layer version (and review layer)."""
+    from pipeline.usd.dailies import approve as approve_take
+
+    r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None)
+    print(f"tween: approved take {r['take']} of {r['of']} -> {r['layer']}", file=sys.stderr)
+    typer.echo(json.dumps(r, indent=1))
+
+
+def publish(
+    shot: Path = typer.Argument(..., help="USD shot whose approved take is published."),
+    fmt: str = typer.Option(None, "--format", help="usda (default) or usdc."),
+    out: Path = typer.Option(
+        None, "--out", help="Published layer (default: <shot>.publish.vNNN.<format> beside the fills)."
+    ),
+    out_dir: Path = typer.Option(None, "--out-dir", help=OUT_DIR_HELP),
+    tracker: str = typer.Option(
+        None,
+        "--tracker",
+        help="Also send the approved take's MP4 and note to this tracker: kitsu (TWEEN_KITSU_* settings).",
+    ),
+    tracker_map: Path = typer.Option(
+        None, "--tracker-map", help="JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT file names)."
+    ),
+):
+    """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
+    from dailies.tracker import read_mapping
+    from dailies.trackers import make
+    from pipeline.usd.dailies import publish as publish_take
+
+    if tracker_map is not None and tracker is None:
+        raise TweenError("--tracker-map: give --tracker too")
+    # The tracker's settings and the mapping are checked before anything is written.
+    mapping = read_mapping(tracker_map)
+    sink = make(tracker) if tracker else None
+    r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
+    print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
+    typer.echo(r["layer"])
+    if sink is not None:
+        sent = _send(shot, out_dir, sink, mapping)
+        print(f"tween: sent take {sent['take']} to {sent['tracker']}: {sent['sequence']}/{sent['shot']}"
+              f", status {sent.get('status')}", file=sys.stderr)  # fmt: skip
+
+
+def _send(shot: Path, out_dir: Path | None, sink, mapping: dict | None) -> dict:
+    """Sends the approved take of ``shot``'s latest fill (its MP4 in ``review/`` beside the
+    fills, where the farm renders it) to the tracker ``sink``."""
+    from dailies.tracker import send
+    from pipeline.usd.write import default_out_dir, shot_stem
+
+    folder = Path(out_dir) if out_dir else default_out_dir(str(shot))
+    try:
+        return send([folder.resolve()], f"0/{shot_stem(str(shot))}", sink, mapping)
+    except LookupError:
+        raise TweenError(f"{shot}: no fill of it in {folder}") from None
+
+
 def register(app: typer.Typer) -> None:
     """Adds this package's commands to ``app``."""
     app.command("dailies")(dailies)
+    app.command("approve")(approve)
+    app.command("publish")(publish)

@@ -18,8 +18,6 @@ import typer
 from pipeline.errors import TweenError
 from pipeline.fill.api import fill_shot
 from pipeline.fill.options import FillOptions, with_fill_options
-from pipeline.usd.dailies import approve as approve_take
-from pipeline.usd.dailies import publish as publish_take
 
 
 def register(app: typer.Typer) -> None:
@@ -119,35 +117,3 @@ def register(app: typer.Typer) -> None:
         result = fill_shot(str(shot), opts, job_id=job_id)
         print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
         typer.echo(json.dumps(result, indent=1))
-
-    @app.command()
-    def approve(
-        shot: Path = typer.Argument(..., help="USD shot whose latest fill is approved."),
-        take: int = typer.Option(..., "--take", help="The approved take (0, 1, ...)."),
-        note: str = typer.Option(None, "--note", help="The reviewer's note."),
-        out_dir: Path = typer.Option(
-            None, "--out-dir", help="Folder of the fill layers (default: beside the shot)."
-        ),
-    ):
-        """Dailies: record the approval of a take in a new fill layer version (and review layer)."""
-
-        r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None)
-        print(f"tween: approved take {r['take']} of {r['of']} -> {r['layer']}", file=sys.stderr)
-        typer.echo(json.dumps(r, indent=1))
-
-    @app.command()
-    def publish(
-        shot: Path = typer.Argument(..., help="USD shot whose approved take is published."),
-        fmt: str = typer.Option(None, "--format", help="usda (default) or usdc."),
-        out: Path = typer.Option(
-            None, "--out", help="Published layer (default: <shot>.publish.vNNN.<format> beside the fills)."
-        ),
-        out_dir: Path = typer.Option(
-            None, "--out-dir", help="Folder of the fill layers (default: beside the shot)."
-        ),
-    ):
-        """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
-
-        r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
-        print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
-        typer.echo(r["layer"])

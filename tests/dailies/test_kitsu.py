@@ -111,6 +111,35 @@ def test_a_missing_shot_or_task_is_one_clear_line(kitsu, task, tmp_path):
     assert r.status_code == 200 and r.json()["shot"] == "sh010", r.text
 
 
+def test_publish_from_the_shell_sends_the_take(kitsu, task, tmp_path):
+    """`tween approve` then `tween publish --tracker kitsu`: the published layer, and the take's
+    MP4 and note on the shot's animation task."""
+    import os
+
+    import gazu
+
+    k = task["client"]
+    project = gazu.project.get_project_by_name(PROJECT, client=k)
+    seq = gazu.shot.get_sequence_by_name(project, "sq01", client=k)
+    anim = gazu.task.get_task_type_by_name("Animation", client=k)
+    sh = gazu.task.new_task(gazu.shot.new_shot(project, seq, "sh030", client=k), anim, client=k)
+    made = filled_shot(tmp_path / "sq01", "sq01_sh030")
+    env = {**os.environ, "TWEEN_KITSU_URL": kitsu.url, "TWEEN_KITSU_USER": ADMIN,
+           "TWEEN_KITSU_PASSWORD": PASSWORD, "TWEEN_KITSU_PROJECT": PROJECT}  # fmt: skip
+    run = [sys.executable, "-m", "pipeline.cli"]
+    r = subprocess.run([*run, "approve", str(made["shot"]), "--take", "0", "--note", "contact fixed"],
+                       env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([*run, "publish", str(made["shot"]), "--tracker", "kitsu"], env=env, capture_output=True,
+                       text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().endswith("sq01_sh030.publish.v002.usda") and os.path.isfile(r.stdout.strip())
+    assert "sent take 0 to kitsu: sq01/sh030" in r.stderr, r.stderr
+    previews = gazu.files.get_all_preview_files_for_task(sh, client=k)
+    assert len(previews) == 1
+    assert gazu.task.get_last_comment_for_task(sh, client=k)["text"].startswith("contact fixed")
+
+
 def test_names_and_settings(tmp_path, monkeypatch):
     from pathlib import Path
 
@@ -133,3 +162,15 @@ def test_names_and_settings(tmp_path, monkeypatch):
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", "dailies", str(tmp_path), "--tracker", "kitsu",
                         "--tracker-map", str(tmp_path / "map.json")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert r.returncode == 2 and "given twice" in r.stderr
+    # tween publish checks the tracker before it writes anything.
+    made = filled_shot(tmp_path / "sq01", "sq01_sh040", takes=1, render=False, frames=13)
+    clean = {k: v for k, v in __import__("os").environ.items() if not k.startswith("TWEEN_KITSU")}
+    run = [sys.executable, "-m", "pipeline.cli"]
+    r = subprocess.run([*run, "approve", str(made["shot"]), "--take", "0"], capture_output=True, text=True,
+                       timeout=120, env=clean)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    before = sorted(p.name for p in (tmp_path / "sq01").iterdir())
+    r = subprocess.run([*run, "publish", str(made["shot"]), "--tracker", "kitsu"], capture_output=True,
+                       text=True, timeout=120, env=clean)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "kitsu: not configured" in r.stderr, r.stderr
+    assert sorted(p.name for p in (tmp_path / "sq01").iterdir()) == before  # nothing published
