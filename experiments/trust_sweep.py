@@ -1,5 +1,5 @@
-"""Per-shot evidence and outcome of the trusted fill on blocked shots (docs/trust.md, Where
-the evidence runs out): for each source of the blocking bench (and ``mirrored``) and key
+"""Per-shot evidence and outcome of the trusted fill on blocked shots (docs/benchmarks.md, Blocked
+shots): for each source of the blocking bench (and ``mirrored``) and key
 spacing, every shot's probe errors, key novelty, the decided fill's error and the error of
 a model/spline blend at nine fixed weights, saved as ``OUT/d_<source>_<every>.npz``; then,
 per source and spacing, the task's mean log ratio (spline / model error between the keys) in
