@@ -1,8 +1,8 @@
 """The guides' commands do what they say (issue 31, item 8).
 
 1. Every `tween` command line in the guides' code blocks names a command that exists and options
-   it takes, and parses as written (placeholders filled in); so do the synopses of the README's
-   command table.
+   it takes, and parses as written (placeholders filled in); every `tween …` in their text (the
+   README's command table included) names a command and options that exist.
 2. Every command in a shell code block of the README, docs/farm.md, docs/render.md and
    docs/usd.md is accounted for, in exactly one of three tables:
    - ``RUN``: run here, in process, in one workspace, in the order listed (the cheap ones: a
@@ -53,16 +53,15 @@ def _doc_lines():
 LINES = list(_doc_lines())
 
 
-def _table_synopses():
-    """The README's command table: each backquoted `tween …` in its first column."""
-    for row in (ROOT / "README.md").read_text().splitlines():
-        if row.startswith("| `tween "):
-            first = re.split(r"(?<!\\)\|", row)[1]
-            for cmd in re.findall(r"`(tween [^`]*)`", first):
-                yield "README.md", cmd.replace("\\|", "|")
+def _inline_commands():
+    """`tween …` in the prose and tables of the guides (the README's command table included)."""
+    for doc in RUN_DOCS + ["docs/benchmarks.md", "docs/trust.md"]:
+        text = re.sub(r"```.*?```", "", (ROOT / doc).read_text(), flags=re.S)
+        for cmd in re.findall(r"`(tween [^`]*)`", text):
+            yield doc, " ".join(cmd.replace("\\|", "|").split())
 
 
-SYNOPSES = list(_table_synopses())
+SYNOPSES = list(_inline_commands())
 
 
 def _args(line: str) -> list[str]:
@@ -92,8 +91,8 @@ def test_a_documented_command_line_parses(doc, line):
     assert not unknown, f"{doc}: `{line}`: {name} takes no {unknown}"
 
 
-@pytest.mark.parametrize("doc, line", SYNOPSES, ids=[f"table:{i}" for i in range(len(SYNOPSES))])
-def test_the_readme_table_names_real_commands_and_options(doc, line):
+@pytest.mark.parametrize("doc, line", SYNOPSES, ids=[f"{d}:inline{i}" for i, (d, _) in enumerate(SYNOPSES)])
+def test_commands_in_the_text_name_real_commands_and_options(doc, line):
     name = _name(_args(line))
     assert name in commands(), f"{doc}: `{line}`: no command {name!r}"
     unknown = [o for o in OPTION.findall(line) if o not in options_of(name)]
