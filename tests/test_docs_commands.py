@@ -17,6 +17,9 @@
 
 from __future__ import annotations
 
+import ast
+import importlib
+import inspect
 import os
 import re
 import shlex
@@ -97,6 +100,26 @@ def test_commands_in_the_text_name_real_commands_and_options(doc, line):
     assert name in commands(), f"{doc}: `{line}`: no command {name!r}"
     unknown = [o for o in OPTION.findall(line) if o not in options_of(name)]
     assert not unknown, f"{doc}: `{line}`: {name} takes no {unknown}"
+
+
+PYTHON = [(doc, block) for doc in RUN_DOCS for block in _blocks(doc, langs=("python",))]
+
+
+@pytest.mark.parametrize("doc, block", PYTHON, ids=[f"{d}:python{i}" for i, (d, _) in enumerate(PYTHON)])
+def test_python_in_the_guides_calls_real_functions_with_real_keywords(doc, block):
+    """The guides' Python: what it imports exists, and each call of it names real parameters."""
+    tree = ast.parse(block)
+    imported = {}
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom):
+            mod = importlib.import_module(node.module)
+            imported.update({a.asname or a.name: getattr(mod, a.name) for a in node.names})
+    assert imported, f"{doc}: a Python block that imports nothing"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in imported:
+            params = inspect.signature(imported[node.func.id]).parameters
+            unknown = [k.arg for k in node.keywords if k.arg not in params]
+            assert not unknown, f"{doc}: {node.func.id}() takes no {unknown}"
 
 
 # --- every shell command of the four guides, and how it is run ------------------------------
