@@ -129,9 +129,7 @@ def error_line(stderr: str, stdout: str = "", rc: int | None = None) -> str:
     if errs:
         line = errs[-1][len("tween: error:") :].strip()
     elif lines:
-        line = lines[-1]
-        if line.startswith("Traceback") or "Error" in line.split(":")[0]:
-            line = line  # a crash's last line names the exception
+        line = lines[-1]  # a crash's last line names the exception
     else:
         out = [ln.strip() for ln in (stdout or "").splitlines() if ln.strip()]
         line = out[-1] if out else f"tween exited with status {rc}"

@@ -174,7 +174,12 @@ class TWEEN_OT_watch(bpy.types.Operator):
     bl_label = "Watch usd-tween jobs"
     _timer = None
 
+    running = False  # one watcher polls every job
+
     def invoke(self, context, event):
+        if TWEEN_OT_watch.running:
+            return {"CANCELLED"}
+        TWEEN_OT_watch.running = True
         self._timer = context.window_manager.event_timer_add(0.5, window=context.window)
         context.window_manager.modal_handler_add(self)
         return {"RUNNING_MODAL"}
@@ -189,6 +194,7 @@ class TWEEN_OT_watch(bpy.types.Operator):
         _redraw(context)
         if not busy:
             context.window_manager.event_timer_remove(self._timer)
+            TWEEN_OT_watch.running = False
             return {"FINISHED"}
         return {"PASS_THROUGH"}
 
@@ -225,6 +231,12 @@ class TWEEN_OT_fill(bpy.types.Operator):
         s = settings(context)
         bad = commands.check(s)
         track = TRACK.get(arm.name, {})
+        if (
+            bad is None
+            and bpy.context.preferences.addons[ADDON].preferences.out_dir.startswith("//")
+            and not bpy.data.filepath
+        ):
+            bad = "save the .blend first (the output folder is relative to it), or set an absolute one"
         if bad is None and track.get("job") is not None and not track["job"].finished:
             bad = "a fill of this armature is still running (Cancel it first)"
         original = _source_action(arm)
@@ -379,7 +391,9 @@ class TWEEN_OT_review(bpy.types.Operator):
         if have and os.path.isfile(have):
             _open(have)
             return {"FINISHED"}
-        take = act["tween_take"] if len(takes_of(arm)) > 1 or act["tween_take"] else None
+        version = naming.parse_take_name(act.name).version
+        siblings = [a for a in takes_of(arm) if naming.parse_take_name(a.name).version == version]
+        take = act["tween_take"] if len(siblings) > 1 else None  # one take: no variant to select
         out = str(Path(act["tween_out_dir"]) / "review" / act.name)
         sheet = self.sheet
         cmd = commands.review_command(settings(context), act["tween_review"] or act["tween_layer"], take, out)
