@@ -124,7 +124,21 @@ def _finish_fill(arm, track: dict) -> str:
 
 
 def tick_all(report) -> bool:
-    """One look at every job and command; True while any still runs."""
+    """One look at every job and command; True while any still runs. Never raises: a fault
+    of ours is one report line too, and the timer goes on with the other jobs."""
+    try:
+        return _tick_all(report)
+    except Exception as e:  # the UI timer must not die with a traceback
+        report({"ERROR"}, f"usd-tween: {type(e).__name__}: {' '.join(str(e).split())}")
+        for track in TRACK.values():
+            job = track.get("job")
+            if job is not None and not job.finished:
+                job.state, job.error = "failed", f"{type(e).__name__}: {e}"
+            track["commands"] = []
+        return False
+
+
+def _tick_all(report) -> bool:
     busy = False
     for name, track in list(TRACK.items()):
         arm = bpy.data.objects.get(name)
