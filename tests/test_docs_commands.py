@@ -31,7 +31,8 @@ from cli_contract import OPTION, commands, options_of
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ["README.md", "docs/farm.md", "docs/render.md", "docs/usd.md", "docs/library.md", "docs/rig.md",
-        "docs/dailies.md", "docs/trust.md", "docs/models.md", "docs/benchmarks.md"]  # fmt: skip
+        "docs/dailies.md", "docs/trust.md", "docs/models.md", "docs/benchmarks.md", "models/README.md",
+        *sorted(str(p.relative_to(ROOT)) for p in ROOT.glob("models/*/MODEL_CARD.md"))]  # fmt: skip
 RUN_DOCS = ["README.md", "docs/farm.md", "docs/render.md", "docs/usd.md"]
 
 
