@@ -138,6 +138,13 @@ def _samples(lines: list[str], a: int, b: int) -> dict[str, dict[float, list[tup
     return out
 
 
+def read_samples(text: str, name: str | None = None) -> tuple[list[str], dict]:
+    """(joint tokens, {attribute: {time: [tuple, …]}}) of the file's SkelAnimation ``def``."""
+    lines = text.splitlines()
+    a, b, _, nm = _prim_block(lines, name)
+    return animation_joints(text, nm), _samples(lines, a, b)
+
+
 def read_takes(text: str, anim: str | None = None) -> tuple[list[str], dict[int, dict]]:
     """A fill layer's takes: (joint tokens, {take: {"rotations"|"translations"|"scales":
     {time: [(w, x, y, z) | (x, y, z), …]}}}). ``anim``: the filled animation's name

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import json
+import math
 import os
 import sys
 import tempfile
@@ -40,10 +41,19 @@ CLIPS = {
     "rigify_named": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_walk_normal_002.bvh.gz", RIGIFY),
     # more of the eval split (takes 002), for the README's table; not run by default
     "bandai_run": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_run_normal_002.bvh.gz", None),
-    "bandai_wave": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_wave-both-hands_normal_002.bvh.gz", None),
+    "bandai_wave": (
+        DATA / "bandai_namco" / "dataset-2" / "dataset-2_wave-both-hands_normal_002.bvh.gz",
+        None,
+    ),
     "bandai_turn": (DATA / "bandai_namco" / "dataset-2" / "dataset-2_walk-turn-left_normal_002.bvh.gz", None),
 }
 DEFAULT = ("bandai", "cmu_iclone", "rigify_named")
+# A partial key the animator adds between two keys: only the left arm, 15 frames in.
+PARTIAL = {
+    "rigify_named": ("upper_arm.L", "forearm.L"),
+    "cmu_iclone": ("CC_Base_L_Upperarm", "CC_Base_L_Forearm"),
+}
+PARTIAL_AT = 15
 
 
 def _zip(dest: Path) -> Path:
@@ -114,8 +124,11 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
     span = list(range(scene.frame_start, scene.frame_end + 1))
     truth = _world(arm, span)
     keys = set(span[::every]) | {span[-1]}
+    part_bones, part_at = PARTIAL.get(name, ("UpperArm_L", "LowerArm_L")), span[0] + PARTIAL_AT
     for fc in ext.blend.fcurves(act, arm):
-        drop = [k for k in fc.keyframe_points if round(k.co[0]) not in keys]
+        bc = ext.blend.bone_channel(fc)
+        keep = keys | ({part_at} if bc and bc[0] in part_bones else set())
+        drop = [k for k in fc.keyframe_points if round(k.co[0]) not in keep]
         for k in reversed(drop):
             fc.keyframe_points.remove(k)
         for k in fc.keyframe_points:  # Blender's default keys: Bezier, auto-clamped handles
@@ -175,6 +188,25 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
         out["takes"].append({"action": take.name, "decision": take.get("tween_decision"),
                              "error_cm": round(_err_cm(pos, truth, span, keys), 3), "keys_exact": exact,
                              "max_channel_change_vs_bezier": round(moved, 4)})  # fmt: skip
+    # the partial key went out as tween:keyedJoints, and the fill went through it
+    track = ext.ui.TRACK[arm.name]
+    export = Path(track["shot_file"]).read_text()
+    tokens = ext.blend.joint_tokens(arm)
+    want = ", ".join(
+        f'"{tokens[b]}"' for b in tokens if b in part_bones or b not in track["info"]["animated"]
+    )
+    assert f"{part_at}: [{want}]," in export, "no tween:keyedJoints for the partial key"
+    layer = json.loads(arm.tween.result)["layer"]
+    joints, takes_back = ext.usda.read_takes(Path(layer).read_text(), track["anim"])
+    _, kept = ext.usda.read_samples(export)
+    worst = 0.0
+    for b in part_bones:
+        j = joints.index(tokens[b])
+        a, k = takes_back[0]["rotations"][float(part_at)][j], kept["rotations"][float(part_at)][j]
+        worst = max(
+            worst, 2 * math.degrees(math.acos(min(1.0, abs(sum(x * y for x, y in zip(a, k, strict=True))))))
+        )
+    out["partial_key"] = {"frame": part_at, "bones": list(part_bones), "fill_off_by_deg": round(worst, 3)}
     ext.blend.assign(arm, act)
     return out
 

@@ -212,6 +212,8 @@ def test_keep_keys_gives_the_fill_the_blocking(blender_export, tmp_path):
     assert c.rot_times.tolist() == [float(k) for k in sorted(set(keys))]
     assert c.trans_times.tolist() == [1.0, 31.0, float(FRAMES)]
     assert c.keyed_joints == {21.0: tuple(joints[:6]), 31.0: ()}
+    got_joints, samples = usda.read_samples(out.read_text())
+    assert got_joints == joints and sorted(samples["rotations"]) == c.rot_times.tolist()
     # the kept samples are Blender's, unchanged
     from pxr import Usd, UsdSkel
 
