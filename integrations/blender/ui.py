@@ -15,7 +15,7 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from . import blend, commands, naming
+from . import blend, commands, naming, usda
 from .jobs import Command, FillJob
 from .result import read_result
 
@@ -106,10 +106,9 @@ def takes_of(arm) -> list:
     )
 
 
-def _finish_fill(arm, track: dict) -> str:
-    """The takes of a finished fill, as actions; returns the report line."""
-    job: FillJob = track["job"]
-    res = read_result(job.result, os.path.dirname(track["shot_file"]))
+def _bring_back(arm, fill: dict, track: dict) -> str:
+    """The takes of a finished fill (its JSON) as actions; returns the report line."""
+    res = read_result(fill, os.path.dirname(track["shot_file"]))
     meta = {t.index: {"decision": t.decision, "mp4": t.mp4, "sheet": t.contact_sheet, "otio": t.timeline,
                       "layer": res.layer, "review": res.review, "shot_file": track["shot_file"],
                       "out_dir": track["out_dir"], "model": res.model} for t in res.takes}  # fmt: skip
@@ -117,10 +116,14 @@ def _finish_fill(arm, track: dict) -> str:
     acts = blend.take_actions(
         arm, original, Path(res.layer), track["shot"], res.version, track["anim"], track["info"], meta
     )
-    arm.tween.result = json.dumps(job.result)
+    arm.tween.result = json.dumps(fill)
     blend.assign(arm, acts[0])
     dec = ", ".join(sorted({t.decision for t in res.takes if t.decision})) or "?"
     return f"usd-tween: {len(acts)} take(s) of {track['shot']} v{res.version:03d} back ({dec})"
+
+
+def _finish_fill(arm, track: dict) -> str:
+    return _bring_back(arm, track["job"].result, track)
 
 
 def tick_all(report) -> bool:
@@ -304,6 +307,46 @@ class TWEEN_OT_cancel(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class TWEEN_OT_fetch(bpy.types.Operator):
+    """Bring back the takes of this armature's latest fill from the output folder (a fill that
+    finished while Blender was closed, or takes deleted by mistake)"""
+
+    bl_idname = "tween.fetch"
+    bl_label = "Fetch latest"
+
+    @classmethod
+    def poll(cls, context):
+        arm = _armature(context)
+        return arm is not None and _source_action(arm) is not None
+
+    def execute(self, context):
+        arm = _armature(context)
+        shot = arm.tween.shot or naming.shot_name(bpy.data.filepath, arm.name)
+        folder = Path(arm.tween.out_dir or Path(settings(context).out_dir) / shot)
+        shot_file = Path(arm.tween.shot_file or folder / f"{shot}.usda")
+        latest = usda.latest_layer(os.listdir(folder), shot) if folder.is_dir() else None
+        if latest is None or not shot_file.is_file():
+            self.report({"ERROR"}, f"usd-tween: no fill of {shot} in {folder}")
+            return {"CANCELLED"}
+        layer = folder / latest[1]
+        try:
+            fill = usda.layer_result(layer.read_text())
+            fill["layer"] = str(layer)
+            if fill["review"]:
+                fill["review"] = str(folder / fill["review"])
+            original = _source_action(arm)
+            scene = context.scene
+            track = {"shot": shot, "shot_file": str(shot_file), "out_dir": str(folder), "anim": None,
+                     "info": blend.keyed(original, arm, scene.frame_start, scene.frame_end),
+                     "original": original.name}  # fmt: skip
+            arm.tween.shot, arm.tween.shot_file, arm.tween.out_dir = shot, str(shot_file), str(folder)
+            self.report({"INFO"}, _bring_back(arm, fill, track))
+        except (ValueError, KeyError, OSError) as e:
+            self.report({"ERROR"}, f"usd-tween: {layer.name}: {' '.join(str(e).split())}")
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
 class TWEEN_OT_use(bpy.types.Operator):
     """Show this take (or, with no name, your own action) on the armature"""
 
@@ -448,7 +491,9 @@ class VIEW3D_PT_tween(bpy.types.Panel):
             else:
                 layout.label(text=st.status, icon="ERROR" if st.status.startswith("failed") else "INFO")
         box = layout.box()
-        box.label(text="Takes")
+        head = box.row()
+        head.label(text="Takes")
+        head.operator("tween.fetch", text="", icon="FILE_REFRESH")
         current = arm.animation_data.action if arm.animation_data else None
         src = _source_action(arm)
         if src is not None:
@@ -469,7 +514,7 @@ class VIEW3D_PT_tween(bpy.types.Panel):
             layout.label(text=f"Timeline: {current['tween_otio']}")
 
 
-CLASSES = (TweenPreferences, TweenState, TWEEN_OT_watch, TWEEN_OT_tick, TWEEN_OT_fill, TWEEN_OT_cancel, TWEEN_OT_use,
+CLASSES = (TweenPreferences, TweenState, TWEEN_OT_watch, TWEEN_OT_tick, TWEEN_OT_fill, TWEEN_OT_cancel, TWEEN_OT_fetch, TWEEN_OT_use,
            TWEEN_OT_approve, TWEEN_OT_publish, TWEEN_OT_review, VIEW3D_PT_tween)  # fmt: skip
 
 

@@ -181,3 +181,40 @@ def read_takes(text: str, anim: str | None = None) -> tuple[list[str], dict[int,
     if not takes:
         raise ValueError(f"the fill layer holds no take of {name}")
     return joints, takes
+
+
+_LAYER_NAME = re.compile(r"^(?P<shot>.+)\.tween\.v(?P<version>\d+)\.usda$")
+
+
+def latest_layer(names, shot: str) -> tuple[int, str] | None:
+    """(version, file name) of the newest ``<shot>.tween.vNNN.usda`` among ``names``."""
+    found = [
+        (int(m.group("version")), n) for n in names if (m := _LAYER_NAME.match(n)) and m.group("shot") == shot
+    ]
+    return max(found) if found else None
+
+
+def layer_result(text: str) -> dict:
+    """The fill's JSON as far as its layer tells it (for a fill whose job Blender no longer
+    follows): layer data ``version``, ``takes``, ``review``, ``model``, and each filled
+    animation's trust decision (``tween:trust``, ``tween:trustWeight``)."""
+
+    def meta(kind: str, key: str):
+        m = re.search(rf'^\s*{kind} {key} = (?:"(?P<s>[^"]*)"|(?P<v>[-0-9.eE]+))\s*$', text, re.M)
+        return None if m is None else m.group("s") if m.group("s") is not None else m.group("v")
+
+    out = {"version": int(meta("int", "version") or 0), "takes": int(meta("int", "takes") or 1),
+           "review": meta("string", "review"), "model": meta("string", "model") or "", "trust": {}}  # fmt: skip
+    lines = text.splitlines()
+    for i, ln in enumerate(lines):
+        m = _ANIM.match(ln)
+        if not m or not m.group("name").endswith("_tween"):
+            continue
+        block = "\n".join(lines[i : _end(lines, i, m.group("indent"))])
+        choice = re.search(r'token tween:trust = "(\w+)"', block)
+        weight = re.search(r"double tween:trustWeight = ([-0-9.eE]+)", block)
+        out["trust"][m.group("name")] = {
+            "choice": choice.group(1) if choice else "",
+            "weight": float(weight.group(1)) if weight else None,
+        }
+    return out

@@ -223,14 +223,22 @@ def _wait(ext, what: str, timeout: float) -> list:
 
 
 def check_actions(name: str, prefs, timeout: float) -> dict:
-    """Approve (with a note), Publish and Review of the take on screen; then a Fill refused
+    """Fetch (the takes deleted, brought back from the files), Approve (with a note), Publish
+    and Review of the take on screen; then a Fill refused
     in one report line (no tween), and a CLI error (a rig with no humanoid reading) as one."""
     import bpy
 
     ext = sys.modules[MODULE]
     arm = bpy.data.objects[name]
-    takes = ext.ui.takes_of(arm)
     bpy.context.view_layer.objects.active = arm
+    # the takes deleted (or Blender closed during the fill): Fetch brings them back from the files
+    assert bpy.ops.tween.use(action="") == {"FINISHED"}  # the animator's action on screen
+    before = [(a.name, a.get("tween_decision")) for a in ext.ui.takes_of(arm)]
+    for a in ext.ui.takes_of(arm):
+        bpy.data.actions.remove(a)
+    assert bpy.ops.tween.fetch() == {"FINISHED"}
+    takes = ext.ui.takes_of(arm)
+    assert [(a.name, a.get("tween_decision")) for a in takes] == before, (before, takes)
     assert bpy.ops.tween.use(action=takes[-1].name) == {"FINISHED"}
     arm.tween.note = "arms swing later, keep take " + str(takes[-1]["tween_take"])
     out: dict = {}

@@ -242,7 +242,24 @@ def test_the_fill_layers_takes_read_back(blender_export, tmp_path, takes):
     shot = tmp_path / "sh.usda"
     shot.write_text(usda.keep_keys(blender_export.read_text(), list(range(1, FRAMES + 1, 10)) + [FRAMES]))
     r = fill_shot(str(shot), FillOptions(model="interp", takes=takes, out_dir=str(tmp_path / "out")))
-    joints, got = usda.read_takes(Path(r["layer"]).read_text(), "Anim")
+    text = Path(r["layer"]).read_text()
+    joints, got = usda.read_takes(text, "Anim")
+    # what the layer itself says, for a fill Blender no longer follows (Fetch latest)
+    said = usda.layer_result(text)
+    assert (said["version"], said["takes"], said["review"]) == (1, takes, Path(r["review"]).name)
+    want = next(iter(r["trust"].values())) or {}
+    assert said["trust"]["Anim_tween"]["choice"] == want.get("choice", "")
+    names = [
+        "sh.tween.v002.usda",
+        "sh.tween.v010.usda",
+        "sh.review.v011.usda",
+        "shx.tween.v099.usda",
+        "sh.usda",
+    ]
+    assert (
+        usda.latest_layer(names, "sh") == (10, "sh.tween.v010.usda")
+        and usda.latest_layer(names, "no") is None
+    )
     assert joints == joint_paths() and sorted(got) == list(range(takes))
     stage = Usd.Stage.Open(r["review"])
     for n in range(takes):
