@@ -240,8 +240,8 @@ def check_actions(name: str, prefs, timeout: float) -> dict:
     takes = ext.ui.takes_of(arm)
     assert [(a.name, a.get("tween_decision")) for a in takes] == before, (before, takes)
     assert bpy.ops.tween.use(action=takes[-1].name) == {"FINISHED"}
+    out: dict = {"fetched": len(takes)}
     arm.tween.note = "arms swing later, keep take " + str(takes[-1]["tween_take"])
-    out: dict = {}
     bpy.ops.tween.approve()
     msgs = _wait(ext, "approve", timeout)
     assert msgs and msgs[-1][0] == "INFO" and "approved" in msgs[-1][1], msgs

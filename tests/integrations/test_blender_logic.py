@@ -356,25 +356,72 @@ def test_a_tween_that_cannot_run_is_one_line(tmp_path):
         jobs.FillJob(s, "sh.usda", str(tmp_path), str(tmp_path / "log"))
 
 
-def test_the_real_tween_fill_says_its_job_and_status_follows_it(tmp_path):
-    """The embedded farm of the project's own `tween` (no Blender): the id said at submission,
-    `tween status` polled until the fill's JSON, the takes read back from its layer."""
+def _tween() -> Path:
     exe = Path(sys.executable).parent / "tween"
     if not exe.is_file():
         pytest.skip(f"no tween executable beside {sys.executable}")
+    return exe
+
+
+def test_the_real_tween_fill_says_its_job_and_status_follows_it(tmp_path, monkeypatch):
+    """The embedded farm of the project's own `tween` (no Blender): the id said at submission,
+    `tween status` polled until the fill's JSON, the takes read back from its layer."""
+    exe = _tween()
+    monkeypatch.setenv("TWEEN_FARM_CONFIG", os.devnull)  # embedded, whatever this machine's config says
+    monkeypatch.setenv("TWEEN_CACHE", str(tmp_path / "cache"))
     shot = tmp_path / "sh.usda"
     build = build_blender_shot(tmp_path / "export.usda")
     shot.write_text(
         usda.keep_keys(Path(build["path"]).read_text(), list(range(1, FRAMES + 1, 20)) + [FRAMES])
     )
     s = commands.Settings(tween=str(exe), out_dir=str(tmp_path / "out"), takes=2, model="interp")
-    env_cache = os.environ.get("TWEEN_CACHE")
     job = jobs.FillJob(s, str(shot), s.out_dir, str(tmp_path / "log"), interval=0.5)
-    if env_cache:
-        assert job.env["TWEEN_CACHE"] == env_cache
     _until(job, ("done", "failed"), timeout=240)
     assert job.state == "done", job.error
     r = result.read_result(job.result, str(tmp_path))
     assert r.version == 1 and len(r.takes) == 2 and Path(r.layer).is_file()
     joints, takes = usda.read_takes(Path(r.layer).read_text(), "Anim")
     assert sorted(takes) == [0, 1] and len(joints) == len(joint_paths())
+
+
+def test_a_fill_through_a_real_broker(tmp_path, monkeypatch):
+    """Broker mode: `tween submit` to a Redis farm with a real worker, `tween status` polled
+    until the fill's JSON."""
+    exe = _tween()
+    from redis_server import WorkerPool, farm_env, start_redis
+
+    server = start_redis()
+    root = tmp_path / "shots"
+    root.mkdir()
+    env = farm_env(server, [str(root)])
+    env["PYTHONPATH"] = str(REPO)
+    (tmp_path / "logs").mkdir()
+    pool = WorkerPool(env, tmp_path / "logs")
+    try:
+        pool.start(concurrency=1)
+        pool.wait_ready()
+        for k, v in env.items():
+            if k != "TWEEN_BROKER_URL":  # the preference gives the broker
+                monkeypatch.setenv(k, v)
+        monkeypatch.delenv("TWEEN_BROKER_URL", raising=False)
+        shot = root / "sh.usda"
+        build = build_blender_shot(tmp_path / "export.usda")
+        shot.write_text(
+            usda.keep_keys(Path(build["path"]).read_text(), list(range(1, FRAMES + 1, 20)) + [FRAMES])
+        )
+        s = commands.Settings(tween=str(exe), farm="FARM", broker_url=server.url, out_dir=str(root / "out"),
+                              takes=2, model="interp")  # fmt: skip
+        job = jobs.FillJob(s, str(shot), s.out_dir, str(tmp_path / "log"), interval=0.3)
+        _until(job, ("done", "failed"), timeout=240)
+        assert job.state == "done", job.error
+        assert job.proc.poll() == 0 and commands.submitted_ids(job.proc.stdout()) == [job.job_id]
+        r = result.read_result(job.result, str(root))
+        assert sorted(usda.read_takes(Path(r.layer).read_text())[1]) == [0, 1]
+        # a shot outside the farm's roots: refused by `tween submit`, in one line
+        s.out_dir = str(tmp_path / "elsewhere")
+        job = jobs.FillJob(s, str(tmp_path / "export.usda"), s.out_dir, str(tmp_path / "log"), interval=0.3)
+        _until(job, ("failed",), timeout=60)
+        assert "\n" not in job.error and "root" in job.error, job.error
+    finally:
+        pool.stop_all()
+        server.cleanup()

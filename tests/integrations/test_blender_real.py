@@ -37,7 +37,9 @@ def test_fill_from_blender_for_real(tmp_path):
         pytest.skip(why)
     if not tween.is_file():
         pytest.skip(f"no tween executable beside {sys.executable}")
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender"))  # not the user's Blender
+    # not the user's Blender preferences, nor this machine's farm: the embedded one, its own cache
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender"), TWEEN_FARM_CONFIG=os.devnull,
+               TWEEN_CACHE=str(tmp_path / "cache"))  # fmt: skip
     cmd = [py, str(CHECK), "--tween", str(tween), "--out", str(tmp_path / "out"), "--frames", "121",
            "--takes", "2", "--actions"]  # fmt: skip
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1500)
@@ -52,5 +54,8 @@ def test_fill_from_blender_for_real(tmp_path):
     # rig and on the same rig named the Blender way (the mapping finds it by itself).
     for clip in ("bandai", "rigify_named"):
         assert by[clip]["takes"][0]["error_cm"] < by[clip]["bezier_cm"]
+    for r in by.values():  # the partial key (the left arm alone) went through as tween:keyedJoints
+        assert r["partial_key"]["fill_off_by_deg"] < 5.0, r["partial_key"]
     actions = next(r for r in rows if "approve" in r)
+    assert actions["fetched"] == 2
     assert actions["approve"] and actions["publish"].endswith(".usda") and actions["refused"].count("\n") == 0
