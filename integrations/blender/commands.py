@@ -33,6 +33,7 @@ class Settings:
     takes: int = 3
     trust: str = "auto"
     render: bool = False  # render each take's review (MP4, contact sheet, timeline) on the farm
+    mapping: str = ""  # a --mapping JSON file, for a rig whose joints do not map by themselves
 
 
 def executable(s: Settings) -> str | None:
@@ -59,6 +60,8 @@ def check(s: Settings) -> str | None:
         return "model: empty (default is the stored model for the rig, else the human model)"
     if not s.out_dir.strip():
         return "output folder: not set (add-on preferences)"
+    if s.mapping.strip() and not os.path.isfile(os.path.expanduser(s.mapping.strip())):
+        return f"mapping file {s.mapping.strip()!r}: no such file"
     return None
 
 
@@ -71,6 +74,8 @@ def fill_command(s: Settings, shot: str, out_dir: str) -> list[str]:
     # `tween fill` waits; with its progress on (the default) it says each job id as it submits
     if s.render:
         cmd.append("--render")
+    if s.mapping.strip():
+        cmd += ["--mapping", os.path.expanduser(s.mapping.strip())]
     return cmd
 
 

@@ -28,7 +28,7 @@ def settings(context) -> commands.Settings:
     p = context.preferences.addons[ADDON].preferences
     return commands.Settings(
         tween=p.tween, farm=p.farm, broker_url=p.broker_url, out_dir=bpy.path.abspath(p.out_dir),
-        model=p.model, takes=p.takes, trust=p.trust, render=p.render,
+        model=p.model, takes=p.takes, trust=p.trust, render=p.render, mapping=bpy.path.abspath(p.mapping),
     )  # fmt: skip
 
 
@@ -65,10 +65,24 @@ class TweenPreferences(bpy.types.AddonPreferences):
     render: BoolProperty(
         name="Render reviews", description="Render each take's MP4 and contact sheet on the farm"
     )
+    mapping: StringProperty(
+        name="Mapping file", subtype="FILE_PATH",
+        description="Optional --mapping JSON ({model joint: bone}) for a rig whose bones do not map by themselves",
+    )  # fmt: skip
 
     def draw(self, context):
         col = self.layout.column()
-        for name in ("tween", "farm", "broker_url", "out_dir", "model", "takes", "trust", "render"):
+        for name in (
+            "tween",
+            "farm",
+            "broker_url",
+            "out_dir",
+            "model",
+            "takes",
+            "trust",
+            "render",
+            "mapping",
+        ):
             row = col.row()
             row.prop(self, name)
             row.enabled = name != "broker_url" or self.farm == "FARM"

@@ -72,6 +72,15 @@ def test_fill_and_submit_command_lines(tmp_path):
     s.farm, s.render = "FARM", True
     assert commands.fill_command(s, "/s/sh.usda", "/s/out")[1] == "submit"
     assert commands.fill_command(s, "/s/sh.usda", "/s/out")[-1] == "--render"
+    mapping = tmp_path / "map.json"
+    mapping.write_text("{}")
+    s.mapping = str(mapping)
+    assert commands.check(s) is None and commands.fill_command(s, "/s", "/o")[-2:] == [
+        "--mapping",
+        str(mapping),
+    ]
+    s.mapping = str(tmp_path / "nope.json")
+    assert commands.check(s) == f"mapping file {s.mapping!r}: no such file"
     assert commands.status_command(s, "ab" * 16) == [exe, "status", "--json", "ab" * 16]
     assert commands.approve_command(s, "/s/sh.usda", "/s/out", 2, "  arms\nlater  ") == [
         exe, "approve", "/s/sh.usda", "--take", "2", "--out-dir", "/s/out", "--note", "arms later"]  # fmt: skip
