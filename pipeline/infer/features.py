@@ -8,17 +8,13 @@ first key's root at the origin (X/Z) and facing +X, so the network never sees ab
 position or heading.
 
 Partial keys (some joints only, or the root only) come as a per-key mask ``joint_keys``
-(K, J + 1: the joints, then the root). The baseline and the dense key copy of each joint
-then use that joint's own keys, and models built with ``key_mask`` also get the mask as
-J + 1 per-frame channels (1 where a key frame leaves that joint unkeyed). With ``full_timing``
-the key distance, key flag and time-to-arrival channels count full keys only. The first and
-last keys are full.
-
-Models built with ``key_adapter`` instead see partial keys as a side input: the main channels
-are exactly those of the full keys alone (what a network trained on full keys knows), and
-:func:`adapter_channels` add, per frame, the nearest partial key's offsets from that baseline
-(zero on unkeyed channels), its mask and how near it is. Without partial keys they are all
-zero, so the adapter can never change a fill from full keys.
+(K, J + 1: the joints, then the root; the first and last keys full). Models built with
+``key_adapter`` see them as a side input: the main channels are exactly those of the full
+keys alone (what a network trained on full keys knows), and :func:`adapter_channels` add,
+per frame, the nearest partial key's offsets from that baseline (zero on unkeyed channels),
+its mask and how near it is. Without partial keys they are all zero, so the adapter can never
+change a fill from full keys. Other models fill from the full keys, and the partial keys are
+matched afterwards (pipeline.infer.post.match_keys).
 """
 
 from __future__ import annotations
@@ -49,13 +45,12 @@ def n_adapter_channels(n_joints: int) -> int:
     return n_joints * 6 + 3 + n_joints + 1 + 2
 
 
-def n_input_channels(n_joints: int, key_mask: bool = False, key_adapter: bool = False) -> int:
+def n_input_channels(n_joints: int, key_adapter: bool = False) -> int:
     return (
         2 * (n_joints * 6 + 3)
         + 2
         + 4 * TTA_FREQS
         + NOISE_CHANNELS
-        + (n_joints + 1 if key_mask else 0)
         + (n_adapter_channels(n_joints) if key_adapter else 0)
     )
 
@@ -72,12 +67,9 @@ def check_joint_keys(joint_keys, n_keys: int, n_joints: int) -> np.ndarray:
     return m
 
 
-def n_output_channels(n_joints: int, rotation: str = "6d") -> int:
-    """Rotation residual (6D, or a bounded Euler-angle delta), root residual, four foot contacts."""
-    return n_joints * (6 if rotation == "6d" else 3) + 3 + 4
-
-
-EULER_ORDER = "ZXY"  # the Bandai files' own channel order (intrinsic)
+def n_output_channels(n_joints: int) -> int:
+    """Rotation residual (6D), root residual, four foot contacts."""
+    return n_joints * 6 + 3 + 4
 
 
 def key_neighbours(n: int, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -182,22 +174,7 @@ def key_groups(joint_keys: np.ndarray):
 def feature_options(generator: dict) -> dict:
     """The :func:`build_features` switches a generator config (``model.json``'s "generator",
     or ``asdict(GeneratorConfig)``) was trained with."""
-    return {
-        "tta": generator.get("tta", True),
-        "noise_schedule": generator.get("noise_schedule", False),
-        "key_mask": generator.get("key_mask", False),
-        "full_timing": generator.get("full_timing", False),
-        "key_adapter": generator.get("key_adapter", False),
-    }
-
-
-def noise_scale(d: np.ndarray) -> np.ndarray:
-    """Scheduled target noise (RMIB's λ_target): 0 within 5 frames of a key, 1 from 30 on.
-
-    RMIB schedules by the time to the one target; here ``d`` is the distance to the nearest
-    key, so a take's variation also fades in after a key instead of leaving it with a jump.
-    """
-    return np.clip((np.asarray(d, np.float64) - 5.0) / 25.0, 0.0, 1.0)
+    return {"key_adapter": generator.get("key_adapter", False)}
 
 
 def build_features(
@@ -206,11 +183,7 @@ def build_features(
     keys,
     skeleton,
     noise=None,
-    tta: bool = True,
-    noise_schedule: bool = False,
     joint_keys=None,
-    key_mask: bool = False,
-    full_timing: bool = False,
     key_adapter: bool = False,
     adapter: bool = True,
 ):
@@ -218,12 +191,11 @@ def build_features(
 
     ``rot`` (B, N, J, 4), ``root`` (B, N, 3) hold real values at ``keys`` (sorted, shared by
     the batch); other frames are ignored. ``noise`` (B, NOISE_CHANNELS) is the take's
-    latent, constant over time (zeros when None), or with ``noise_schedule`` scaled per
-    frame by :func:`noise_scale`, so that every take arrives at the keys the same way.
-    ``joint_keys`` (K, J + 1) marks partial keys (module docstring); ``key_mask`` adds its
-    channels, ``key_adapter`` the side input of :func:`adapter_channels`; with ``adapter``
-    False and no partial keys that side input (all zeros then) is left out, for the
-    generator without its adapter (:func:`adapter_free_graph`).
+    latent, constant over time (zeros when None). ``joint_keys`` (K, J + 1) marks partial
+    keys (module docstring); ``key_adapter`` adds the side input of :func:`adapter_channels`;
+    with ``adapter`` False and no partial keys that side input (all zeros then) is left out,
+    for the generator without its adapter (:func:`adapter_free_graph`). Without
+    ``key_adapter`` each joint's baseline and key copy follow its own keys.
     """
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
@@ -231,7 +203,7 @@ def build_features(
         joint_keys = check_joint_keys(joint_keys, len(keys), J)
     if key_adapter:
         full = np.ones(len(keys), bool) if joint_keys is None else joint_keys.all(axis=1)
-        feats, ctx = build_features(rot, root, keys[full], skeleton, noise, tta, noise_schedule)
+        feats, ctx = build_features(rot, root, keys[full], skeleton, noise)
         if not adapter:
             if not full.all():
                 raise ValueError("partial keys need the adapter's side input (adapter=True)")
@@ -241,27 +213,18 @@ def build_features(
     q, off = canonical_transform(rot[:, keys[0]], root[:, keys[0]], skeleton)
     crot, croot = apply_transform(rot, root, q, off)
     irot, iroot, nearest = interpolate(crot, croot, keys, joint_keys)
-    # With ``full_timing`` the distance, key flag and time-to-arrival channels count full keys
-    # only: a partial key then reaches the network through its joints' baseline, key copy and
-    # mask, and a network trained on full keys sees the timing it was trained on.
-    timed = keys if joint_keys is None or not full_timing else keys[joint_keys.all(axis=1)]
-    prev, nxt = key_neighbours(N, timed)
+    prev, nxt = key_neighbours(N, keys)
     idx = np.arange(N)
     dist = np.minimum(np.abs(idx - prev), np.abs(nxt - idx)).astype(np.float64)
-    is_key = np.isin(idx, timed).astype(np.float64)
+    is_key = np.isin(idx, keys).astype(np.float64)
     tta_ch = np.concatenate(
         [tta_embedding((idx - prev).astype(np.float64)), tta_embedding((nxt - idx).astype(np.float64))], -1
     )
-    if not tta:
-        tta_ch = np.zeros_like(tta_ch)
     latent = np.zeros((B, 1, NOISE_CHANNELS)) if noise is None else np.asarray(noise)[:, None, :]
-    if noise_schedule:
-        latent = latent * noise_scale(dist)[None, :, None]
     per_frame = np.concatenate([(dist / 30.0)[:, None], is_key[:, None], tta_ch], axis=-1)  # (N, 2 + 4F)
     # Written straight into the network's (B, C, N) float32 layout, group by group (each
     # value cast from float64 as the concatenated float64 array's cast did: the same bits).
-    n_mask = (J + 1) * key_mask
-    feats = np.empty((B, 2 * (J * 6 + 3) + per_frame.shape[-1] + NOISE_CHANNELS + n_mask, N), np.float32)
+    feats = np.empty((B, 2 * (J * 6 + 3) + per_frame.shape[-1] + NOISE_CHANNELS, N), np.float32)
     by_frame = feats.transpose(0, 2, 1)  # (B, N, C) view
 
     def sixd(lo):  # (B, N, J, 6) view of the J * 6 channels from ``lo``
@@ -282,20 +245,8 @@ def build_features(
     by_frame[..., at : at + per_frame.shape[-1]] = per_frame
     at += per_frame.shape[-1]
     by_frame[..., at : at + NOISE_CHANNELS] = latent
-    at += NOISE_CHANNELS
-    if key_mask:
-        by_frame[..., at:] = key_mask_channels(N, keys, joint_keys, J)
     ctx = {"q": q, "off": off, "irot": irot, "iroot": iroot, "crot": crot, "croot": croot}
     return feats, ctx
-
-
-def key_mask_channels(n: int, keys, joint_keys, n_joints: int) -> np.ndarray:
-    """(N, J + 1): 1 where a key frame leaves a joint (last: the root) unkeyed. Full keys give
-    zeros, so a network's mask input changes nothing when every key is a full pose."""
-    m = np.zeros((n, n_joints + 1))
-    if joint_keys is not None:
-        m[np.asarray(keys, np.int64)] = ~np.asarray(joint_keys, bool)
-    return m
 
 
 ADAPTER_REACH = 15.0  # frames: nearness exp(-d / this) of the nearest partial key
@@ -326,14 +277,6 @@ def adapter_channels(ctx: dict, keys: np.ndarray, joint_keys) -> np.ndarray:
     side[..., -2] = near * (d <= 0)
     side[..., -1] = near * (d >= 0)
     return np.ascontiguousarray(side.transpose(0, 2, 1))
-
-
-def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
-    """(B, N, J, 4), (B, N, 3) -> (B, (J−1)·3, N) root-relative positions, world-oriented, metres."""
-    _, pos = fk(rot, root, skeleton.parents, skeleton.offsets)
-    rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
-    B, N = rel.shape[:2]
-    return np.ascontiguousarray(rel.reshape(B, N, -1).transpose(0, 2, 1), np.float32)
 
 
 _ADAPTER_FREE: dict = {}  # (path, mtime, size, joints) -> graph bytes or None, per process
@@ -431,7 +374,7 @@ def build_adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | N
         return None
     n_in = dim[1].dim_value
     if n_in != n_input_channels(n_joints, key_adapter=True) or any(o.name == add.output[0] for o in g.output):
-        return None  # (a key-mask model's mask slice would need moving too: not handled)
+        return None
     for n in others:
         for k, name in enumerate(n.input):
             if name == add.output[0]:

@@ -43,6 +43,27 @@ _OPTIONAL = {
     "generator": dict,
     "kind": str,
 }
+#: Settings with one value left: the one every shipped model has (the code for any other went
+#: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
+#: may leave them out (``pad``: models before v4's card held no pad layout, and ran with the
+#: last frame held: none of them ships); any other value is refused. ``generator``'s are the
+#: network's inputs and output (pipeline.models.generator.GeneratorConfig drops them).
+FIXED = {"pad": "hold-key", "root": "generator", "mirror_average": False}
+RETIRED = {"residual": True, "tta": True, "noise_schedule": False, "key_mask": False,
+           "full_timing": False, "rotation": "6d"}  # fmt: skip
+
+
+def without_retired(generator: dict, where) -> dict:
+    """A generator config (model.json's "generator", a checkpoint's "model") without the
+    :data:`RETIRED` switches; ModelFolderError naming ``where`` where one is set otherwise."""
+    for key, want in RETIRED.items():
+        if generator.get(key, want) != want:
+            raise ModelFolderError(
+                f"{where}: generator.{key} is {generator[key]!r}; this release runs {want!r} only"
+            )
+    return {k: v for k, v in generator.items() if k not in RETIRED}
+
+
 _TYPE_NAMES = {
     str: "a string",
     int: "an integer",
@@ -100,9 +121,10 @@ def read_model_json(folder: str | Path) -> dict:
     for role, name in files.items():
         if not isinstance(name, str) or not name:
             raise ModelFolderError(f"{path}: files.{role} must be a file name, not {_json_type(name)}")
-    rotation = meta.get("generator", {}).get("rotation", "6d")
-    if rotation not in ("6d", "euler"):
-        raise ModelFolderError(f'{path}: generator.rotation must be "6d" or "euler", not {rotation!r}')
+    for key, want in FIXED.items():
+        if meta.get(key, want) != want:
+            raise ModelFolderError(f"{path}: {key!r} is {meta[key]!r}; this release runs {want!r} only")
+    without_retired(meta.get("generator", {}), path)
     return meta
 
 

@@ -10,14 +10,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pipeline.data import posebank
-from pipeline.data.skeletons import FOOT_JOINTS, LEGS, bandai_mirror, bandai_skeleton
+from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.api import Capabilities
 from pipeline.infer.dna import dna_poses, n_dna_channels
 from pipeline.infer.features import (
-    EULER_ORDER,
     NOISE_CHANNELS,
     ROOT_SCALE,
     AdapterFreeSession,
@@ -27,7 +25,6 @@ from pipeline.infer.features import (
     feature_options,
     invert_transform,
     n_input_channels,
-    path_inputs,
 )
 from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, where callers find it)
     ModelFolderError,
@@ -36,15 +33,9 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     models_root,
     read_model_json,
 )
-from pipeline.infer.post import integrate_path, lock_feet, match_keys
+from pipeline.infer.post import lock_feet, match_keys
 from pipeline.motion.clip import Motion
-from pipeline.motion.rotations import (
-    batch_matrix_to_quat,
-    batch_sixd_to_matrix,
-    batch_sixd_to_quat,
-    quat_normalize,
-    slerp_pairs,
-)
+from pipeline.motion.rotations import batch_sixd_to_quat, slerp_pairs
 
 # Fills up to CHUNK_FRAMES model frames (4.5 min at 30 fps) run as one window, exactly as
 # they always did; longer ones go through windows of about CHUNK_CORE frames each (plus the
@@ -81,7 +72,8 @@ def _sigmoid(x):
 
 
 class OnnxInbetweener:
-    """Fills shots with the exported networks; ``root`` is "generator" or "path".
+    """Fills shots with the exported generator of a model folder, set up from its
+    ``model.json`` alone.
 
     Kind ``"generator-onnx"``. Every such model takes partial keys and batches; it takes a
     motion DNA when its generator has a DNA encoder (``generator.dna`` in model.json), so
@@ -89,22 +81,11 @@ class OnnxInbetweener:
     bank named in model.json)."""
 
     capabilities = Capabilities(partial_keys=True, batch=True)
+    #: Lock the feet where the network says they touch the ground (post.lock_feet); tests
+    #: that compare the network's own output turn it off.
+    feet = True
 
-    def __init__(
-        self,
-        folder: str | Path,
-        root: str | None = None,
-        feet: bool = True,
-        hierarchical: bool = True,
-        mirror: bool | None = None,
-        pad: str | None = None,
-        pad_tail: int | None = None,
-        min_window: int | None = None,
-        feet_anchor: bool | None = None,
-        feet_orient: bool | None = None,
-        chunk_frames: int | None = None,
-        chunk_core: int | None = None,
-    ):
+    def __init__(self, folder: str | Path):
         self.folder = Path(folder)
         self.meta = read_model_json(self.folder)
         dna = bool(self.meta.get("generator", {}).get("dna", 0))
@@ -117,27 +98,18 @@ class OnnxInbetweener:
         self.model_hash = self.meta["hash"]
         self.fps = float(self.meta["fps"])
         self.skeleton = bandai_skeleton()
-        self.root_mode = root or self.meta.get("root", "generator")
-        self.feet = feet
-        # Contacts that hold a key lock at the key's ankle position (post.lock_feet).
-        self.feet_anchor = bool(self.meta.get("feet_anchor", False) if feet_anchor is None else feet_anchor)
-        # Locked feet also hold their orientation, so the toes do not slide (post.lock_feet).
-        self.feet_orient = bool(self.meta.get("feet_orient", False) if feet_orient is None else feet_orient)
-        self.hierarchical = hierarchical
-        # Test-time mirror averaging: the model also fills the left/right mirror of the shot.
-        self.mirror = bool(self.meta.get("mirror_average", False)) if mirror is None else mirror
-        self.pad = pad or self.meta.get("pad", "end")
-        if self.pad not in ("end", "hold-key", "front"):
-            raise ModelFolderError(f"{self.folder}: unknown pad layout {self.pad!r}")
+        # Contacts that hold a key lock at the key's ankle position; locked feet also hold
+        # their orientation, so the toes do not slide (post.lock_feet).
+        self.feet_anchor = bool(self.meta.get("feet_anchor", False))
+        self.feet_orient = bool(self.meta.get("feet_orient", False))
         # Padded window: at least ``min_window`` frames, with at least ``pad_tail`` held frames
-        # after the last key (0 and 0, the layout before v5.1, pad to the next multiple only).
-        self.pad_tail = int(self.meta.get("pad_tail", 0) if pad_tail is None else pad_tail)
-        self.min_window = int(self.meta.get("min_window", 0) if min_window is None else min_window)
+        # after the last key (_network).
+        self.pad_tail = int(self.meta.get("pad_tail", 0))
+        self.min_window = int(self.meta.get("min_window", 0))
         self.max_gap = int(self.meta.get("max_gap", 90))  # the longest gap seen in training
         # Long fills: windows of ``chunk_core`` frames, each seeing ``margin`` frames more on
         # both sides (the network's receptive field), once the fill is over ``chunk_frames``.
-        self.chunk_frames = CHUNK_FRAMES if chunk_frames is None else int(chunk_frames)
-        self.chunk_core = CHUNK_CORE if chunk_core is None else int(chunk_core)
+        self.chunk_frames, self.chunk_core = CHUNK_FRAMES, CHUNK_CORE
         self.margin = int(self.meta.get("receptive_field", 512))
         self._sessions: dict[str, object] = {}
         self._pose_bank = self._load_pose_bank()
@@ -176,50 +148,15 @@ class OnnxInbetweener:
         return self._sessions[which]
 
     def raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
-        """Network output for a batch: (rot, root, contact prob) in the input's frame, unpostprocessed.
-
-        With ``mirror`` the batch runs beside its mirror image and the two answers, the second
-        mirrored back, are averaged: the model's left/right biases cancel.
-        """
-        if not self.mirror:
-            return self._raw(rot, root, keys, noise, joint_keys, dna)
-        m, parents, B = bandai_mirror(), self.skeleton.parents, len(rot)
-        q, r, c = self._raw(
-            np.concatenate([rot, m.rotations(rot, parents)]),
-            np.concatenate([root, m.root(root)]),
-            keys,
-            None if noise is None else np.concatenate([noise, noise]),
-            None if joint_keys is None else joint_keys[:, np.r_[m.pairs, len(parents)]],
-            None if dna is None else self._mirrored_dna(dna, B),
-        )
-        q2 = m.rotations(q[B:], parents)
-        q2 = np.where((q2 * q[:B]).sum(-1, keepdims=True) < 0, -q2, q2)
-        feet = [self.skeleton.index(n) for n in FOOT_JOINTS]
-        return (
-            quat_normalize(q[:B] + q2),
-            0.5 * (r[:B] + m.root(r[B:])),
-            0.5 * (c[:B] + m.contacts(c[B:], feet)),
-        )
-
-    def _mirrored_dna(self, dna, batch: int) -> np.ndarray:
-        """(2B, R, J, 4): the batch's DNA, then its mirror image for the mirrored half."""
-        d = np.asarray(dna)
-        d = np.broadcast_to(d, (batch, *d.shape)) if d.ndim == 3 else d
-        return np.concatenate([d, bandai_mirror().rotations(d, self.skeleton.parents)])
-
-    def _raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
+        """Network output for a batch: (rot, root, contact prob) in the input's frame,
+        unpostprocessed. Only the keyed span goes in, as in training (first key first, last
+        key last); frames outside it hold the end keys' (post-processing holds them anyway)."""
         N = rot.shape[1]
         keys = np.asarray(keys, np.int64)
-        if self.pad != "end":
-            # Only the keyed span goes in, as in training (first key first, last key last);
-            # frames outside it are held by post-processing anyway.
-            k0, k1 = int(keys[0]), int(keys[-1])
-            q, r, c = self._network(
-                rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise, joint_keys, dna
-            )
-            edge = np.r_[np.zeros(k0, np.int64), np.arange(k1 - k0 + 1), np.full(N - k1 - 1, k1 - k0)]
-            return q[:, edge], r[:, edge], c[:, edge]
-        return self._network(rot, root, keys, noise, joint_keys, dna)
+        k0, k1 = int(keys[0]), int(keys[-1])
+        q, r, c = self._network(rot[:, k0 : k1 + 1], root[:, k0 : k1 + 1], keys - k0, noise, joint_keys, dna)
+        edge = np.r_[np.zeros(k0, np.int64), np.arange(k1 - k0 + 1), np.full(N - k1 - 1, k1 - k0)]
+        return q[:, edge], r[:, edge], c[:, edge]
 
     def dna_inputs(self, batch: int, dna) -> dict:
         """The generator's DNA inputs: (B, C, R) poses and a (B, 1) weight (0: no DNA).
@@ -239,33 +176,21 @@ class OnnxInbetweener:
         return {"dna": poses, "dna_weight": np.ones((batch, 1), np.float32)}
 
     def _network(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
-        """The generator (+ path predictor) on one window, padded to the network's multiple.
-
-        Pad layouts (``pad``): "end" holds the last frame after it as in-betweens (the layout
-        of models up to v4's card); "hold-key" holds it too but makes the padded window's last
-        frame a key, as every training window ends on a key; "front" repeats the first key
-        before the window as keys.
-        """
+        """The generator on one window whose first and last frames are keys, padded to the
+        network's multiple by holding the last key, the padded window's last frame a key too:
+        every training window ends on a key."""
         skel = self.skeleton
         B, N, J = rot.shape[:3]
         mult = int(self.meta["multiple"])
         pad = -(-max(N + self.pad_tail, self.min_window) // mult) * mult - N
-        front = pad if self.pad == "front" else 0
-        back = pad - front
         full = np.ones((1, J + 1), bool)
         if joint_keys is None:
             joint_keys = np.repeat(full, len(keys), 0)
-        if front:
-            rot = np.concatenate([np.repeat(rot[:, :1], front, 1), rot], 1)
-            root = np.concatenate([np.repeat(root[:, :1], front, 1), root], 1)
-            keys = np.r_[np.arange(front), keys + front]
-            joint_keys = np.concatenate([np.repeat(full, front, 0), joint_keys])
-        if back:
-            rot = np.concatenate([rot, np.repeat(rot[:, -1:], back, 1)], 1)
-            root = np.concatenate([root, np.repeat(root[:, -1:], back, 1)], 1)
-            if self.pad != "end":
-                keys = np.r_[keys, front + N + back - 1]
-                joint_keys = np.concatenate([joint_keys, full])
+        if pad:
+            rot = np.concatenate([rot, np.repeat(rot[:, -1:], pad, 1)], 1)
+            root = np.concatenate([root, np.repeat(root[:, -1:], pad, 1)], 1)
+            keys = np.r_[keys, N + pad - 1]
+            joint_keys = np.concatenate([joint_keys, full])
         gcfg = self.meta.get("generator", {})
         # Without partial keys the adapter's side input (all zeros) is left out where the
         # generator session runs those features on the graph without the adapter.
@@ -280,32 +205,18 @@ class OnnxInbetweener:
         o = out.transpose(0, 2, 1)
         f = feats.transpose(0, 2, 1)
         J6 = J * 6
-        euler = gcfg.get("rotation", "6d") == "euler"
-        R = J * 3 if euler else J6
-        base = f[..., : J6 + 3] if gcfg.get("residual", True) else np.zeros_like(f[..., : J6 + 3])
-        if euler:
-            ang = np.pi * np.tanh(o[..., :R].reshape(-1, 3).astype(np.float64))
-            delta = Rotation.from_euler(EULER_ORDER, ang).as_matrix().reshape(B, -1, J, 3, 3)
-            mats = batch_sixd_to_matrix(base[..., :J6].reshape(B, -1, J, 6).astype(np.float64)) @ delta
-            q = batch_matrix_to_quat(mats)
-        else:
-            # 6D straight to quaternions (no 3x3 matrices in between; bitwise the same as
-            # through them), on the network's (B, C, N) layout: one row of frames per channel.
-            n = out.shape[-1]
-            d6 = (feats[:, :J6] if gcfg.get("residual", True) else np.zeros_like(feats[:, :J6])) + out[:, :J6]
-            q = np.empty((B, n, J, 4))
-            batch_sixd_to_quat(d6.reshape(B, J, 6, n), axis=2, out=q.transpose(0, 2, 1, 3))
-        croot = (base[..., J6:] + o[..., R : R + 3]).astype(np.float64) * ROOT_SCALE
-        contacts = _sigmoid(o[..., R + 3 : R + 7])
-        if self.root_mode == "path" and "path" in self.meta["files"]:
-            vel = self.session("path").run(None, {"local_positions": path_inputs(q, croot, skel)})[0]
-            vel = vel.transpose(0, 2, 1).astype(np.float64) * ROOT_SCALE
-            keys_a = np.asarray(keys)
-            # The path passes through the keys that key the root.
-            keys_a = keys_a[joint_keys[:, J]]
-            croot = integrate_path(vel, ctx["croot"][:, keys_a], keys_a, croot.shape[1])
+        # The network's 6D residual on the baseline straight to quaternions (no 3x3 matrices
+        # in between; bitwise the same as through them), on the network's (B, C, N) layout:
+        # one row of frames per channel.
+        n = out.shape[-1]
+        q = np.empty((B, n, J, 4))
+        batch_sixd_to_quat(
+            (feats[:, :J6] + out[:, :J6]).reshape(B, J, 6, n), axis=2, out=q.transpose(0, 2, 1, 3)
+        )
+        croot = (f[..., J6 : J6 + 3] + o[..., J6 : J6 + 3]).astype(np.float64) * ROOT_SCALE
+        contacts = _sigmoid(o[..., J6 + 3 : J6 + 7])
         q, wroot = invert_transform(q, croot, ctx["q"], ctx["off"])
-        return q[:, front : front + N], wroot[:, front : front + N], contacts[:, front : front + N]
+        return q[:, :N], wroot[:, :N], contacts[:, :N]
 
     @property
     def pose_bank(self) -> np.ndarray | None:
@@ -354,14 +265,13 @@ class OnnxInbetweener:
             if joint_keys.all():
                 joint_keys = None
         keys = np.unique(keys)
-        if self.hierarchical and np.diff(keys).max() > self.max_gap:
+        if np.diff(keys).max() > self.max_gap:
             rot, root, keys, joint_keys = self._insert_keys(rot, root, keys, noise, joint_keys, dna)
         return self._chunked(rot, root, keys, noise, joint_keys, dna, self.feet)
 
     def _solve(self, rot, root, keys, noise, joint_keys, dna, feet: bool):
         """Networks and post-processing on one window whose gaps all fit the model."""
-        gcfg = self.meta.get("generator", {})
-        if joint_keys is None or gcfg.get("key_mask", False) or gcfg.get("key_adapter", False):
+        if joint_keys is None or self.meta.get("generator", {}).get("key_adapter", False):
             q, r, contacts = self.raw(rot, root, keys, noise, joint_keys, dna)
         else:
             # A network without partial-key inputs would take a partial key for a full pose:

@@ -119,22 +119,6 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     return out_rot.astype(np.float32), out_root.astype(np.float32)
 
 
-def integrate_path(vel, root_keys, keys, n):
-    """Root path from per-frame velocities (B, N, 3), passing through every key root.
-
-    Between keys a and b the path is integrated from a; the mismatch at b is spread with
-    smoothstep weights over the gap.
-    """
-    cum = np.cumsum(vel, axis=1)
-    cum = cum - cum[:, :1]
-    ip, inx, s = key_weights(n, keys)
-    prev, nxt = keys[ip], keys[inx]
-    start = root_keys[:, ip] + (cum - cum[:, prev])
-    end_err = root_keys[:, inx] - (root_keys[:, ip] + (cum[:, nxt] - cum[:, prev]))
-    out = start + s[None, :, None] * end_err
-    return out
-
-
 def contact_segments(flags: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) runs of True."""
     d = np.diff(np.r_[0, flags.astype(np.int8), 0])

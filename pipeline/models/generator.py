@@ -10,13 +10,14 @@ Sequence length must be a multiple of ``2**len(levels)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import torch
 from torch import nn
 
 from pipeline.infer.dna import n_dna_channels
 from pipeline.infer.features import n_adapter_channels, n_input_channels, n_output_channels
+from pipeline.infer.folder import without_retired
 from pipeline.models.dna import DnaEncoder
 from pipeline.models.layers import ResLayer
 
@@ -27,16 +28,19 @@ class GeneratorConfig:
     width: int = 160
     levels: tuple[int, ...] = (160, 192, 256, 256, 256)  # channels after each stride-2 layer
     bottleneck_dilations: tuple[int, ...] = (1, 2)
-    residual: bool = True  # predict the correction to interpolation (Δ-interpolator) or the raw pose
-    tta: bool = True  # time-to-arrival sinusoids in the input (ablation switch)
-    noise_schedule: bool = False  # the take latent fades to 0 near keys (RMIB's scheduled target noise)
-    key_mask: bool = False  # per-joint key-mask channels in the input (partial keys)
-    full_timing: bool = False  # key distance / flag / time-to-arrival count full keys only
     key_adapter: bool = False  # partial keys as a side input beside the full-key input (features.py)
-    rotation: str = "6d"  # "6d" residual, or "euler": a ZXY delta π·tanh(out) on the interpolated rotation
     dna: int = 0  # width of the motion-DNA encoder (0: none); its vector joins the bottleneck
     delta: bool = False  # see poses relative to the keys, not as they are (relative_to_keys)
     extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def saved(cls, saved: dict, where="a checkpoint") -> GeneratorConfig:
+        """The config a checkpoint or model.json saved (lists back to tuples), without the
+        switches no release runs any more (pipeline.infer.folder.RETIRED; refused where
+        set to anything but the one value every shipped model has)."""
+        names = {f.name for f in fields(cls)}
+        kw = {k: v for k, v in without_retired(saved, where).items() if k in names}
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()})
 
     @property
     def multiple(self) -> int:
@@ -69,19 +73,10 @@ class Generator(nn.Module):
     def __init__(self, cfg: GeneratorConfig):
         super().__init__()
         self.cfg = cfg
-        cin, cout = (
-            n_input_channels(cfg.n_joints, cfg.key_mask, cfg.key_adapter),
-            n_output_channels(cfg.n_joints, cfg.rotation),
-        )
-        # Key-mask channels (the last J + 1 inputs) go through their own convolution, zero at
-        # the start and without bias: with full keys they are zero and add nothing.
-        self.in_channels = cin  # the features' width, mask channels included
-        self.n_mask = cfg.n_joints + 1 if cfg.key_mask else 0
+        cin, cout = n_input_channels(cfg.n_joints, cfg.key_adapter), n_output_channels(cfg.n_joints)
+        self.in_channels = cin  # the features' width, the adapter's side input included
         self.n_side = n_adapter_channels(cfg.n_joints) if cfg.key_adapter else 0
-        self.inp = ResLayer(cin - self.n_mask - self.n_side, cfg.width, 3, sigma=1.0)
-        self.mask_in = nn.Conv1d(self.n_mask, cfg.width, 3, padding=1, bias=False) if cfg.key_mask else None
-        if self.mask_in is not None:
-            nn.init.zeros_(self.mask_in.weight)
+        self.inp = ResLayer(cin - self.n_side, cfg.width, 3, sigma=1.0)
         # The partial-key adapter: two bias-free convolutions around a PReLU, the last one zero
         # at the start. Zero in gives zero out, so fills from full keys never depend on it.
         self.adapter = None
@@ -110,9 +105,8 @@ class Generator(nn.Module):
         )
         self.dna = DnaEncoder(n_dna_channels(cfg.n_joints), cfg.dna, chans[-1]) if cfg.dna else None
         self.out = nn.Conv1d(cfg.width, cout, 3, padding=1)
-        if cfg.residual:
-            nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
-            nn.init.zeros_(self.out.bias)
+        nn.init.zeros_(self.out.weight)  # start as the interpolation baseline
+        nn.init.zeros_(self.out.bias)
 
     def res_layers(self) -> list[ResLayer]:
         return [m for m in self.modules() if isinstance(m, ResLayer)]
@@ -122,12 +116,10 @@ class Generator(nn.Module):
     ) -> torch.Tensor:
         """(B, C, N) features -> (B, C_out, N); with a DNA encoder also (B, C_dna, R) poses and a
         (B, 1) weight per window (0: no DNA)."""
-        main = x.shape[1] - self.n_mask - self.n_side
+        main = x.shape[1] - self.n_side
         h = self.inp(relative_to_keys(x[:, :main], self.cfg.n_joints) if self.cfg.delta else x[:, :main])
-        if self.mask_in is not None:
-            h = h + self.mask_in(x[:, main : main + self.n_mask])
         if self.adapter is not None:
-            h = h + self.adapter(x[:, main + self.n_mask :])
+            h = h + self.adapter(x[:, main:])
         skips = []
         for layer in self.down:
             skips.append(h)

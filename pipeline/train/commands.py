@@ -14,9 +14,9 @@ def export(
     run: Path = typer.Argument(..., help="Run folder written by `tween train`."),
     out: Path = typer.Option(..., help="Model folder to write (ONNX files + model.json)."),
     name: str = typer.Option(None, help="Model name (default: the folder name)."),
-    root: str = typer.Option("generator", help="Root path source at inference: generator or path."),
+    root: str = typer.Option("generator", help="Root path source at inference: generator (the only one)."),
     pad: str = typer.Option(
-        "hold-key", help="Pad layout at inference: hold-key (the last padded frame a key), end, front."
+        "hold-key", help="Pad layout at inference: hold-key (the last padded frame a key; the only one)."
     ),
     pad_tail: int = typer.Option(16, help="Frames held after the last key at least, when padding."),
     min_window: int = typer.Option(64, help="Shortest padded window, frames."),
@@ -27,9 +27,13 @@ def export(
     ),
 ):
     """Export both networks to ONNX and check onnxruntime against torch."""
+    from pipeline.infer.folder import FIXED
     from pipeline.train.export import export as do_export
     from pipeline.train.export import verify
 
+    for flag, value in (("--root", root), ("--pad", pad)):
+        if value != FIXED[flag[2:]]:
+            raise TweenError(f"{flag} {value!r}: this release fills with {FIXED[flag[2:]]!r} only")
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written

@@ -24,7 +24,10 @@ from pipeline.usd.take import load_takes
 def _load(cls, cfg_cls, ckpt: Path, key="model"):
     state = read_checkpoint(ckpt, "the run's checkpoint")
     mcfg = state["config"]["model"]
-    cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
+    if cfg_cls is GeneratorConfig:  # (the switches of retired experiments dropped)
+        cfg = GeneratorConfig.saved(mcfg, ckpt)
+    else:
+        cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
     net = cls(cfg)
     net.load_state_dict(state[key])
     net.eval()
@@ -126,7 +129,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         torch.save({k: pstate[k] for k in keep if k in pstate}, out_dir / "torch" / "path.pt")
     meta["files"] = files
     # Padded like training windows (64–128 frames, ending on a key, motion after a target);
-    # see OnnxInbetweener._network and scripts/pad_layouts.py for how these were chosen.
+    # see OnnxInbetweener._network (experiments/pad_layouts.py measured the layouts tried).
     meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
     bank = _pose_bank(out_dir, gstate.get("config", {}))
@@ -193,8 +196,9 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     import onnxruntime as ort
 
     from pipeline.data.skeletons import bandai_skeleton
-    from pipeline.infer.features import build_features, feature_options, path_inputs
+    from pipeline.infer.features import build_features, feature_options
     from pipeline.motion.bvh import read_bvh
+    from pipeline.train.path import path_inputs
 
     meta = json.loads((model_dir / "model.json").read_text())
     gen, gcfg, _ = _load(Generator, GeneratorConfig, run_dir / "generator.pt")

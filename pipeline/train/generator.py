@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -23,7 +23,6 @@ from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.features import (
-    EULER_ORDER,
     NOISE_CHANNELS,
     ROOT_SCALE,
     build_features,
@@ -121,9 +120,7 @@ class TrainConfig:
         "1/(1+this) and 1+this (0: off).",
     )
     tempo_prob: float = _knob(0.5, "Share of batches given a tempo change (with --tempo).")
-    partial: float = _knob(
-        0.0, "Share of batches with partial keys (some joints only; needs --key-mask or --key-adapter)."
-    )
+    partial: float = _knob(0.0, "Share of batches with partial keys (some joints only; needs --key-adapter).")
     partial_layout: str = _knob(
         "convert",
         "Partial keys in training: 'convert' some keys, or 'insert' them in gaps.",
@@ -139,9 +136,7 @@ class TrainConfig:
     )
     dna_from: float = _knob(0.0, "Share of DNAs from the rest of the window's clip (else from its gap).")
     new_lr: float = _knob(10.0, "Learning-rate factor of the weights the --init checkpoint lacks.")
-    freeze: bool = _knob(
-        False, "Train only the add-on modules (DNA, key mask, adapter); the trunk stays as it was."
-    )
+    freeze: bool = _knob(False, "Train only the add-on modules (DNA, adapter); the trunk stays as it was.")
     device: str = _knob("cpu", "cpu, or cuda where a GPU is available (batches are still made on CPU).")
     workers: int = _knob(
         0, "Processes making batches ahead (0: in the training process; useful with --device cuda)."
@@ -150,19 +145,6 @@ class TrainConfig:
         default_factory=GeneratorConfig,
         metadata={
             "flags": {
-                "target_noise": (
-                    "noise_schedule",
-                    "Scheduled target noise: the take latent fades to 0 within 5 frames of a key.",
-                ),
-                "key_mask": (
-                    "key_mask",
-                    "Per-joint key-mask input (partial keys), its own zero-start convolution.",
-                ),
-                "full_timing": (
-                    "full_timing",
-                    "Key distance, key flag and time-to-arrival inputs count full keys only (partial "
-                    "keys reach the network through their joints and the key mask).",
-                ),
                 "key_adapter": (
                     "key_adapter",
                     "Partial keys as a side input through a zero-start adapter; the main input is that "
@@ -218,28 +200,15 @@ def sixd_to_matrix_t(d6: torch.Tensor) -> torch.Tensor:
     return torch.stack([b1, b2, torch.cross(b1, b2, dim=-1)], dim=-1)
 
 
-def decode(
-    out: torch.Tensor, feats: torch.Tensor, n_joints: int, residual: bool = True, rotation: str = "6d"
-):
+def decode(out: torch.Tensor, feats: torch.Tensor, n_joints: int):
     """Network output + baseline channels -> (rotation matrices, root (cm), contact logits)."""
-    import roma
-
     B, _, N = out.shape
     J6 = n_joints * 6
-    R = n_joints * (6 if rotation == "6d" else 3)
     o = out.transpose(1, 2)
-    f = feats.transpose(1, 2)
-    base = f[..., : J6 + 3] if residual else torch.zeros_like(f[..., : J6 + 3])
-    if rotation == "6d":
-        mats = sixd_to_matrix_t((base[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6))
-    else:
-        # Range-constrained Euler angles (the paper's alternative), as a delta on the baseline.
-        delta = roma.euler_to_rotmat(
-            EULER_ORDER, torch.pi * torch.tanh(o[..., :R].reshape(B, N, n_joints, 3))
-        )
-        mats = sixd_to_matrix_t(base[..., :J6].reshape(B, N, n_joints, 6)) @ delta
-    root = (base[..., J6:] + o[..., R : R + 3]) * ROOT_SCALE
-    return mats, root, o[..., R + 3 : R + 7]
+    base = feats.transpose(1, 2)[..., : J6 + 3]
+    mats = sixd_to_matrix_t((base[..., :J6] + o[..., :J6]).reshape(B, N, n_joints, 6))
+    root = (base[..., J6:] + o[..., J6 : J6 + 3]) * ROOT_SCALE
+    return mats, root, o[..., J6 + 3 : J6 + 7]
 
 
 def init_checkpoint(init: str) -> Path:
@@ -284,7 +253,7 @@ def load_init(init: str, map_location="cpu") -> dict:
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the
 # trained weights); every other field of the network's shape is the checkpoint's.
-ADDONS = ("key_mask", "key_adapter", "dna", "noise_schedule", "full_timing", "delta")
+ADDONS = ("key_adapter", "dna", "delta")
 
 
 def to_delta_inputs(weights: dict, n_joints: int) -> dict:
@@ -305,11 +274,8 @@ def inherit_model(given: GeneratorConfig, saved: dict | None) -> GeneratorConfig
     config's "model"), with the add-ons the run's flags ask for switched on as well."""
     if not saved:
         return given
-    names = {f.name for f in fields(GeneratorConfig)}
-    kw = {k: tuple(v) if isinstance(v, list) else v for k, v in saved.items() if k in names}
-    for k in ADDONS:
-        kw[k] = max(kw.get(k, getattr(given, k)), getattr(given, k))
-    return GeneratorConfig(**kw)
+    kept = GeneratorConfig.saved(saved)
+    return replace(kept, **{k: max(getattr(kept, k), getattr(given, k)) for k in ADDONS})
 
 
 def make_discriminator(cfg: TrainConfig, dev=None):
@@ -521,7 +487,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             init = to_delta_inputs(init, cfg.model.n_joints)
     out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
     model = Generator(cfg.model).to(dev)
-    # Weights an --init checkpoint lacks (a DNA encoder, key mask or adapter added to it) start
+    # Weights an --init checkpoint lacks (a DNA encoder or adapter added to it) start
     # from scratch beside trained ones: Adam moves every weight by about the learning rate a
     # step, so they get a larger one to catch up. Continuing a model that has them already
     # treats them as trained.
@@ -529,11 +495,9 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     trainable = dict(model.named_parameters())
     if cfg.freeze:
         # Only the add-on modules train; the trunk stays bit for bit as --init left it.
-        addons = {
-            id(p) for m in (model.dna, model.mask_in, model.adapter) if m is not None for p in m.parameters()
-        }
+        addons = {id(p) for m in (model.dna, model.adapter) if m is not None for p in m.parameters()}
         if not addons:
-            raise ValueError("freeze trains only the add-on modules: give --dna, --key-mask or --key-adapter")
+            raise ValueError("freeze trains only the add-on modules: give --dna or --key-adapter")
         for n, p in list(trainable.items()):
             if id(p) not in addons:
                 p.requires_grad_(False)
@@ -606,7 +570,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         x = b["feats"].to(dev)
         dna, dna_on = (b["dna"].to(dev), b["dna_weight"].to(dev)) if "dna" in b else (None, None)
         out = model(x, dna, dna_on)
-        mats, proot, clog = decode(out, x, len(skel), cfg.model.residual, cfg.model.rotation)
+        mats, proot, clog = decode(out, x, len(skel))
         gt_rot = b["crot"].to(dev).float()
         q_pred = roma.rotmat_to_unitquat(mats)
         if "match_w" in b:

@@ -14,9 +14,20 @@ from tqdm import tqdm
 
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform, path_inputs
+from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
 from pipeline.models.path import PathConfig, PathPredictor
+from pipeline.motion.fk import fk
 from pipeline.train.batches import sample_batch
+
+
+def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
+    """The path predictor's input, (B, N, J, 4), (B, N, 3) -> (B, (J−1)·3, N) root-relative
+    positions, world-oriented, metres (no fill reads it: the shipped models take their root
+    from the generator)."""
+    _, pos = fk(rot, root, skeleton.parents, skeleton.offsets)
+    rel = (pos[:, :, 1:] - pos[:, :, :1]) / ROOT_SCALE
+    B, N = rel.shape[:2]
+    return np.ascontiguousarray(rel.reshape(B, N, -1).transpose(0, 2, 1), np.float32)
 
 
 @dataclass

@@ -112,7 +112,8 @@ def test_fills_up_to_the_threshold_are_one_window_and_unchanged(model):
     m = tiled(CHUNK_FRAMES)
     keys = np.unique(np.r_[np.arange(0, CHUNK_FRAMES, 10), CHUNK_FRAMES - 1])
     assert model.chunk_plan(CHUNK_FRAMES, keys) == [(0, CHUNK_FRAMES - 1, 0, CHUNK_FRAMES - 1)]
-    never = OnnxInbetweener(DEFAULT, chunk_frames=10**9)
+    never = OnnxInbetweener(DEFAULT)
+    never.chunk_frames = 10**9
     a, b = model.fill(m, keys), never.fill(m, keys)
     assert np.array_equal(a.rotations, b.rotations) and np.array_equal(a.root_positions, b.root_positions)
 
@@ -158,7 +159,9 @@ def test_a_long_fill_is_continuous_across_windows(model):
     acc = np.linalg.norm(p[2:] - 2 * p[1:-1] + p[:-2], axis=-1).max(-1)  # cm / frame², worst joint
     seams = np.array([a for _, _, a, _ in plan[1:]])
     assert acc[seams - 1].max() <= np.percentile(acc[keys[1:-1] - 1], 99.5)
-    one = OnnxInbetweener(DEFAULT, chunk_frames=10**9).fill(m, keys)
+    whole = OnnxInbetweener(DEFAULT)
+    whole.chunk_frames = 10**9
+    one = whole.fill(m, keys)
     between = ~np.isin(np.arange(n), keys)
     err_w = _angle(m.rotations, out.rotations)[between].mean()
     err_1 = _angle(m.rotations, one.rotations)[between].mean()

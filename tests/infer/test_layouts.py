@@ -1,4 +1,4 @@
-"""Pad layouts of the shipped generator and posture-offset augmentation."""
+"""The shipped generator's padded window, the settings it refuses, and posture-offset augmentation."""
 
 import numpy as np
 import pytest
@@ -15,27 +15,13 @@ def clip(bandai_clip):
     return m.rotations[None, :100].astype(np.float32), m.root_positions[None, :100].astype(np.float32)
 
 
-@pytest.mark.parametrize("layout", ["end", "hold-key", "front"])
-def test_every_layout_keeps_keys_and_holds_outside_them(clip, layout):
+def test_the_fill_keeps_keys_and_holds_outside_them(clip):
     rot, root = clip
-    keys = np.array([5, 6, 7, 20, 41, 70])  # 66 keyed frames: padded in every layout
-    q, r = OnnxInbetweener("models/default", pad=layout).fill_batch(rot, root, keys)
+    keys = np.array([5, 6, 7, 20, 41, 70])  # 66 keyed frames: padded
+    q, r = OnnxInbetweener("models/default").fill_batch(rot, root, keys)
     assert np.array_equal(q[0, keys], rot[0, keys]) and np.array_equal(r[0, keys], root[0, keys])
     assert (q[0, :5] == rot[0, 5]).all() and (r[0, 71:] == root[0, 70]).all()
     assert np.isfinite(q).all() and np.isfinite(r).all()
-
-
-def test_layouts_agree_when_nothing_is_padded(clip):
-    rot, root = clip
-    keys = np.array([0, 1, 2, 30, 50, 63])  # 64 frames from the first key to the last: no pad
-    out = [
-        OnnxInbetweener("models/default", pad=p, pad_tail=0, min_window=0).fill_batch(
-            rot[:, :64], root[:, :64], keys
-        )
-        for p in ("end", "hold-key", "front")
-    ]
-    for q, r in out[1:]:
-        assert np.array_equal(q, out[0][0]) and np.array_equal(r, out[0][1])
 
 
 def _spy_features(model, monkeypatch) -> dict:
@@ -57,7 +43,7 @@ KEY_FLAG = 2 * (21 * 6 + 3) + 1  # the key-flag channel of the features
 
 def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
     rot, root = clip
-    model = OnnxInbetweener("models/default", pad="hold-key")
+    model = OnnxInbetweener("models/default")
     seen = _spy_features(model, monkeypatch)
     model.raw(rot[:, :40], root[:, :40], np.array([0, 10, 39]))
     is_key = seen["feats"][0, KEY_FLAG]
@@ -70,7 +56,8 @@ def test_hold_key_pads_with_a_key_at_the_end(clip, monkeypatch):
 )
 def test_padded_window_length(clip, monkeypatch, span, tail, min_window, padded):
     rot, root = clip
-    model = OnnxInbetweener("models/default", pad="hold-key", pad_tail=tail, min_window=min_window)
+    model = OnnxInbetweener("models/default")
+    model.pad_tail, model.min_window = tail, min_window
     seen = _spy_features(model, monkeypatch)
     keys = np.array([0, 1, 2, 9, span - 1])
     q, r, _ = model.raw(rot[:, :span], root[:, :span], keys)
@@ -79,9 +66,22 @@ def test_padded_window_length(clip, monkeypatch, span, tail, min_window, padded)
     assert q.shape[1] == span and r.shape[1] == span
 
 
-def test_unknown_layout_is_refused():
-    with pytest.raises(ValueError, match="pad layout"):
-        OnnxInbetweener("models/default", pad="middle")
+@pytest.mark.parametrize(
+    ("key", "value"), [("pad", "end"), ("root", "path"), ("mirror_average", True), ("rotation", "euler")]
+)
+def test_settings_no_release_runs_are_refused(tmp_path, key, value):
+    """A model folder set up for a layout, root source, test-time mirror or network output
+    that no shipped model used is refused by name (the code for them is gone)."""
+    import json
+    import shutil
+
+    folder = tmp_path / "m"
+    shutil.copytree("models/default", folder, ignore=shutil.ignore_patterns("torch", "bench", "*.md"))
+    meta = json.loads((folder / "model.json").read_text())
+    (meta["generator"] if key == "rotation" else meta)[key] = value
+    (folder / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=f"{key}.*this release runs"):
+        OnnxInbetweener(folder)
 
 
 def test_posture_offsets_are_constant_per_joint_and_bounded(clip):

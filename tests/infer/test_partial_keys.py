@@ -6,7 +6,6 @@ import pytest
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import (
     NOISE_CHANNELS,
-    TTA_FREQS,
     build_features,
     check_joint_keys,
     n_adapter_channels,
@@ -42,8 +41,8 @@ def test_each_joint_interpolates_between_its_own_keys(clip):
     rot, root = clip
     keys = np.array([0, 10, 20])
     mask = _mask(3, {1: [J]})  # frame 10 keys the root only
-    feats, ctx = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=mask, key_mask=True)
-    assert feats.shape == (1, n_input_channels(J, key_mask=True), 21)
+    feats, ctx = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=mask)
+    assert feats.shape == (1, n_input_channels(J), 21)
     crot = ctx["crot"]
     # Rotations at frame 10: halfway between keys 0 and 20, not the values stored at frame 10.
     want = slerp_pairs(crot[:, 0], crot[:, 20], np.full((1, J), 0.5))
@@ -51,39 +50,12 @@ def test_each_joint_interpolates_between_its_own_keys(clip):
     assert not np.allclose(ctx["irot"][:, 10], crot[:, 10], atol=1e-3)
     # The root passes through its key at frame 10.
     assert np.allclose(ctx["iroot"][:, 10], ctx["croot"][:, 10])
-    # Mask channels: 1 where a key frame leaves a joint unkeyed; full keys and in-betweens 0.
-    m = feats[0, -(J + 1) :]
-    assert m[:, 0].sum() == 0 and m[:, 20].sum() == 0 and m[:, 5].sum() == 0
-    assert m[:J, 10].all() and m[J, 10] == 0
     assert feats[0, 2 * (J6 + 3) + 1, 10] == 1  # frame 10 is a key frame for the schedule
     # Full masks give exactly the features of plain keys.
     plain, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
     full, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=np.ones((3, J + 1), bool))
     assert np.array_equal(plain, full)
-    assert plain.shape[1] == n_input_channels(J) and plain.shape[1] == feats.shape[1] - (J + 1)
-
-
-def test_full_timing_counts_full_keys_only_and_keeps_the_partial_keys_joints(clip):
-    """With ``full_timing`` the schedule channels are those of the full keys alone, while the
-    partial key still reaches its joints' baseline and key copy, and the mask marks it."""
-    rot, root = clip
-    keys = np.array([0, 10, 20])
-    mask = _mask(3, {1: [J]})  # frame 10 keys the root only
-    timed, ctx = build_features(
-        rot[:, :21], root[:, :21], keys, SKEL, joint_keys=mask, key_mask=True, full_timing=True
-    )
-    plain, _ = build_features(rot[:, :21], root[:, :21], np.array([0, 20]), SKEL, key_mask=True)
-    sched = slice(2 * (J6 + 3), 2 * (J6 + 3) + 2 + 4 * TTA_FREQS)  # distance, key flag, time-to-arrival
-    assert np.array_equal(timed[0, sched], plain[0, sched])
-    assert timed[0, 2 * (J6 + 3) + 1, 10] == 0  # not a key frame for the schedule
-    assert np.allclose(ctx["iroot"][:, 10], ctx["croot"][:, 10])  # the root still passes its key
-    assert not np.array_equal(timed[0, J6 : J6 + 3], plain[0, J6 : J6 + 3])
-    assert timed[0, -(J + 1) :][:J, 10].all() and timed[0, -1, 10] == 0
-    # Without partial keys the switch changes nothing.
-    full = np.ones((3, J + 1), bool)
-    a, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL, joint_keys=full, full_timing=True)
-    b, _ = build_features(rot[:, :21], root[:, :21], keys, SKEL)
-    assert np.array_equal(a, b)
+    assert plain.shape[1] == n_input_channels(J)
 
 
 def test_adapter_input_is_the_full_keys_input_plus_a_side_input(clip):
@@ -186,10 +158,9 @@ def test_sampled_masks_keep_first_and_last_keys_full():
     assert len(seen) > 3  # several kinds of partial keys
 
 
-@pytest.mark.parametrize("add_on", ["key_mask", "key_adapter"])
-def test_partial_key_input_starts_as_its_init_and_full_keys_never_reach_it(add_on):
-    """Key-mask channels or the adapter's side input, added to trained weights: zero at the
-    start, and once trained still nothing for full keys (their extra channels are zero)."""
+def test_partial_key_input_starts_as_its_init_and_full_keys_never_reach_it():
+    """The adapter's side input, added to trained weights: zero at the start, and once trained
+    still nothing for full keys (their side channels are zero)."""
     torch = pytest.importorskip("torch")
     from pipeline.models.generator import Generator, GeneratorConfig
 
@@ -197,15 +168,11 @@ def test_partial_key_input_starts_as_its_init_and_full_keys_never_reach_it(add_o
     cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
     old = Generator(cfg).eval()
     torch.nn.init.normal_(old.out.weight, std=0.01)
-    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), **{add_on: True})).eval()
+    new = Generator(GeneratorConfig(width=32, levels=(32, 48, 64), key_adapter=True)).eval()
     new.load_state_dict({**new.state_dict(), **old.state_dict()})  # as `tween train --init`
     x = torch.randn(2, n_input_channels(J), 32)
-    extra = (
-        (torch.rand(2, J + 1, 32) < 0.3).float()
-        if add_on == "key_mask"
-        else torch.randn(2, n_adapter_channels(J), 32)
-    )
-    module = new.mask_in if add_on == "key_mask" else new.adapter
+    extra = torch.randn(2, n_adapter_channels(J), 32)
+    module = new.adapter
     with torch.no_grad():
         assert torch.equal(old(x), new(torch.cat([x, extra], 1)))  # the new input starts at zero
         for w in module.parameters():
