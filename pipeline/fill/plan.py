@@ -132,6 +132,94 @@ def _check_key_values(path: str, c: Character, k: np.ndarray, rot, tr, sc) -> No
         )
 
 
+def _retarget_for(
+    path: str,
+    shot,
+    c: Character,
+    k: np.ndarray,
+    pose,
+    model_fps: float,
+    rig: str,
+    own_rig: bool,
+    override,
+    notes,
+):
+    """How character ``c`` (keyed at ``k``, ``pose`` its key rotations and translations in
+    skeleton order) reaches a model: (retarget, rig model folder or None, model rate), or
+    (None, why, None) where it is refused (make_plan's ``rig``, ``own_rig``)."""
+    rt, folder, fps = None, None, model_fps
+    if own_rig:
+        return OwnRig(c), None, own_rate(shot.tcps, k)
+    if rig != RIG_OFF:
+        rt, folder = _rig_for(shot, c, rig)
+        if rt is None and rig != RIG_AUTO:
+            return None, folder, None
+        if rt is not None:
+            return rt, folder, rt.info.fps
+    try:
+        roles = map_joints(c.joints, c.parents, override)
+        rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, (k, *pose))
+    except MappingError as e:
+        why = str(e)
+        # A rig model is the way for a creature: a rig whose pose is not a human's, or whose
+        # names place no arm or leg joint at all; never for a human rig that only needs some
+        # joints named.
+        limbs = {r for r in REQUIRED if r not in ("Hips", "Head")}
+        creature = why.startswith("not a humanoid") or limbs <= set(e.unplaced)
+        if rig == RIG_AUTO and creature:
+            why += "; " + no_model_hint(path, c.skel_path, c.names)
+        return None, why, None
+    if rt.missing:
+        notes.append(
+            f"tween: {path} {c.skel_path}: the rig has no {', '.join(rt.missing)}: "
+            "held at the model's typical pose"
+        )
+    return rt, folder, fps
+
+
+def _check_key_frames(path: str, shot, c: Character, k: np.ndarray, fps: float, notes: list) -> None:
+    """ShotError unless the keys ``k`` lie in the stage range, span at most MAX_MODEL_FRAMES
+    frames at ``fps`` and fall on at least two model frames, no two sub-frame keys sharing
+    one; a note where whole-frame keys share one (a shot above the model's rate)."""
+    lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
+    out = k[(k < lo) | (k > hi)]
+    if len(out):
+        raise ShotError(
+            path, f"key {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}", c.anim_path
+        )
+    span = (k[-1] - k[0]) / shot.tcps * fps
+    if not span <= MAX_MODEL_FRAMES:
+        raise ShotError(
+            path,
+            f"keys {k[0]:g}-{k[-1]:g} span {span:.0f} frames at {fps:g} fps "
+            f"(timeCodesPerSecond {shot.tcps:g}); at most {MAX_MODEL_FRAMES:,}",
+            c.anim_path,
+        )
+    m = np.round((k - k[0]) / shot.tcps * fps)
+    dup = np.nonzero(np.diff(m) == 0)[0]
+    close = dup[np.diff(k)[dup] < 1 - TIME_EPS]
+    if len(close):  # sub-frame keys closer than the model's frame: refused, as asked
+        a, b = k[close[0]], k[close[0] + 1]
+        raise ShotError(
+            path, f"keys {a:.10g} and {b:.10g} fall on one model frame (1/{fps:g} s)", c.anim_path
+        )
+    if len(np.unique(m)) < 2:  # nothing left between the keys at the model's rate
+        raise ShotError(
+            path,
+            f"keys {k[0]:.10g}-{k[-1]:.10g} all fall on one model frame (1/{fps:g} s): "
+            "at least two frames apart are needed",
+            c.anim_path,
+        )
+    if len(dup):  # a shot above the model's rate keyed on consecutive frames: the
+        # network sees one key a model frame, and every key keeps its values
+        a, b = k[dup[0]], k[dup[0] + 1]
+        more = f" and {len(dup) - 1} more pair(s)" if len(dup) > 1 else ""
+        notes.append(
+            f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
+            f"frame (1/{fps:g} s): the network sees one key there; every key keeps its values"
+        )
+
+
 def make_plan(
     path: str,
     keys: str | None,
@@ -163,73 +251,13 @@ def make_plan(
         rot, tr, sc = anim_values(shot.stage, c, k)
         _check_key_values(path, c, k, rot, tr, sc)
         srot, strans = to_skeleton_order(c, rot, tr)
-        rt, folder, fps = None, None, model_fps
-        if own_rig:
-            rt, fps = OwnRig(c), own_rate(shot.tcps, k)
-        elif rig != RIG_OFF:
-            rt, folder = _rig_for(shot, c, rig)
-            if rt is None and rig != RIG_AUTO:
-                refused.append((c.skel_path, folder))
-                continue
-            if rt is not None:
-                fps = rt.info.fps
+        rt, folder, fps = _retarget_for(
+            path, shot, c, k, (srot, strans), model_fps, rig, own_rig, override, notes
+        )
         if rt is None:
-            try:
-                roles = map_joints(c.joints, c.parents, override)
-                rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, (k, srot, strans))
-            except MappingError as e:
-                why = str(e)
-                # A rig model is the way for a creature: a rig whose pose is not a human's, or
-                # whose names place no arm or leg joint at all; never for a human rig that
-                # only needs some joints named.
-                limbs = {r for r in REQUIRED if r not in ("Hips", "Head")}
-                creature = why.startswith("not a humanoid") or limbs <= set(e.unplaced)
-                if rig == RIG_AUTO and creature:
-                    why += "; " + no_model_hint(path, c.skel_path, c.names)
-                refused.append((c.skel_path, why))
-                continue
-            if rt.missing:
-                notes.append(
-                    f"tween: {path} {c.skel_path}: the rig has no {', '.join(rt.missing)}: "
-                    "held at the model's typical pose"
-                )
-        lo, hi = shot.start - TIME_EPS, shot.end + TIME_EPS
-        out = k[(k < lo) | (k > hi)]
-        if len(out):
-            raise ShotError(
-                path, f"key {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}", c.anim_path
-            )
-        span = (k[-1] - k[0]) / shot.tcps * fps
-        if not span <= MAX_MODEL_FRAMES:
-            raise ShotError(
-                path,
-                f"keys {k[0]:g}-{k[-1]:g} span {span:.0f} frames at {fps:g} fps "
-                f"(timeCodesPerSecond {shot.tcps:g}); at most {MAX_MODEL_FRAMES:,}",
-                c.anim_path,
-            )
-        m = np.round((k - k[0]) / shot.tcps * fps)
-        dup = np.nonzero(np.diff(m) == 0)[0]
-        close = dup[np.diff(k)[dup] < 1 - TIME_EPS]
-        if len(close):  # sub-frame keys closer than the model's frame: refused, as asked
-            a, b = k[close[0]], k[close[0] + 1]
-            raise ShotError(
-                path, f"keys {a:.10g} and {b:.10g} fall on one model frame (1/{fps:g} s)", c.anim_path
-            )
-        if len(np.unique(m)) < 2:  # nothing left between the keys at the model's rate
-            raise ShotError(
-                path,
-                f"keys {k[0]:.10g}-{k[-1]:.10g} all fall on one model frame (1/{fps:g} s): "
-                "at least two frames apart are needed",
-                c.anim_path,
-            )
-        if len(dup):  # a shot above the model's rate keyed on consecutive frames: the
-            # network sees one key a model frame, and every key keeps its values
-            a, b = k[dup[0]], k[dup[0] + 1]
-            more = f" and {len(dup) - 1} more pair(s)" if len(dup) > 1 else ""
-            notes.append(
-                f"tween: {path} {c.anim_path}: keys {a:.10g} and {b:.10g}{more} fall on one model "
-                f"frame (1/{fps:g} s): the network sees one key there; every key keeps its values"
-            )
+            refused.append((c.skel_path, folder))
+            continue
+        _check_key_frames(path, shot, c, k, fps, notes)
         jumps = []
         if not isinstance(rt, RigMap):  # a human's bounds: not for a creature's own rig model
             up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)

@@ -230,6 +230,47 @@ def library_record(library_inb, at: dict, weights: dict) -> dict:
     return {"name": lib.name, "hash": lib.hash, "folder": str(lib.folder), "gaps": gaps}
 
 
+def _fill(plan: Plan, cp: CharPlan, inb, keyed, mask, seed: int, dna) -> dict:
+    """``inb``'s fill of the character on its rig (:func:`_onto_rig`'s dict): a trusted
+    in-betweener's through :func:`trusted_fill`, meeting network and spline on the rig where
+    it can (:class:`OnRig`), else on the model skeleton; ``keyed``: the rig's rotations and
+    translations at every key; ``mask``: the partial keys for the model (key_channels)."""
+    shot, k, fps = plan.shot, cp.keys, float(cp.fps)
+    extra = {} if dna is None else {"dna": dna}
+    if mask is not None:  # for the keys the in-betweener is given (model_frames)
+        kept = mask[model_frames(k, shot.tcps, fps)[1]]
+        kept[[0, -1]] = True  # the first and last keys given stay full poses
+        extra["joint_keys"] = kept
+    skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
+    motion, m = _keyed_motion(plan, cp, keyed, cp.retarget, skel, fps)
+    if not isinstance(inb, TrustedInbetweener):
+        return _onto_rig(plan, cp, cp.retarget, fps, inb.fill(motion, m, seed=seed, **extra), m)
+    # Partial keys and a motion DNA blend on the model skeleton, and so does a shot whose
+    # rig spline, at the shot's rate, would pass the plan's bound.
+    on_rig = mask is None and dna is None
+    if on_rig and (k[-1] - k[0]) / shot.tcps * own_rate(shot.tcps, k) > MAX_MODEL_FRAMES:
+        on_rig = False
+    cuts = jump_gaps(cp, shot.tcps, fps)  # the spline's, and no network window spans one
+    meet = OnRig(plan, cp, keyed, fps, m) if on_rig else None
+    res = trusted_fill(inb, motion, m, seed, cuts=cuts, meet=meet, **extra)
+    # Met on the model skeleton: turned back onto the rig as a whole.
+    return res if meet is not None else _onto_rig(plan, cp, cp.retarget, fps, res, m)
+
+
+def _trust_record(inb, cp: CharPlan, tcps: float, fps: float) -> dict | None:
+    """The trusted fill's decision for the layer (None for any other in-betweener), with the
+    weight of each gap (and a library's record of its gaps)."""
+    if not isinstance(inb, TrustedInbetweener):
+        return None
+    decision = inb.last_decision
+    record = decision.to_json()
+    at, weights = gap_table(decision, cp, tcps, fps)
+    record["gap_weights"] = gap_record(at, weights)
+    if inb.model.capabilities.per_gap:
+        record["library"] = library_record(inb.model, at, weights)
+    return record
+
+
 def fill_character(
     plan: Plan, cp: CharPlan, inb, seed: int, dna=None, trust: str = "auto", alternatives=()
 ) -> dict:
@@ -254,27 +295,7 @@ def fill_character(
     # Partial keys go to models that take them (the human model); others get full keys.
     takes_partial = inb.capabilities.partial_keys and not isinstance(cp.retarget, OwnRig)
     rig_keys = rig_key_channels(cp) if takes_partial else None
-    mask = key_channels(cp, rig_keys)
-    extra = {} if dna is None else {"dna": dna}
-    if mask is not None:  # for the keys the in-betweener is given (model_frames)
-        kept = mask[model_frames(k, shot.tcps, fps)[1]]
-        kept[[0, -1]] = True  # the first and last keys given stay full poses
-        extra["joint_keys"] = kept
-    trusting = isinstance(inb, TrustedInbetweener)
-    on_rig = trusting and mask is None and dna is None
-    rate = own_rate(shot.tcps, k)
-    if on_rig and (k[-1] - k[0]) / shot.tcps * rate > MAX_MODEL_FRAMES:
-        on_rig = False  # the rig's spline at the shot's rate would pass the plan's bound
-    skel = cp.retarget.skeleton if isinstance(cp.retarget, OwnRig) else inb.skeleton
-    motion, m = _keyed_motion(plan, cp, (rot_k, tr_k), cp.retarget, skel, fps)
-    if not trusting:
-        res = _onto_rig(plan, cp, cp.retarget, fps, inb.fill(motion, m, seed=seed, **extra), m)
-    else:
-        cuts = jump_gaps(cp, shot.tcps, fps)  # the spline's, and no network window spans one
-        meet = OnRig(plan, cp, (rot_k, tr_k), fps, m) if on_rig else None
-        res = trusted_fill(inb, motion, m, seed, cuts=cuts, meet=meet, **extra)
-        if meet is None:  # met on the model skeleton: turned back onto the rig as a whole
-            res = _onto_rig(plan, cp, cp.retarget, fps, res, m)
+    res = _fill(plan, cp, inb, (rot_k, tr_k), key_channels(cp, rig_keys), seed, dna)
     inside, rot, tr, sc_o = res["inside"], res["rot"], res["tr"], res["sc"]
     lo, hi = cp.fill_range
     if not (np.isfinite(rot).all() and np.isfinite(tr).all()):
@@ -299,15 +320,8 @@ def fill_character(
     r2, t2, s2 = anim_values(shot.stage, c, outside)
     times = np.concatenate([inside, outside])
     order = np.argsort(times, kind="stable")
-    decision = inb.last_decision if isinstance(inb, TrustedInbetweener) else None
-    record = None if decision is None else decision.to_json()
-    if record is not None:
-        at, weights = gap_table(decision, cp, shot.tcps, fps)
-        record["gap_weights"] = gap_record(at, weights)
-        if inb.model.capabilities.per_gap:
-            record["library"] = library_record(inb.model, at, weights)
     return {
-        "trust": record,
+        "trust": _trust_record(inb, cp, shot.tcps, fps),
         "times": times[order],
         "rot": np.concatenate([rot, r2])[order],
         "trans": np.concatenate([tr, t2])[order],
