@@ -24,9 +24,10 @@ demo: $(STAMP) system-deps
 test: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q tests
 
-# The generated bad-input tests with ten times the examples per command (about 5 minutes).
+# The generated bad-input tests with ten times the examples per command, and every shipped clip
+# read (about 7 minutes).
 test-nightly: $(STAMP) system-deps
-	TWEEN_HYPOTHESIS_EXAMPLES=2000 $(BIN)/python -m pytest -q tests/test_bad_input_generated.py
+	TWEEN_HYPOTHESIS_EXAMPLES=2000 TWEEN_ALL_DATA=1 $(BIN)/python -m pytest -q tests/test_bad_input_generated.py tests/motion/test_bvh.py
 
 bench: $(STAMP)
 	$(BIN)/tween bench --methods zero,interp

@@ -26,6 +26,16 @@ def pytest_configure(config):
     os.environ.setdefault("TWEEN_CACHE", str(Path(__file__).resolve().parents[1] / ".cache" / "tests"))
 
 
+def pytest_collection_finish(session):
+    # The Kitsu tests' zou venv (minutes of pip install, mostly network) is made while the
+    # tests before them run, when they are selected and there is a PostgreSQL to serve it.
+    if any(item.path.name == "test_kitsu.py" for item in session.items):
+        from kitsu_server import PG_BIN, build_zou_venv
+
+        if (PG_BIN / "initdb").exists():
+            build_zou_venv()
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     if not DATA.is_dir():

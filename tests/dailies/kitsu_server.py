@@ -37,13 +37,30 @@ def _pg(name: str) -> str | None:
     return found or (str(PG_BIN / name) if (PG_BIN / name).exists() else None)
 
 
+_BUILD: subprocess.Popen | None = None
+_BUILD_LOG = REPO / ".cache" / "zou-venv.log"
+#: Written last: a venv without it was interrupted and is made again.
+_DONE = ZOU_VENV / ".complete"
+
+
+def build_zou_venv() -> None:
+    """Starts making the zou venv in the background (a pip install that mostly waits on the
+    network), so that it overlaps the tests that run before the Kitsu ones; idempotent."""
+    global _BUILD
+    if _BUILD is not None or _DONE.exists():
+        return
+    shutil.rmtree(ZOU_VENV, ignore_errors=True)
+    ZOU_VENV.parent.mkdir(parents=True, exist_ok=True)
+    script = f'"{sys.executable}" -m venv "{ZOU_VENV}" && "{ZOU_VENV}/bin/pip" install -q zou gazu && touch "{_DONE}"'
+    with open(_BUILD_LOG, "wb") as log:
+        _BUILD = subprocess.Popen(["bash", "-c", script], stdout=log, stderr=subprocess.STDOUT)
+
+
 def _zou_venv() -> Path:
-    zou = ZOU_VENV / "bin" / "zou"
-    if not zou.exists():  # test-time server: kept out of the product's dependencies
-        subprocess.run([sys.executable, "-m", "venv", str(ZOU_VENV)], check=True)
-        subprocess.run(
-            [str(ZOU_VENV / "bin" / "pip"), "install", "-q", "zou", "gazu"], check=True, timeout=900
-        )
+    if not _DONE.exists():  # test-time server: kept out of the product's dependencies
+        build_zou_venv()
+        if _BUILD.wait(timeout=900) != 0:
+            raise RuntimeError(f"making {ZOU_VENV} failed: {_BUILD_LOG.read_text()[-2000:]}")
     return ZOU_VENV / "bin"
 
 
