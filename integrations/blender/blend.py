@@ -137,7 +137,8 @@ def export_blocking(context, arm, path: Path, info: dict) -> dict:
 
 
 def _rotation(mode: str, basis: Matrix, prev):
-    """The channel values of ``basis``'s rotation in the bone's mode, continuous with prev."""
+    """The channel values of ``basis``'s rotation in the bone's mode, nearest ``prev`` (the
+    same Euler solution, the same quaternion hemisphere)."""
     if mode == "QUATERNION":
         q = basis.to_quaternion()
         if prev is not None and q.dot(Quaternion(prev)) < 0:
@@ -200,6 +201,10 @@ def take_actions(
     by_token = {t: b for b, t in tokens.items()}
     index = {t: i for i, t in enumerate(joints)}
     values = info["values"]
+    # the animator's curves: each in-between's rotation is written on the branch (Euler
+    # solution, quaternion sign) of the blocking's own curve on that frame, so a take's
+    # curves meet the keys without a flip, even near gimbal lock
+    curves = {(fc.data_path, fc.array_index): fc for fc in fcurves(original, arm)}
     out = []
     for n in sorted(takes):
         name = naming.take_action_name(shot, version, n)
@@ -216,7 +221,7 @@ def take_actions(
             bone = by_token.get(tok)
             if bone is None:
                 continue
-            _bone_channels(arm, bone, j, samples, frames, times, values, ch)
+            _bone_channels(arm, bone, j, samples, frames, times, values, curves, ch)
         for fc in fcurves(original, arm):  # the object's own channels, as they are
             if bone_channel(fc) is None:
                 new = ch.new(fc.data_path, fc.array_index, "Object Transforms")
@@ -232,7 +237,7 @@ def take_actions(
     return out
 
 
-def _bone_channels(arm, bone: str, j: int, samples: dict, frames, times, values, ch) -> None:
+def _bone_channels(arm, bone: str, j: int, samples: dict, frames, times, values, curves, ch) -> None:
     pb = arm.pose.bones[bone]
     b = arm.data.bones[bone]
     rest = b.matrix_local if b.parent is None else b.parent.matrix_local.inverted() @ b.matrix_local
@@ -245,6 +250,8 @@ def _bone_channels(arm, bone: str, j: int, samples: dict, frames, times, values,
     chans.update({(rot_path, i): [] for i in range(n_rot)})
     chans.update({("scale", i): [] for i in range(3)})
     prev = None
+    blocking = [curves.get((f"{base}.{rot_path}", i)) for i in range(n_rot)]
+    blocking = blocking if all(c is not None for c in blocking) else None
     rot, tr, sc = samples["rotations"], samples.get("translations", {}), samples.get("scales", {})
     for f in frames:
         t = times[f]
@@ -253,7 +260,8 @@ def _bone_channels(arm, bone: str, j: int, samples: dict, frames, times, values,
         s = Vector(sc[t][j]) if t in sc else Vector((1.0, 1.0, 1.0))
         basis = rest_inv @ Matrix.LocRotScale(loc, q, s)
         bl, _, bs = basis.decompose()
-        r = list(_rotation(mode, basis, prev))
+        ref = tuple(c.evaluate(f) for c in blocking) if blocking else prev
+        r = list(_rotation(mode, basis, ref))
         for i in range(n_rot):  # the animator's key where there is one (anchors continuity)
             key = values.get((f"{base}.{rot_path}", i), {})
             if f in key:
