@@ -202,8 +202,9 @@ def take_actions(
     index = {t: i for i, t in enumerate(joints)}
     values = info["values"]
     # the animator's curves: each in-between's rotation is written on the branch (Euler
-    # solution, quaternion sign) of the blocking's own curve on that frame, so a take's
-    # curves meet the keys without a flip, even near gimbal lock
+    # solution, quaternion sign) of the blocking's own curve on that frame, so a take's curves
+    # meet the keys without a flip (near gimbal lock an Euler in-between may still step to an
+    # equivalent solution: the pose on every frame is the fill's either way)
     curves = {(fc.data_path, fc.array_index): fc for fc in fcurves(original, arm)}
     out = []
     for n in sorted(takes):
@@ -244,7 +245,7 @@ def _bone_channels(arm, bone: str, j: int, samples: dict, frames, times, values,
     rest_inv = rest.inverted()
     mode = pb.rotation_mode
     rot_path = _ROT.get(mode, "rotation_euler")
-    base = f'pose.bones["{bone}"]'
+    base = f'pose.bones["{bpy.utils.escape_identifier(bone)}"]'
     n_rot = 4 if mode in _ROT else 3
     chans = {("location", i): [] for i in range(3)}
     chans.update({(rot_path, i): [] for i in range(n_rot)})

@@ -103,6 +103,16 @@ def _err_cm(a, b, frames, keys) -> float:
     return float(np.linalg.norm(a - b, axis=-1)[inside].mean() * 100)
 
 
+def _jumps(curves, frames) -> int:
+    """Frame-to-frame steps above 1 rad in rotation channels (an Euler flip, a sign flip)."""
+    n = 0
+    for fc in curves:
+        if ".rotation_" in fc.data_path:
+            v = [fc.evaluate(f) for f in frames]
+            n += sum(abs(b - a) > 1.0 for a, b in zip(v, v[1:], strict=False))
+    return n
+
+
 def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path, timeout: float) -> dict:
     import bpy
 
@@ -123,6 +133,7 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
     scene.frame_start, scene.frame_end = first, min(first + frames - 1, last)  # a short clip: all of it
     span = list(range(scene.frame_start, scene.frame_end + 1))
     truth = _world(arm, span)
+    truth_jumps = _jumps(ext.blend.fcurves(act, arm), span)
     keys = set(span[::every]) | {span[-1]}
     part_bones, part_at = PARTIAL.get(name, ("UpperArm_L", "LowerArm_L")), span[0] + PARTIAL_AT
     for fc in ext.blend.fcurves(act, arm):
@@ -166,7 +177,8 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
 
     out = {"clip": name, "bvh": bvh.name, "joints": len(arm.pose.bones), "frames": len(span), "keys": len(keys),
            "fps": scene.render.fps, "submit_s": round(submitted, 2), "fill_s": round(waited, 1),
-           "takes": [], "bezier_cm": round(_err_cm(bezier, truth, span, keys), 3)}  # fmt: skip
+           "takes": [], "bezier_cm": round(_err_cm(bezier, truth, span, keys), 3),
+           "clip_rotation_jumps": truth_jumps}  # fmt: skip
     for take in takes:
         ext.blend.assign(arm, take)
         curves = {(fc.data_path, fc.array_index): fc for fc in ext.blend.fcurves(take, arm)}
@@ -187,7 +199,8 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
         pos = _world(arm, span)
         out["takes"].append({"action": take.name, "decision": take.get("tween_decision"),
                              "error_cm": round(_err_cm(pos, truth, span, keys), 3), "keys_exact": exact,
-                             "max_channel_change_vs_bezier": round(moved, 4)})  # fmt: skip
+                             "max_channel_change_vs_bezier": round(moved, 4),
+                             "rotation_jumps": _jumps(curves.values(), span)})  # fmt: skip
     # the partial key went out as tween:keyedJoints, and the fill went through it
     track = ext.ui.TRACK[arm.name]
     export = Path(track["shot_file"]).read_text()
