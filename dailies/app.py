@@ -23,6 +23,9 @@ HERE = Path(__file__).parent
 class Approval(BaseModel):
     take: int = Field(ge=0, description="The approved take.")
     note: str | None = Field(None, max_length=10000, description="The reviewer's note.")
+    by: str | None = Field(
+        None, max_length=200, description="The reviewer's name (default: the user the server runs as)."
+    )
     version: int | None = Field(
         None, description="The fill version the page showed; refused if no longer the latest."
     )
@@ -87,7 +90,7 @@ def create_app(roots: list[Path], login: Login, tracker=None, mapping: dict | No
     )
     def api_approve(key: str, body: Approval = Body(...)) -> dict:
         try:
-            return decide.approve(roots, key, body.take, body.note, body.version)
+            return decide.approve(roots, key, body.take, body.note, body.version, body.by)
         except LookupError:
             raise HTTPException(404, f"{key}: no such shot under the roots") from None
         except decide.Refused as e:

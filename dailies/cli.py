@@ -153,12 +153,13 @@ def approve(
     shot: Path = typer.Argument(..., help="USD shot whose latest fill is approved."),
     take: int = typer.Option(..., "--take", help="The approved take (0, 1, ...)."),
     note: str = typer.Option(None, "--note", help="The reviewer's note."),
+    by: str = typer.Option(None, "--by", help="The reviewer's name (default: your login name)."),
     out_dir: Path = typer.Option(None, "--out-dir", help=OUT_DIR_HELP),
 ):
     """Dailies: record the approval of a take in a new fill layer version (and review layer)."""
     from pipeline.usd.dailies import approve as approve_take
 
-    r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None)
+    r = approve_take(str(shot), take, note=note, out_dir=str(out_dir) if out_dir else None, by=by)
     print(f"tween: approved take {r['take']} of {r['of']} -> {r['layer']}", file=sys.stderr)
     typer.echo(json.dumps(r, indent=1))
 

@@ -48,12 +48,15 @@ def _current(roots: list[Path], key: str, version: int | None) -> tuple[Shot, st
     return shot, str(shot_path)
 
 
-def approve(roots: list[Path], key: str, take: int, note: str | None, version: int | None) -> dict:
-    """Approves ``take`` of the shot's latest fill (that must be ``version`` when given)."""
+def approve(
+    roots: list[Path], key: str, take: int, note: str | None, version: int | None, by: str | None = None
+) -> dict:
+    """Approves ``take`` of the shot's latest fill (that must be ``version`` when given), as
+    ``by`` (the name typed on the page; else the user the server runs as)."""
     with _lock:
         shot, shot_path = _current(roots, key, version)
         try:
-            return dailies.approve(shot_path, take, note=note, out_dir=str(shot.folder))
+            return dailies.approve(shot_path, take, note=note, out_dir=str(shot.folder), by=by)
         except TweenError as e:
             raise Refused(str(e)) from None
         finally:

@@ -115,6 +115,8 @@
     selected = take;
     document.getElementById("confirm-take").textContent = take;
     if (dialog.showModal) dialog.showModal(); else dialog.setAttribute("open", "");
+    const reviewer = document.getElementById("reviewer");
+    if (!reviewer.value) reviewer.value = localStorage.getItem("tween-reviewer") || "";
     document.getElementById("note").focus();
   }
   document.querySelectorAll('[data-action="approve"]').forEach((b) =>
@@ -123,8 +125,10 @@
   confirmButton.addEventListener("click", async () => {
     confirmButton.disabled = true; // one click, one decision
     try {
+      const by = document.getElementById("reviewer").value.trim();
+      if (by) localStorage.setItem("tween-reviewer", by);
       const r = await post("approve", { take: selected, note: document.getElementById("note").value || null,
-                                        version: data.version });
+                                        version: data.version, by: by || null });
       dialog.close();
       say(`approved take ${r.take} by ${r.by}: v${String(r.version).padStart(3, "0")} (${r.layer})`, true);
       document.querySelectorAll('[data-action="approve"]').forEach((b) => b.remove());

@@ -243,10 +243,13 @@ def _author_decision(layer, take: int, d: dict) -> None:
             r.variantSelections[write.VARIANT_SET] = f"take{take}"
 
 
-def approve(shot: str, take: int, note: str | None = None, out_dir: str | None = None) -> dict:
+def approve(
+    shot: str, take: int, note: str | None = None, out_dir: str | None = None, by: str | None = None
+) -> dict:
     """Records the approval of ``take`` in a new version of the shot's latest fill layer and
     a new review root layer over it; returns {"layer", "review", "version", "of", "take",
-    "by", "at", "note"}. The latest layer is read, never written."""
+    "by", "at", "note"}. ``by`` is the reviewer (default: this process's user). The latest
+    layer is read, never written."""
     from pxr import Sdf
 
     shot = str(shot)
@@ -254,6 +257,8 @@ def approve(shot: str, take: int, note: str | None = None, out_dir: str | None =
         raise TweenError(f"--take {take!r}: expected a take number, 0 or more")
     if note is not None and "\0" in note:
         raise TweenError("--note: contains a NUL character")
+    if by is not None and (not by.strip() or len(by) > 200 or not by.isprintable()):
+        raise TweenError(f"--by {by[:40]!r}: expected the reviewer's name (printable, 1 to 200 characters)")
     _check_shot(shot)
     stem = write.shot_stem(shot)
     out = _fill_folder(shot, out_dir)
@@ -272,7 +277,7 @@ def approve(shot: str, take: int, note: str | None = None, out_dir: str | None =
         if path != first:  # another writer came first (layers are never rewritten: same name, same file)
             src = _open(path)
             _check_approvable(src, path, take)
-        d = {"status": "approved", "take": int(take), "by": _who(),
+        d = {"status": "approved", "take": int(take), "by": by.strip() if by else _who(),
              "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "note": note or ""}  # fmt: skip
         n = max(_taken(out, stem)) + 1
         fmt = path.suffix.lstrip(".")

@@ -20,17 +20,22 @@ def _post(client, url, body):
 
 def test_approve_from_the_page_records_the_take_and_the_note(client, roots):
     folder = roots[0] / "seq01"
-    r = _post(client, APPROVE, {"take": 1, "note": "arc on the hand, good", "version": 1})
+    r = _post(client, APPROVE, {"take": 1, "note": "arc on the hand, good", "version": 1, "by": " Ana Ruiz "})
     assert r.status_code == 200, r.text
     out = r.json()
     assert out["version"] == 2 and out["take"] == 1 and out["of_version"] == 1
     d = decision(folder / "sh010.tween.v002.usda")
-    assert (d["status"], d["take"], d["note"]) == ("approved", 1, "arc on the hand, good")
+    assert (d["status"], d["take"], d["note"], d["by"]) == (
+        "approved",
+        1,
+        "arc on the hand, good",
+        "Ana Ruiz",
+    )
     assert decision(folder / "sh010.tween.v001.usda")["layer"].endswith("v002.usda")  # v001 is unchanged
     # The CLI sees the page's decision as its own: approving again is refused the same way.
     cli = subprocess.run([sys.executable, "-m", "pipeline.cli", "approve", str(folder / "sh010.usda"), "--take", "0"],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
-    assert cli.returncode == 2 and "already approved (take 1 by" in cli.stderr
+    assert cli.returncode == 2 and "already approved (take 1 by Ana Ruiz" in cli.stderr
     detail = client.get(f"/api/shots/{KEY}").json()
     assert detail["status"] == "approved" and detail["decision"]["take"] == 1
     assert [h["version"] for h in detail["history"]] == [2, 1]
@@ -45,6 +50,8 @@ def test_refusals_are_one_message(client, roots):
     assert bad_take.status_code == 409 and "take 7 is not one of the layer's takes (0, 1)" in bad_take.text
     negative = _post(client, APPROVE, {"take": -1})  # refused by the API's schema
     assert negative.status_code == 422
+    nameless = _post(client, APPROVE, {"take": 0, "version": 1, "by": "\t"})  # approve's own check
+    assert nameless.status_code == 409 and "the reviewer's name" in nameless.json()["detail"]
     assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
     again = _post(client, APPROVE, {"take": 1, "version": 2})  # the layer's own refusal
     assert again.status_code == 409 and "already approved (take 0 by" in again.json()["detail"]
@@ -134,3 +141,17 @@ def test_the_walk_is_reused_but_a_decision_shows_at_once(client, roots, monkeypa
     assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
     rows = {s["key"]: s["status"] for s in client.get("/api/shots").json()}
     assert rows == {KEY: "approved", "0/seq05/sh100": "pending"}  # a decision: walked again
+
+
+def test_tween_approve_names_the_reviewer(tmp_path):
+    made = filled_shot(tmp_path / "seq09", "sh900", takes=2, render=False, frames=13)
+    run = [sys.executable, "-m", "pipeline.cli", "approve", str(made["shot"]), "--take", "1"]
+    bad = subprocess.run([*run, "--by", "  "], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "--by" in bad.stderr, bad.stderr
+    assert not list((tmp_path / "seq09").glob("sh900.tween.v002.*"))  # refused before anything is written
+    ok = subprocess.run(
+        [*run, "--by", "Ana Ruiz", "--note", "good"], capture_output=True, text=True, timeout=120
+    )
+    assert ok.returncode == 0, ok.stderr
+    assert json.loads(ok.stdout)["by"] == "Ana Ruiz"
+    assert decision(tmp_path / "seq09" / "sh900.tween.v002.usda")["by"] == "Ana Ruiz"
