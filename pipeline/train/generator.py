@@ -452,16 +452,9 @@ def batches_from(cfg: TrainConfig, clips, skel, feet, first: int):
     return iter(loader)
 
 
-def train(cfg: TrainConfig, out_dir: Path) -> Path:
-    import roma
-
-    from pipeline.motion.fk import fk_torch
-
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(cfg.threads)
-    dev = torch.device(cfg.device)
-    skel = bandai_skeleton()
-    feet = [skel.index(n) for n in FOOT_JOINTS]
+def training_clips(cfg: TrainConfig):
+    """What a run trains on: a packed split, a studio's takes (``--data``) or the train
+    split; TweenError where no take is long enough for ``--lengths``."""
     if cfg.data_pack:
         from pipeline.data.pack import load_pack
 
@@ -477,20 +470,30 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
             f"{where}: no take of {max(short)} frames (at 30 fps) for --lengths {max(short)}; "
             f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"
         )
-    init = None
-    if cfg.init:
-        state = load_init(cfg.init, dev)
-        init = state["model"]
-        saved = state.get("config", {}).get("model") or {}
-        cfg = replace(cfg, model=inherit_model(cfg.model, saved))
-        if cfg.model.delta and not saved.get("delta", False):
-            init = to_delta_inputs(init, cfg.model.n_joints)
-    out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
-    model = Generator(cfg.model).to(dev)
-    # Weights an --init checkpoint lacks (a DNA encoder or adapter added to it) start
-    # from scratch beside trained ones: Adam moves every weight by about the learning rate a
-    # step, so they get a larger one to catch up. Continuing a model that has them already
-    # treats them as trained.
+    return clips
+
+
+def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
+    """The run's config with the network of its ``--init`` checkpoint (inherit_model), and
+    that checkpoint's weights (turned to delta inputs where the run adds them), or None."""
+    if not cfg.init:
+        return cfg, None
+    state = load_init(cfg.init, dev)
+    init = state["model"]
+    saved = state.get("config", {}).get("model") or {}
+    cfg = replace(cfg, model=inherit_model(cfg.model, saved))
+    if cfg.model.delta and not saved.get("delta", False):
+        init = to_delta_inputs(init, cfg.model.n_joints)
+    return cfg, init
+
+
+def _optimiser(cfg: TrainConfig, model: Generator, init: dict | None):
+    """AdamW and its one-cycle schedule over the weights the run trains (``--freeze``: the
+    add-on modules only), those an --init checkpoint lacks at ``--new-lr`` times the rate."""
+    # Weights an --init checkpoint lacks (a DNA encoder or adapter added to it) start from
+    # scratch beside trained ones: Adam moves every weight by about the learning rate a step,
+    # so they get a larger one to catch up. Continuing a model that has them already treats
+    # them as trained.
     fresh = {n for n, _ in model.named_parameters() if init is not None and n not in init}
     trainable = dict(model.named_parameters())
     if cfg.freeze:
@@ -512,33 +515,160 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         total_steps=cfg.steps,
         pct_start=min(max(0.05, 3 / cfg.steps), 0.5),  # (runs of under 6 steps: a smoke test)
     )
-    ckpt = out_dir / "generator.pt"
-    step, elapsed = 0, 0.0
-    disc, d_opt = None, None
-    if init is not None and not ckpt.exists():
-        model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
-        print(f"initialised from {cfg.init}", file=sys.stderr)
-    if ckpt.exists():
-        state = read_checkpoint(ckpt, "the run's checkpoint", dev, "; remove it to start this run afresh")
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["opt"])
-        sched.load_state_dict(state["sched"])
-        step, elapsed = state["step"], state["elapsed"]
-        if "disc" in state:
-            disc, d_opt = make_discriminator(cfg, dev)
-            disc.load_state_dict(state["disc"])
-            d_opt.load_state_dict(state["d_opt"])
-        print(f"resumed {ckpt} at step {step}", file=sys.stderr)
-    pos_w = torch.ones(len(skel), 3)
-    if cfg.pos_zscore:
-        from pipeline.data.protocol import position_stats
+    return opt, sched
 
-        # Per-coordinate weights 10 cm / std: a coordinate that varies little (a joint's
-        # height) counts as much as its spread says, as in the benchmark's L2P.
-        # A studio's own takes weigh by their own spread (they need not come with Bandai's).
-        _, std = position_stats(clips if cfg.data_pack or cfg.data else load_split("train"))
-        pos_w = torch.from_numpy(POS_SCALE / std.reshape(len(skel), 3)).float()
-    pos_w = pos_w.to(dev)
+
+def _position_weights(cfg: TrainConfig, clips, skel, dev) -> torch.Tensor:
+    """(J, 3) weights of the position losses: 1, or with ``--pos-zscore`` 10 cm / std per
+    coordinate (a coordinate that varies little, a joint's height, counts as much as its
+    spread says, as in the benchmark's L2P). A studio's own takes weigh by their own spread
+    (they need not come with Bandai's)."""
+    if not cfg.pos_zscore:
+        return torch.ones(len(skel), 3).to(dev)
+    from pipeline.data.protocol import position_stats
+
+    _, std = position_stats(clips if cfg.data_pack or cfg.data else load_split("train"))
+    return torch.from_numpy(POS_SCALE / std.reshape(len(skel), 3)).float().to(dev)
+
+
+def _supervised_losses(
+    cfg: TrainConfig, model: Generator, b: dict, skel, pos_w, dev
+) -> tuple[dict, torch.Tensor]:
+    """The seven supervised losses of one batch (rotations, positions, root, velocity, foot
+    contacts, batch regularisation, motion DNA) and the predicted joint positions (the
+    adversarial step's fake)."""
+    import roma
+
+    from pipeline.motion.fk import fk_torch
+
+    between = b["between"].numpy()
+    x = b["feats"].to(dev)
+    dna, dna_on = (b["dna"].to(dev), b["dna_weight"].to(dev)) if "dna" in b else (None, None)
+    out = model(x, dna, dna_on)
+    mats, proot, clog = decode(out, x, len(skel))
+    gt_rot = b["crot"].to(dev).float()
+    q_pred = roma.rotmat_to_unitquat(mats)
+    if "match_w" in b:
+        ak = b["all_keys"].to(dev)
+        q_pred, proot = match_partial_keys(
+            q_pred, proot, gt_rot[:, ak], b["croot"].to(dev).float()[:, ak], ak, b["match_w"].to(dev)
+        )
+        mats = roma.unitquat_to_rotmat(q_pred)
+    gt_mats = roma.unitquat_to_rotmat(gt_rot)
+    m = torch.from_numpy(between).to(dev)
+    _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
+    gt_pos = b["gpos"].to(dev).float()
+    fw = b["frame_weight"].to(dev)[None, :, None]
+    fv = torch.maximum(fw[:, 1:], fw[:, :-1])[..., None]
+    # (In this order: the autograd graph's, and with it the order gradients are summed in.)
+    losses = {"rot": ((mats - gt_mats).abs() * fw[..., None, None])[:, m].mean()}
+    losses["pos"] = ((ppos - gt_pos).abs() * pos_w * fw[..., None])[:, m].mean() / POS_SCALE
+    losses["root"] = ((proot - b["croot"].to(dev).float()).abs() * fw)[:, m].mean() / POS_SCALE
+    moving = torch.from_numpy(between[1:] | between[:-1]).to(dev)
+    vel = ((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs() * fv
+    losses["vel"] = vel[:, moving].mean() / POS_SCALE
+    losses["contact"] = torch.nn.functional.binary_cross_entropy_with_logits(
+        clog[:, m], b["contacts"].to(dev)[:, m]
+    )
+    losses["br"] = batch_regularisation(model.res_layers())
+    no_dna = dna is None
+    losses["dna"] = torch.zeros((), device=dev) if no_dna else dna_loss(ppos, dna, dna_on, m, skel)
+    return losses, ppos
+
+
+def _start(cfg: TrainConfig, model, opt, sched, init: dict | None, ckpt: Path, dev):
+    """(step, seconds so far, discriminator and its optimiser or None) where the run starts:
+    its checkpoint's, resumed into ``model``, ``opt`` and ``sched``; else step 0 from the
+    --init weights (``init``) or from scratch."""
+    if not ckpt.exists():
+        if init is not None:
+            model.load_state_dict({**model.state_dict(), **init})  # new modules keep their fresh start
+            print(f"initialised from {cfg.init}", file=sys.stderr)
+        return 0, 0.0, None, None
+    state = read_checkpoint(ckpt, "the run's checkpoint", dev, "; remove it to start this run afresh")
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["opt"])
+    sched.load_state_dict(state["sched"])
+    disc, d_opt = None, None
+    if "disc" in state:
+        disc, d_opt = make_discriminator(cfg, dev)
+        disc.load_state_dict(state["disc"])
+        d_opt.load_state_dict(state["d_opt"])
+    print(f"resumed {ckpt} at step {state['step']}", file=sys.stderr)
+    return state["step"], state["elapsed"], disc, d_opt
+
+
+def _discriminated(b: dict, ppos: torch.Tensor, dev) -> tuple[torch.Tensor, torch.Tensor]:
+    """(real, fake): what the discriminator sees of a batch, root-relative joint positions;
+    the fake with the keys re-inserted (§3.3)."""
+    gt_pos = b["gpos"].to(dev).float()
+    kmask = torch.zeros(int(b["L"]), dtype=torch.bool, device=dev)
+    kmask[b["keys"].numpy()] = True
+    fake = rel_positions(torch.where(kmask[None, :, None, None], gt_pos, ppos))
+    return rel_positions(gt_pos), fake
+
+
+def _step(cfg: TrainConfig, model, opt, sched, gan, b: dict, skel, pos_w, dev):
+    """One optimisation step on batch ``b``: the supervised losses, with ``gan`` (the
+    discriminator and its optimiser, from ``--adv-start``) the LSGAN loss too, then the
+    discriminator's own step. Returns the total loss and each part (``adv`` 0 without)."""
+    losses, ppos = _supervised_losses(cfg, model, b, skel, pos_w, dev)
+    loss = (
+        cfg.w_rot * losses["rot"]
+        + cfg.w_pos * losses["pos"]
+        + cfg.w_root * losses["root"]
+        + cfg.w_vel * losses["vel"]
+        + cfg.w_contact * losses["contact"]
+        + cfg.w_br * losses["br"]
+        + cfg.w_dna * losses["dna"]
+    )
+    losses["adv"] = torch.zeros((), device=dev)
+    if gan is not None:
+        real, fake = _discriminated(b, ppos, dev)
+        losses["adv"] = g_loss(gan[0](fake))
+        loss = loss + cfg.w_adv * losses["adv"]
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+    opt.step()
+    sched.step()
+    if gan is not None:
+        disc, d_opt = gan
+        ld = d_loss(disc(real), disc(fake.detach())) + cfg.w_br * batch_regularisation(disc.res_layers())
+        d_opt.zero_grad(set_to_none=True)
+        ld.backward()
+        d_opt.step()
+    return loss, losses
+
+
+def _log_line(log, bar, step: int, loss, losses: dict, max_gap, seconds: float) -> None:
+    """A line of train_log.jsonl (the step's losses), and the progress bar's figures."""
+    parts = ("rot", "pos", "root", "vel", "contact", "br", "adv", "dna")
+    rec = {"step": step, "loss": loss.item(), **{k: losses[k].item() for k in parts},
+           "max_gap": max_gap, "t": seconds}  # fmt: skip
+    log.write(json.dumps(rec) + "\n")
+    log.flush()
+    bar.set_postfix(loss=f"{rec['loss']:.4f}", pos=f"{rec['pos']:.4f}", gap=max_gap)
+
+
+def train(cfg: TrainConfig, out_dir: Path) -> Path:
+    """Train the generator (``cfg``) into ``out_dir`` (generator.pt, train_log.jsonl),
+    resuming its checkpoint there; returns the checkpoint. The loop: a batch, the supervised
+    losses, from ``--adv-start`` the LSGAN step, a log line every 25 steps, a checkpoint
+    every ``--checkpoint-minutes``."""
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    dev = torch.device(cfg.device)
+    skel = bandai_skeleton()
+    feet = [skel.index(n) for n in FOOT_JOINTS]
+    clips = training_clips(cfg)
+    cfg, init = _with_init(cfg, dev)
+    out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
+    model = Generator(cfg.model).to(dev)
+    opt, sched = _optimiser(cfg, model, init)
+    ckpt = out_dir / "generator.pt"
+    step, elapsed, disc, d_opt = _start(cfg, model, opt, sched, init, ckpt, dev)
+    pos_w = _position_weights(cfg, clips, skel, dev)
     log = (out_dir / "train_log.jsonl").open("a")
     t_start, t_ckpt = time.time() - elapsed, time.time()
 
@@ -564,88 +694,17 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         if b is None:
             step += 1
             continue
-        max_gap, L, keys = b["max_gap"], int(b["L"]), b["keys"].numpy()
         adversarial = cfg.adv_start is not None and step >= cfg.adv_start
-        between = b["between"].numpy()
-        x = b["feats"].to(dev)
-        dna, dna_on = (b["dna"].to(dev), b["dna_weight"].to(dev)) if "dna" in b else (None, None)
-        out = model(x, dna, dna_on)
-        mats, proot, clog = decode(out, x, len(skel))
-        gt_rot = b["crot"].to(dev).float()
-        q_pred = roma.rotmat_to_unitquat(mats)
-        if "match_w" in b:
-            ak = b["all_keys"].to(dev)
-            q_pred, proot = match_partial_keys(
-                q_pred, proot, gt_rot[:, ak], b["croot"].to(dev).float()[:, ak], ak, b["match_w"].to(dev)
-            )
-            mats = roma.unitquat_to_rotmat(q_pred)
-        gt_mats = roma.unitquat_to_rotmat(gt_rot)
-        m = torch.from_numpy(between).to(dev)
-        _, ppos = fk_torch(q_pred, proot, skel.parents, skel.offsets)
-        gt_pos = b["gpos"].to(dev).float()
-        fw = b["frame_weight"].to(dev)[None, :, None]
-        fv = torch.maximum(fw[:, 1:], fw[:, :-1])[..., None]
-        l_rot = ((mats - gt_mats).abs() * fw[..., None, None])[:, m].mean()
-        l_pos = ((ppos - gt_pos).abs() * pos_w * fw[..., None])[:, m].mean() / POS_SCALE
-        l_root = ((proot - b["croot"].to(dev).float()).abs() * fw)[:, m].mean() / POS_SCALE
-        moving = torch.from_numpy(between[1:] | between[:-1]).to(dev)
-        l_vel = (((ppos[:, 1:] - ppos[:, :-1]) - (gt_pos[:, 1:] - gt_pos[:, :-1])).abs() * fv)[
-            :, moving
-        ].mean() / POS_SCALE
-        l_con = torch.nn.functional.binary_cross_entropy_with_logits(clog[:, m], b["contacts"].to(dev)[:, m])
-        l_br = batch_regularisation(model.res_layers())
-        l_dna = dna_loss(ppos, dna, dna_on, m, skel) if dna is not None else torch.zeros((), device=dev)
-        loss = (
-            cfg.w_rot * l_rot
-            + cfg.w_pos * l_pos
-            + cfg.w_root * l_root
-            + cfg.w_vel * l_vel
-            + cfg.w_contact * l_con
-            + cfg.w_br * l_br
-            + cfg.w_dna * l_dna
+        if adversarial and disc is None:
+            disc, d_opt = make_discriminator(cfg, dev)
+            save(out_dir / "generator_supervised.pt")
+        loss, losses = _step(
+            cfg, model, opt, sched, (disc, d_opt) if adversarial else None, b, skel, pos_w, dev
         )
-        l_adv = torch.zeros((), device=dev)
-        if adversarial:
-            if disc is None:
-                disc, d_opt = make_discriminator(cfg, dev)
-                save(out_dir / "generator_supervised.pt")
-            # Keys re-inserted before D sees the fake (§3.3); D sees root-relative positions.
-            kmask = torch.zeros(L, dtype=torch.bool, device=dev)
-            kmask[keys] = True
-            fake = rel_positions(torch.where(kmask[None, :, None, None], gt_pos, ppos))
-            real = rel_positions(gt_pos)
-            l_adv = g_loss(disc(fake))
-            loss = loss + cfg.w_adv * l_adv
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        opt.step()
-        sched.step()
-        if adversarial:
-            ld = d_loss(disc(real), disc(fake.detach())) + cfg.w_br * batch_regularisation(disc.res_layers())
-            d_opt.zero_grad(set_to_none=True)
-            ld.backward()
-            d_opt.step()
         step += 1
         bar.update(1)
         if step % 25 == 0:
-            rec = {
-                "step": step,
-                "loss": loss.item(),
-                "rot": l_rot.item(),
-                "pos": l_pos.item(),
-                "root": l_root.item(),
-                "vel": l_vel.item(),
-                "contact": l_con.item(),
-                "br": l_br.item(),
-                "adv": l_adv.item(),
-                "dna": l_dna.item(),
-                "max_gap": max_gap,
-                "t": time.time() - t_start,
-            }
-            log.write(json.dumps(rec) + "\n")
-            log.flush()
-            bar.set_postfix(loss=f"{rec['loss']:.4f}", pos=f"{rec['pos']:.4f}", gap=max_gap)
+            _log_line(log, bar, step, loss, losses, b["max_gap"], time.time() - t_start)
         if time.time() - t_ckpt > cfg.checkpoint_minutes * 60:
             save()
             t_ckpt = time.time()
