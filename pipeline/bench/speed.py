@@ -238,6 +238,35 @@ def time_levels(path: str | Path | bytes, feats: np.ndarray, repeats: int = 5, r
     return rows
 
 
+def network_levels(shipped, gen_path: Path, lean_graph: bytes | None, shot, repeats: int) -> tuple[list, int]:
+    """The generator alone on the demo ``shot``'s padded window (rotations, roots, keys)
+    under each onnxruntime graph-optimisation level, the whole graph and (``lean_graph``)
+    the graph without the adapter: (rows of :func:`time_levels`, the padded frames)."""
+    from pipeline.infer.features import build_features, feature_options, n_input_channels
+
+    rot, root, keys = shot
+    frames = rot.shape[1]
+    mult = int(shipped.meta["multiple"])
+    n_pad = -(-max(frames + shipped.pad_tail, shipped.min_window) // mult) * mult
+    pad = np.r_[np.arange(frames), np.full(n_pad - frames, frames - 1)]
+    opts = feature_options(shipped.meta.get("generator", {}))
+    feats, _ = build_features(
+        rot[:, pad], root[:, pad], np.r_[keys, n_pad - 1], shipped.skeleton, None, **opts
+    )
+    levels = time_levels(gen_path, feats, repeats)
+    if lean_graph:
+        import onnxruntime as ort
+
+        ref = ort.InferenceSession(str(gen_path), providers=["CPUExecutionProvider"]).run(
+            None, {"features": feats}
+        )[0]
+        lean_feats = np.ascontiguousarray(feats[:, : n_input_channels(len(shipped.skeleton))])
+        for row in time_levels(lean_graph, lean_feats, repeats, ref):
+            row["level"] += " (adapter skipped)"
+            levels.append(row)
+    return levels, int(n_pad)
+
+
 def run_speed(
     model_name: str = "default",
     frames: int = 4096,
@@ -246,7 +275,7 @@ def run_speed(
     peak_n: int = 2048,
 ) -> str:
     """The speed benchmark; returns its Markdown (and writes speed.json / speed.md to ``out``)."""
-    from pipeline.infer.features import adapter_free_graph, build_features, feature_options, n_input_channels
+    from pipeline.infer.features import adapter_free_graph
     from pipeline.infer.model import OnnxInbetweener, find_model
 
     folder = find_model(model_name)
@@ -277,26 +306,7 @@ def run_speed(
         rows.append({"path": name, "flops_per_frame": fpf, "at_peak_s": at_peak, **res})
     (q0, r0), (q1, r1) = (fills[r["path"]] for r in rows)
     same = {"max_abs_diff": float(max(np.abs(q0 - q1).max(), np.abs(r0 - r1).max()))}
-    # The network alone under each graph-optimisation level, on this fill's padded window.
-    gcfg = shipped.meta.get("generator", {})
-    mult = int(shipped.meta["multiple"])
-    n_pad = -(-max(frames + shipped.pad_tail, shipped.min_window) // mult) * mult
-    pad = np.r_[np.arange(frames), np.full(n_pad - frames, frames - 1)]
-    opts = feature_options(gcfg)
-    feats, _ = build_features(
-        rot[:, pad], root[:, pad], np.r_[keys, n_pad - 1], shipped.skeleton, None, **opts
-    )
-    levels = time_levels(gen_path, feats, repeats)
-    if lean_graph:
-        import onnxruntime as ort
-
-        ref = ort.InferenceSession(str(gen_path), providers=["CPUExecutionProvider"]).run(
-            None, {"features": feats}
-        )[0]
-        lean_feats = np.ascontiguousarray(feats[:, : n_input_channels(len(shipped.skeleton))])
-        for row in time_levels(lean_graph, lean_feats, repeats, ref):
-            row["level"] += " (adapter skipped)"
-            levels.append(row)
+    levels, n_pad = network_levels(shipped, gen_path, lean_graph, (rot, root, keys), repeats)
     report = {
         "frames": frames,
         "keys_every": 10,
@@ -306,7 +316,7 @@ def run_speed(
         "fills": [{k: v for k, v in r.items() if k != "runs"} | {"runs": r["runs"]} for r in rows],
         "shipped_vs_whole_graph": same,
         "network_by_ort_level": levels,
-        "padded_frames": int(n_pad),
+        "padded_frames": n_pad,
     }
     md = speed_markdown(report)
     if out is not None:
