@@ -106,7 +106,7 @@ def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
 def fill_blocked(model, spline, rots, roots, every: int):
     """Shots keyed every ``every`` frames, filled three ways: (keys, free frames, the model's
     fill, the spline's fill, the trust decisions, the model's weight per shot and frame, the
-    decided fill), each fill a (rotations, roots) pair. What :func:`evaluate` scores (and scripts/trust_sweep.py studies per shot)."""
+    decided fill), each fill a (rotations, roots) pair. What :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot)."""
     from pipeline.infer.api import fill_windows
 
     n = rots.shape[1]

@@ -1,7 +1,7 @@
 """Windows for choosing inference settings and models without looking at the eval split.
 
-The research scripts (``scripts/pad_layouts.py``, ``scripts/foot_lock_variants.py``,
-``scripts/partial_choice.py``) compare settings on the protocol's task (PROTOCOL.md) on
+The research scripts (``experiments/pad_layouts.py``, ``experiments/foot_lock_variants.py``,
+``experiments/partial_choice.py``) compare settings on the protocol's task (PROTOCOL.md) on
 windows cut from the train clips, so that the eval split only ever measures the choice.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 
 from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 
-#: Every how many train clips a window set takes one (the scripts' default).
+#: Every how many train clips a window set takes one (the experiments' default).
 EVERY = 4
 
 

@@ -1,7 +1,11 @@
 """The trusted fill on the benchmark: model, spline, interpolation and the decided fill.
 
 Every window is one shot, keyed at its 10 context frames and its target: the probes of
-:mod:`pipeline.infer.trust` see those keys only, and each window gets its own decision. On
+:mod:`pipeline.infer.trust` see those keys only, and each window gets its own decision. The
+decided fill is :func:`~pipeline.infer.trust.trusted_fill`'s steps on the model skeleton
+(decide_batch, the network's and the spline's fills, blend_arrays), batched over windows that
+share their keys; the benches that fill shots (``pipeline.bench.studio``,
+``pipeline.bench.rig_variants``) go through the product's own fill, trusted_fill on the rig. On
 the protocol's eval windows and on every held-out source (``cmu``: other actors; ``posture30``:
 posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q per transition
 length of the four fills, the decided fill's ratio to the better of model and spline and to

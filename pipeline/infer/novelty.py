@@ -18,7 +18,7 @@ from pipeline.data.posebank import pose_features
 
 #: Novelty (cm) up to which a shot counts as the training data's own. Eval-split shots of the
 #: blocking bench (keys every 30): at most 2.7 cm (median 1.3) from the shipped bank
-#: (scripts/key_novelty.py).
+#: (experiments/key_novelty.py).
 FAMILIAR_CM = 3.0
 #: Novelty (cm) from which a shot counts as unseen. CMU shots: at least 4.4 cm (median 8.1);
 #: eval shots with posture offsets up to 30 degrees: at least 4.3 (median 10.0).
