@@ -157,13 +157,15 @@ def check_clip(name: str, bvh: Path, rename, frames: int, every: int, tmp: Path,
     assert bpy.ops.tween.fill() == {"FINISHED"}, "Fill refused"
     submitted = time.monotonic() - t0
     job = ext.ui.TRACK[arm.name]["job"]
-    while not job.finished or arm.tween.status in ("", "submitting"):
+    while not job.finished:
         if time.monotonic() - t0 > timeout:
             raise SystemExit(f"{name}: no result after {timeout:.0f} s ({job.text()})")
         time.sleep(0.5)
-        bpy.ops.tween.tick()
-        if job.finished:
+        try:
             bpy.ops.tween.tick()
+        except RuntimeError as e:  # bpy raises what the operator reported as an error
+            raise SystemExit(f"{name}: {' '.join(str(e).split())}") from None
+        if job.finished:
             break
     if job.state != "done":
         raise SystemExit(f"{name}: fill failed: {job.error}")
