@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.usd.write import clean_dead_temps, owner_tag
+from pipeline.usd.files import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
 from render.geometry import Geometry
 from render.gl import RenderError

@@ -21,7 +21,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from pipeline.fill.options import PATH_FIELDS, FillOptions
 from pipeline.library.options import command_args as library_args
-from pipeline.usd.write import clean_dead_temps, dead_temp
+from pipeline.usd.files import clean_dead_temps, dead_temp
+from render.scene import list_takes
 from workers import cleanup, control
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
@@ -157,7 +158,7 @@ def submit(
     queue = queue or app.conf.task_default_queue
     owner = None
     if queue.startswith(EMBEDDED_QUEUE_PREFIX):
-        from pipeline.usd.write import owner_tag
+        from pipeline.usd.files import owner_tag
 
         owner = owner_tag()
     planned = []
@@ -201,8 +202,6 @@ def submit_review(review: str, *, roots=None, queue: str | None = None) -> str:
     """Sends a render-only job: the review media of the fill version whose review layer is
     ``review`` (``<stem>.review.vNNN``), into ``review/`` beside it; returns its id at once.
     Its render limits are sized like a fill's render (frames × takes)."""
-    from render.scene import list_takes
-
     roots = app.conf.tween.shot_roots if roots is None else roots
     queue = queue or app.conf.task_default_queue
     review = os.path.abspath(review)

@@ -30,6 +30,7 @@ from celery.signals import worker_init, worker_process_init
 from pipeline.errors import TweenError
 from pipeline.fill import api as fill
 from pipeline.fill.api import FillOptions
+from render.scene import list_takes
 from workers import cleanup, control, runtime
 from workers import paths as jobpaths
 from workers.app import app
@@ -136,7 +137,7 @@ class FarmTask(Task):
 
 def _undo_after(pid: int | None, shot: str, opts: dict, job: dict, wait_s: float = 30.0) -> None:
     """Undoes ``job`` once process ``pid`` (the stage's, killed) has died."""
-    from pipeline.usd.write import pid_alive
+    from pipeline.usd.files import pid_alive
 
     deadline = time.monotonic() + wait_s
     while pid and pid_alive(int(pid)) and time.monotonic() < deadline:
@@ -236,8 +237,6 @@ def render_version(self, review: str, job: dict) -> dict:
     """A render-only job: the review media of a fill version written earlier (the dailies
     page's "render"). Failed or cancelled, it removes the media it made, never the version."""
     with _stage(self, review, {}, job, "review"):
-        from render.scene import list_takes
-
         try:
             with _sorted_errors(review):
                 n_takes = len(list_takes(review)) or 1

@@ -37,7 +37,8 @@ from pipeline.fill.options import (  # noqa: F401
 from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
-from pipeline.usd.write import check_out_dir, clean_dead_temps, owner_tag, write_error
+from pipeline.usd.files import clean_dead_temps, owner_tag, write_error
+from pipeline.usd.write import check_out_dir
 
 _MODELS: dict[tuple[int, str], object] = {}
 #: A library fill also probes the human network (False: the library against the spline only;

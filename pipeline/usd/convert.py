@@ -22,7 +22,7 @@ import pipeline.usd  # noqa: F401
 from pipeline.adapt.mapping import MODEL_JOINTS, MappingError, map_joints
 from pipeline.motion.clip import Motion, resample
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
-from pipeline.usd.write import clean_dead_temps, saving, temp_path
+from pipeline.usd.files import clean_dead_temps, saving, temp_path
 from usd_schemas import tokens
 
 SOURCE_NAMES_ATTR = tokens.SOURCE_JOINT_NAMES

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
 from pipeline.errors import ShotError, TweenError
-from pipeline.usd import write
+from pipeline.usd import files, write
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
 
@@ -114,7 +114,7 @@ def _read_decision(layer) -> dict | None:
 
 
 def _fill_layers(out: Path, stem: str) -> dict[int, Path]:
-    return write._versions(out, stem)
+    return write.versions(out, stem)
 
 
 def _latest(shot: str, out: Path, stem: str) -> tuple[int, Path]:
@@ -238,7 +238,7 @@ def _author_decision(layer, take: int, d: dict) -> None:
 
     for r in _roots(layer):
         for key, (name, tn) in _DECISION.items():
-            write._attr(r, name, getattr(Sdf.ValueTypeNames, tn), d[key])
+            write.author_attr(r, name, getattr(Sdf.ValueTypeNames, tn), d[key])
         if write.VARIANT_SET in r.variantSets:
             r.variantSelections[write.VARIANT_SET] = f"take{take}"
 
@@ -271,8 +271,8 @@ def approve(
     if shot_layer is None:
         raise ShotError(shot, "cannot open as USD")
     created: list[Path] = []
-    with write.folder_lock(shot, out, stem, created):
-        write.clean_dead_temps(out)
+    with files.folder_lock(shot, out, stem, created):
+        files.clean_dead_temps(out)
         n_src, path = _latest(shot, out, stem)
         if path != first:  # another writer came first (layers are never rewritten: same name, same file)
             src = _open(path)
@@ -283,8 +283,8 @@ def approve(
         fmt = path.suffix.lstrip(".")
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
         review = out / f"{stem}.review.v{n:03d}.usda"
-        tmp = write.temp_path(final)
-        with write.saving(final, tmp):
+        tmp = files.temp_path(final)
+        with files.saving(final, tmp):
             layer = Sdf.Layer.CreateNew(str(tmp))
             if layer is None:
                 raise TweenError(f"{final}: cannot write the layer")
@@ -299,11 +299,11 @@ def approve(
             if not layer.Save():
                 raise TweenError(f"{final}: cannot write the layer")
             del layer
-        with write.saving(final, tmp):
-            if not write._link_new(tmp, final):
+        with files.saving(final, tmp):
+            if not files.link_new(tmp, final):
                 raise ShotError(shot, f"{final} already exists; never overwritten")
         try:
-            write._write_review(shot, shot_layer, final, review, False)
+            write.write_review(shot, shot_layer, final, review, False)
         except BaseException:
             final.unlink(missing_ok=True)
             raise
@@ -404,8 +404,8 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
         "publishedAt": now,
         "publishedBy": _who(),
     }
-    tmp = write.temp_path(final)
-    with write.saving(final, tmp):
+    tmp = files.temp_path(final)
+    with files.saving(final, tmp):
         layer = Sdf.Layer.CreateNew(str(tmp), {"format": fmt} if final.suffix == ".usd" else {})
         if layer is None:
             raise TweenError(f"{final}: cannot write the layer")
@@ -418,18 +418,20 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
         with Sdf.ChangeBlock():
             for spec, vpath, orig in anims:
                 dst = Sdf.CreatePrimInLayer(layer, orig)  # an over, and overs above it
-                write._apply_api(dst, tokens.API)
+                write.apply_api(dst, tokens.API)
                 joints = spec.attributes.get("joints")
                 if joints is not None and joints.default is not None:
-                    write._attr(dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True)
+                    write.author_attr(
+                        dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True
+                    )
                 for name in _PROVENANCE:
                     a = spec.attributes.get(name)
                     if a is not None and a.default is not None:
-                        write._attr(dst, name, a.typeName, a.default)
-                write._attr(dst, tokens.TAKE, Sdf.ValueTypeNames.Int, take)
+                        write.author_attr(dst, name, a.typeName, a.default)
+                write.author_attr(dst, tokens.TAKE, Sdf.ValueTypeNames.Int, take)
                 seed = src.GetAttributeAtPath(vpath.AppendProperty(tokens.SEED))
                 if seed is not None and seed.default is not None:
-                    write._attr(dst, tokens.SEED, Sdf.ValueTypeNames.Int, seed.default)
+                    write.author_attr(dst, tokens.SEED, Sdf.ValueTypeNames.Int, seed.default)
                 for name in ANIM_ATTRS:
                     a = src.GetAttributeAtPath(vpath.AppendProperty(name)) or spec.attributes.get(name)
                     if a is None:
@@ -440,8 +442,8 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
         if not layer.Save():
             raise TweenError(f"{final}: cannot write the layer")
         del layer
-    with write.saving(final, tmp):
-        if not write._link_new(tmp, final):
+    with files.saving(final, tmp):
+        if not files.link_new(tmp, final):
             raise TweenError(f"{final}: already exists; a published layer is never overwritten")
     return {"layer": str(final), "of": str(path), "take": take, "format": fmt,
             "animations": [str(o) for _, _, o in anims]}  # fmt: skip

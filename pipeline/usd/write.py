@@ -11,164 +11,27 @@ the variants, so no local opinion of the animator's layers can hide them).
 from __future__ import annotations
 
 import datetime
-import errno
-import fcntl
 import json
 import os
 import re
-import shutil
-import socket
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 import pipeline.usd  # noqa: F401
 from pipeline.errors import ShotError, TweenError
+from pipeline.usd import files
 from usd_schemas import tokens
 
 VARIANT_SET = tokens.TAKE_VARIANT_SET
-
-# --- temp files, dead writers, full disks ---------------------------------------------------
-#
-# Every temp file (or take folder) this package writes is named ``.<base>.<pid>@<host>[.<rand>]
-# .tmp[.<ext>]`` (a take folder: ``tween-take.<pid>@<host>.<rand>.tmp``), so the next run into
-# that folder can tell the temps of a writer that died (killed mid-save) from those of one
-# still writing, and remove them. USD's own safe-save temp (``<name without ext>.<rand>``)
-# matches the same pattern. Temps of another host are never touched (its pids mean nothing here).
-
-_HOST = re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname() or "host")[:40] or "host"
-_TEMP_RE = re.compile(
-    r"^(?:\..+|tween-take)\.(?P<pid>\d+)@(?P<host>[A-Za-z0-9-]+)(?:\.[A-Za-z0-9_]+)?\.tmp(?:\.[^.]+)?$"
-)
-# Temps of earlier versions (no host): only the fill and review layers had a pid in the name.
-_OLD_TEMP_RE = re.compile(r"^\..+\.(?:tween|review)\.v\d+\.(?P<pid>\d+)\.tmp(?:\.[^.]+)?$")
-
-_FULL = {
-    errno.ENOSPC: "no space left on device",
-    errno.EFBIG: "file too large",
-    errno.EDQUOT: "disk quota exceeded",
-}
-
-
-def owner_tag() -> str:
-    """``<pid>@<host>``: who writes a temp file."""
-    return f"{os.getpid()}@{_HOST}"
-
-
-def temp_path(final: Path) -> Path:
-    """The temp a writer of ``final`` saves to before the atomic rename/link (same folder)."""
-    final = Path(final)
-    return final.with_name(f".{final.stem}.{owner_tag()}.tmp{final.suffix}")
-
-
-def pid_alive(pid: int, host: str | None = None) -> bool:
-    """False only when ``pid`` certainly is not running on this host (a zombie is dead)."""
-    if host and host != _HOST:
-        return True
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except (OSError, IndexError):
-        return True
-
-
-def dead_temp(name: str) -> bool:
-    """Whether ``name`` is a temp of this package whose writer has died."""
-    m = _TEMP_RE.match(name)
-    if m:
-        return not pid_alive(int(m["pid"]), m["host"])
-    m = _OLD_TEMP_RE.match(name)
-    return bool(m) and not pid_alive(int(m["pid"]))
-
-
-def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
-    """Removes the temp files and take folders of dead writers in ``folder``; returns them."""
-    removed = []
-    try:
-        entries = list(os.scandir(folder))
-    except OSError:
-        return removed
-    for e in entries:
-        if not dead_temp(e.name):
-            continue
-        try:
-            if e.is_dir(follow_symlinks=False):
-                shutil.rmtree(e.path)
-            else:
-                os.unlink(e.path)
-        except FileNotFoundError:
-            continue  # another run cleaned it first
-        except OSError:
-            continue
-        removed.append(e.path)
-    if removed and not quiet:
-        print(
-            f"tween: removed {len(removed)} temp file(s) left in {folder} by a dead writer", file=sys.stderr
-        )
-    return removed
-
-
-def write_error(path, exc: BaseException) -> TweenError | None:
-    """One-line error for a full disk / too large file while writing ``path``, else None."""
-    no = getattr(exc, "errno", None)
-    if no in _FULL:
-        return TweenError(f"{path}: {_FULL[no]}")
-    text = str(exc)
-    for no, msg in _FULL.items():
-        if os.strerror(no) in text:
-            return TweenError(f"{path}: {msg}")
-    return None
-
-
-def discard(tmp: Path) -> None:
-    """Removes a temp and any safe-save temp USD left beside it (``<tmp without ext>.<rand>``)."""
-    tmp = Path(tmp)
-    tmp.unlink(missing_ok=True)
-    stem = tmp.name[: -len(tmp.suffix)] if tmp.suffix else tmp.name
-    try:
-        for p in tmp.parent.glob(f"{stem}.*"):
-            if p.name != tmp.name and _TEMP_RE.match(p.name):
-                p.unlink(missing_ok=True)
-    except OSError:
-        pass
-
-
-@contextmanager
-def saving(final, tmp: Path | None = None):
-    """Around a USD or file save whose result goes to ``final``: USD's error diagnostics are
-    collected (not printed), a full disk / too large file becomes one TweenError naming
-    ``final``, and ``tmp`` (with USD's own temp) is removed on any failure."""
-    from pxr import Tf
-
-    try:
-        yield
-    except BaseException as e:
-        if tmp is not None:
-            discard(tmp)
-        err = write_error(final, e)
-        if err is not None:
-            raise err from None
-        if isinstance(e, Tf.ErrorException):
-            first = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
-            raise TweenError(f"{final}: cannot write: {first.split(' : ', 1)[-1]}") from None
-        raise
 
 
 def shot_stem(shot: str) -> str:
     return Path(shot).name.split(".")[0]
 
 
-def _versions(out_dir: Path, stem: str) -> dict[int, Path]:
+def versions(out_dir: Path, stem: str) -> dict[int, Path]:
+    """The shot's fill layers in ``out_dir`` by version number."""
     pat = re.compile(rf"^{re.escape(stem)}\.tween\.v(\d+)\.usd[ac]?$")
     out = {}
     for p in out_dir.glob(f"{stem}.tween.v*.usd*"):
@@ -182,10 +45,10 @@ def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
     """The review layer of the shot's latest fill (``<stem>.review.vNNN``, beside its fill
     layer in ``out_dir`` or the default folder), or None when the shot has no fill there."""
     out = Path(out_dir) if out_dir else default_out_dir(shot)
-    versions = _versions(out, shot_stem(shot)) if out.is_dir() else {}
-    if not versions:
+    found_versions = versions(out, shot_stem(shot)) if out.is_dir() else {}
+    if not found_versions:
         return None
-    n = max(versions)
+    n = max(found_versions)
     found = sorted(out.glob(f"{shot_stem(shot)}.review.v{n:03d}.usd*"))
     return found[0] if found else None
 
@@ -196,7 +59,7 @@ def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
 
     if not job_id:
         return None
-    for n, p in sorted(_versions(out_dir, stem).items()):
+    for n, p in sorted(versions(out_dir, stem).items()):
         layer = Sdf.Layer.OpenAsAnonymous(str(p))
         info = dict(layer.customLayerData.get("tween", {})) if layer else {}
         if info.get("jobId") == job_id:
@@ -212,13 +75,13 @@ def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
     return None
 
 
-def _apply_api(spec, name: str) -> None:
+def apply_api(spec, name: str) -> None:
     from pxr import Sdf
 
     spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=[name]))
 
 
-def _attr(spec, name, type_name, value=None, uniform=False):
+def author_attr(spec, name, type_name, value=None, uniform=False):
     from pxr import Sdf
 
     a = spec.attributes.get(name) or Sdf.AttributeSpec(
@@ -232,9 +95,9 @@ def _attr(spec, name, type_name, value=None, uniform=False):
 def _author_samples(layer, spec, data: dict) -> None:
     from pxr import Sdf, Vt
 
-    ra = _attr(spec, "rotations", Sdf.ValueTypeNames.QuatfArray).path
-    ta = _attr(spec, "translations", Sdf.ValueTypeNames.Float3Array).path
-    sa = _attr(spec, "scales", Sdf.ValueTypeNames.Half3Array).path
+    ra = author_attr(spec, "rotations", Sdf.ValueTypeNames.QuatfArray).path
+    ta = author_attr(spec, "translations", Sdf.ValueTypeNames.Float3Array).path
+    sa = author_attr(spec, "scales", Sdf.ValueTypeNames.Half3Array).path
     rot = np.ascontiguousarray(data["rot"], np.float32)
     tr = np.ascontiguousarray(data["trans"], np.float32)
     sc = np.ascontiguousarray(data["scale"], np.float16)
@@ -254,9 +117,9 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
         roots = sorted({"/" + c["anim"].strip("/").split("/")[0] for c in chars})
         for r in roots:
             rs = Sdf.CreatePrimInLayer(layer, r)
-            _apply_api(rs, tokens.API)
-            _attr(rs, tokens.REVIEW_STATUS, Sdf.ValueTypeNames.Token, "pending")
-            _attr(rs, tokens.APPROVED_TAKE, Sdf.ValueTypeNames.Int, -1)
+            apply_api(rs, tokens.API)
+            author_attr(rs, tokens.REVIEW_STATUS, Sdf.ValueTypeNames.Token, "pending")
+            author_attr(rs, tokens.APPROVED_TAKE, Sdf.ValueTypeNames.Int, -1)
             if many:
                 vset = Sdf.VariantSetSpec(rs, VARIANT_SET)
                 for tk in takes:
@@ -267,7 +130,7 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
             src = stage.GetPrimAtPath(c["anim"])
             filled = Sdf.Path(c["anim"]).GetParentPath().AppendChild(Sdf.Path(c["anim"]).name + "_tween")
             sk = Sdf.CreatePrimInLayer(layer, c["skel"])
-            _apply_api(sk, "SkelBindingAPI")
+            apply_api(sk, "SkelBindingAPI")
             rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(
                 sk, "skel:animationSource"
             )
@@ -275,45 +138,53 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
             spec = Sdf.CreatePrimInLayer(layer, filled)
             spec.specifier = Sdf.SpecifierDef
             spec.typeName = "SkelAnimation"
-            _apply_api(spec, tokens.API)
-            _attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True)
-            _attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
+            apply_api(spec, tokens.API)
+            author_attr(
+                spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True
+            )
+            author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
             # Each character's own model (a rig model or the human one).
             for name, val in ((tokens.MODEL, c.get("model", meta["model"])),
                               (tokens.MODEL_HASH, c.get("model_hash", meta["model_hash"])),
                               (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
-                _attr(spec, name, Sdf.ValueTypeNames.String, val)
+                author_attr(spec, name, Sdf.ValueTypeNames.String, val)
             # How the rig reached the model: the reference pose and the model joints it lacks.
             tr = c.get("trust")
             if tr:  # how far the human model was trusted against the spline, and why
-                _attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
-                _attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
-                _attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
+                author_attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
+                author_attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
+                author_attr(
+                    spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True)
+                )
                 # What filled which frames: the model's share in each gap.
                 _gap_attrs(
                     spec, tr.get("gap_weights") or [], "weight", tokens.TRUST_GAPS, tokens.TRUST_GAP_WEIGHTS
                 )
                 lib = tr.get("library")
                 if lib:  # the library's version, and how much of each gap is its motion
-                    _attr(spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})")
-                    _attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
+                    author_attr(
+                        spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})"
+                    )
+                    author_attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
                     _gap_attrs(
                         spec, lib["gaps"], "share", tokens.LIBRARY_GAPS, tokens.LIBRARY_SHARE, even_empty=True
                     )
             rt = c.get("retarget")
             if rt:
-                _attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
-                _attr(
+                author_attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
+                author_attr(
                     spec, tokens.MISSING_JOINTS, Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
                 )
             if c.get("jumps"):  # key pairs the body teleports between: (from, to) time codes
                 pairs = Vt.Vec2dArray([Gf.Vec2d(j["from"], j["to"]) for j in c["jumps"]])
-                _attr(spec, tokens.KEY_JUMPS, Sdf.ValueTypeNames.Double2Array, pairs)
+                author_attr(spec, tokens.KEY_JUMPS, Sdf.ValueTypeNames.Double2Array, pairs)
             # Blend shape weights are the animator's: copied as authored.
             for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
                 a = src.GetAttribute(an)
                 if a and a.HasAuthoredValue():
-                    dst = _attr(spec, an, a.GetTypeName() if tn is None else tn, uniform=an == "blendShapes")
+                    dst = author_attr(
+                        spec, an, a.GetTypeName() if tn is None else tn, uniform=an == "blendShapes"
+                    )
                     if a.Get() is not None:
                         dst.default = a.Get()
                     for t in a.GetTimeSamples():
@@ -327,20 +198,9 @@ def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
                     vspec = Sdf.CreatePrimInLayer(layer, vroot.AppendPath(rel_path))
                 else:
                     vspec = spec
-                _attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
-                _attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
+                author_attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
+                author_attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
                 _author_samples(layer, vspec, data)
-
-
-def _link_new(tmp: Path, final: Path) -> bool:
-    """Moves tmp to final only if final does not exist (atomic, never overwrites)."""
-    try:
-        os.link(tmp, final)
-    except FileExistsError:
-        return False
-    finally:
-        tmp.unlink(missing_ok=True)
-    return True
 
 
 def default_out_dir(shot: str) -> Path:
@@ -360,13 +220,15 @@ def _gap_attrs(
     rows = [r for r in rows if None not in r["times"]]
     if not rows and not even_empty:
         return
-    _attr(
+    author_attr(
         spec,
         gaps_token,
         Sdf.ValueTypeNames.Double2Array,
         Vt.Vec2dArray([Gf.Vec2d(*r["times"]) for r in rows]),
     )
-    _attr(spec, values_token, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray([float(r[key]) for r in rows]))
+    author_attr(
+        spec, values_token, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray([float(r[key]) for r in rows])
+    )
 
 
 def check_out_dir(shot: str, out_dir: str | None) -> Path:
@@ -379,76 +241,6 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
     if not probe.is_dir() or not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
         raise ShotError(shot, f"output folder {out} is read-only (give another with --out-dir DIR)")
     return out
-
-
-def _mkdirs(shot: str, out: Path, created: list[Path]) -> None:
-    """Creates ``out`` and its missing parents, recording those this call made."""
-    missing = []
-    p = out
-    while not p.exists() and p != p.parent:
-        missing.append(p)
-        p = p.parent
-    for d in reversed(missing):
-        try:
-            d.mkdir()
-            created.append(d)
-        except FileExistsError:
-            pass
-        except OSError as e:
-            raise write_error(d, e) or ShotError(
-                shot, f"cannot create output folder {out}: {e.strerror}"
-            ) from None
-
-
-def _remove_created(created: list[Path]) -> None:
-    """Undoes :func:`_mkdirs` after a failure: the folders it made, if still empty."""
-    for d in reversed(created):
-        try:
-            d.rmdir()
-        except OSError:
-            pass
-
-
-@contextmanager
-def folder_lock(shot: str, out: Path, stem: str, created: list[Path]):
-    """Exclusive lock (flock) on ``out/.<stem>.tween.lock``, creating ``out`` when needed.
-
-    Serialises the job-id check and the version allocation of every writer of ``stem`` into
-    ``out``. The lock file is removed when released; a waiter that then holds a removed file's
-    lock sees its inode gone from the folder and locks the new file instead.
-    """
-
-    lock = out / f".{stem}.tween.lock"
-    while True:
-        _mkdirs(shot, out, created)
-        try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-        except FileNotFoundError:
-            continue  # the folder was removed meanwhile (another writer's failure)
-        except OSError as e:
-            raise write_error(lock, e) or ShotError(shot, f"cannot lock {lock}: {e.strerror}") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-            st = os.fstat(fd)
-            try:
-                cur = os.stat(lock)
-                same = (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
-            except FileNotFoundError:
-                same = False
-        except BaseException:
-            os.close(fd)
-            raise
-        if same:
-            break
-        os.close(fd)
-    try:
-        yield
-    finally:
-        try:
-            os.unlink(lock)
-        except OSError:
-            pass
-        os.close(fd)
 
 
 def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, fmt: str,
@@ -469,16 +261,16 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
     stem = shot_stem(shot)
     created: list[Path] = []
     try:
-        with folder_lock(shot, out, stem, created):
-            clean_dead_temps(out)
+        with files.folder_lock(shot, out, stem, created):
+            files.clean_dead_temps(out)
             if review_layer:
-                clean_dead_temps(Path(os.path.abspath(review_layer)).parent)
+                files.clean_dead_temps(Path(os.path.abspath(review_layer)).parent)
             done = find_job(out, stem, meta.get("job_id", ""))
             if done:
                 return done
             return _write_locked(shot, stage, takes, meta, out, stem, fmt, review_layer)
     except BaseException:
-        _remove_created(created)
+        files.remove_created(created)
         raise
 
 
@@ -488,7 +280,7 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
     src_root = stage.GetRootLayer()
     meta = dict(meta, created_at=meta.get("created_at") or datetime.datetime.now(datetime.UTC).isoformat())
     for _ in range(1000):
-        taken = set(_versions(out, stem)) | {
+        taken = set(versions(out, stem)) | {
             int(m.group(1))
             for p in out.glob(f"{stem}.review.v*.usd*")
             if (m := re.search(r"\.v(\d+)\.", p.name))
@@ -496,8 +288,8 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
         n = max(taken, default=0) + 1
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
         review = Path(review_layer) if review_layer else out / f"{stem}.review.v{n:03d}.usda"
-        tmp = temp_path(final)
-        with saving(final, tmp):
+        tmp = files.temp_path(final)
+        with files.saving(final, tmp):
             layer = Sdf.Layer.CreateNew(str(tmp))
             if layer is None:
                 raise TweenError(f"{final}: cannot write the layer")
@@ -520,14 +312,14 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
             if not layer.Save():
                 raise TweenError(f"{final}: cannot write the layer")
             del layer
-        with saving(final, tmp):
-            linked = _link_new(tmp, final)
+        with files.saving(final, tmp):
+            linked = files.link_new(tmp, final)
         if linked:
             break
     else:
         raise ShotError(shot, f"could not find a free version in {out}")
     try:
-        _write_review(shot, src_root, final, review, bool(review_layer))
+        write_review(shot, src_root, final, review, bool(review_layer))
     except BaseException:
         final.unlink(missing_ok=True)
         raise
@@ -546,11 +338,11 @@ def _rel(target: Path, base_dir: Path) -> str:
     return os.path.relpath(os.path.realpath(target), os.path.realpath(base_dir))
 
 
-def _write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
+def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
     from pxr import Sdf, UsdUtils
 
-    tmp = temp_path(review)
+    tmp = files.temp_path(review)
     if existing:
         layer = Sdf.Layer.FindOrOpen(str(review))
         if layer is None:
@@ -560,13 +352,13 @@ def _write_review(shot: str, src_root, fill: Path, review: Path, existing: bool)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))
         text.subLayerPaths = subs
-        with saving(review, tmp):
+        with files.saving(review, tmp):
             if not text.Export(str(tmp)):
                 raise TweenError(f"{review}: cannot write the review layer")
             os.replace(tmp, review)
         layer.Reload()
         return
-    with saving(review, tmp):
+    with files.saving(review, tmp):
         layer = Sdf.Layer.CreateNew(str(tmp))
         if layer is None:
             raise TweenError(f"{review}: cannot write the review layer")
@@ -576,8 +368,8 @@ def _write_review(shot: str, src_root, fill: Path, review: Path, existing: bool)
         if not layer.Save():
             raise TweenError(f"{review}: cannot write the review layer")
         del layer
-    with saving(review, tmp):
-        linked = _link_new(tmp, review)
+    with files.saving(review, tmp):
+        linked = files.link_new(tmp, review)
     if not linked:
         raise ShotError(shot, f"review layer {review} already exists")
 

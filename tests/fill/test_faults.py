@@ -25,8 +25,9 @@ from redis_server import REPO, copy_shot, example_shot
 
 from pipeline.errors import TweenError
 from pipeline.fill.api import FillOptions, fill_shot, fill_take
-from pipeline.usd import write
-from pipeline.usd.write import _HOST, pid_alive
+from pipeline.usd import files, write
+from pipeline.usd.files import HOST as _HOST
+from pipeline.usd.files import pid_alive
 
 TESTS = Path(__file__).resolve().parents[1]
 STEM = "sh010_walk"
@@ -45,15 +46,15 @@ if os.environ.get("TWEEN_TEST_FAIL_TAKE"):
     _f.fill_take = _fail
 if os.environ.get("TWEEN_TEST_HANG_SAVE"):
     import time
-    from pipeline.usd import write as _w
-    _real = _w._link_new
+    from pipeline.usd import files as _w
+    _real = _w.link_new
     def _hang(tmp, final):
         if ".tween." in final.name:
             with open(os.environ["TWEEN_TEST_HANG_SAVE"], "w") as f:
                 f.write(str(tmp))
             time.sleep(120)
         return _real(tmp, final)
-    _w._link_new = _hang
+    _w.link_new = _hang
 """
 
 
@@ -323,7 +324,7 @@ def test_disk_full_writing_the_review_layer(tmp_path, tmpfs, monkeypatch, capfd)
     shot = _shot(tmp_path)
     base = tmpfs or tmp_path
     out = base / "out"
-    real = write._link_new
+    real = files.link_new
 
     def then_full(tmp, final):
         if ".review." in final.name and tmpfs is None:
@@ -333,7 +334,7 @@ def test_disk_full_writing_the_review_layer(tmp_path, tmpfs, monkeypatch, capfd)
             _fill_up(tmpfs, 0)  # the fill layer is in: nothing is left for the review
         return ok
 
-    monkeypatch.setattr(write, "_link_new", then_full)
+    monkeypatch.setattr(files, "link_new", then_full)
     with pytest.raises(TweenError) as e:
         fill_shot(str(shot), FillOptions(model="interp", out_dir=str(out)))
     assert str(e.value) == f"{out}/{STEM}.review.v001.usda: no space left on device"

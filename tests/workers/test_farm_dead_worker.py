@@ -123,7 +123,7 @@ def test_a_killed_embedded_fill_is_undone_by_the_next_run(tmp_path):
 
     from embedded_farm import embedded_env
 
-    from pipeline.usd.write import _HOST
+    from pipeline.usd.files import HOST as _HOST
 
     markers = tmp_path / "markers"
     markers.mkdir()
