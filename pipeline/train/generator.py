@@ -32,7 +32,6 @@ from pipeline.infer.features import (
 from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.models.generator import Generator, GeneratorConfig
 from pipeline.models.layers import batch_regularisation
-from pipeline.motion.augment import posture_offsets, tempo_factor, time_warp
 from pipeline.motion.fk import fk
 from pipeline.train.batches import (
     PARTIAL_LAYOUTS,
@@ -112,22 +111,11 @@ class TrainConfig:
         0.0, "Weigh frames by gap length ** -this (0: every frame alike; 1: every gap alike)."
     )
     mirror: float = _knob(0.0, "Share of windows mirrored left/right (augmentation).")
-    posture: float = _knob(0.0, "Largest per-joint posture offset, degrees (augmentation; 0: off).")
-    posture_prob: float = _knob(0.5, "Share of windows given posture offsets (with --posture).")
-    tempo: float = _knob(
-        0.0,
-        "Largest tempo change (augmentation): batches played at a speed log-uniform between "
-        "1/(1+this) and 1+this (0: off).",
-    )
-    tempo_prob: float = _knob(0.5, "Share of batches given a tempo change (with --tempo).")
     partial: float = _knob(0.0, "Share of batches with partial keys (some joints only; needs --key-adapter).")
     partial_layout: str = _knob(
         "convert",
         "Partial keys in training: 'convert' some keys, or 'insert' them in gaps.",
         choices=PARTIAL_LAYOUTS,
-    )
-    match_partial: bool = _knob(
-        True, "Losses on the output with partial keys matched, as the farm matches them."
     )
     dna_prob: float = _knob(0.5, "Share of windows given a motion DNA (with --dna).")
     dna_max: int = _knob(4, "Poses per motion DNA: 1 ... this.")
@@ -187,8 +175,7 @@ _RANGES = {
     "w_rot": _WEIGHT, "w_pos": _WEIGHT, "w_root": _WEIGHT, "w_vel": _WEIGHT, "w_contact": _WEIGHT,
     "w_br": _WEIGHT, "w_adv": _WEIGHT, "w_dna": _WEIGHT, "noise_prob": _SHARE, "adv_start": (0, 1e9),
     "d_lr": (1e-12, 10.0), "seed": (0, 2**31 - 1), "threads": (1, 256), "checkpoint_minutes": (1e-3, 1e6),
-    "limit_clips": (1, 1e9), "gap_weighting": (0.0, 10.0), "mirror": _SHARE, "posture": (0.0, 180.0),
-    "posture_prob": _SHARE, "tempo": (0.0, 10.0), "tempo_prob": _SHARE, "partial": _SHARE,
+    "limit_clips": (1, 1e9), "gap_weighting": (0.0, 10.0), "mirror": _SHARE, "partial": _SHARE,
     "dna_prob": _SHARE, "dna_max": (1, 1000), "dna_from": _SHARE, "new_lr": (1e-6, 1e6), "workers": (0, 256),
 }  # fmt: skip
 
@@ -300,22 +287,12 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     L = int(rng.choice(cfg.lengths))
     where: list = []
     rot, root = sample_batch(clips, rng, cfg.batch, L, where)
-    if cfg.tempo > 0:
-        # Its own stream: the batch's keys, noise and other augmentations stay a plain run's.
-        trng = np.random.default_rng([cfg.seed, step, 4])
-        if trng.random() < cfg.tempo_prob:
-            n_src = int(round((L - 1) * tempo_factor(trng, cfg.tempo))) + 1
-            if (clips.lengths >= n_src).any():
-                where = []
-                rot, root = time_warp(*sample_batch(clips, trng, cfg.batch, n_src, where), L)
     if cfg.mirror > 0:
         # Its own stream, so a mirrored run trains on the same windows and keys as a plain one.
         flip = np.random.default_rng([cfg.seed, step, 1]).random(cfg.batch) < cfg.mirror
         m = bandai_mirror()
         rot[flip] = m.rotations(rot[flip], skel.parents).astype(rot.dtype)
         root[flip] = m.root(root[flip]).astype(root.dtype)
-    if cfg.posture > 0:
-        rot = posture_offsets(rot, np.random.default_rng([cfg.seed, step, 2]), cfg.posture, cfg.posture_prob)
     keys = sample_keys(rng, L, max_gap)
     adversarial = cfg.adv_start is not None and step >= cfg.adv_start
     noise = None
@@ -350,7 +327,7 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
     extra = {}
     if cfg.model.dna:
         extra = {k: t(v) for k, v in sample_dna(cfg, ctx, between, skel, step, clips, where).items()}
-    if joint_keys is not None and cfg.match_partial:
+    if joint_keys is not None:  # the losses see partial keys matched, as the farm matches them
         extra["match_w"] = t(partial_match_weights(L, keys, joint_keys))
         extra["all_keys"] = t(keys)
     return {

@@ -197,8 +197,8 @@ def test_cli_defaults_are_trainconfig_defaults():
     )
     assert configs(parse_train_args(["--adv-start", "-1"]))[0].adv_start is None
     assert configs(parse_train_args(["--steps", "100"]))[0].adv_start is None  # starts after the end
-    got = configs(parse_train_args(["--key-adapter", "--dna", "8", "--no-match-partial"]))[0]
-    assert got.model.key_adapter and got.model.dna == 8 and not got.match_partial
+    got = configs(parse_train_args(["--key-adapter", "--dna", "8"]))[0]
+    assert got.model.key_adapter and got.model.dna == 8
 
 
 def test_tween_help_does_not_import_torch():
