@@ -56,6 +56,64 @@ def _wait_ready(app, n: int, tag: str, timeout: float = 120) -> None:
             raise TweenError(f"bench-farm: {n} workers not ready after {timeout} s")
 
 
+def _default_shot() -> Path:
+    """The first example shot (not a fill or review layer)."""
+    shots = sorted(
+        p for p in Path("examples").glob("*.usd*") if ".tween." not in p.name and ".review." not in p.name
+    )
+    if not shots:
+        raise TweenError("bench-farm: no example shot in examples/ (pass --shot)")
+    return shots[0]
+
+
+def _direct_s_per_shot(copies: list[Path], work: Path) -> float:
+    """Seconds per shot of ``fill_shot`` in this process, on the copies (after one warm-up fill)."""
+    fill_shot(str(copies[0]), FillOptions(out_dir=str(work / "warm")))
+    t0 = time.perf_counter()
+    for c in copies:
+        fill_shot(str(c), FillOptions(out_dir=str(work / "direct")))
+    return (time.perf_counter() - t0) / len(copies)
+
+
+def _farm_row(app, n: int, env: dict, work: Path, copies: list[Path]) -> dict:
+    """The copies filled by ``n`` fresh workers (their start-up not timed): the table's row."""
+    tag = f"bench-{work.name}-{n}w"
+    procs = _start_workers(n, env, work, tag)
+    try:
+        _wait_ready(app, n, tag)
+        opts = jobs.make_opts(out_dir=str(work / f"farm{n}"))
+        t0 = time.perf_counter()
+        states = jobs.wait(jobs.submit([str(c) for c in copies], opts), progress=False)
+        wall = time.perf_counter() - t0
+    finally:
+        _stop(procs)
+    failed = [s.error for s in states if s.state != "SUCCESS"]
+    if failed:
+        raise TweenError(f"bench-farm: {len(failed)} shots failed: {failed[0]}")
+    return {"workers": n, "wall_s": round(wall, 2), "shots_per_min": round(60 * len(copies) / wall, 1)}
+
+
+def _markdown(res: dict, overhead: float | None, broker_url: str) -> str:
+    n_shots, rows = res["shots"], res["farm"]
+    lines = [
+        f"bench-farm: {n_shots} copies of {res['shot']}, {os.cpu_count()} CPUs, broker {broker_url.split('@')[-1]}",
+        "",
+        "| path | shots/min | s/shot |",
+        "|---|---|---|",
+        f"| direct fill_shot, 1 process | {res['direct_shots_per_min']} | {res['direct_s_per_shot']} |",
+    ]
+    lines += [
+        f"| Celery, {r['workers']} worker(s) -c 1 | {r['shots_per_min']} | {r['wall_s'] / n_shots:.3f} |"
+        for r in rows
+    ]
+    if overhead is not None:
+        lines += [
+            "",
+            f"Celery overhead: {overhead:.3f} s per shot = {res['overhead_pct_of_10s_shot']} % of a 10 s shot.",
+        ]
+    return "\n".join(lines)
+
+
 def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, out: Path) -> dict:
     from workers.app import app, configure
     from workers.settings import cache_dir, load_settings
@@ -64,12 +122,7 @@ def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, ou
     if base.embedded:
         raise TweenError("bench-farm needs a broker: set TWEEN_BROKER_URL (e.g. redis://127.0.0.1:6379/0)")
     if shot is None:
-        shots = sorted(
-            p for p in Path("examples").glob("*.usd*") if ".tween." not in p.name and ".review." not in p.name
-        )
-        if not shots:
-            raise TweenError("bench-farm: no example shot in examples/ (pass --shot)")
-        shot = shots[0]
+        shot = _default_shot()
     work = cache_dir() / "bench-farm" / uuid.uuid4().hex[:8]
     prefix = f"tween-bench-{work.name}:"
     env = dict(os.environ, TWEEN_KEY_PREFIX=prefix, TWEEN_QUEUE=f"{prefix}fill", TWEEN_SHOT_ROOTS=str(work))
@@ -81,30 +134,8 @@ def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, ou
         copies = [src / f"sh{i:03d}{shot.suffix}" for i in range(n_shots)]
         for c in copies:
             shutil.copyfile(shot, c)
-        # Direct baseline, one process, the same shots (after one warm-up fill).
-        fill_shot(str(copies[0]), FillOptions(out_dir=str(work / "warm")))
-        t0 = time.perf_counter()
-        for c in copies:
-            fill_shot(str(c), FillOptions(out_dir=str(work / "direct")))
-        direct = (time.perf_counter() - t0) / n_shots
-        rows = []
-        for n in worker_counts:
-            tag = f"bench-{work.name}-{n}w"
-            procs = _start_workers(n, env, work, tag)
-            try:
-                _wait_ready(app, n, tag)
-                opts = jobs.make_opts(out_dir=str(work / f"farm{n}"))
-                t0 = time.perf_counter()
-                states = jobs.wait(jobs.submit([str(c) for c in copies], opts), progress=False)
-                wall = time.perf_counter() - t0
-            finally:
-                _stop(procs)
-            failed = [s.error for s in states if s.state != "SUCCESS"]
-            if failed:
-                raise TweenError(f"bench-farm: {len(failed)} shots failed: {failed[0]}")
-            rows.append(
-                {"workers": n, "wall_s": round(wall, 2), "shots_per_min": round(60 * n_shots / wall, 1)}
-            )
+        direct = _direct_s_per_shot(copies, work)
+        rows = [_farm_row(app, n, env, work, copies) for n in worker_counts]
         one = next((r for r in rows if r["workers"] == 1), None)
         overhead = (one["wall_s"] / n_shots - direct) if one else None
         res = {
@@ -121,23 +152,7 @@ def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, ou
         configure(app, base)
         _cleanup_keys(base, prefix)
         shutil.rmtree(work, ignore_errors=True)
-    lines = [
-        f"bench-farm: {n_shots} copies of {shot}, {os.cpu_count()} CPUs, broker {base.broker_url.split('@')[-1]}",
-        "",
-        "| path | shots/min | s/shot |",
-        "|---|---|---|",
-        f"| direct fill_shot, 1 process | {res['direct_shots_per_min']} | {res['direct_s_per_shot']} |",
-    ]
-    lines += [
-        f"| Celery, {r['workers']} worker(s) -c 1 | {r['shots_per_min']} | {r['wall_s'] / n_shots:.3f} |"
-        for r in rows
-    ]
-    if overhead is not None:
-        lines += [
-            "",
-            f"Celery overhead: {overhead:.3f} s per shot = {res['overhead_pct_of_10s_shot']} % of a 10 s shot.",
-        ]
-    res["markdown"] = "\n".join(lines)
+    res["markdown"] = _markdown(res, overhead, base.broker_url)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(res, indent=1))
     return res

@@ -258,344 +258,336 @@ def _report(states) -> int:
     return 2 if failed else 0
 
 
-def register(app: typer.Typer) -> None:
-    @app.command()
-    @with_fill_options
-    def fill(
-        shots: list[Path] = typer.Argument(..., help="USD shot files (.usda/.usdc/.usd)."),
-        render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
-        concurrency: int = typer.Option(2, "-c", "--concurrency", help="Embedded worker processes."),
-        progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars on stderr."),
-        opts: FillOptions = None,
-    ):
-        """Fill shots through the farm and wait; prints where the layers (and renders) are.
+@with_fill_options
+def fill(
+    shots: list[Path] = typer.Argument(..., help="USD shot files (.usda/.usdc/.usd)."),
+    render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
+    concurrency: int = typer.Option(2, "-c", "--concurrency", help="Embedded worker processes."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress bars on stderr."),
+    opts: FillOptions = None,
+):
+    """Fill shots through the farm and wait; prints where the layers (and renders) are.
 
-        With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
-        embedded farm: a local worker on a SQLite broker, started and stopped here.
-        """
-        # The options first: a bad one is refused before Celery is even imported.
-        takes = opts.takes
-        opts = _opts(opts)
-        _int_opt("--concurrency", concurrency, 1, 256)
-        from workers.app import app as celery_app
-        from workers.app import check_farm, farm_errors
+    With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
+    embedded farm: a local worker on a SQLite broker, started and stopped here.
+    """
+    # The options first: a bad one is refused before Celery is even imported.
+    takes = opts.takes
+    opts = _opts(opts)
+    _int_opt("--concurrency", concurrency, 1, 256)
+    from workers.app import app as celery_app
+    from workers.app import check_farm, farm_errors
 
-        s = celery_app.conf.tween
-        paths = [str(p) for p in shots]
-        for p in paths:
-            if not os.path.isfile(p):
-                _err(f"{p}: no such shot file")
-                raise typer.Exit(2)
-        for p in paths:  # checked and said here, in seconds, by the client: the workers' stderr is their log
-            precheck(p, FillOptions(**opts))
-        if not s.embedded:
-            for p in paths if s.shot_roots else ():  # before the broker is contacted: named as such
-                jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
-            check_farm(celery_app)
-            # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs.
-            with farm_errors(celery_app), _Interrupts() as intr:
-                intr.armed = False  # counted, not raised, while the jobs are sent
-                ids = jobs.submit(paths, opts, render=render)
-                _said(paths, ids, progress)
-                code = _run_jobs(ids, intr, progress)
-            raise typer.Exit(code)
-        from workers.embedded import EmbeddedWorker
-
-        roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
-        for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
-            if opts.get(key):
-                roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
-        # Interrupted while the worker starts: it is stopped, nothing was sent.
-        with _Interrupts() as intr:
-            try:
-                with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
-                    intr.armed = False
-                    ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
-                    _said(paths, ids, progress)
-                    code = _run_jobs(ids, intr, progress, alive=w.alive)
-                    w.cold = code == EXIT_CANCELLED
-            except _Interrupted:
-                code = EXIT_CANCELLED
-        raise typer.Exit(code)
-
-    @app.command()
-    @with_fill_options
-    def submit(
-        shots: list[Path] = typer.Argument(..., help="USD shot files, on storage every worker sees."),
-        render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
-        opts: FillOptions = None,
-    ):
-        """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
-        opts = _opts(opts)
-        from workers.app import app as celery_app
-        from workers.app import check_farm, farm_errors
-
-        raise_settings_error()
-        if celery_app.conf.tween.embedded:
-            _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
+    s = celery_app.conf.tween
+    paths = [str(p) for p in shots]
+    for p in paths:
+        if not os.path.isfile(p):
+            _err(f"{p}: no such shot file")
             raise typer.Exit(2)
-        for p in shots:
-            if p.is_file():
-                precheck(str(p), FillOptions(**opts))
-                if celery_app.conf.tween.shot_roots:  # before the broker is contacted
-                    jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
+    for p in paths:  # checked and said here, in seconds, by the client: the workers' stderr is their log
+        precheck(p, FillOptions(**opts))
+    if not s.embedded:
+        for p in paths if s.shot_roots else ():  # before the broker is contacted: named as such
+            jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
         check_farm(celery_app)
-        with farm_errors(celery_app):
-            ids = jobs.submit([str(p) for p in shots], opts, render=render)
-        for job_id in ids:
-            typer.echo(job_id)
-
-    @app.command()
-    def status(
-        job_ids: list[str] = typer.Argument(..., help="Job ids from `tween submit`."),
-        wait: bool = typer.Option(False, "--wait", help="Wait (with progress bars) until the jobs finish."),
-        as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
-    ):
-        """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
-        from workers.app import app as celery_app
-        from workers.app import check_farm, farm_errors
-
-        check_farm(celery_app, broker=False)  # the states are in the result backend
-        fills = [j for j in job_ids if not j.startswith(("rig-", "lib-"))]
-        with farm_errors(celery_app):
-            by_id = dict(
-                zip(
-                    fills, jobs.wait(fills) if wait and fills else [jobs.state(j) for j in fills], strict=True
-                )
-            )
-            for j in job_ids:
-                if j.startswith("rig-"):
-                    by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
-                elif j.startswith("lib-"):
-                    by_id[j] = jobs.wait_library(j) if wait else jobs.library_state(j)
-        states = [by_id[j] for j in job_ids]
-        code = 0
-        for s in states:
-            if as_json:
-                typer.echo(json.dumps(s.as_dict()))
-            elif s.id.startswith("rig-") and s.state == "SUCCESS":
-                r = s.result or {}
-                typer.echo(
-                    f"{s.id} {s.shot}: success, model {r.get('out')} ({r.get('model')}, hash {r.get('model_hash')})"
-                )
-            elif s.id.startswith("lib-") and s.state == "SUCCESS":
-                r = s.result or {}
-                typer.echo(f"{s.id} {s.shot}: success, {r.get('takes')} take(s), {r.get('hours', 0):.2f} h, "
-                           f"hash {r.get('hash')} ({r.get('added')} added, {len(r.get('failed') or [])} failed)")  # fmt: skip
-            elif s.id.startswith("lib-") and s.state == "RUNNING":
-                typer.echo(f"{s.id} {s.shot}: running {s.stage}")
-            elif s.id.startswith("rig-") and s.state == "RUNNING" and (s.result or {}).get("levels"):
-                r = s.result
-                typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "
-                           f"{r['iteration']}/{r['iterations']} ({100 * r['fraction']:.0f} %)")  # fmt: skip
-            elif s.state == "SUCCESS":
-                layer = (s.result or {}).get("layer")
-                typer.echo(f"{s.id} {s.shot}: success, layer {layer}{_decision(layer)}")
-            elif s.state == "UNKNOWN":
-                typer.echo(f"{s.id}: unknown: {s.error}")
-            elif s.state == "FAILURE":
-                typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
-            elif s.id.startswith(("rig-", "lib-")):
-                typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
-            else:
-                typer.echo(_status_line(s))
-            code = code or (2 if s.state in ("FAILURE", "UNKNOWN", "CANCELLED") else 0)
+        # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs.
+        with farm_errors(celery_app), _Interrupts() as intr:
+            intr.armed = False  # counted, not raised, while the jobs are sent
+            ids = jobs.submit(paths, opts, render=render)
+            _said(paths, ids, progress)
+            code = _run_jobs(ids, intr, progress)
         raise typer.Exit(code)
+    from workers.embedded import EmbeddedWorker
 
-    @app.command()
-    def cancel(
-        job_ids: list[str] = typer.Argument(..., help="Fill job ids (from `tween submit` or `tween fill`)."),
-        wait_s: float = typer.Option(
-            CANCEL_WAIT_S, "--wait", help="Seconds to wait for running stages to stop."
-        ),
-    ):
-        """Cancel fill jobs on the farm that runs them: queued stages never run (even on a worker
-        started later), a running stage stops at its next heartbeat, and nothing the job wrote
-        is kept (no new version, no work or review files)."""
-        from workers.app import app as celery_app
-        from workers.app import check_farm, farm_errors
-
-        if not 0 <= wait_s <= 24 * 3600:
-            raise TweenError(f"--wait {wait_s:g}: must be from 0 to 86400 seconds")
-        check_farm(celery_app, broker=False)  # the records are in the result backend
-        bad = [j for j in job_ids if j.startswith(("rig-", "lib-"))]
-        if bad:
-            raise TweenError(f"{bad[0]}: only fill jobs can be cancelled")
-        code = 0
-        with farm_errors(celery_app):
-            before = jobs.cancel(job_ids, why="tween cancel")
-            live = []
-            for j in job_ids:
-                s = before[j]
-                if s.state == "UNKNOWN":
-                    _err(s.error or f"{j}: no such job")
-                    code = 2
-                elif s.state == "CANCELLED":
-                    typer.echo(f"{j} {s.shot}: already cancelled")
-                elif s.finished:
-                    _err(f"{j} {s.shot}: already finished ({s.state.lower()}), nothing to cancel")
-                    code = 2
-                else:
-                    live.append(j)
-            for s in _settle(live, timeout=wait_s) if live else []:
-                if s.state == "CANCELLED":
-                    typer.echo(f"{s.id} {s.shot}: cancelled")
-                elif s.state == "SUCCESS":
-                    _err(f"{s.id} {s.shot}: finished before the cancel reached it")
-                    code = 2
-                else:
-                    _err(
-                        f"{s.id} {s.shot}: cancel requested; {s.stage} still stopping (`tween status {s.id}`)"
-                    )
-                    code = 2
-        raise typer.Exit(code)
-
-    @app.command()
-    def worker(
-        concurrency: int = typer.Option(
-            None, "-c", "--concurrency", help="Pool processes (default: CPU count)."
-        ),
-        queue: str = typer.Option(None, "--queue", "-Q", help="Queue to consume (default: the fill queue)."),
-        train: bool = typer.Option(False, "--train", help="Run training jobs (their own queue and limits)."),
-        train_rig: bool = typer.Option(
-            False, "--train-rig", help="Run per-rig model training jobs (their own queue and limits)."
-        ),
-        hostname: str = typer.Option(None, "--hostname", "-n", help="Worker name, e.g. node1@%h."),
-        loglevel: str = typer.Option("info", "--loglevel", "-l"),
-        logfile: Path = typer.Option(None, "--logfile"),
-        include: list[str] = typer.Option([], "--include", "-I", help="Extra modules to import."),
-    ):
-        """Run a Celery worker for the farm (several may run per host and across hosts)."""
-
-        _int_opt("--concurrency", concurrency, 1, 256)
-        levels = ("debug", "info", "warning", "error", "critical", "fatal")
-        if loglevel.lower() not in levels:
-            raise TweenError(f"--loglevel {loglevel!r}: must be one of {', '.join(levels)}")
-        n = concurrency or os.cpu_count() or 1
-        # Before any ORT/GL import: each pool process gets its share of the cores.
-        for k, v in thread_env(n).items():
-            os.environ.setdefault(k, v)
-        if train and train_rig:
-            raise TweenError("--train and --train-rig are two different workers; start one of each")
-        if train_rig:
-            from workers.app import rig_app as celery_app
-        elif train:
-            from workers.app import train_app as celery_app
-        else:
-            from workers.app import app as celery_app
-        from workers.app import check_farm
-        from workers.settings import redact_url
-
-        s = celery_app.conf.tween
-        q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
-        # Celery itself would retry an unreachable broker for minutes, logging tracebacks.
-        check_farm(celery_app)
-        argv = ["worker", "-c", str(n), "-Q", q, "-l", loglevel, "--without-gossip", "--without-mingle"]
-        argv += ["--pool", "prefork"]
-        if hostname:
-            argv += ["-n", hostname]
-        if logfile:
-            argv += ["--logfile", str(logfile)]
-        if include:  # Celery keeps the last -I only: every module in one comma-separated list
-            argv += ["-I", ",".join(include)]
-        print(f"tween worker: {redact_url(s.broker_url)} queue {q}, {n} processes", file=sys.stderr)
-        celery_app.worker_main(argv)
-
-    @app.command("submit-train-rig")
-    @with_train_rig_options
-    def submit_train_rig(
-        source: Path = typer.Argument(
-            ..., help="The reference clip: a USD shot or a BVH, on shared storage."
-        ),
-        out: Path = typer.Option(
-            ..., "--out", help="Model folder (e.g. models/<rig>); resubmitting resumes."
-        ),
-        wait: bool = typer.Option(False, "--wait", help="Wait with a progress bar; print the model folder."),
-        opts: TrainRigOptions = None,
-    ):
-        """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
-        prints the job id (`tween status ID` shows its progress)."""
-        opts = opts.check().as_job()
-        from workers.app import check_farm, farm_errors, rig_app
-
-        raise_settings_error()
-        if rig_app.conf.tween.embedded:
-            _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
-            raise typer.Exit(2)
-        if not source.is_file():
-            _err(f"{source}: no such file")
-            raise typer.Exit(2)
-        check_farm(rig_app)
-        with farm_errors(rig_app):
-            job_id = jobs.submit_train_rig(str(source), str(out), opts)
-        if not wait:
-            typer.echo(job_id)
-            return
-        print(job_id, file=sys.stderr)
-        with farm_errors(rig_app):
-            s = jobs.wait_train_rig(job_id)
-        if s.state != "SUCCESS":
-            _err(s.error or f"{source}: training {job_id} {s.state.lower()}")
-            raise typer.Exit(2)
-        r = s.result or {}
-        typer.echo(f"{r.get('out')}  ({r.get('model')}, hash {r.get('model_hash')})")
-
-    @app.command("submit-library")
-    @with_library_options
-    def submit_library(
-        folder: Path = typer.Argument(
-            ..., help="Folder of takes (BVH and USD), on storage every worker sees."
-        ),
-        out: Path = typer.Option(
-            ..., "--out", help="The library folder to write (or to add to, with --add)."
-        ),
-        wait: bool = typer.Option(False, "--wait", help="Wait, then print the library's summary."),
-        opts: LibraryBuildOptions = None,
-    ):
-        """Build a motion library on the farm's training queue (`tween worker --train`); prints
-        the job id (`tween status ID` shows it)."""
-        from workers.app import check_farm, farm_errors, train_app
-
-        raise_settings_error()
-        if train_app.conf.tween.embedded:
-            _err(
-                "no broker configured (set TWEEN_BROKER_URL); run `tween library build` on this host instead"
-            )
-            raise typer.Exit(2)
-        if not folder.is_dir():
-            _err(f"{folder}: no such folder of takes")
-            raise typer.Exit(2)
-        check_farm(train_app)
-        with farm_errors(train_app):
-            job_id = jobs.submit_library(str(folder), str(out), opts.as_job())
-        if not wait:
-            typer.echo(job_id)
-            return
-        print(job_id, file=sys.stderr)
-        with farm_errors(train_app):
-            s = jobs.wait_library(job_id)
-        if s.state != "SUCCESS":
-            _err(s.error or f"{folder}: library job {job_id} {s.state.lower()}")
-            raise typer.Exit(2)
-        typer.echo(json.dumps(s.result, indent=1))
-
-    @app.command("bench-farm")
-    def bench_farm(
-        shots: int = typer.Option(50, "--shots", help="Copies of the example shot to fill."),
-        workers: str = typer.Option("1,2", "--workers", help="Worker counts to measure (each -c 1)."),
-        shot: Path = typer.Option(None, "--shot", help="Shot to copy (default: the example shot)."),
-        out: Path = typer.Option(Path("bench_results") / "farm.json", "--out"),
-    ):
-        """Shots per minute with 1 and 2 workers, and Celery's overhead against a direct fill."""
-        from workers.bench import run_bench_farm
-
-        _int_opt("--shots", shots, 1, 100_000)
+    roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
+    for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
+        if opts.get(key):
+            roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
+    # Interrupted while the worker starts: it is stopped, nothing was sent.
+    with _Interrupts() as intr:
         try:
-            counts = [int(w) for w in workers.split(",")]
-        except ValueError:
-            raise TweenError(f"--workers {workers!r}: expected worker counts, e.g. 1,2") from None
-        if not counts or not all(1 <= c <= 64 for c in counts):
-            raise TweenError(f"--workers {workers!r}: each worker count must be from 1 to 64")
-        res = run_bench_farm(shots, counts, shot, out)
-        typer.echo(res["markdown"])
-        typer.echo(f"written: {out}", err=True)
+            with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
+                intr.armed = False
+                ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
+                _said(paths, ids, progress)
+                code = _run_jobs(ids, intr, progress, alive=w.alive)
+                w.cold = code == EXIT_CANCELLED
+        except _Interrupted:
+            code = EXIT_CANCELLED
+    raise typer.Exit(code)
+
+
+@with_fill_options
+def submit(
+    shots: list[Path] = typer.Argument(..., help="USD shot files, on storage every worker sees."),
+    render: bool = typer.Option(False, "--render", help="Also render the review of each take."),
+    opts: FillOptions = None,
+):
+    """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
+    opts = _opts(opts)
+    from workers.app import app as celery_app
+    from workers.app import check_farm, farm_errors
+
+    raise_settings_error()
+    if celery_app.conf.tween.embedded:
+        _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
+        raise typer.Exit(2)
+    for p in shots:
+        if p.is_file():
+            precheck(str(p), FillOptions(**opts))
+            if celery_app.conf.tween.shot_roots:  # before the broker is contacted
+                jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
+    check_farm(celery_app)
+    with farm_errors(celery_app):
+        ids = jobs.submit([str(p) for p in shots], opts, render=render)
+    for job_id in ids:
+        typer.echo(job_id)
+
+
+def status(
+    job_ids: list[str] = typer.Argument(..., help="Job ids from `tween submit`."),
+    wait: bool = typer.Option(False, "--wait", help="Wait (with progress bars) until the jobs finish."),
+    as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
+):
+    """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
+    from workers.app import app as celery_app
+    from workers.app import check_farm, farm_errors
+
+    check_farm(celery_app, broker=False)  # the states are in the result backend
+    fills = [j for j in job_ids if not j.startswith(("rig-", "lib-"))]
+    with farm_errors(celery_app):
+        by_id = dict(
+            zip(fills, jobs.wait(fills) if wait and fills else [jobs.state(j) for j in fills], strict=True)
+        )
+        for j in job_ids:
+            if j.startswith("rig-"):
+                by_id[j] = jobs.wait_train_rig(j) if wait else jobs.train_rig_state(j)
+            elif j.startswith("lib-"):
+                by_id[j] = jobs.wait_library(j) if wait else jobs.library_state(j)
+    states = [by_id[j] for j in job_ids]
+    code = 0
+    for s in states:
+        if as_json:
+            typer.echo(json.dumps(s.as_dict()))
+        elif s.id.startswith("rig-") and s.state == "SUCCESS":
+            r = s.result or {}
+            typer.echo(
+                f"{s.id} {s.shot}: success, model {r.get('out')} ({r.get('model')}, hash {r.get('model_hash')})"
+            )
+        elif s.id.startswith("lib-") and s.state == "SUCCESS":
+            r = s.result or {}
+            typer.echo(f"{s.id} {s.shot}: success, {r.get('takes')} take(s), {r.get('hours', 0):.2f} h, "
+                       f"hash {r.get('hash')} ({r.get('added')} added, {len(r.get('failed') or [])} failed)")  # fmt: skip
+        elif s.id.startswith("lib-") and s.state == "RUNNING":
+            typer.echo(f"{s.id} {s.shot}: running {s.stage}")
+        elif s.id.startswith("rig-") and s.state == "RUNNING" and (s.result or {}).get("levels"):
+            r = s.result
+            typer.echo(f"{s.id} {s.shot}: running train-rig, levels {r['levels']}, iteration "
+                       f"{r['iteration']}/{r['iterations']} ({100 * r['fraction']:.0f} %)")  # fmt: skip
+        elif s.state == "SUCCESS":
+            layer = (s.result or {}).get("layer")
+            typer.echo(f"{s.id} {s.shot}: success, layer {layer}{_decision(layer)}")
+        elif s.state == "UNKNOWN":
+            typer.echo(f"{s.id}: unknown: {s.error}")
+        elif s.state == "FAILURE":
+            typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
+        elif s.id.startswith(("rig-", "lib-")):
+            typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
+        else:
+            typer.echo(_status_line(s))
+        code = code or (2 if s.state in ("FAILURE", "UNKNOWN", "CANCELLED") else 0)
+    raise typer.Exit(code)
+
+
+def cancel(
+    job_ids: list[str] = typer.Argument(..., help="Fill job ids (from `tween submit` or `tween fill`)."),
+    wait_s: float = typer.Option(CANCEL_WAIT_S, "--wait", help="Seconds to wait for running stages to stop."),
+):
+    """Cancel fill jobs on the farm that runs them: queued stages never run (even on a worker
+    started later), a running stage stops at its next heartbeat, and nothing the job wrote
+    is kept (no new version, no work or review files)."""
+    from workers.app import app as celery_app
+    from workers.app import check_farm, farm_errors
+
+    if not 0 <= wait_s <= 24 * 3600:
+        raise TweenError(f"--wait {wait_s:g}: must be from 0 to 86400 seconds")
+    check_farm(celery_app, broker=False)  # the records are in the result backend
+    bad = [j for j in job_ids if j.startswith(("rig-", "lib-"))]
+    if bad:
+        raise TweenError(f"{bad[0]}: only fill jobs can be cancelled")
+    code = 0
+    with farm_errors(celery_app):
+        before = jobs.cancel(job_ids, why="tween cancel")
+        live = []
+        for j in job_ids:
+            s = before[j]
+            if s.state == "UNKNOWN":
+                _err(s.error or f"{j}: no such job")
+                code = 2
+            elif s.state == "CANCELLED":
+                typer.echo(f"{j} {s.shot}: already cancelled")
+            elif s.finished:
+                _err(f"{j} {s.shot}: already finished ({s.state.lower()}), nothing to cancel")
+                code = 2
+            else:
+                live.append(j)
+        for s in _settle(live, timeout=wait_s) if live else []:
+            if s.state == "CANCELLED":
+                typer.echo(f"{s.id} {s.shot}: cancelled")
+            elif s.state == "SUCCESS":
+                _err(f"{s.id} {s.shot}: finished before the cancel reached it")
+                code = 2
+            else:
+                _err(f"{s.id} {s.shot}: cancel requested; {s.stage} still stopping (`tween status {s.id}`)")
+                code = 2
+    raise typer.Exit(code)
+
+
+def worker(
+    concurrency: int = typer.Option(None, "-c", "--concurrency", help="Pool processes (default: CPU count)."),
+    queue: str = typer.Option(None, "--queue", "-Q", help="Queue to consume (default: the fill queue)."),
+    train: bool = typer.Option(False, "--train", help="Run training jobs (their own queue and limits)."),
+    train_rig: bool = typer.Option(
+        False, "--train-rig", help="Run per-rig model training jobs (their own queue and limits)."
+    ),
+    hostname: str = typer.Option(None, "--hostname", "-n", help="Worker name, e.g. node1@%h."),
+    loglevel: str = typer.Option("info", "--loglevel", "-l"),
+    logfile: Path = typer.Option(None, "--logfile"),
+    include: list[str] = typer.Option([], "--include", "-I", help="Extra modules to import."),
+):
+    """Run a Celery worker for the farm (several may run per host and across hosts)."""
+
+    _int_opt("--concurrency", concurrency, 1, 256)
+    levels = ("debug", "info", "warning", "error", "critical", "fatal")
+    if loglevel.lower() not in levels:
+        raise TweenError(f"--loglevel {loglevel!r}: must be one of {', '.join(levels)}")
+    n = concurrency or os.cpu_count() or 1
+    # Before any ORT/GL import: each pool process gets its share of the cores.
+    for k, v in thread_env(n).items():
+        os.environ.setdefault(k, v)
+    if train and train_rig:
+        raise TweenError("--train and --train-rig are two different workers; start one of each")
+    if train_rig:
+        from workers.app import rig_app as celery_app
+    elif train:
+        from workers.app import train_app as celery_app
+    else:
+        from workers.app import app as celery_app
+    from workers.app import check_farm
+    from workers.settings import redact_url
+
+    s = celery_app.conf.tween
+    q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
+    # Celery itself would retry an unreachable broker for minutes, logging tracebacks.
+    check_farm(celery_app)
+    argv = ["worker", "-c", str(n), "-Q", q, "-l", loglevel, "--without-gossip", "--without-mingle"]
+    argv += ["--pool", "prefork"]
+    if hostname:
+        argv += ["-n", hostname]
+    if logfile:
+        argv += ["--logfile", str(logfile)]
+    if include:  # Celery keeps the last -I only: every module in one comma-separated list
+        argv += ["-I", ",".join(include)]
+    print(f"tween worker: {redact_url(s.broker_url)} queue {q}, {n} processes", file=sys.stderr)
+    celery_app.worker_main(argv)
+
+
+@with_train_rig_options
+def submit_train_rig(
+    source: Path = typer.Argument(..., help="The reference clip: a USD shot or a BVH, on shared storage."),
+    out: Path = typer.Option(..., "--out", help="Model folder (e.g. models/<rig>); resubmitting resumes."),
+    wait: bool = typer.Option(False, "--wait", help="Wait with a progress bar; print the model folder."),
+    opts: TrainRigOptions = None,
+):
+    """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
+    prints the job id (`tween status ID` shows its progress)."""
+    opts = opts.check().as_job()
+    from workers.app import check_farm, farm_errors, rig_app
+
+    raise_settings_error()
+    if rig_app.conf.tween.embedded:
+        _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
+        raise typer.Exit(2)
+    if not source.is_file():
+        _err(f"{source}: no such file")
+        raise typer.Exit(2)
+    check_farm(rig_app)
+    with farm_errors(rig_app):
+        job_id = jobs.submit_train_rig(str(source), str(out), opts)
+    if not wait:
+        typer.echo(job_id)
+        return
+    print(job_id, file=sys.stderr)
+    with farm_errors(rig_app):
+        s = jobs.wait_train_rig(job_id)
+    if s.state != "SUCCESS":
+        _err(s.error or f"{source}: training {job_id} {s.state.lower()}")
+        raise typer.Exit(2)
+    r = s.result or {}
+    typer.echo(f"{r.get('out')}  ({r.get('model')}, hash {r.get('model_hash')})")
+
+
+@with_library_options
+def submit_library(
+    folder: Path = typer.Argument(..., help="Folder of takes (BVH and USD), on storage every worker sees."),
+    out: Path = typer.Option(..., "--out", help="The library folder to write (or to add to, with --add)."),
+    wait: bool = typer.Option(False, "--wait", help="Wait, then print the library's summary."),
+    opts: LibraryBuildOptions = None,
+):
+    """Build a motion library on the farm's training queue (`tween worker --train`); prints
+    the job id (`tween status ID` shows it)."""
+    from workers.app import check_farm, farm_errors, train_app
+
+    raise_settings_error()
+    if train_app.conf.tween.embedded:
+        _err("no broker configured (set TWEEN_BROKER_URL); run `tween library build` on this host instead")
+        raise typer.Exit(2)
+    if not folder.is_dir():
+        _err(f"{folder}: no such folder of takes")
+        raise typer.Exit(2)
+    check_farm(train_app)
+    with farm_errors(train_app):
+        job_id = jobs.submit_library(str(folder), str(out), opts.as_job())
+    if not wait:
+        typer.echo(job_id)
+        return
+    print(job_id, file=sys.stderr)
+    with farm_errors(train_app):
+        s = jobs.wait_library(job_id)
+    if s.state != "SUCCESS":
+        _err(s.error or f"{folder}: library job {job_id} {s.state.lower()}")
+        raise typer.Exit(2)
+    typer.echo(json.dumps(s.result, indent=1))
+
+
+def bench_farm(
+    shots: int = typer.Option(50, "--shots", help="Copies of the example shot to fill."),
+    workers: str = typer.Option("1,2", "--workers", help="Worker counts to measure (each -c 1)."),
+    shot: Path = typer.Option(None, "--shot", help="Shot to copy (default: the example shot)."),
+    out: Path = typer.Option(Path("bench_results") / "farm.json", "--out"),
+):
+    """Shots per minute with 1 and 2 workers, and Celery's overhead against a direct fill."""
+    from workers.bench import run_bench_farm
+
+    _int_opt("--shots", shots, 1, 100_000)
+    try:
+        counts = [int(w) for w in workers.split(",")]
+    except ValueError:
+        raise TweenError(f"--workers {workers!r}: expected worker counts, e.g. 1,2") from None
+    if not counts or not all(1 <= c <= 64 for c in counts):
+        raise TweenError(f"--workers {workers!r}: each worker count must be from 1 to 64")
+    res = run_bench_farm(shots, counts, shot, out)
+    typer.echo(res["markdown"])
+    typer.echo(f"written: {out}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Adds this package's commands to ``app``, in the order ``tween --help`` lists them."""
+    app.command()(fill)
+    app.command()(submit)
+    app.command()(status)
+    app.command()(cancel)
+    app.command()(worker)
+    app.command("submit-train-rig")(submit_train_rig)
+    app.command("submit-library")(submit_library)
+    app.command("bench-farm")(bench_farm)

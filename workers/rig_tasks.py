@@ -80,6 +80,38 @@ def train_rig(self, source: str, out: str, options: dict) -> dict:
     return run_train_rig(self, source, out, options)
 
 
+def _follow(proc: subprocess.Popen, read_fd: int, report) -> tuple[Progress | None, bytes]:
+    """Reads the training's progress records from ``read_fd`` (each new one to ``report``, at
+    most every UPDATE_EVERY s, the final one always) and keeps the tail of its stderr, until
+    it exits; returns the last record and that tail."""
+    last: Progress | None = None
+    tail = b""
+    reader, pending, t_last = JsonLinesReader(), None, 0.0
+    err_fd = proc.stderr.fileno()
+    open_fds = [read_fd, err_fd]
+    while open_fds:
+        # Wake at least twice a second, so the last state before a long step is reported.
+        for fd in select.select(open_fds, [], [], 0.5)[0]:
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                open_fds.remove(fd)
+            elif fd == err_fd:
+                tail = (tail + chunk)[-20000:]
+            else:
+                for record in reader.feed(chunk):
+                    if record != last:
+                        pending = record
+        now = time.monotonic()
+        if pending is not None and now - t_last >= UPDATE_EVERY:
+            last, pending, t_last = pending, None, now
+            report(last)
+    proc.wait()
+    if pending is not None:  # the final record, whatever the throttle held back
+        last = pending
+        report(last)
+    return last, tail
+
+
 def run_train_rig(task, source: str, out: str, options: dict) -> dict:
     """The body of :func:`train_rig`; ``task`` is the bound task (``task.update_state`` gets
     the progress)."""
@@ -88,8 +120,6 @@ def run_train_rig(task, source: str, out: str, options: dict) -> dict:
     env = dict(os.environ)
     threads = str(options.get("threads") or 1)
     env.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads)
-    last: Progress | None = None
-    tail = b""
     updates = 0
 
     def report(record: Progress) -> None:
@@ -112,29 +142,7 @@ def run_train_rig(task, source: str, out: str, options: dict) -> dict:
         finally:
             os.close(write_fd)  # the child holds its copy: EOF here when it exits
         try:
-            reader, pending, t_last = JsonLinesReader(), None, 0.0
-            err_fd = proc.stderr.fileno()
-            open_fds = [read_fd, err_fd]
-            while open_fds:
-                # Wake at least twice a second, so the last state before a long step is reported.
-                for fd in select.select(open_fds, [], [], 0.5)[0]:
-                    chunk = os.read(fd, 65536)
-                    if not chunk:
-                        open_fds.remove(fd)
-                    elif fd == err_fd:
-                        tail = (tail + chunk)[-20000:]
-                    else:
-                        for record in reader.feed(chunk):
-                            if record != last:
-                                pending = record
-                now = time.monotonic()
-                if pending is not None and now - t_last >= UPDATE_EVERY:
-                    last, pending, t_last = pending, None, now
-                    report(last)
-            proc.wait()
-            if pending is not None:  # the final record, whatever the throttle held back
-                last = pending
-                report(last)
+            last, tail = _follow(proc, read_fd, report)
         except SoftTimeLimitExceeded:
             _stop(proc)
             raise JobError(

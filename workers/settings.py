@@ -185,10 +185,9 @@ def embedded_urls(folder: Path) -> tuple[str, str]:
     return f"tweensqla+sqlite:///{folder / 'broker.sqlite'}", f"db+sqlite:///{folder / 'results.sqlite'}"
 
 
-def load_settings(env: dict | None = None) -> FarmSettings:
-    """Resolves the settings from ``env`` (default ``os.environ``) and the config file."""
-    env = os.environ if env is None else env
-    data = _read_file(config_file(env), named=bool(env.get("TWEEN_FARM_CONFIG")))
+def _values(env, data: dict) -> tuple[dict, dict[str, str]]:
+    """Each setting given, from ``env`` (first) or the config file's ``data``, typed and
+    checked, and where each came from (for the error lines)."""
     vals: dict = {}
     origin: dict[str, str] = {}  # where each setting came from, for the error lines
     for key in _STR_KEYS + _INT_KEYS:
@@ -223,7 +222,12 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         vals["shot_roots"] = tuple(r for r in roots.split(os.pathsep) if r)
     elif data.get("shot_roots"):
         vals["shot_roots"] = tuple(data["shot_roots"])
+    return vals, origin
 
+
+def _broker_and_backend(vals: dict, env) -> tuple[str, str, bool]:
+    """The broker and result backend URLs (taken out of ``vals``), and whether the farm is
+    the embedded, server-less default (no broker given)."""
     broker = vals.pop("broker_url", None)
     backend = vals.pop("result_backend", None)
     embedded = broker is None
@@ -240,7 +244,12 @@ def load_settings(env: dict | None = None) -> FarmSettings:
             )
     if backend.startswith("rpc://"):
         raise FarmConfigError("TWEEN_RESULT_BACKEND: rpc:// cannot run chords; use redis:// or db+...")
-    s = FarmSettings(broker_url=broker, result_backend=backend, embedded=embedded, **vals)
+    return broker, backend, embedded
+
+
+def _check_limits(s: FarmSettings) -> None:
+    """Time limits, heartbeat and queues that agree with each other (and with Redis's
+    visibility timeouts, on a Redis farm)."""
     if s.fill_soft_time_limit >= s.fill_time_limit:
         raise FarmConfigError("fill_soft_time_limit must be below fill_time_limit")
     if s.is_redis and s.fill_time_limit >= s.visibility_timeout:
@@ -267,6 +276,16 @@ def load_settings(env: dict | None = None) -> FarmSettings:
         )
     if len({s.queue, s.train_queue, s.train_rig_queue}) < 3:
         raise FarmConfigError("queue, train_queue and train_rig_queue must be three different queues")
+
+
+def load_settings(env: dict | None = None) -> FarmSettings:
+    """Resolves the settings from ``env`` (default ``os.environ``) and the config file."""
+    env = os.environ if env is None else env
+    data = _read_file(config_file(env), named=bool(env.get("TWEEN_FARM_CONFIG")))
+    vals, origin = _values(env, data)
+    broker, backend, embedded = _broker_and_backend(vals, env)
+    s = FarmSettings(broker_url=broker, result_backend=backend, embedded=embedded, **vals)
+    _check_limits(s)
     try:
         security.check(s, origin)
     except security.FarmConfigError as e:
