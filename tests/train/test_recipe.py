@@ -237,3 +237,19 @@ def test_the_delta_model_ships_the_checkpoint_its_next_stage_resumes_from():
         == configs(parse_train_args(rec.stage(rec.export.stage).args))[0].steps
     )
     assert verify(ckpt.parent, folder) < 1e-4  # the ONNX file is this checkpoint's export
+
+
+def test_saved_configs_drop_retired_switches_and_refuse_other_values():
+    """A checkpoint's network config (or model.json's "generator") may still carry the
+    switches of retired experiments, at the value every shipped model has; another value
+    names the switch, since no release runs it."""
+    pytest.importorskip("torch")
+    from pipeline.infer.folder import RETIRED, ModelFolderError
+    from pipeline.models.generator import GeneratorConfig
+
+    saved = {"width": 48, "levels": [48, 64], "key_adapter": True, **RETIRED, "extra": {}}
+    cfg = GeneratorConfig.saved(saved)
+    assert cfg.levels == (48, 64) and cfg.key_adapter and not hasattr(cfg, "residual")
+    for key, other in (("residual", False), ("tta", False), ("key_mask", True), ("rotation", "euler")):
+        with pytest.raises(ModelFolderError, match=f"generator.{key}.*runs"):
+            GeneratorConfig.saved({**saved, key: other}, "run/generator.pt")
