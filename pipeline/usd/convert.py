@@ -122,6 +122,70 @@ def _box(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
 _BOX_FACES = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
 
 
+def _world_pose(skel, rest_rot: np.ndarray, rest_trans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's rest rotation and position in the skeleton's space (J, 4), (J, 3)."""
+    J = len(skel.parents)
+    g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
+    for j, par in enumerate(skel.parents):
+        if par < 0:
+            g_rot[j], g_pos[j] = rest_rot[j], rest_trans[j]
+        else:
+            g_rot[j] = quat_mul(g_rot[par], rest_rot[j])
+            g_pos[j] = g_pos[par] + quat_apply(g_rot[par], rest_trans[j])
+    return g_rot, g_pos
+
+
+def _define_skeleton(stage, motion: Motion, name: str):
+    """The Skeleton prim: joints (and their BVH names where USD changed them), rest and bind
+    transforms; returns it, the joints' rest positions and the joint tokens."""
+    from pxr import Gf, Sdf, UsdSkel, Vt
+
+    skel = motion.skeleton
+    names = usd_joint_names(skel.names)
+    paths: list[str] = []
+    for j, par in enumerate(skel.parents):
+        paths.append(names[j] if par < 0 else f"{paths[par]}/{names[j]}")
+    tokens = Vt.TokenArray(paths)
+    sk = UsdSkel.Skeleton.Define(stage, f"/World/{name}/Skel")
+    sk.CreateJointsAttr(tokens)
+    if names != list(skel.names):
+        src = sk.GetPrim().CreateAttribute(SOURCE_NAMES_ATTR, Sdf.ValueTypeNames.StringArray, custom=True)
+        src.Set(Vt.StringArray(list(skel.names)))
+        src.SetDocumentation(
+            "Joint names as written in the source BVH, one per entry of joints "
+            "(whose last path elements are these names made into USD identifiers)."
+        )
+    rest_rot, rest_trans = rest_pose(motion)
+    rest_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
+              for q, t in zip(rest_rot, rest_trans, strict=False)]  # fmt: skip
+    g_rot, g_pos = _world_pose(skel, rest_rot, rest_trans)
+    bind_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
+              for q, t in zip(g_rot, g_pos, strict=False)]  # fmt: skip
+    sk.CreateRestTransformsAttr(Vt.Matrix4dArray(rest_m))
+    sk.CreateBindTransformsAttr(Vt.Matrix4dArray(bind_m))
+    return sk, g_pos, tokens
+
+
+def _define_animation(stage, motion: Motion, name: str, sk, tokens, keys: list[int], start: float) -> None:
+    """The SkelAnimation bound to ``sk``, sampled at the ``keys`` (frame indices)."""
+    from pxr import Sdf, Usd, UsdSkel, Vt
+
+    skel = motion.skeleton
+    T, J = motion.rotations.shape[:2]
+    anim = UsdSkel.Animation.Define(stage, f"/World/{name}/Skel/Anim")
+    anim.CreateJointsAttr(tokens)
+    UsdSkel.BindingAPI.Apply(sk.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
+    trans = np.broadcast_to(skel.offsets, (T, J, 3)).copy()
+    trans[:, 0] = motion.root_positions
+    ra, ta, sa = anim.CreateRotationsAttr(), anim.CreateTranslationsAttr(), anim.CreateScalesAttr()
+    sa.Set(Vt.Vec3hArray.FromNumpy(np.ones((J, 3), np.float16)))
+    with Sdf.ChangeBlock():
+        for k in keys:
+            t = Usd.TimeCode(start + k)
+            ra.Set(Vt.QuatfArray.FromNumpy(np.ascontiguousarray(motion.rotations[k])), t)
+            ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(trans[k].astype(np.float32))), t)
+
+
 def write_shot(
     motion: Motion,
     out: str | Path,
@@ -132,13 +196,13 @@ def write_shot(
     name: str = "Character",
 ) -> str:
     """Writes ``motion`` as a UsdSkel shot (atomically); returns the path."""
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+    from pxr import Usd, UsdGeom, UsdSkel
 
     out = Path(out)
     if fps:
         motion = resample(motion, fps)
     skel = motion.skeleton
-    T, J = motion.rotations.shape[:2]
+    T = motion.rotations.shape[0]
     keys = list(range(0, T, max(1, keys_every)))
     if keys[-1] != T - 1:
         keys.append(T - 1)
@@ -161,46 +225,8 @@ def write_shot(
         root = UsdSkel.Root.Define(stage, f"/World/{name}")
         if up_axis.upper() == "Z":  # the BVH is Y up: stand the character up along Z
             UsdGeom.Xformable(root).AddRotateXOp().Set(90.0)
-        names = usd_joint_names(skel.names)
-        paths: list[str] = []
-        for j, par in enumerate(skel.parents):
-            paths.append(names[j] if par < 0 else f"{paths[par]}/{names[j]}")
-        tokens = Vt.TokenArray(paths)
-        sk = UsdSkel.Skeleton.Define(stage, f"/World/{name}/Skel")
-        sk.CreateJointsAttr(tokens)
-        if names != list(skel.names):
-            src = sk.GetPrim().CreateAttribute(SOURCE_NAMES_ATTR, Sdf.ValueTypeNames.StringArray, custom=True)
-            src.Set(Vt.StringArray(list(skel.names)))
-            src.SetDocumentation(
-                "Joint names as written in the source BVH, one per entry of joints "
-                "(whose last path elements are these names made into USD identifiers)."
-            )
-        rest_rot, rest_trans = rest_pose(motion)
-        rest_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
-                  for q, t in zip(rest_rot, rest_trans, strict=False)]  # fmt: skip
-        g_rot, g_pos = np.empty((J, 4)), np.empty((J, 3))
-        for j, par in enumerate(skel.parents):
-            if par < 0:
-                g_rot[j], g_pos[j] = rest_rot[j], rest_trans[j]
-            else:
-                g_rot[j] = quat_mul(g_rot[par], rest_rot[j])
-                g_pos[j] = g_pos[par] + quat_apply(g_rot[par], rest_trans[j])
-        bind_m = [Gf.Matrix4d(Gf.Rotation(Gf.Quatd(float(q[3]), *map(float, q[:3]))), Gf.Vec3d(*map(float, t)))
-                  for q, t in zip(g_rot, g_pos, strict=False)]  # fmt: skip
-        sk.CreateRestTransformsAttr(Vt.Matrix4dArray(rest_m))
-        sk.CreateBindTransformsAttr(Vt.Matrix4dArray(bind_m))
-        anim = UsdSkel.Animation.Define(stage, f"/World/{name}/Skel/Anim")
-        anim.CreateJointsAttr(tokens)
-        UsdSkel.BindingAPI.Apply(sk.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
-        trans = np.broadcast_to(skel.offsets, (T, J, 3)).copy()
-        trans[:, 0] = motion.root_positions
-        ra, ta, sa = anim.CreateRotationsAttr(), anim.CreateTranslationsAttr(), anim.CreateScalesAttr()
-        sa.Set(Vt.Vec3hArray.FromNumpy(np.ones((J, 3), np.float16)))
-        with Sdf.ChangeBlock():
-            for k in keys:
-                t = Usd.TimeCode(start + k)
-                ra.Set(Vt.QuatfArray.FromNumpy(np.ascontiguousarray(motion.rotations[k])), t)
-                ta.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(trans[k].astype(np.float32))), t)
+        sk, g_pos, tokens = _define_skeleton(stage, motion, name)
+        _define_animation(stage, motion, name, sk, tokens, keys, start)
         _mannequin(stage, f"/World/{name}/Mannequin", sk, skel, g_pos, tokens)
         with saving(out, tmp):
             if not stage.GetRootLayer().Save():

@@ -243,6 +243,36 @@ def _author_decision(layer, take: int, d: dict) -> None:
             r.variantSelections[write.VARIANT_SET] = f"take{take}"
 
 
+def _check_approval_options(take, note: str | None, by: str | None) -> None:
+    if isinstance(take, bool) or not isinstance(take, int) or take < 0:
+        raise TweenError(f"--take {take!r}: expected a take number, 0 or more")
+    if note is not None and "\0" in note:
+        raise TweenError("--note: contains a NUL character")
+    if by is not None and (not by.strip() or len(by) > 200 or not by.isprintable()):
+        raise TweenError(f"--by {by[:40]!r}: expected the reviewer's name (printable, 1 to 200 characters)")
+
+
+def _save_approved(src, final: Path, tmp: Path, n: int, review: Path, of: Path, take: int, d: dict) -> None:
+    """Writes to ``tmp`` version ``n`` of the fill layer: ``src`` (the layer ``of``) with the
+    decision ``d`` on ``take``, naming its ``review`` layer."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.CreateNew(str(tmp))
+    if layer is None:
+        raise TweenError(f"{final}: cannot write the layer")
+    layer.TransferContent(src)
+    info = dict(layer.customLayerData.get("tween", {}))
+    info.update(version=n, review=review.name, approval={**d, "of": of.name})
+    data = dict(layer.customLayerData)
+    data["tween"] = info
+    layer.customLayerData = data
+    with Sdf.ChangeBlock():
+        _author_decision(layer, take, d)
+    if not layer.Save():
+        raise TweenError(f"{final}: cannot write the layer")
+    del layer
+
+
 def approve(
     shot: str, take: int, note: str | None = None, out_dir: str | None = None, by: str | None = None
 ) -> dict:
@@ -250,15 +280,8 @@ def approve(
     a new review root layer over it; returns {"layer", "review", "version", "of", "take",
     "by", "at", "note"}. ``by`` is the reviewer (default: this process's user). The latest
     layer is read, never written."""
-    from pxr import Sdf
-
     shot = str(shot)
-    if isinstance(take, bool) or not isinstance(take, int) or take < 0:
-        raise TweenError(f"--take {take!r}: expected a take number, 0 or more")
-    if note is not None and "\0" in note:
-        raise TweenError("--note: contains a NUL character")
-    if by is not None and (not by.strip() or len(by) > 200 or not by.isprintable()):
-        raise TweenError(f"--by {by[:40]!r}: expected the reviewer's name (printable, 1 to 200 characters)")
+    _check_approval_options(take, note, by)
     _check_shot(shot)
     stem = write.shot_stem(shot)
     out = _fill_folder(shot, out_dir)
@@ -285,20 +308,7 @@ def approve(
         review = out / f"{stem}.review.v{n:03d}.usda"
         tmp = files.temp_path(final)
         with files.saving(final, tmp):
-            layer = Sdf.Layer.CreateNew(str(tmp))
-            if layer is None:
-                raise TweenError(f"{final}: cannot write the layer")
-            layer.TransferContent(src)
-            info = dict(layer.customLayerData.get("tween", {}))
-            info.update(version=n, review=review.name, approval={**d, "of": path.name})
-            data = dict(layer.customLayerData)
-            data["tween"] = info
-            layer.customLayerData = data
-            with Sdf.ChangeBlock():
-                _author_decision(layer, take, d)
-            if not layer.Save():
-                raise TweenError(f"{final}: cannot write the layer")
-            del layer
+            _save_approved(src, final, tmp, n, review, path, take, d)
         with files.saving(final, tmp):
             if not files.link_new(tmp, final):
                 raise ShotError(shot, f"{final} already exists; never overwritten")
@@ -352,6 +362,76 @@ def _publish_path(shot: str, out: Path, stem: str, n: int, fmt: str | None, dest
     return dest, fmt or "usda"
 
 
+def _published_animations(stage, shot: str, src, take: int) -> list[tuple]:
+    """(spec, path of its ``take``'s samples in ``src``, the shot's SkelAnimation it fills)
+    for each filled animation of the fill layer ``src``."""
+    many = any(write.VARIANT_SET in r.variantSets for r in _roots(src))
+    anims = []
+    for spec in _animations(src):
+        orig = spec.path.GetParentPath().AppendChild(spec.name[: -len(SUFFIX)])
+        prim = stage.GetPrimAtPath(orig)
+        if not prim or prim.GetTypeName() != "SkelAnimation":
+            raise ShotError(shot, f"the fill's animation {spec.path} has no SkelAnimation {orig} in the shot")
+        if many:
+            root = spec.path.GetPrefixes()[0]  # the root prim that holds the tweenTake variants
+            vpath = root.AppendVariantSelection(write.VARIANT_SET, f"take{take}").AppendPath(
+                spec.path.MakeRelativePath(root)
+            )
+        else:
+            vpath = spec.path
+        anims.append((spec, vpath, orig))
+    return anims
+
+
+def _provenance(shot: str, src, path: Path, n: int, take: int, d: dict) -> dict:
+    """The published layer's ``tween`` custom data: what filled it, which take of which fill
+    layer, its approval, and who published it when."""
+    info = dict(src.customLayerData.get("tween", {}))
+    now = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    return {
+        "kind": "publish",
+        "model": info.get("model", ""),
+        "modelHash": info.get("modelHash", ""),
+        "models": dict(info.get("models", {})),
+        "jobId": info.get("jobId", ""),
+        "take": take,
+        "approval": {k: d[k] for k in ("status", "take", "by", "at", "note")},
+        "fillLayer": path.name,
+        "fillVersion": n,
+        "shot": shot,
+        "publishedAt": now,
+        "publishedBy": _who(),
+    }
+
+
+def _author_published(layer, src, path: Path, final: Path, anims: list[tuple], take: int) -> None:
+    """Overs on the shot's SkelAnimations in ``layer``: the take's samples copied as stored
+    (bit for bit, without the variant around them), with the fill's provenance attributes."""
+    from pxr import Sdf
+
+    for spec, vpath, orig in anims:
+        dst = Sdf.CreatePrimInLayer(layer, orig)  # an over, and overs above it
+        write.apply_api(dst, tokens.API)
+        joints = spec.attributes.get("joints")
+        if joints is not None and joints.default is not None:
+            write.author_attr(dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True)
+        for name in _PROVENANCE:
+            a = spec.attributes.get(name)
+            if a is not None and a.default is not None:
+                write.author_attr(dst, name, a.typeName, a.default)
+        write.author_attr(dst, tokens.TAKE, Sdf.ValueTypeNames.Int, take)
+        seed = src.GetAttributeAtPath(vpath.AppendProperty(tokens.SEED))
+        if seed is not None and seed.default is not None:
+            write.author_attr(dst, tokens.SEED, Sdf.ValueTypeNames.Int, seed.default)
+        for name in ANIM_ATTRS:
+            a = src.GetAttributeAtPath(vpath.AppendProperty(name)) or spec.attributes.get(name)
+            if a is None:
+                raise TweenError(f"{path}: {vpath} has no {name} for take {take}")
+            # The samples as stored (bit for bit), without the variant around them.
+            if not Sdf.CopySpec(src, a.path, layer, dst.path.AppendProperty(name)):
+                raise TweenError(f"{final}: cannot copy {a.path}")
+
+
 def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = None) -> dict:
     """Writes the approved take of the shot's latest fill layer as a plain animation layer
     (see the module doc); returns {"layer", "of", "take", "format", "animations"}. Never
@@ -373,37 +453,9 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     if not os.access(final.parent, os.W_OK) or not final.parent.stat().st_mode & 0o222:
         raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
     stage = open_stage(shot)
-    take, many = int(d["take"]), any(write.VARIANT_SET in r.variantSets for r in _roots(src))
-    anims = []
-    for spec in _animations(src):
-        orig = spec.path.GetParentPath().AppendChild(spec.name[: -len(SUFFIX)])
-        prim = stage.GetPrimAtPath(orig)
-        if not prim or prim.GetTypeName() != "SkelAnimation":
-            raise ShotError(shot, f"the fill's animation {spec.path} has no SkelAnimation {orig} in the shot")
-        if many:
-            root = spec.path.GetPrefixes()[0]  # the root prim that holds the tweenTake variants
-            vpath = root.AppendVariantSelection(write.VARIANT_SET, f"take{take}").AppendPath(
-                spec.path.MakeRelativePath(root)
-            )
-        else:
-            vpath = spec.path
-        anims.append((spec, vpath, orig))
-    info = dict(src.customLayerData.get("tween", {}))
-    now = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
-    provenance = {
-        "kind": "publish",
-        "model": info.get("model", ""),
-        "modelHash": info.get("modelHash", ""),
-        "models": dict(info.get("models", {})),
-        "jobId": info.get("jobId", ""),
-        "take": take,
-        "approval": {k: d[k] for k in ("status", "take", "by", "at", "note")},
-        "fillLayer": path.name,
-        "fillVersion": n,
-        "shot": shot,
-        "publishedAt": now,
-        "publishedBy": _who(),
-    }
+    take = int(d["take"])
+    anims = _published_animations(stage, shot, src, take)
+    provenance = _provenance(shot, src, path, n, take, d)
     tmp = files.temp_path(final)
     with files.saving(final, tmp):
         layer = Sdf.Layer.CreateNew(str(tmp), {"format": fmt} if final.suffix == ".usd" else {})
@@ -416,29 +468,7 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
             "Plain animation: sublayer it over the shot (stronger)."
         )
         with Sdf.ChangeBlock():
-            for spec, vpath, orig in anims:
-                dst = Sdf.CreatePrimInLayer(layer, orig)  # an over, and overs above it
-                write.apply_api(dst, tokens.API)
-                joints = spec.attributes.get("joints")
-                if joints is not None and joints.default is not None:
-                    write.author_attr(
-                        dst, "joints", Sdf.ValueTypeNames.TokenArray, joints.default, uniform=True
-                    )
-                for name in _PROVENANCE:
-                    a = spec.attributes.get(name)
-                    if a is not None and a.default is not None:
-                        write.author_attr(dst, name, a.typeName, a.default)
-                write.author_attr(dst, tokens.TAKE, Sdf.ValueTypeNames.Int, take)
-                seed = src.GetAttributeAtPath(vpath.AppendProperty(tokens.SEED))
-                if seed is not None and seed.default is not None:
-                    write.author_attr(dst, tokens.SEED, Sdf.ValueTypeNames.Int, seed.default)
-                for name in ANIM_ATTRS:
-                    a = src.GetAttributeAtPath(vpath.AppendProperty(name)) or spec.attributes.get(name)
-                    if a is None:
-                        raise TweenError(f"{path}: {vpath} has no {name} for take {take}")
-                    # The samples as stored (bit for bit), without the variant around them.
-                    if not Sdf.CopySpec(src, a.path, layer, dst.path.AppendProperty(name)):
-                        raise TweenError(f"{final}: cannot copy {a.path}")
+            _author_published(layer, src, path, final, anims, take)
         if not layer.Save():
             raise TweenError(f"{final}: cannot write the layer")
         del layer

@@ -51,6 +51,39 @@ def _range_count(a: float, b: float, step: float) -> float:
     return max(n, 1)
 
 
+def _key_range(m, part: str, spec: str, shot, stage) -> tuple[float, float, float, int]:
+    """The range ``part`` (matched by ``m``) as (first, last, step, how many keys), checked
+    against the stage range ``stage`` when there is one."""
+    opt = "--keys"
+    a, b = _finite(m.group(1)), _finite(m.group(2))
+    if a is None or b is None:
+        bad = m.group(1) if a is None else m.group(2)
+        _fail(shot, opt, spec, f"{bad!r} is not a finite time code", part)
+    step_text = m.group(3)
+    if step_text is None:
+        step = 1.0
+    else:
+        sm = _SINGLE.match(step_text)
+        step = _finite(sm.group(1)) if sm else None
+        if step is None:
+            _fail(shot, opt, spec, f"step {step_text!r} is not a finite number", part)
+    if b < a:
+        _fail(shot, opt, spec, f"the range ends ({b:g}) before it starts ({a:g})", part)
+    if step <= 0:
+        _fail(shot, opt, spec, f"step {step:g} must be above 0", part)
+    n = _range_count(a, b, step)
+    if stage:
+        s0, s1 = stage
+        if a < s0 - _EPS or a > s1 + _EPS:
+            _fail(shot, opt, spec, f"key {a:g} is outside the stage range {s0:g}-{s1:g}", part)
+        q = (s1 + _EPS - a) / step  # keys of the range up to the stage end: floor(q) + 1
+        inside = math.floor(q) + 1 if math.isfinite(q) else math.inf
+        if n > inside:
+            past = a + inside * step
+            _fail(shot, opt, spec, f"key {past:g} is outside the stage range {s0:g}-{s1:g}", part)
+    return a, b, step, n
+
+
 def parse_keys(spec: str, shot=None, start: float | None = None, end: float | None = None) -> np.ndarray:
     """Sorted unique key time codes. ``a-bxN`` is every N from a up to b (Houdini/Nuke style).
 
@@ -66,32 +99,7 @@ def parse_keys(spec: str, shot=None, start: float | None = None, end: float | No
             continue
         m = _RANGE.match(part)
         if m:
-            a, b = _finite(m.group(1)), _finite(m.group(2))
-            if a is None or b is None:
-                bad = m.group(1) if a is None else m.group(2)
-                _fail(shot, opt, spec, f"{bad!r} is not a finite time code", part)
-            step_text = m.group(3)
-            if step_text is None:
-                step = 1.0
-            else:
-                sm = _SINGLE.match(step_text)
-                step = _finite(sm.group(1)) if sm else None
-                if step is None:
-                    _fail(shot, opt, spec, f"step {step_text!r} is not a finite number", part)
-            if b < a:
-                _fail(shot, opt, spec, f"the range ends ({b:g}) before it starts ({a:g})", part)
-            if step <= 0:
-                _fail(shot, opt, spec, f"step {step:g} must be above 0", part)
-            n = _range_count(a, b, step)
-            if stage:
-                s0, s1 = stage
-                if a < s0 - _EPS or a > s1 + _EPS:
-                    _fail(shot, opt, spec, f"key {a:g} is outside the stage range {s0:g}-{s1:g}", part)
-                q = (s1 + _EPS - a) / step  # keys of the range up to the stage end: floor(q) + 1
-                inside = math.floor(q) + 1 if math.isfinite(q) else math.inf
-                if n > inside:
-                    past = a + inside * step
-                    _fail(shot, opt, spec, f"key {past:g} is outside the stage range {s0:g}-{s1:g}", part)
+            a, b, step, n = _key_range(m, part, spec, shot, stage)
             count += n
             if count > MAX_KEYS:
                 _fail(shot, opt, spec, f"more than {MAX_KEYS:,} keys", part)

@@ -189,16 +189,10 @@ def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
                     )
 
 
-def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
-    from pxr import UsdGeom, UsdSkel
-
-    skel_path = str(skel.GetPrim().GetPath())
-    anim_prim = animq.GetPrim()
-    anim_path = str(anim_prim.GetPath())
-    topo = skelq.GetTopology()
-    joints = tuple(str(t) for t in skelq.GetJointOrder())
+def _rest_and_bind(shot_path: str, skel, skel_path: str, joints: tuple, parents: np.ndarray):
+    """The skeleton's rest pose (local rotations, translations) and bind pose (rotations,
+    positions in skeleton space), each checked: (rest_rot, rest_trans, bind_rot, bind_pos)."""
     J = len(joints)
-    parents = np.array([topo.GetParent(i) for i in range(J)], np.int64)
     rest = skel.GetRestTransformsAttr().Get()
     bind = skel.GetBindTransformsAttr().Get()
     for name, m in (("restTransforms", rest), ("bindTransforms", bind)):
@@ -227,27 +221,53 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         bind_rot, bind_pos = _decompose(_col(bind))
     else:
         bind_rot, bind_pos = _fk_bind(parents, rest_rot, rest_trans)
+    return rest_rot, rest_trans, bind_rot, bind_pos
 
-    anim = UsdSkel.Animation(anim_prim)
+
+def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_path: str) -> tuple:
+    """The joints the animation lists, each one of the skeleton's."""
     anim_joints = tuple(str(t) for t in (anim.GetJointsAttr().Get() or []))
     if not anim_joints:
         raise ShotError(shot_path, "animation lists no joints", anim_path)
-    index = {t: i for i, t in enumerate(joints)}
-    missing = [t for t in anim_joints if t not in index]
+    known = set(joints)
+    missing = [t for t in anim_joints if t not in known]
     if missing:
         raise ShotError(
             shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
         )
+    return anim_joints
+
+
+def _key_override(shot_path: str, anim_prim, anim_path: str) -> np.ndarray | None:
+    """The animation's ``tween:keyTimes`` (the keys an animator named), or None."""
+    kt = anim_prim.GetAttribute(tokens.KEY_TIMES)
+    if not (kt and kt.HasAuthoredValue()):
+        return None
+    override = np.array(kt.Get(), np.float64)
+    if not np.isfinite(override).all():
+        raise ShotError(shot_path, "tween:keyTimes holds NaN or infinite time codes", anim_path)
+    return override
+
+
+def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
+    from pxr import UsdGeom, UsdSkel
+
+    skel_path = str(skel.GetPrim().GetPath())
+    anim_prim = animq.GetPrim()
+    anim_path = str(anim_prim.GetPath())
+    topo = skelq.GetTopology()
+    joints = tuple(str(t) for t in skelq.GetJointOrder())
+    parents = np.array([topo.GetParent(i) for i in range(len(joints))], np.int64)
+    rest_rot, rest_trans, bind_rot, bind_pos = _rest_and_bind(shot_path, skel, skel_path, joints, parents)
+
+    anim = UsdSkel.Animation(anim_prim)
+    anim_joints = _animation_joints(shot_path, anim, anim_path, joints, skel_path)
+    index = {t: i for i, t in enumerate(joints)}
     check_samples(shot_path, anim, anim_path, anim_joints)
     rot_times = anim.GetRotationsAttr().GetTimeSamples()
     trans_times = anim.GetTranslationsAttr().GetTimeSamples()
     times = sorted(set(rot_times) | set(trans_times))
-    override = None
-    kt = anim_prim.GetAttribute(tokens.KEY_TIMES)
-    if kt and kt.HasAuthoredValue():
-        override = np.array(kt.Get(), np.float64)
-        if not np.isfinite(override).all():
-            raise ShotError(shot_path, "tween:keyTimes holds NaN or infinite time codes", anim_path)
+    override = _key_override(shot_path, anim_prim, anim_path)
     keyed = _keyed_joints(anim_prim, anim_joints, shot_path, anim_path)
     start = stage.GetStartTimeCode()
     xf = UsdGeom.Xformable(skel.GetPrim()).ComputeLocalToWorldTransform(start)

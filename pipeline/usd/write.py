@@ -107,100 +107,115 @@ def _author_samples(layer, spec, data: dict) -> None:
         layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(sc[i]))
 
 
-def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
-    """Authors every character of every take into ``layer`` (an Sdf layer)."""
+def _author_roots(layer, chars: list[dict], takes: list[dict]) -> None:
+    """The characters' root prims: a pending review state and, for several takes, the
+    ``tweenTake`` variant set (the first take selected)."""
+    from pxr import Sdf
+
+    many = len(takes) > 1
+    roots = sorted({"/" + c["anim"].strip("/").split("/")[0] for c in chars})
+    for r in roots:
+        rs = Sdf.CreatePrimInLayer(layer, r)
+        apply_api(rs, tokens.API)
+        author_attr(rs, tokens.REVIEW_STATUS, Sdf.ValueTypeNames.Token, "pending")
+        author_attr(rs, tokens.APPROVED_TAKE, Sdf.ValueTypeNames.Int, -1)
+        if many:
+            vset = Sdf.VariantSetSpec(rs, VARIANT_SET)
+            for tk in takes:
+                Sdf.VariantSpec(vset, f"take{tk['take']}")
+            rs.SetInfo("variantSetNames", Sdf.StringListOp.Create(prependedItems=[VARIANT_SET]))
+            rs.variantSelections[VARIANT_SET] = f"take{takes[0]['take']}"
+
+
+def _author_provenance(spec, c: dict, meta: dict) -> None:
+    """What filled the character ``c``: its model, the trust decision (and library), how its
+    rig reached the model, the key pairs it jumps between."""
     from pxr import Gf, Sdf, Vt
 
-    chars = takes[0]["chars"]
+    # Each character's own model (a rig model or the human one).
+    for name, val in ((tokens.MODEL, c.get("model", meta["model"])),
+                      (tokens.MODEL_HASH, c.get("model_hash", meta["model_hash"])),
+                      (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
+        author_attr(spec, name, Sdf.ValueTypeNames.String, val)
+    tr = c.get("trust")
+    if tr:  # how far the human model was trusted against the spline, and why
+        author_attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
+        author_attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
+        author_attr(spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True))
+        # What filled which frames: the model's share in each gap.
+        _gap_attrs(spec, tr.get("gap_weights") or [], "weight", tokens.TRUST_GAPS, tokens.TRUST_GAP_WEIGHTS)
+        lib = tr.get("library")
+        if lib:  # the library's version, and how much of each gap is its motion
+            author_attr(spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})")
+            author_attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
+            _gap_attrs(spec, lib["gaps"], "share", tokens.LIBRARY_GAPS, tokens.LIBRARY_SHARE, even_empty=True)
+    # How the rig reached the model: the reference pose and the model joints it lacks.
+    rt = c.get("retarget")
+    if rt:
+        author_attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
+        author_attr(spec, tokens.MISSING_JOINTS, Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"]))
+    if c.get("jumps"):  # key pairs the body teleports between: (from, to) time codes
+        pairs = Vt.Vec2dArray([Gf.Vec2d(j["from"], j["to"]) for j in c["jumps"]])
+        author_attr(spec, tokens.KEY_JUMPS, Sdf.ValueTypeNames.Double2Array, pairs)
+
+
+def _copy_blend_shapes(layer, spec, src) -> None:
+    """Blend shape weights are the animator's: copied from the animation ``src`` as authored."""
+    from pxr import Sdf
+
+    for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
+        a = src.GetAttribute(an)
+        if a and a.HasAuthoredValue():
+            dst = author_attr(spec, an, a.GetTypeName() if tn is None else tn, uniform=an == "blendShapes")
+            if a.Get() is not None:
+                dst.default = a.Get()
+            for t in a.GetTimeSamples():
+                layer.SetTimeSample(dst.path, t, a.Get(t))
+
+
+def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: dict) -> None:
+    """Character ``ci``: its skeleton bound to a new ``<anim>_tween`` SkelAnimation holding
+    the keys, the provenance and each take's samples (in its variant, for several takes)."""
+    from pxr import Sdf, Vt
+
     many = len(takes) > 1
+    src = stage.GetPrimAtPath(c["anim"])
+    filled = Sdf.Path(c["anim"]).GetParentPath().AppendChild(Sdf.Path(c["anim"]).name + "_tween")
+    sk = Sdf.CreatePrimInLayer(layer, c["skel"])
+    apply_api(sk, "SkelBindingAPI")
+    rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(sk, "skel:animationSource")
+    rel.targetPathList.explicitItems = [filled]
+    spec = Sdf.CreatePrimInLayer(layer, filled)
+    spec.specifier = Sdf.SpecifierDef
+    spec.typeName = "SkelAnimation"
+    apply_api(spec, tokens.API)
+    author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True)
+    author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
+    _author_provenance(spec, c, meta)
+    _copy_blend_shapes(layer, spec, src)
+    for tk in takes:
+        data = tk["data"][ci]
+        if many:
+            vpath = Sdf.Path("/" + c["anim"].strip("/").split("/")[0])
+            vroot = vpath.AppendVariantSelection(VARIANT_SET, f"take{tk['take']}")
+            rel_path = filled.MakeRelativePath(vpath)
+            vspec = Sdf.CreatePrimInLayer(layer, vroot.AppendPath(rel_path))
+        else:
+            vspec = spec
+        author_attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
+        author_attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
+        _author_samples(layer, vspec, data)
+
+
+def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
+    """Authors every character of every take into ``layer`` (an Sdf layer)."""
+    from pxr import Sdf
+
+    chars = takes[0]["chars"]
     with Sdf.ChangeBlock():
-        roots = sorted({"/" + c["anim"].strip("/").split("/")[0] for c in chars})
-        for r in roots:
-            rs = Sdf.CreatePrimInLayer(layer, r)
-            apply_api(rs, tokens.API)
-            author_attr(rs, tokens.REVIEW_STATUS, Sdf.ValueTypeNames.Token, "pending")
-            author_attr(rs, tokens.APPROVED_TAKE, Sdf.ValueTypeNames.Int, -1)
-            if many:
-                vset = Sdf.VariantSetSpec(rs, VARIANT_SET)
-                for tk in takes:
-                    Sdf.VariantSpec(vset, f"take{tk['take']}")
-                rs.SetInfo("variantSetNames", Sdf.StringListOp.Create(prependedItems=[VARIANT_SET]))
-                rs.variantSelections[VARIANT_SET] = f"take{takes[0]['take']}"
+        _author_roots(layer, chars, takes)
         for ci, c in enumerate(chars):
-            src = stage.GetPrimAtPath(c["anim"])
-            filled = Sdf.Path(c["anim"]).GetParentPath().AppendChild(Sdf.Path(c["anim"]).name + "_tween")
-            sk = Sdf.CreatePrimInLayer(layer, c["skel"])
-            apply_api(sk, "SkelBindingAPI")
-            rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(
-                sk, "skel:animationSource"
-            )
-            rel.targetPathList.explicitItems = [filled]
-            spec = Sdf.CreatePrimInLayer(layer, filled)
-            spec.specifier = Sdf.SpecifierDef
-            spec.typeName = "SkelAnimation"
-            apply_api(spec, tokens.API)
-            author_attr(
-                spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True
-            )
-            author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
-            # Each character's own model (a rig model or the human one).
-            for name, val in ((tokens.MODEL, c.get("model", meta["model"])),
-                              (tokens.MODEL_HASH, c.get("model_hash", meta["model_hash"])),
-                              (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
-                author_attr(spec, name, Sdf.ValueTypeNames.String, val)
-            # How the rig reached the model: the reference pose and the model joints it lacks.
-            tr = c.get("trust")
-            if tr:  # how far the human model was trusted against the spline, and why
-                author_attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
-                author_attr(spec, tokens.TRUST_WEIGHT, Sdf.ValueTypeNames.Double, float(tr["weight"]))
-                author_attr(
-                    spec, tokens.TRUST_EVIDENCE, Sdf.ValueTypeNames.String, json.dumps(tr, sort_keys=True)
-                )
-                # What filled which frames: the model's share in each gap.
-                _gap_attrs(
-                    spec, tr.get("gap_weights") or [], "weight", tokens.TRUST_GAPS, tokens.TRUST_GAP_WEIGHTS
-                )
-                lib = tr.get("library")
-                if lib:  # the library's version, and how much of each gap is its motion
-                    author_attr(
-                        spec, tokens.LIBRARY, Sdf.ValueTypeNames.String, f"{lib['name']} ({lib['folder']})"
-                    )
-                    author_attr(spec, tokens.LIBRARY_HASH, Sdf.ValueTypeNames.String, lib["hash"])
-                    _gap_attrs(
-                        spec, lib["gaps"], "share", tokens.LIBRARY_GAPS, tokens.LIBRARY_SHARE, even_empty=True
-                    )
-            rt = c.get("retarget")
-            if rt:
-                author_attr(spec, tokens.RETARGET_REFERENCE, Sdf.ValueTypeNames.String, rt["reference"])
-                author_attr(
-                    spec, tokens.MISSING_JOINTS, Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(rt["missing"])
-                )
-            if c.get("jumps"):  # key pairs the body teleports between: (from, to) time codes
-                pairs = Vt.Vec2dArray([Gf.Vec2d(j["from"], j["to"]) for j in c["jumps"]])
-                author_attr(spec, tokens.KEY_JUMPS, Sdf.ValueTypeNames.Double2Array, pairs)
-            # Blend shape weights are the animator's: copied as authored.
-            for an, tn in (("blendShapes", Sdf.ValueTypeNames.TokenArray), ("blendShapeWeights", None)):
-                a = src.GetAttribute(an)
-                if a and a.HasAuthoredValue():
-                    dst = author_attr(
-                        spec, an, a.GetTypeName() if tn is None else tn, uniform=an == "blendShapes"
-                    )
-                    if a.Get() is not None:
-                        dst.default = a.Get()
-                    for t in a.GetTimeSamples():
-                        layer.SetTimeSample(dst.path, t, a.Get(t))
-            for tk in takes:
-                data = tk["data"][ci]
-                if many:
-                    vpath = Sdf.Path("/" + c["anim"].strip("/").split("/")[0])
-                    vroot = vpath.AppendVariantSelection(VARIANT_SET, f"take{tk['take']}")
-                    rel_path = filled.MakeRelativePath(vpath)
-                    vspec = Sdf.CreatePrimInLayer(layer, vroot.AppendPath(rel_path))
-                else:
-                    vspec = spec
-                author_attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
-                author_attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
-                _author_samples(layer, vspec, data)
+            _author_character(layer, stage, ci, c, takes, meta)
 
 
 def default_out_dir(shot: str) -> Path:
