@@ -156,16 +156,21 @@ def _set_keys(fc, frames: list[int], vals: list[float], mine: set[int]) -> None:
     are marked generated."""
     kps = fc.keyframe_points
     kps.add(len(frames))
-    co = [c for f, v in zip(frames, vals, strict=True) for c in (f, v)]
-    kps.foreach_set("co", co)
-    for kp, f in zip(kps, frames, strict=True):
-        kp.interpolation = "LINEAR"
-        if f not in mine:
-            kp.type = "GENERATED" if "GENERATED" in _KEY_TYPES else "BREAKDOWN"
+    kps.foreach_set("co", [c for f, v in zip(frames, vals, strict=True) for c in (f, v)])
+    # all at once (a Python loop over the keys of a long shot keeps Blender's UI waiting)
+    kps.foreach_set("interpolation", [_LINEAR] * len(frames))
+    kps.foreach_set("type", [_KEY if f in mine else _GENERATED for f in frames])
     fc.update()
 
 
-_KEY_TYPES = {e.identifier for e in bpy.types.Keyframe.bl_rna.properties["type"].enum_items}
+def _enum(prop: str, name: str, fallback: str) -> int:
+    items = bpy.types.Keyframe.bl_rna.properties[prop].enum_items
+    return (items.get(name) or items[fallback]).value
+
+
+_LINEAR = _enum("interpolation", "LINEAR", "LINEAR")
+_KEY = _enum("type", "KEYFRAME", "KEYFRAME")
+_GENERATED = _enum("type", "GENERATED", "BREAKDOWN")  # Blender 4.2 has no GENERATED keys
 
 
 class _Channels:
@@ -194,9 +199,24 @@ class _Channels:
 def take_actions(
     arm, original, layer: Path, shot: str, version: int, anim: str, info: dict, meta: dict
 ) -> list:
+    """One action per take of the fill layer (:func:`take_steps`, all at once)."""
+    steps = take_steps(arm, original, layer, shot, version, anim, info, meta)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def take_steps(arm, original, layer: Path, shot: str, version: int, anim: str, info: dict, meta: dict):
     """One action per take of the fill layer: named ``<shot>.v<NNN>.take<N>``, the keyed
-    frames the animator's, the in-betweens the fill's, marked with where they came from."""
-    joints, takes = usda.read_takes(layer.read_text(), anim)
+    frames the animator's, the in-betweens the fill's, marked with where they came from.
+
+    A generator: it yields (bones done, bones in all) after each bone, so that the panel's
+    timer can build a long shot's takes a little at a time and Blender stays responsive;
+    it returns the actions."""
+    takes = usda.Takes(layer.read_text(), anim)
+    joints = takes.joints
     tokens = joint_tokens(arm)
     by_token = {t: b for b, t in tokens.items()}
     index = {t: i for i, t in enumerate(joints)}
@@ -207,7 +227,10 @@ def take_actions(
     # equivalent solution: the pose on every frame is the fill's either way)
     curves = {(fc.data_path, fc.array_index): fc for fc in fcurves(original, arm)}
     out = []
-    for n in sorted(takes):
+    total, done = len(takes.spans) * sum(t in by_token for t in index), 0
+    for n in sorted(takes.spans):
+        samples = takes.samples(n)
+        yield done, total  # a take read: the timer's turn
         name = naming.take_action_name(shot, version, n)
         old = bpy.data.actions.get(name)
         if old is not None and old != original:
@@ -215,7 +238,6 @@ def take_actions(
         act = bpy.data.actions.new(name)
         act.use_fake_user = True  # kept while the armature shows another take
         ch = _Channels(act, arm)
-        samples = takes[n]
         frames = sorted(round(t) for t in samples["rotations"])
         times = {round(t): t for t in samples["rotations"]}
         for tok, j in index.items():
@@ -223,6 +245,8 @@ def take_actions(
             if bone is None:
                 continue
             _bone_channels(arm, bone, j, samples, frames, times, values, curves, ch)
+            done += 1
+            yield done, total
         for fc in fcurves(original, arm):  # the object's own channels, as they are
             if bone_channel(fc) is None:
                 new = ch.new(fc.data_path, fc.array_index, "Object Transforms")

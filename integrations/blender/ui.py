@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 import bpy
@@ -120,24 +121,54 @@ def takes_of(arm) -> list:
     )
 
 
-def _bring_back(arm, fill: dict, track: dict) -> str:
-    """The takes of a finished fill (its JSON) as actions; returns the report line."""
+#: Seconds of take building per timer tick (the rest of the tick is Blender's).
+STEP_S = 0.1
+
+
+def _start_bring_back(arm, fill: dict, track: dict) -> None:
+    """Starts building the takes of a finished fill (its JSON) as actions (:func:`_step`)."""
     res = read_result(fill, os.path.dirname(track["shot_file"]))
     meta = {t.index: {"decision": t.decision, "mp4": t.mp4, "sheet": t.contact_sheet, "otio": t.timeline,
                       "layer": res.layer, "review": res.review, "shot_file": track["shot_file"],
                       "out_dir": track["out_dir"], "model": res.model} for t in res.takes}  # fmt: skip
     original = bpy.data.actions[track["original"]]
-    acts = blend.take_actions(
+    track["fill"], track["res"] = fill, res
+    track["steps"] = blend.take_steps(
         arm, original, Path(res.layer), track["shot"], res.version, track["anim"], track["info"], meta
     )
-    arm.tween.result = json.dumps(fill)
+
+
+def _step(arm, track: dict, budget: float | None = STEP_S) -> str | None:
+    """Builds the takes for ``budget`` seconds (None: to the end); the report line once they
+    are all back, else None."""
+    t0 = time.monotonic()
+    while budget is None or time.monotonic() - t0 < budget:
+        try:
+            done, total = next(track["steps"])
+        except StopIteration as stop:
+            track.pop("steps")
+            return _brought_back(arm, track, stop.value)
+        except BaseException:
+            track.pop("steps", None)  # a fault is said once, not again at every tick
+            raise
+        arm.tween.status = f"bringing the takes back ({done}/{total} bones)"
+        arm.tween.fraction = done / total if total else 0.0
+    return None
+
+
+def _brought_back(arm, track: dict, acts: list) -> str:
+    res = track["res"]
+    arm.tween.result = json.dumps(track["fill"])
+    arm.tween.status, arm.tween.fraction = "done", 1.0
     blend.assign(arm, acts[0])
     dec = ", ".join(sorted({t.decision for t in res.takes if t.decision})) or "?"
     return f"usd-tween: {len(acts)} take(s) of {track['shot']} v{res.version:03d} back ({dec})"
 
 
-def _finish_fill(arm, track: dict) -> str:
-    return _bring_back(arm, track["job"].result, track)
+def _bring_back(arm, fill: dict, track: dict) -> str:
+    """The takes of a finished fill, all at once (Fetch: the animator asked and waits)."""
+    _start_bring_back(arm, fill, track)
+    return _step(arm, track, None)
 
 
 def tick_all(report) -> bool:
@@ -166,14 +197,24 @@ def _tick_all(report) -> bool:
                 arm.tween.status, arm.tween.fraction = job.text(), job.fraction
             if job.state == "done" and arm is not None:
                 try:
-                    report({"INFO"}, _finish_fill(arm, track))
-                    arm.tween.status = "done"
+                    _start_bring_back(arm, job.result, track)
                 except (ValueError, KeyError, OSError) as e:
                     arm.tween.status = f"failed: {e}"
                     report({"ERROR"}, f"usd-tween: cannot read the takes back: {e}")
             elif job.state == "failed":
                 report({"ERROR"}, f"usd-tween: {job.error}")
             busy |= not job.finished
+        if "steps" in track and arm is not None:
+            try:
+                line = _step(arm, track)
+            except (ValueError, KeyError, OSError) as e:
+                arm.tween.status = f"failed: {e}"
+                report({"ERROR"}, f"usd-tween: cannot read the takes back: {e}")
+            else:
+                if line is None:
+                    busy = True
+                else:
+                    report({"INFO"}, line)
         for cmd in list(track.get("commands", [])):
             done = cmd.tick()
             if done is None:
@@ -268,7 +309,7 @@ class TWEEN_OT_fill(bpy.types.Operator):
             and not bpy.data.filepath
         ):
             bad = "save the .blend first (the output folder is relative to it), or set an absolute one"
-        if bad is None and track.get("job") is not None and not track["job"].finished:
+        if bad is None and (track.get("job") is not None and not track["job"].finished or "steps" in track):
             bad = "a fill of this armature is still running (Cancel it first)"
         original = _source_action(arm)
         scene = context.scene

@@ -17,12 +17,26 @@ from __future__ import annotations
 import re
 
 _ANIM = re.compile(r'^(?P<indent>\s*)def SkelAnimation "(?P<name>[^"]+)"')
-_SAMPLES = re.compile(r"^(?P<indent>\s*)(?:custom\s+)?\S+\s+(?P<attr>[\w:]+)\.timeSamples\s*=\s*\{\s*$")
-_SAMPLE = re.compile(r"^\s*(?P<t>[-+0-9.eE]+|-?inf|nan)\s*:\s*(?P<v>.*?),?\s*$")
-_TUPLE = re.compile(r"\(([^()]*)\)")
+_SAMPLES = re.compile(
+    r"^(?P<indent>\s*)(?:custom\s+)?(?P<type>\S+)\s+(?P<attr>[\w:]+)\.timeSamples\s*=\s*\{\s*$"
+)
 _JOINTS = re.compile(r"^\s*uniform token\[\] joints\s*=\s*\[(?P<v>.*)\]\s*$")
 _TOKEN = re.compile(r'"([^"]*)"')
 EPS = 1e-4  # time codes this close are one frame (as the fill reads them)
+
+
+_BRACKETS = str.maketrans("", "", "()[] \t")
+
+
+def _time(line: str) -> float | None:
+    """The time code a sample line starts with, or None for any other line."""
+    t, sep, _ = line.partition(":")
+    if not sep:
+        return None
+    try:
+        return float(t)
+    except ValueError:
+        return None
 
 
 def _end(lines: list[str], i: int, indent: str) -> int:
@@ -88,12 +102,12 @@ def keep_keys(text: str, keys, located=None, keyed_joints: dict | None = None) -
             continue
         j = _end(lines, i, m.group("indent"))
         kept = []
-        for s in lines[i + 1 : j]:
-            sm = _SAMPLE.match(s)
-            if not sm:
-                raise ValueError(f"line {lines.index(s) + 1}: not a time sample")
-            if _within(float(sm.group("t")), keep[m.group("attr")]):
-                kept.append(s)
+        for k in range(i + 1, j):
+            t = _time(lines[k])
+            if t is None:
+                raise ValueError(f"line {k + 1}: not a time sample")
+            if _within(t, keep[m.group("attr")]):
+                kept.append(lines[k])
         seen.add(m.group("attr"))
         out += [ln, *kept, lines[j]]
         i = j + 1
@@ -117,7 +131,8 @@ def keep_keys(text: str, keys, located=None, keyed_joints: dict | None = None) -
 
 
 def _samples(lines: list[str], a: int, b: int) -> dict[str, dict[float, list[tuple[float, ...]]]]:
-    """{attribute: {time: [tuple, …]}} of every ``.timeSamples`` between lines a and b."""
+    """{attribute: {time: [tuple, …]}} of every numeric ``.timeSamples`` between lines a and b
+    (``tween:keyedJoints``' tokens are not read)."""
     out: dict[str, dict[float, list[tuple[float, ...]]]] = {}
     i = a
     while i < b:
@@ -126,13 +141,19 @@ def _samples(lines: list[str], a: int, b: int) -> dict[str, dict[float, list[tup
             i += 1
             continue
         j = _end(lines, i, m.group("indent"))
+        if m.group("type").startswith(("token", "string")):
+            i = j + 1
+            continue
         vals: dict[float, list[tuple[float, ...]]] = {}
         for s in lines[i + 1 : j]:
-            sm = _SAMPLE.match(s)
-            if sm:
-                vals[float(sm.group("t"))] = [
-                    tuple(float(x) for x in tup.split(",")) for tup in _TUPLE.findall(sm.group("v"))
-                ]
+            t = _time(s)
+            if t is None:
+                continue
+            v = s.partition(":")[2]
+            # one split of the whole line, not a regex per tuple: long shots have millions of numbers
+            n = v[v.find("(") + 1 : v.find(")")].count(",") + 1
+            nums = [float(x) for x in v.translate(_BRACKETS).split(",") if x]
+            vals[t] = [tuple(nums[k : k + n]) for k in range(0, len(nums), n)]
         out[m.group("attr")] = vals
         i = j + 1
     return out
@@ -145,42 +166,58 @@ def read_samples(text: str, name: str | None = None) -> tuple[list[str], dict]:
     return animation_joints(text, nm), _samples(lines, a, b)
 
 
-def read_takes(text: str, anim: str | None = None) -> tuple[list[str], dict[int, dict]]:
-    """A fill layer's takes: (joint tokens, {take: {"rotations"|"translations"|"scales":
-    {time: [(w, x, y, z) | (x, y, z), …]}}}). ``anim``: the filled animation's name
-    (``<anim>_tween``; default: the layer's only one). A fill of one take has no variant set:
-    its samples are take 0."""
-    lines = text.splitlines()
-    a, b, _, name = _prim_block(lines, f"{anim}_tween" if anim else None, "_tween")
-    joints = animation_joints(text, name)
-    takes: dict[int, dict] = {}
-    vs = next((i for i, ln in enumerate(lines) if re.match(r'^\s*variantSet "tweenTake" = \{\s*$', ln)), None)
-    if vs is None:
-        takes[0] = _samples(lines, a, b)
-    else:
-        indent = re.match(r"^(\s*)", lines[vs]).group(1)
-        end = _end(lines, vs, indent)
-        i = vs + 1
-        while i < end:
-            m = re.match(r'^(?P<indent>\s*)"take(?P<n>\d+)" \{\s*$', lines[i])
-            if not m:
-                i += 1
-                continue
-            j = _end(lines, i, m.group("indent"))
-            # the over of this animation inside the variant
-            over = next(
-                (k for k in range(i, j) if re.match(rf'^\s*over "{re.escape(name)}"\s*$', lines[k])), None
-            )
-            if over is not None:
-                o_ind = re.match(r"^(\s*)", lines[over]).group(1)
-                takes[int(m.group("n"))] = _samples(lines, over, _end(lines, over, o_ind))
-            i = j + 1
-    for t, s in takes.items():
+class Takes:
+    """A fill layer's takes, found at once and read one at a time (:meth:`samples`): a long
+    shot's takes are millions of numbers, read between two ticks of Blender's timer each.
+
+    ``anim``: the filled animation's name (``<anim>_tween``; default: the layer's only one).
+    A fill of one take has no variant set: its samples are take 0."""
+
+    def __init__(self, text: str, anim: str | None = None):
+        self.lines = lines = text.splitlines()
+        a, b, _, self.name = _prim_block(lines, f"{anim}_tween" if anim else None, "_tween")
+        self.joints = animation_joints(text, self.name)
+        self.spans: dict[int, tuple[int, int]] = {}
+        vs = next(
+            (i for i, ln in enumerate(lines) if re.match(r'^\s*variantSet "tweenTake" = \{\s*$', ln)), None
+        )
+        if vs is None:
+            self.spans[0] = (a, b)
+        else:
+            end = _end(lines, vs, re.match(r"^(\s*)", lines[vs]).group(1))
+            i = vs + 1
+            while i < end:
+                m = re.match(r'^(?P<indent>\s*)"take(?P<n>\d+)" \{\s*$', lines[i])
+                if not m:
+                    i += 1
+                    continue
+                j = _end(lines, i, m.group("indent"))
+                # the over of this animation inside the variant
+                over = next(
+                    (k for k in range(i, j) if re.match(rf'^\s*over "{re.escape(self.name)}"\s*$', lines[k])),
+                    None,
+                )
+                if over is not None:
+                    self.spans[int(m.group("n"))] = (
+                        over,
+                        _end(lines, over, re.match(r"^(\s*)", lines[over]).group(1)),
+                    )
+                i = j + 1
+        if not self.spans:
+            raise ValueError(f"the fill layer holds no take of {self.name}")
+
+    def samples(self, take: int) -> dict:
+        """{"rotations"|"translations"|"scales": {time: [(w, x, y, z) | (x, y, z), …]}}."""
+        s = _samples(self.lines, *self.spans[take])
         if not s.get("rotations"):
-            raise ValueError(f"take {t} of {name} has no rotation samples")
-    if not takes:
-        raise ValueError(f"the fill layer holds no take of {name}")
-    return joints, takes
+            raise ValueError(f"take {take} of {self.name} has no rotation samples")
+        return s
+
+
+def read_takes(text: str, anim: str | None = None) -> tuple[list[str], dict[int, dict]]:
+    """A fill layer's takes, all read: (joint tokens, {take: :meth:`Takes.samples`})."""
+    t = Takes(text, anim)
+    return t.joints, {n: t.samples(n) for n in sorted(t.spans)}
 
 
 _LAYER_NAME = re.compile(r"^(?P<shot>.+)\.tween\.v(?P<version>\d+)\.usda$")
