@@ -105,6 +105,8 @@ def review(
     ),
 ) -> None:
     """Renders review media for a filled shot: H.264 MP4, numbered frames, contact sheet."""
+    # Long because its 13 option declarations are half of it (typer reads them from the
+    # signature); the body checks them, then renders each take.
 
     # Every option is checked here, before anything is imported, read or written.
     w, h = _size(size)

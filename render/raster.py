@@ -211,7 +211,6 @@ class Renderer:
 
     def set_stage(self, bbox_min, bbox_max, ground_y: float, roots: list[np.ndarray], key_frames: np.ndarray):
         """Static scene: ground plane, trajectories and key markers (frame indices ``key_frames``)."""
-        ctx = self.ctx
         lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
         ext = hi - lo
         self.height = max(float(ext[1]), 1e-3)
@@ -221,6 +220,12 @@ class Renderer:
         # A "nice" grid spacing near a quarter of the character's height (0.5 m for a person).
         nice = np.array([1.0, 2.5, 5.0]) * 10.0 ** np.floor(np.log10(self.height / 4))
         self.cell = float(nice[np.argmin(np.abs(np.log(nice / (self.height / 4))))])
+        self._set_ground()
+        self._set_trajectories(roots, key_frames)
+
+    def _set_ground(self):
+        """The ground's quad, and the uniforms that do not change from frame to frame."""
+        ctx = self.ctx
         c, r, y = self.center, self.radius, self.ground_y
         quad = np.array(
             [
@@ -248,6 +253,11 @@ class Renderer:
         m["fill_dir"].value = tuple(FILL_DIR)
         m["ground_y"].value = y
         m["ao_height"].value = self.height * 0.25
+
+    def _set_trajectories(self, roots: list[np.ndarray], key_frames: np.ndarray):
+        """The body joints' paths on the ground, the key markers along them and every key
+        frame's ring, made once."""
+        y = self.ground_y
         eps = self.height * 0.002
         w = self.height * 0.012
         tri = [_ribbon(rt, y + eps, w) for rt in roots if len(rt) > 1]
@@ -304,108 +314,135 @@ class Renderer:
     ):
         """One frame: panel k shows ``sets[k]`` through ``cameras[k]``; returns (h, w, 4) uint8:
         ``out`` if given, else a buffer reused from frame to frame."""
-        mgl, ctx = self.mgl, self.ctx
         w, h = self.size
         pw = w // self.panels
-        ctx.copy_framebuffer(self.image, self.backdrop)  # the background (see ``__init__``)
+        self.ctx.copy_framebuffer(self.image, self.backdrop)  # the background (see ``__init__``)
         for k, (cam, ms, color) in enumerate(zip(cameras, sets, colors, strict=True)):
-            vp_rect = (k * pw, 0, pw, h)
-            vp32 = cam.view_proj(frame)
-            vp = vp32.T.copy()
-            eye = cam.eye(frame)
-            points = ms.upload(frame)
-            # 1. the shadow mask: characters projected along the key light
-            self.mask_fbo.use()
-            self.mask_fbo.viewport = vp_rect
-            self.mask_fbo.clear(0.0, viewport=vp_rect)
-            ctx.disable(mgl.DEPTH_TEST | mgl.BLEND)
-            self.shadow["vp"].write(vp)
-            ms.draw(self.shadow, shadow=True)
-            # llvmpipe waits for a texture's drawing before it is sampled, inside the draw call
-            # and holding the GIL; waited for here instead, without it (as the two below)
-            self._finish()
-            # 2. the ground (with the mask) over the background, single-sampled into the image
-            self.image.use()
-            self.image.viewport = vp_rect
-            ctx.enable(mgl.BLEND)
-            ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
-            self.mask_tex.use(0)
-            self.ground["vp"].write(vp)
-            self.ground_vao.render()
-            # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
-            # premultiplied, inside the rectangle they cover
-            ring = None
-            if is_key:
-                ring = self.rings.get(int(frame))
-                if ring is None:  # a key frame set_stage was not told of
-                    data = self._ring(int(frame))
-                    ring = (None, len(data), data[:, :3], data)
-            covered = [self.overlay_points, *points]
-            if ring is not None:
-                covered.append(ring[2])
-            if ghosts is not None:
-                covered.append(ghosts.all_points())
-            rect = screen_rect(vp32, vp_rect, covered)
-            if rect is None:
-                continue
-            if k:  # the layer was sampled by the previous panel's composite: waited for without the GIL
-                self._finish()
-            self.msaa.use()
-            self.msaa.viewport = vp_rect
-            self.msaa.scissor = rect
-            self.msaa.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
-            ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA, mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-            self.flat["vp"].write(vp)
-            self.flat["current"].value = float(frame)
-            if self.path_vao is not None:
-                self.flat["color_past"].value = (1.0, 0.78, 0.25, 0.95)
-                self.flat["color_future"].value = (0.85, 0.85, 0.9, 0.35)
-                self.path_vao.render()
-            if self.keymark_vao is not None:
-                self.flat["color_past"].value = (1.0, 0.45, 0.15, 1.0)
-                self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
-                self.keymark_vao.render()
-            if ring is not None:
-                self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
-                if ring[0] is None:
-                    self._flat_vao(ring[3]).render()
-                    self._release_last(2)
-                else:
-                    self.ring_vao.render(first=ring[0], vertices=ring[1])
-            ctx.enable(mgl.DEPTH_TEST)
-            ctx.disable(mgl.BLEND)
-            m = self.mesh
-            m["vp"].write(vp)
-            m["eye"].value = tuple(float(v) for v in eye)
-            m["base"].value = color
-            m["alpha"].value = 1.0
-            ms.draw(m)
-            if ghosts is not None:
-                ctx.enable(mgl.BLEND)
-                self.msaa.depth_mask = False
-                m["base"].value = GHOST
-                m["alpha"].value = 0.15
-                for i in range(ghosts.n_frames):
-                    ghosts.upload(i)
-                    ghosts.draw(m)
-                self.msaa.depth_mask = True
-            self.msaa.scissor = None
-            # 4. the rectangle resolved and laid over the background
-            self._finish()
-            ctx.disable(mgl.DEPTH_TEST)
-            ctx.enable(mgl.BLEND)
-            ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-            self.image.use()
-            self.image.scissor = rect
-            self.layer.use(1)
-            self.composite["layer"].value = 1
-            self.composite["samples"].value = self.samples
-            self.composite_vao.render(mgl.TRIANGLES, vertices=3)
-            self.image.scissor = None
+            self._render_panel(k, (k * pw, 0, pw, h), frame, cam, ms, color, is_key, ghosts)
         out = self.out if out is None else out
         self._finish()  # the frame's rasterisation, waited for without the GIL
         self.image.read_into(out, components=4, alignment=1)
         return out
+
+    def _render_panel(self, k: int, vp_rect, frame: int, cam, ms: MeshSet, color, is_key: bool, ghosts):
+        """Panel ``k``, in the viewport ``vp_rect``: ``ms`` through ``cam`` at ``frame``."""
+        vp32 = cam.view_proj(frame)
+        vp = vp32.T.copy()
+        eye = cam.eye(frame)
+        points = ms.upload(frame)
+        self._draw_shadow_mask(vp_rect, vp, ms)
+        self._draw_ground(vp_rect, vp)
+        # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
+        # premultiplied, inside the rectangle they cover
+        ring = self._key_ring(frame) if is_key else None
+        covered = [self.overlay_points, *points]
+        if ring is not None:
+            covered.append(ring[2])
+        if ghosts is not None:
+            covered.append(ghosts.all_points())
+        rect = screen_rect(vp32, vp_rect, covered)
+        if rect is None:
+            return
+        if k:  # the layer was sampled by the previous panel's composite: waited for without the GIL
+            self._finish()
+        mgl = self.mgl
+        self.msaa.use()
+        self.msaa.viewport = vp_rect
+        self.msaa.scissor = rect
+        self.msaa.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
+        self.ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA, mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
+        self._draw_overlays(frame, vp, ring)
+        self._draw_characters(vp, eye, ms, color, ghosts)
+        self.msaa.scissor = None
+        self._composite(rect)
+
+    def _draw_shadow_mask(self, vp_rect, vp, ms: MeshSet):
+        """1. The shadow mask: characters projected along the key light."""
+        self.mask_fbo.use()
+        self.mask_fbo.viewport = vp_rect
+        self.mask_fbo.clear(0.0, viewport=vp_rect)
+        self.ctx.disable(self.mgl.DEPTH_TEST | self.mgl.BLEND)
+        self.shadow["vp"].write(vp)
+        ms.draw(self.shadow, shadow=True)
+        # llvmpipe waits for a texture's drawing before it is sampled, inside the draw call
+        # and holding the GIL; waited for here instead, without it (as the two below)
+        self._finish()
+
+    def _draw_ground(self, vp_rect, vp):
+        """2. The ground (with the mask) over the background, single-sampled into the image."""
+        mgl, ctx = self.mgl, self.ctx
+        self.image.use()
+        self.image.viewport = vp_rect
+        ctx.enable(mgl.BLEND)
+        ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA
+        self.mask_tex.use(0)
+        self.ground["vp"].write(vp)
+        self.ground_vao.render()
+
+    def _key_ring(self, frame: int):
+        """The KEY ring of a key frame: (first vertex, count, corners) in the rings' buffer,
+        or (None, count, corners, triangles) for a key frame set_stage was not told of."""
+        ring = self.rings.get(int(frame))
+        if ring is None:  # a key frame set_stage was not told of
+            data = self._ring(int(frame))
+            ring = (None, len(data), data[:, :3], data)
+        return ring
+
+    def _draw_overlays(self, frame: int, vp, ring):
+        """The trajectories (past and future), the key markers and this key frame's ring."""
+        self.flat["vp"].write(vp)
+        self.flat["current"].value = float(frame)
+        if self.path_vao is not None:
+            self.flat["color_past"].value = (1.0, 0.78, 0.25, 0.95)
+            self.flat["color_future"].value = (0.85, 0.85, 0.9, 0.35)
+            self.path_vao.render()
+        if self.keymark_vao is not None:
+            self.flat["color_past"].value = (1.0, 0.45, 0.15, 1.0)
+            self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
+            self.keymark_vao.render()
+        if ring is not None:
+            self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
+            if ring[0] is None:
+                self._flat_vao(ring[3]).render()
+                self._release_last(2)
+            else:
+                self.ring_vao.render(first=ring[0], vertices=ring[1])
+
+    def _draw_characters(self, vp, eye, ms: MeshSet, color, ghosts: MeshSet | None):
+        """The characters, depth-tested, then the key ghosts blended over them."""
+        mgl, ctx = self.mgl, self.ctx
+        ctx.enable(mgl.DEPTH_TEST)
+        ctx.disable(mgl.BLEND)
+        m = self.mesh
+        m["vp"].write(vp)
+        m["eye"].value = tuple(float(v) for v in eye)
+        m["base"].value = color
+        m["alpha"].value = 1.0
+        ms.draw(m)
+        if ghosts is not None:
+            ctx.enable(mgl.BLEND)
+            self.msaa.depth_mask = False
+            m["base"].value = GHOST
+            m["alpha"].value = 0.15
+            for i in range(ghosts.n_frames):
+                ghosts.upload(i)
+                ghosts.draw(m)
+            self.msaa.depth_mask = True
+
+    def _composite(self, rect):
+        """4. The rectangle ``rect`` of the MSAA layer resolved and laid over the background."""
+        mgl, ctx = self.mgl, self.ctx
+        self._finish()
+        ctx.disable(mgl.DEPTH_TEST)
+        ctx.enable(mgl.BLEND)
+        ctx.blend_func = mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
+        self.image.use()
+        self.image.scissor = rect
+        self.layer.use(1)
+        self.composite["layer"].value = 1
+        self.composite["samples"].value = self.samples
+        self.composite_vao.render(mgl.TRIANGLES, vertices=3)
+        self.image.scissor = None
 
     def _release_last(self, n):
         for o in self._owned[-n:][::-1]:

@@ -9,6 +9,7 @@ import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -203,6 +204,142 @@ def _materialise(g: Geometry) -> Geometry:
     return Geometry.from_arrays(g.tris, pts, nrm)
 
 
+def _ghost_geometry(shot: Shot) -> list[Geometry] | None:
+    """The key poses drawn as ghosts: at most MAX_GHOSTS of the keys in the shot's range,
+    spread over them; None when there are none."""
+    if not len(shot.key_times):
+        return None
+    kt = shot.key_times[(shot.key_times >= shot.times[0] - 1e-6) & (shot.key_times <= shot.times[-1] + 1e-6)]
+    if not len(kt):
+        return None
+    kt = kt[np.unique(np.linspace(0, len(kt) - 1, min(MAX_GHOSTS, len(kt))).round().astype(int))]
+    # few frames, drawn every frame: materialise them once
+    return [_materialise(g) for g in evaluate(shot, kt)[0]]
+
+
+def _frame_finisher(
+    plan: Plan, movie: Movie, tmp: Path, stem: str, exr: bool, write_frames: bool, thumbs, frames
+):
+    """What the writer thread does with each rendered frame, in frame order: burn-in, MP4,
+    thumbnail (into ``thumbs``), numbered frame (its name into ``frames``)."""
+    shot, burn = plan.shot, plan.burn
+    w = plan.size[0]
+    T = len(shot.times)
+    is_key = shot.is_key()
+    n_thumbs = min(CONTACT_FRAMES, T)
+    thumb_at = set(np.linspace(0, T - 1, n_thumbs).round().astype(int).tolist())
+    ext = "exr" if exr else "png"
+    colorspace = "lin_rec709" if exr else "sRGB"
+    tcs = shot.timecodes()
+
+    def finish_frame(i: int, img: np.ndarray, save) -> None:
+        """On the writer thread, in frame order: burn-in, MP4, thumbnail, numbered frame."""
+        fno = int(shot.frames[i])
+        burn.apply(img, fno, bool(is_key[i]), tcs[i])  # RGBA: the whole-pixel path
+        movie.add(img)
+        if i in thumb_at:
+            thumbs.append((thumbnail(img, max(1, w // 480)), f"{fno}" + (" KEY" if is_key[i] else ""),
+                           bool(is_key[i])))  # fmt: skip
+        if write_frames:
+            name = f"{stem}.{fno:04d}.{ext}"
+            meta = frame_metadata(shot.name, shot.take, shot.facts, fno, colorspace)
+            if exr:
+                save(write_frame, str(tmp / name), np.ascontiguousarray(img[..., :3]), meta, True)
+            else:  # the rows copied out of the recycled buffer here, deflated on a frame thread
+                save(write_png, str(tmp / name), png_rows(img), meta)
+            frames.append(name)
+
+    return finish_frame
+
+
+def _render_frames(
+    plan: Plan, renderer: Renderer, sets, ghost_set, tmp: Path, stem: str, side_by_side: bool, exr: bool,
+    write_frames: bool, progress: bool,
+) -> tuple[list, list[str]]:  # fmt: skip
+    """Renders every frame of the shot into ``tmp``: the MP4 (encoded as the frames come) and,
+    with ``write_frames``, the numbered frames. Returns the contact sheet's thumbnails and the
+    numbered frames' file names."""
+    shot, cam = plan.shot, plan.camera
+    w, h = plan.size
+    is_key = shot.is_key()
+    colors = [BLOCKING_CLAY, CLAY] if side_by_side else [CLAY]
+    rate = shot.timing.rate if shot.timing is not None else shot.fps
+    movie = Movie(
+        str(tmp / f"{stem}.mp4"),
+        (w, h),
+        rate,
+        comment=f"{shot.name} {shot.take or ''} {_summary(shot.facts)}",
+    )
+    try:
+        thumbs, frames = [], []
+        it = range(len(shot.times))
+        if progress:
+            it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
+        finish_frame = _frame_finisher(plan, movie, tmp, stem, exr, write_frames, thumbs, frames)
+        writer = FrameWriter((h, w, 4), finish_frame, frame_threads=FRAME_THREADS if write_frames else 0)
+        try:
+            for i in it:
+                buf = writer.buffer()
+                renderer.render(
+                    i, [cam] * len(plan.panels), sets, colors, bool(is_key[i]), ghost_set, out=buf
+                )
+                writer.put(i, buf)
+        except BaseException:
+            writer.abort()
+            raise
+        writer.close()
+        movie.close()
+    except BaseException:
+        movie.abort()
+        raise
+    return thumbs, frames
+
+
+@contextmanager
+def _scratch(out: Path, job: str):
+    """A scratch folder in ``out`` (made if missing) for a review's media, removed when done;
+    on failure ``out`` too is removed if this made it."""
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    clean_dead_temps(out, quiet=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _write_sheet_and_timeline(
+    plan: Plan, stage_path: str, out: Path, tmp: Path, stem: str, thumbs, key_idx, side_by_side: bool,
+    exr: bool, write_frames: bool,
+) -> Path:  # fmt: skip
+    """Writes the contact sheet and this take's track of the shot's timeline in ``tmp``, then
+    moves every medium of ``tmp`` into ``out`` under the folder's lock. Returns the timeline."""
+    shot, cam = plan.shot, plan.camera
+    ext = "exr" if exr else "png"
+    rate = shot.timing.rate if shot.timing is not None else shot.fps
+    title = f"{shot.name}  {shot.take or ''}  {shot.facts.get('model', 'no model')}  {len(shot.times)} frames @ {shot.fps:g} fps"
+    contact_sheet(thumbs, str(tmp / f"{stem}_contact.png"), title)
+    timeline = out / f"{shot.name.replace(' ', '_')}.otio"
+    track = take_track(
+        f"{stem}.mp4", rate, shot.frames, [int(shot.frames[i]) for i in key_idx], shot.take, shot.facts,
+        {"shot": shot.name, "stage": str(stage_path), "contact_sheet": f"{stem}_contact.png",
+         "frames": f"{stem}.####.{ext}" if write_frames else None, "camera": cam.mode,
+         "framing": plan.framing, "side_by_side": bool(side_by_side)},
+    )  # fmt: skip
+    with folder_lock(out):
+        update_timeline(timeline, tmp / timeline.name, shot.name, track, shot.facts,
+                        keep=lambda url: bool(url) and (out / url).exists())  # fmt: skip
+        for f in tmp.iterdir():
+            f.replace(out / f.name)
+    return timeline
+
+
 def render_review(
     stage_path: str,
     out_dir: str,
@@ -235,109 +372,34 @@ def render_review(
     into place; the scratch of a writer that died on this host is removed first, and a farm
     worker that takes a job over removes the job's own (``workers.cleanup.clean_scratch``).
     """
+    # Long because of its 14 options and the docstring of what it returns; the body is the
+    # stages in order (plan, ghosts, render the frames, sheet and timeline, result).
     t0 = time.perf_counter()
     plan = plan_review(stage_path, take, size, side_by_side, camera, turns, frame_range, framing)
-    shot, panels, roots, lo, hi, cam, burn = (
-        plan.shot, plan.panels, plan.roots, plan.lo, plan.hi, plan.camera, plan.burn
-    )  # fmt: skip
+    shot = plan.shot
     w, h = plan.size
     T = len(shot.times)
-    is_key = shot.is_key()
-    key_idx = np.nonzero(is_key)[0]
-    ghost_geoms = None
-    if ghosts and len(shot.key_times):
-        kt = shot.key_times[
-            (shot.key_times >= shot.times[0] - 1e-6) & (shot.key_times <= shot.times[-1] + 1e-6)
-        ]
-        if len(kt):
-            kt = kt[np.unique(np.linspace(0, len(kt) - 1, min(MAX_GHOSTS, len(kt))).round().astype(int))]
-            # few frames, drawn every frame: materialise them once
-            ghost_geoms = [_materialise(g) for g in evaluate(shot, kt)[0]]
+    key_idx = np.nonzero(shot.is_key())[0]
+    ghost_geoms = _ghost_geometry(shot) if ghosts else None
     t_scene = time.perf_counter() - t0
 
     out = Path(out_dir)
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
     stem = shot.name.replace(" ", "_") + (f"_{shot.take}" if shot.take else "")
-    clean_dead_temps(out, quiet=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
-    renderer = movie = None
-    try:
-        renderer = Renderer((w, h), panels=len(panels))
-        renderer.set_stage(lo, hi, float(lo[1]), roots, key_idx)
-        sets = [renderer.mesh_set(g) for g in panels]
-        colors = [BLOCKING_CLAY, CLAY] if side_by_side else [CLAY]
-        ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
-        rate = shot.timing.rate if shot.timing is not None else shot.fps
-        movie = Movie(
-            str(tmp / f"{stem}.mp4"),
-            (w, h),
-            rate,
-            comment=f"{shot.name} {shot.take or ''} {_summary(shot.facts)}",
-        )
-        n_thumbs = min(CONTACT_FRAMES, T)
-        thumb_at = set(np.linspace(0, T - 1, n_thumbs).round().astype(int).tolist())
-        thumbs, frames = [], []
-        ext = "exr" if exr else "png"
-        colorspace = "lin_rec709" if exr else "sRGB"
-        it = range(T)
-        if progress:
-            it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
-        tcs = shot.timecodes()
-
-        def finish_frame(i: int, img: np.ndarray, save) -> None:
-            """On the writer thread, in frame order: burn-in, MP4, thumbnail, numbered frame."""
-            fno = int(shot.frames[i])
-            burn.apply(img, fno, bool(is_key[i]), tcs[i])  # RGBA: the whole-pixel path
-            movie.add(img)
-            if i in thumb_at:
-                thumbs.append((thumbnail(img, max(1, w // 480)), f"{fno}" + (" KEY" if is_key[i] else ""),
-                               bool(is_key[i])))  # fmt: skip
-            if write_frames:
-                name = f"{stem}.{fno:04d}.{ext}"
-                meta = frame_metadata(shot.name, shot.take, shot.facts, fno, colorspace)
-                if exr:
-                    save(write_frame, str(tmp / name), np.ascontiguousarray(img[..., :3]), meta, True)
-                else:  # the rows copied out of the recycled buffer here, deflated on a frame thread
-                    save(write_png, str(tmp / name), png_rows(img), meta)
-                frames.append(name)
-
-        writer = FrameWriter((h, w, 4), finish_frame, frame_threads=FRAME_THREADS if write_frames else 0)
+    with _scratch(out, job) as tmp:
+        renderer = Renderer((w, h), panels=len(plan.panels))
+        sets = []
         try:
-            for i in it:
-                buf = writer.buffer()
-                renderer.render(i, [cam] * len(panels), sets, colors, bool(is_key[i]), ghost_set, out=buf)
-                writer.put(i, buf)
-        except BaseException:
-            writer.abort()
-            raise
-        writer.close()
-        movie.close()
-        title = f"{shot.name}  {shot.take or ''}  {shot.facts.get('model', 'no model')}  {T} frames @ {shot.fps:g} fps"
-        contact_sheet(thumbs, str(tmp / f"{stem}_contact.png"), title)
-        timeline = out / f"{shot.name.replace(' ', '_')}.otio"
-        track = take_track(
-            f"{stem}.mp4", rate, shot.frames, [int(shot.frames[i]) for i in key_idx], shot.take, shot.facts,
-            {"shot": shot.name, "stage": str(stage_path), "contact_sheet": f"{stem}_contact.png",
-             "frames": f"{stem}.####.{ext}" if write_frames else None, "camera": cam.mode,
-             "framing": plan.framing, "side_by_side": bool(side_by_side)},
-        )  # fmt: skip
-        with folder_lock(out):
-            update_timeline(timeline, tmp / timeline.name, shot.name, track, shot.facts,
-                            keep=lambda url: bool(url) and (out / url).exists())  # fmt: skip
-            for f in tmp.iterdir():
-                f.replace(out / f.name)
-    except BaseException:
-        if movie is not None:
-            movie.abort()
-        shutil.rmtree(tmp, ignore_errors=True)
-        if created:
-            shutil.rmtree(out, ignore_errors=True)
-        raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if renderer is not None:
-            for s in locals().get("sets", []) or []:
+            renderer.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, key_idx)
+            sets = [renderer.mesh_set(g) for g in plan.panels]
+            ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
+            thumbs, frames = _render_frames(
+                plan, renderer, sets, ghost_set, tmp, stem, side_by_side, exr, write_frames, progress
+            )
+            timeline = _write_sheet_and_timeline(
+                plan, stage_path, out, tmp, stem, thumbs, key_idx, side_by_side, exr, write_frames
+            )
+        finally:
+            for s in sets:
                 s.release()
             renderer.release()
     total = time.perf_counter() - t0
@@ -353,7 +415,7 @@ def render_review(
         "size": (w, h),
         "take": shot.take,
         "model": shot.facts.get("model"),  # what filled it (None: no fill in the stage)
-        "camera": cam.mode,
+        "camera": plan.camera.mode,
         "framing": plan.framing,
         "timings": {"scene_s": round(t_scene, 3), "total_s": round(total, 3), "fps": round(T / total, 1)},
     }

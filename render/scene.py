@@ -298,14 +298,9 @@ def _body(query, samples, metres: float, n: int = 64) -> int:
     return body_joint(pos * metres, parents, names)
 
 
-def open_shot(
-    stage_path: str,
-    take: int | None = None,
-    frame_range: tuple[float, float] | None = None,
-    name: str | None = None,
-) -> Shot:
-    """Opens ``stage_path`` (never writing to it), selects the take and finds the animated skeletons."""
-    from pxr import Usd, UsdGeom
+def _open_stage(stage_path: str):
+    """The USD stage of ``stage_path``, every payload loaded, or a ShotError saying why not."""
+    from pxr import Usd
 
     if not Path(stage_path).exists():
         raise ShotError(stage_path, "no such file")
@@ -316,8 +311,12 @@ def open_shot(
         raise ShotError(stage_path, f"cannot open as USD ({reason})") from None
     if stage is None:
         raise ShotError(stage_path, "cannot open as USD")
-    take_name = _select_take(stage, stage_path, take)
-    world = _stage_to_metres_yup(stage)
+    return stage
+
+
+def _characters_and_props(stage, stage_path: str, world) -> tuple[list[Character], list]:
+    """The animated characters of ``stage``, and the unskinned meshes beside them (props)."""
+    from pxr import Usd, UsdGeom
 
     from pipeline.usd.read import bound_skeletons  # pxr (and the TweenAPI plugin)
 
@@ -342,12 +341,12 @@ def open_shot(
             if m.IsA(UsdGeom.Mesh) and str(m.GetPath()) not in skinned
             and UsdGeom.Imageable(m).ComputeVisibility() != UsdGeom.Tokens.invisible
         )  # fmt: skip
-    if not chars:
-        raise ShotError(
-            stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"
-        )
+    return chars, props
 
-    timing = shot_timing(stage)
+
+def _time_range(stage, stage_path: str, chars: list[Character], frame_range) -> tuple[float, float]:
+    """The time codes to render: the stage's authored range, else its animations' samples,
+    within ``frame_range`` if given."""
     if stage.HasAuthoredTimeCodeRange():
         start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     else:
@@ -357,7 +356,27 @@ def open_shot(
         start, end = max(start, frame_range[0]), min(end, frame_range[1])
         if end < start:
             raise ShotError(stage_path, f"frame range {frame_range} is outside the shot")
-    times, frames = frame_times(start, end, timing)
+    return start, end
+
+
+def open_shot(
+    stage_path: str,
+    take: int | None = None,
+    frame_range: tuple[float, float] | None = None,
+    name: str | None = None,
+) -> Shot:
+    """Opens ``stage_path`` (never writing to it), selects the take and finds the animated skeletons."""
+    stage = _open_stage(stage_path)
+    take_name = _select_take(stage, stage_path, take)
+    world = _stage_to_metres_yup(stage)
+    chars, props = _characters_and_props(stage, stage_path, world)
+    if not chars:
+        raise ShotError(
+            stage_path, "no animated skeleton (SkelRoot > Skeleton with a SkelAnimation) to render"
+        )
+
+    timing = shot_timing(stage)
+    times, frames = frame_times(*_time_range(stage, stage_path, chars, frame_range), timing)
 
     key_times = np.unique(np.concatenate([c.key_times for c in chars]))
     facts: dict = {}
