@@ -72,6 +72,70 @@ def _skipped(line: str) -> None:
     print(f"tween: skipped take: {line}", file=sys.stderr)
 
 
+def _check_out(out: Path, add: bool) -> None:
+    """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it)."""
+    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
+        what = "a library" if is_library(out) else "not empty"
+        raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
+    if add and out.exists() and not is_library(out) and any(out.iterdir()):
+        raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
+
+
+def _start_manifest(out: Path, add: bool, licence: str | None, name: str | None) -> dict:
+    """The manifest the takes are added to: the library's at ``out`` (with ``add``), else a
+    new one."""
+    skel = bandai_skeleton()
+    if add and is_library(out):
+        manifest = dict(open_library(out).manifest)
+        if licence and manifest.get("licence") and licence != manifest["licence"]:
+            print(f"tween: {out}: new takes under licence {licence!r}; the library says {manifest['licence']!r}",
+                  file=sys.stderr)  # fmt: skip
+        return manifest
+    return empty_manifest(name or out.resolve().name, licence, skel.names, FPS)
+
+
+def _read_take(path: Path):
+    """The take at ``path``: (its motion, its rig's name, its arrays); raises what a bad
+    take raises."""
+    from pipeline.usd.take import studio_take
+
+    motion = studio_take(path)
+    if len(motion) < 2:
+        raise TweenError(f"{path}: fewer than two frames")
+    return motion, _rig_of(path), take_arrays(motion)
+
+
+def _add_takes(writer: Writer, bar, n: int, manifest: dict, licence, mirror: bool, on_progress):
+    """Reads each take of ``bar`` (``n`` of them) into ``writer``; a take that cannot be read
+    is skipped. Returns (how many were added, the failed ones, the failure lines not yet said)."""
+    failed, added, held = [], 0, []
+    for done, path in enumerate(bar):
+        if on_progress is not None:
+            on_progress(done, n, path.name)
+        try:
+            motion, rig, arrays = _read_take(path)
+        except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
+            msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+            line = msg if str(path) in msg else f"{path}: {msg}"
+            failed.append({"file": str(path), "why": msg})
+            # Said once a take has been read: until then a folder of nothing readable is
+            # refused in one line that names its first bad take.
+            held.append(line) if not (added or manifest["takes"]) else _skipped(line)
+            continue
+        entry = {"name": path.name, "file": str(path.resolve()), "rig": rig}
+        if licence:
+            entry["licence"] = licence
+        writer.add(entry, arrays)
+        if mirror:  # the same motion with the other hand and foot leading
+            writer.add(entry | {"name": f"{path.name} (mirrored)", "mirrored": True},
+                       take_arrays(mirrored(motion)))  # fmt: skip
+        added += 1
+        for line in held:
+            _skipped(line)
+        held.clear()
+    return added, failed, held
+
+
 def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
           add: bool = False, files=None, progress: bool = True, mirror: bool = False,
           on_progress=None) -> dict:  # fmt: skip
@@ -79,23 +143,12 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     returns {"library", "added", "skipped", "failed", "frames", "hours", "hash"}. Without
     ``add`` an existing library at ``out`` is refused (build into a new folder, or add).
     ``on_progress(done, total, name)`` is called after each take (the farm's progress)."""
-    from pipeline.usd.take import studio_take, take_files
+    from pipeline.usd.take import take_files
 
     out = Path(out)
-    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
-        what = "a library" if is_library(out) else "not empty"
-        raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
-    if add and out.exists() and not is_library(out) and any(out.iterdir()):
-        raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
+    _check_out(out, add)
     paths = [Path(p) for p in files] if files is not None else take_files(folder, include)
-    skel = bandai_skeleton()
-    if add and is_library(out):
-        manifest = dict(open_library(out).manifest)
-        if licence and manifest.get("licence") and licence != manifest["licence"]:
-            print(f"tween: {out}: new takes under licence {licence!r}; the library says {manifest['licence']!r}",
-                  file=sys.stderr)  # fmt: skip
-    else:
-        manifest = empty_manifest(name or out.resolve().name, licence, skel.names, FPS)
+    manifest = _start_manifest(out, add, licence, name)
     have = {t["file"] for t in manifest["takes"]}
     todo = []
     for p in paths:  # each file once (a take linked twice is one take)
@@ -106,38 +159,10 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     # an empty one the user gave.
     created, was_empty = not out.exists(), out.is_dir() and not any(out.iterdir())
     writer = Writer(out, manifest)
-    failed, added, held = [], 0, []
     bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
                disable=not progress or None, mininterval=2.0, delay=1.0)  # fmt: skip
     try:
-        for done, path in enumerate(bar):
-            if on_progress is not None:
-                on_progress(done, len(todo), path.name)
-            try:
-                motion = studio_take(path)
-                if len(motion) < 2:
-                    raise TweenError(f"{path}: fewer than two frames")
-                rig = _rig_of(path)
-                arrays = take_arrays(motion)
-            except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
-                msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-                line = msg if str(path) in msg else f"{path}: {msg}"
-                failed.append({"file": str(path), "why": msg})
-                # Said once a take has been read: until then a folder of nothing readable is
-                # refused in one line that names its first bad take.
-                held.append(line) if not (added or manifest["takes"]) else _skipped(line)
-                continue
-            entry = {"name": path.name, "file": str(path.resolve()), "rig": rig}
-            if licence:
-                entry["licence"] = licence
-            writer.add(entry, arrays)
-            if mirror:  # the same motion with the other hand and foot leading
-                writer.add(entry | {"name": f"{path.name} (mirrored)", "mirrored": True},
-                           take_arrays(mirrored(motion)))  # fmt: skip
-            added += 1
-            for line in held:
-                _skipped(line)
-            held.clear()
+        added, failed, held = _add_takes(writer, bar, len(todo), manifest, licence, mirror, on_progress)
         if not manifest["takes"] and failed:
             raise LibraryError(
                 f"{folder if files is None else out}: no take could be read ({len(failed)} failed; "

@@ -131,17 +131,7 @@ class LibraryInbetweener:
             at = {i: c for c, i in enumerate(idx)}
             d = match.key_distances(self.library, feats[idx])
             for g in block:
-                n = int(keys[g + 1] - keys[g])
-                step = k_root[g + 1] - k_root[g]
-                travel = match.batch_quat_apply(faces[g], step)[[0, 2]]
-                turn = float(match.wrap_angle(match.yaw_of(faces[g]) - match.yaw_of(faces[g + 1])))
-                context = [
-                    (d[at[i]], int(keys[i] - keys[g]))
-                    for i in (g - 1, g + 2)
-                    if i in at
-                    and abs(int(keys[i]) - int(keys[g if i < g else g + 1])) <= match.CONTEXT_FRAMES
-                ]
-                m = match.search(self.library, d[at[g]], d[at[g + 1]], n, travel, turn, self.best, context)
+                m = self._search(keys, g, d, at, k_root, faces)
                 if m is None:
                     gaps.append(self._row(keys, g, None, 0.0, "no take of the library is that long"))
                     continue
@@ -151,19 +141,7 @@ class LibraryInbetweener:
                 )
                 if w <= 0.0:
                     continue
-                fits = [match.fit_window(self.library, int(s), n, k_rot[g : g + 2], k_root[g : g + 2], faces[g])
-                        for s in m.starts]  # fmt: skip
-                q, p = match.average([f[0] for f in fits], [f[1] for f in fits], m.weights)
-                lo, hi = int(keys[g]), int(keys[g + 1])
-                inner = slice(lo + 1, hi)
-                if w >= 1.0:
-                    rot[inner], root[inner] = q[1:-1], p[1:-1]
-                else:
-                    rot[inner] = slerp_pairs(rot[inner], q[1:-1], np.full(q[1:-1].shape[:-1], w))
-                    root[inner] += w * (p[1:-1] - root[inner])
-                c = sum(wt * np.asarray(self.library.contacts[s : s + n + 1], np.float64)
-                        for s, wt in zip(m.starts, m.weights, strict=True))  # fmt: skip
-                contacts[lo : hi + 1] = np.maximum(contacts[lo : hi + 1], w * c)
+                self._blend(rot, root, contacts, keys, g, m, w, k_rot, k_root, faces)
         self.last_gaps = sorted(gaps, key=lambda r: r["frames"][0])
         out_rot = rot.astype(np.float32)
         if self.feet and contacts.any():
@@ -172,6 +150,38 @@ class LibraryInbetweener:
         out_root = root.astype(np.float32)
         out_rot[keys], out_root[keys] = rotations[keys], roots[keys]
         return out_rot, out_root
+
+    def _search(self, keys, g: int, d, at: dict, k_root, faces):
+        """The library's best match for gap ``g`` (its keys' distances ``d[at[g]]`` and
+        ``d[at[g + 1]]``, the travel and turn between them, the keys around it), or None."""
+        n = int(keys[g + 1] - keys[g])
+        step = k_root[g + 1] - k_root[g]
+        travel = match.batch_quat_apply(faces[g], step)[[0, 2]]
+        turn = float(match.wrap_angle(match.yaw_of(faces[g]) - match.yaw_of(faces[g + 1])))
+        context = [
+            (d[at[i]], int(keys[i] - keys[g]))
+            for i in (g - 1, g + 2)
+            if i in at and abs(int(keys[i]) - int(keys[g if i < g else g + 1])) <= match.CONTEXT_FRAMES
+        ]
+        return match.search(self.library, d[at[g]], d[at[g + 1]], n, travel, turn, self.best, context)
+
+    def _blend(self, rot, root, contacts, keys, g: int, m, w: float, k_rot, k_root, faces) -> None:
+        """Gap ``g``: the match ``m``'s windows fitted to its keys, averaged and blended over
+        the spline at weight ``w``, and their foot contacts, in place."""
+        n = int(keys[g + 1] - keys[g])
+        fits = [match.fit_window(self.library, int(s), n, k_rot[g : g + 2], k_root[g : g + 2], faces[g])
+                for s in m.starts]  # fmt: skip
+        q, p = match.average([f[0] for f in fits], [f[1] for f in fits], m.weights)
+        lo, hi = int(keys[g]), int(keys[g + 1])
+        inner = slice(lo + 1, hi)
+        if w >= 1.0:
+            rot[inner], root[inner] = q[1:-1], p[1:-1]
+        else:
+            rot[inner] = slerp_pairs(rot[inner], q[1:-1], np.full(q[1:-1].shape[:-1], w))
+            root[inner] += w * (p[1:-1] - root[inner])
+        c = sum(wt * np.asarray(self.library.contacts[s : s + n + 1], np.float64)
+                for s, wt in zip(m.starts, m.weights, strict=True))  # fmt: skip
+        contacts[lo : hi + 1] = np.maximum(contacts[lo : hi + 1], w * c)
 
     def _row(self, keys, g: int, m, weight: float, why: str) -> dict:
         row = {"frames": [int(keys[g]), int(keys[g + 1])], "weight": round(weight, 4)}

@@ -74,6 +74,8 @@ def _open_text(path: Path) -> list[str]:
 
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]:
     """Returns the joints and the index of the line after ``MOTION``."""
+    # Long because it reads the hierarchy line by line, one branch per keyword, each with the
+    # checks that name the line at fault: one state machine, read top to bottom.
     joints: list[BvhJoint] = []
     stack: list[int] = []  # joint index per open brace; -2 marks an End Site block
     pending: tuple[str, int] | None = None  # (name, parent) of a JOINT/ROOT awaiting '{'
@@ -226,6 +228,61 @@ def _is_float(v: str) -> bool:
         return False
 
 
+def _joint_transforms(joints: list[BvhJoint], data: np.ndarray, rule: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's local translation (T, J, 3) and rotation (T, J, 4) from its channels."""
+    T, J = data.shape[0], len(joints)
+    trans = np.empty((T, J, 3))
+    rots = np.empty((T, J, 4))
+    col = 0
+    for j, jt in enumerate(joints):
+        ch = jt.channels
+        block = data[:, col : col + len(ch)]
+        col += len(ch)
+        trans[:, j] = jt.offset
+        for a, axis in enumerate("XYZ"):
+            if axis + "position" in ch:
+                p = block[:, ch.index(axis + "position")]
+                trans[:, j, a] = p + jt.offset[a] if (j == 0 and rule == "add") else p
+        rot_ch = [c for c in ch if c.endswith("rotation")]
+        if rot_ch:  # one to three axes, composed in channel order
+            order = "".join(c[0] for c in rot_ch)
+            rots[:, j] = euler_to_quat(block[:, [ch.index(c) for c in rot_ch]], order)
+        else:
+            rots[:, j] = (0, 0, 0, 1)
+    return trans, rots
+
+
+def _container_root(joints: list[BvhJoint], parents: list[int]) -> bool:
+    """Whether the root is a container, not a joint of the character: a root with a single
+    child that either carries position channels of its own (Bandai's joint_Root above Hips)
+    or whose name says it is one (iClone's RL_BoneRoot, Maya's *_Root). A real root with
+    one child (Hips -> Spine) is kept."""
+    container = len(joints) > 1 and sum(1 for p in parents if p == 0) == 1 and parents[1] == 0
+    return container and (
+        any(c.endswith("position") for c in joints[1].channels) or "root" in joints[0].name.lower()
+    )
+
+
+def _rest_offsets(path: Path, joints: list[BvhJoint], trans: np.ndarray) -> np.ndarray:
+    """Each joint's bone (J, 3) float32, the root's its first-frame height."""
+    offsets = np.array([jt.offset for jt in joints], np.float64)
+    # Position channels below the root replace the OFFSET: their first frame is the bone
+    # (exporters that write 6 channels everywhere may leave OFFSET at zero). A joint's
+    # translation that changes over the clip is not kept: bones are rigid here. Values
+    # within 1e-4 of the OFFSET keep the OFFSET (Bandai writes the same numbers twice).
+    for j, jt in enumerate(joints):
+        if j and any(c.endswith("position") for c in jt.channels):
+            if np.abs(trans[0, j] - offsets[j]).max() > 1e-4:
+                offsets[j] = trans[0, j]
+    offsets = offsets.astype(np.float32)
+    # The root's rest position: its first-frame height above the origin (its OFFSET may be
+    # meaningless, as in Bandai); every other joint keeps its bone from above.
+    offsets[0] = (0.0, trans[0, 0, 1], 0.0)
+    if not (np.isfinite(offsets).all() and (np.abs(trans[:, 0]) < np.finfo(np.float32).max).all()):
+        raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
+    return offsets
+
+
 def read_bvh(
     path: str | Path,
     root_position: str | None = None,
@@ -246,38 +303,11 @@ def read_bvh(
     joints, i = _parse_hierarchy(path, lines)
     n_channels = sum(len(j.channels) for j in joints)
     data, fps, _ = _parse_motion(path, lines, i, n_channels)
-    T, J = data.shape[0], len(joints)
-
-    trans = np.empty((T, J, 3))
-    rots = np.empty((T, J, 4))
-    col = 0
-    for j, jt in enumerate(joints):
-        ch = jt.channels
-        block = data[:, col : col + len(ch)]
-        col += len(ch)
-        trans[:, j] = jt.offset
-        for a, axis in enumerate("XYZ"):
-            if axis + "position" in ch:
-                p = block[:, ch.index(axis + "position")]
-                trans[:, j, a] = p + jt.offset[a] if (j == 0 and rule == "add") else p
-        rot_ch = [c for c in ch if c.endswith("rotation")]
-        if rot_ch:  # one to three axes, composed in channel order
-            order = "".join(c[0] for c in rot_ch)
-            rots[:, j] = euler_to_quat(block[:, [ch.index(c) for c in rot_ch]], order)
-        else:
-            rots[:, j] = (0, 0, 0, 1)
+    trans, rots = _joint_transforms(joints, data, rule)
 
     names = [jt.name for jt in joints]
     parents = [jt.parent for jt in joints]
-    # A container root is not a joint of the character: a root with a single child that
-    # either carries position channels of its own (Bandai's joint_Root above Hips) or whose
-    # name says it is one (iClone's RL_BoneRoot, Maya's *_Root). A real root with one child
-    # (Hips -> Spine) is kept.
-    container = J > 1 and sum(1 for p in parents if p == 0) == 1 and parents[1] == 0
-    container = container and (
-        any(c.endswith("position") for c in joints[1].channels) or "root" in joints[0].name.lower()
-    )
-    if fold_root and container:
+    if fold_root and _container_root(joints, parents):
         # Compose the root's transform into its only child (index 1 in file order).
         r0, t0 = rots[:, 0], trans[:, 0]
         trans[:, 1] = t0 + quat_apply(r0, trans[:, 1])
@@ -288,21 +318,7 @@ def read_bvh(
         parents = [max(p - 1, -1) for p in parents[1:]]
         parents[0] = -1
 
-    offsets = np.array([jt.offset for jt in joints], np.float64)
-    # Position channels below the root replace the OFFSET: their first frame is the bone
-    # (exporters that write 6 channels everywhere may leave OFFSET at zero). A joint's
-    # translation that changes over the clip is not kept: bones are rigid here. Values
-    # within 1e-4 of the OFFSET keep the OFFSET (Bandai writes the same numbers twice).
-    for j, jt in enumerate(joints):
-        if j and any(c.endswith("position") for c in jt.channels):
-            if np.abs(trans[0, j] - offsets[j]).max() > 1e-4:
-                offsets[j] = trans[0, j]
-    offsets = offsets.astype(np.float32)
-    # The root's rest position: its first-frame height above the origin (its OFFSET may be
-    # meaningless, as in Bandai); every other joint keeps its bone from above.
-    offsets[0] = (0.0, trans[0, 0, 1], 0.0)
-    if not (np.isfinite(offsets).all() and (np.abs(trans[:, 0]) < np.finfo(np.float32).max).all()):
-        raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
+    offsets = _rest_offsets(path, joints, trans)
     end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
     skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
     name = path.name.removesuffix(".gz").removesuffix(".bvh")
