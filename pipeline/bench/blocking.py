@@ -104,19 +104,15 @@ def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
 
 
 def fill_blocked(model, spline, rots, roots, every: int):
-    """Shots keyed every ``every`` frames, filled three ways: (keys, free frames, the model's
-    fill, the spline's fill, the trust decisions, the model's weight per shot and frame, the
-    decided fill), each fill a (rotations, roots) pair. What :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot)."""
-    from pipeline.infer.api import fill_windows
-
+    """Shots keyed every ``every`` frames, filled three ways (infer.trust.trusted_fill_windows):
+    (keys, free frames, the model's fill, the spline's fill, the trust decisions, the model's
+    weight per shot and frame, the decided fill), each fill a (rotations, roots) pair. What
+    :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot)."""
     n = rots.shape[1]
     keys = np.r_[np.arange(0, n - 1, every), n - 1]
     free = np.setdiff1d(np.arange(n), keys)
-    m = fill_windows(model, rots, roots, keys, trust.BATCH, model.skeleton)
-    s = spline.fill_batch(rots, roots, keys)
-    decisions = trust.decide_batch(model, spline, rots, roots, keys)
-    w = np.stack([d.frame_weights(keys, n) for d in decisions])
-    return keys, free, m, s, decisions, w, trust.blend_arrays(w, *m, *s)
+    f = trust.trusted_fill_windows(model, spline, rots, roots, keys)
+    return keys, free, f.model, f.spline, f.decisions, f.weights, f.decided
 
 
 def evaluate(model, spline, rots, roots, every: int) -> dict:

@@ -2,10 +2,10 @@
 
 Every window is one shot, keyed at its 10 context frames and its target: the probes of
 :mod:`pipeline.infer.trust` see those keys only, and each window gets its own decision. The
-decided fill is :func:`~pipeline.infer.trust.trusted_fill`'s steps on the model skeleton
-(decide_batch, the network's and the spline's fills, blend_arrays), batched over windows that
-share their keys; the benches that fill shots (``pipeline.bench.studio``,
-``pipeline.bench.rig_variants``) go through the product's own fill, trusted_fill on the rig. On
+decided fill is :func:`~pipeline.infer.trust.trusted_fill_windows`: trusted_fill's steps on
+the model skeleton, batched over windows that share their keys; the benches that fill shots
+(``pipeline.bench.studio``, ``pipeline.bench.rig_variants``) go through the product's own
+fill, trusted_fill on the rig. On
 the protocol's eval windows and on every held-out source (``cmu``: other actors; ``posture30``:
 posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q per transition
 length of the four fills, the decided fill's ratio to the better of model and spline and to
@@ -76,7 +76,6 @@ def _shots(rots, roots, T: int):
 
 def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None) -> dict:
     """Per transition length: L2P / L2Q of each method, choices and seconds."""
-    from pipeline.infer.api import fill_windows
     from pipeline.infer.interp import interpolate_between
 
     out = {}
@@ -84,16 +83,9 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
     for T in transitions:
         sl = slice(CONTEXT, CONTEXT + T)
         rr, pp, keys = _shots(rots, roots, T)
-        t0 = time.perf_counter()
-        m_r, m_p = fill_windows(model, rr, pp, keys, trust.BATCH, model.skeleton)
-        t_model = time.perf_counter() - t0
-        s_r, s_p = spline.fill_batch(rr, pp, keys)
-        t0 = time.perf_counter()
-        decisions = trust.decide_batch(model, spline, rr, pp, keys, cache=cache)
-        t_probe = time.perf_counter() - t0
+        wf = trust.trusted_fill_windows(model, spline, rr, pp, keys, cache)
+        (m_r, m_p), (s_r, s_p), (d_r, d_p), decisions = wf.model, wf.spline, wf.decided, wf.decisions
         w = np.array([d.weight for d in decisions])
-        per_frame = np.stack([d.frame_weights(keys, rr.shape[1]) for d in decisions])
-        d_r, d_p = trust.blend_arrays(per_frame, m_r, m_p, s_r, s_p)
         i_r, i_p = interpolate_between(
             rots[:, CONTEXT - 1], rots[:, CONTEXT + T], roots[:, CONTEXT - 1], roots[:, CONTEXT + T], T
         )
@@ -112,7 +104,7 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
         res["choices"] = {c: choices.count(c) for c in trust.CHOICES}
         res["mean_weight"] = float(w.mean())
         res["probes"] = len(decisions[0].probes)
-        res["seconds"] = {"model_fill": t_model, "probes": t_probe}
+        res["seconds"] = wf.seconds
         if dump is not None:
             grid = []
             for g in GRID:

@@ -35,7 +35,8 @@ bitwise exact.
 :class:`TrustedInbetweener` wraps a model in the same ``fill`` interface and keeps
 ``last_decision`` (a JSON-ready :class:`TrustDecision`) for the fill layer to record;
 :func:`trusted_fill` is the one trusted fill (decide, cut, fill, blend), on the model skeleton
-or, from the fill layer, on the character's rig.
+or, from the fill layer, on the character's rig; :func:`trusted_fill_windows` its steps
+batched over the benchmark's windows.
 How the constants were chosen, and what they give on the benchmark: docs/trust.md.
 """
 
@@ -754,7 +755,8 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
     a Motion on the model skeleton, carried there), ``spline(spline)`` (the spline's fill
     there) and ``blend(decision, model, spline)`` (either may be None: the other is the
     fill); :class:`OnSkeleton` by default. The fill layer meets them on the character's own
-    rig (pipeline.fill.solve), where its spline is the animator's curves."""
+    rig (pipeline.fill.solve), where its spline is the animator's curves. The window benches
+    run the same steps batched (:func:`trusted_fill_windows`: bit for bit this, shot for shot)."""
     keys = np.asarray(keys, np.int64)
     full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]
     d = inb.decide(motion, full, cuts)
@@ -767,6 +769,39 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
     )
     s = meet.spline(inb.spline) if d.weight < 1.0 else None
     return meet.blend(d, m, s)
+
+
+@dataclass
+class WindowFills:
+    """:func:`trusted_fill_windows`' fills, each (rotations, roots) of the N shots: the
+    network's, the spline's and the decided one; the ``decisions``, the model's ``weights``
+    per shot and frame (N, T), and the ``seconds`` the network's fill and the probes took."""
+
+    model: tuple
+    spline: tuple
+    decided: tuple
+    decisions: list
+    weights: np.ndarray
+    seconds: dict
+
+
+def trusted_fill_windows(model, spline, rots, roots, keys, cache: dict | None = None) -> WindowFills:
+    """:func:`trusted_fill`'s steps for N shots sharing their ``keys`` on the model skeleton
+    (the benchmark's windows: no cuts, overrides or alternatives), each batched over the
+    shots: the network's fill, the spline's, one decision per shot (:func:`decide_batch`, one
+    model call a probe; ``cache`` as there) and the blend, gap by gap."""
+    import time
+
+    t0 = time.perf_counter()
+    m = fill_windows(model, rots, roots, keys, BATCH, model.skeleton)
+    t_model = time.perf_counter() - t0
+    s = spline.fill_batch(rots, roots, keys)
+    t0 = time.perf_counter()
+    decisions = decide_batch(model, spline, rots, roots, keys, cache=cache)
+    t_probes = time.perf_counter() - t0
+    w = np.stack([d.frame_weights(keys, np.shape(rots)[1]) for d in decisions])
+    seconds = {"model_fill": t_model, "probes": t_probes}
+    return WindowFills(m, s, blend_arrays(w, *m, *s), decisions, w, seconds)
 
 
 def trusted(inbetweener, trust: str = "auto", alternatives=()):

@@ -463,3 +463,22 @@ def test_no_network_window_and_no_probe_spans_a_cut(walk):
     few = trust.decide(StandIn("noise"), SplineInbetweener(SKEL), walk, np.r_[0, 10, 20], cuts=[(0, 10)])
     assert few.probes == [] and few.reason.startswith("no probe possible away from the cuts")
     assert few.cuts == [[0, 10]] and few.choice == "blend" and few.weight == 0.5
+
+
+def test_the_window_benches_decided_fill_is_the_trusted_fill_shot_for_shot(bandai_clip):
+    """trusted_fill_windows (the trust and blocking benches) gives, for each of a batch of
+    shots sharing their keys, bit for bit what trusted_fill gives that shot alone."""
+    model = OnnxInbetweener("models/default")
+    m = read_bvh(bandai_clip).continuous()
+    keys = np.r_[0, 15, 30, 31, 32, 45, 60]
+    shots = [Motion(SKEL, m.rotations[a : a + 61], m.root_positions[a : a + 61], 30.0) for a in (0, 80)]
+    offset = posture_offsets(shots[1].rotations[None], np.random.default_rng(0), 24.0, 1.0)[0]
+    shots[1] = replace(shots[1], rotations=offset)  # a pose 24° off the actors': a blend
+    rots = np.stack([s.rotations for s in shots])
+    roots = np.stack([s.root_positions for s in shots])
+    got = trust.trusted_fill_windows(model, SplineInbetweener(SKEL), rots, roots, keys)
+    assert {d.choice for d in got.decisions} == {"model", "blend"}
+    for i, shot in enumerate(shots):
+        one = trust.trusted_fill(trust.TrustedInbetweener(model, SplineInbetweener(SKEL)), shot, keys)
+        assert np.array_equal(got.decided[0][i], one.rotations)
+        assert np.array_equal(got.decided[1][i], one.root_positions)
