@@ -42,6 +42,7 @@ How the constants were chosen, and what they give on the benchmark: docs/trust.m
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -790,8 +791,6 @@ def trusted_fill_windows(model, spline, rots, roots, keys, cache: dict | None = 
     (the benchmark's windows: no cuts, overrides or alternatives), each batched over the
     shots: the network's fill, the spline's, one decision per shot (:func:`decide_batch`, one
     model call a probe; ``cache`` as there) and the blend, gap by gap."""
-    import time
-
     t0 = time.perf_counter()
     m = fill_windows(model, rots, roots, keys, BATCH, model.skeleton)
     t_model = time.perf_counter() - t0
