@@ -286,6 +286,14 @@ class Retarget:
         rot = quat_mul(np.broadcast_to(self.q_R, char.bind_rot.shape), char.bind_rot)
         pos = self.s * char.bind_pos @ self.R.T + self.t
         self.ratio = model_leg / leg_length(roles, pos)
+        self._choose_reference(rot, pos, poses)
+
+    def _choose_reference(self, rot: np.ndarray, pos: np.ndarray, poses) -> None:
+        """The character's pose that stands for the model's reference pose, from its rest
+        (bind) pose ``rot``, ``pos`` in the canonical frame: the model's own (the same rig),
+        the rest pose, the zero pose, or the first standing key of ``poses``
+        (``self.reference`` says which); a MappingError when none is a standing human."""
+        roles = self.roles
         if self.direct:
             self.reference = "model"
             self.src_ref = self.tgt_ref

@@ -16,79 +16,83 @@ from pipeline.rig.progress import JsonLinesWriter, ProgressBar
 from pipeline.staging import StagedFolder
 
 
+@with_train_rig_options
+def train_rig(
+    source: Path = typer.Argument(
+        ..., help="The reference clip: a USD shot or a BVH (.bvh/.bvh.gz), or an .npz from rig-extract."
+    ),
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        help="Model folder, written only when complete (training checkpoints in "
+        ".OUT.partial/checkpoints until then; re-running resumes).",
+    ),
+    checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
+    no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
+    progress_fd: int = typer.Option(
+        None,
+        "--progress-fd",
+        hidden=True,
+        help="Write progress records as JSON lines to this open file descriptor instead of a bar "
+        "on stderr (the farm's channel; pipeline.rig.progress).",
+    ),
+    opts: TrainRigOptions = None,
+):
+    """Train a per-rig GANimator on one clip, then export it (ONNX per level + rig.json + card)."""
+    from pipeline.rig.source import parse_frames
+    from pipeline.rig.train import TrainConfig
+
+    o = opts.check()
+    # Refuses a finished model in --out before anything is read or written; the new
+    # model is made beside it and moved into place when complete (pipeline.staging).
+    stage = StagedFolder(out, o.force)
+    cfg = TrainConfig(
+        source=str(source),
+        out=str(stage.work),
+        skeleton=o.skeleton,
+        frames=parse_frames(o.frames),
+        fps=o.fps,
+        schedule=o.schedule,
+        iters=o.iters,
+        ratio=o.ratio,
+        contacts=[c.strip() for c in o.contacts.split(",") if c.strip()] if o.contacts else None,
+        seed=o.seed,
+        threads=o.threads,
+        device=o.device,
+        licence=o.licence or _guess_licence(source),
+        credit=o.credit or _guess_credit(source),
+        name=o.name or out.resolve().name,
+        checkpoints=str(checkpoints) if checkpoints else None,
+    )
+    tr = _train_shown(cfg, progress_fd)
+    if no_export:
+        typer.echo(f"{tr.ckpt_dir}  (trained; run again without --no-export to export into {out})")
+        return
+    from pipeline.rig.export import export
+
+    meta = export(tr, stage.work)
+    stage.commit()
+    typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
+
+
+def rig_extract(
+    source: Path = typer.Argument(..., help="A USD shot or a BVH."),
+    out: Path = typer.Argument(..., help="The .npz to write (for hosts without usd-core or the data)."),
+    skeleton: str = typer.Option(None, help="USD: the Skeleton prim path."),
+    frames: str = typer.Option(None, help="START:STOP frame indices."),
+):
+    """Save a reference clip as a self-contained .npz that `train-rig` reads."""
+    from pipeline.rig.source import load_rig_source, parse_frames, save_npz
+
+    motion = load_rig_source(source, skeleton, parse_frames(frames))
+    save_npz(motion, out)
+    typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("train-rig")
-    @with_train_rig_options
-    def train_rig(
-        source: Path = typer.Argument(
-            ..., help="The reference clip: a USD shot or a BVH (.bvh/.bvh.gz), or an .npz from rig-extract."
-        ),
-        out: Path = typer.Option(
-            ...,
-            "--out",
-            help="Model folder, written only when complete (training checkpoints in "
-            ".OUT.partial/checkpoints until then; re-running resumes).",
-        ),
-        checkpoints: Path = typer.Option(None, help="Checkpoint folder (default OUT/checkpoints)."),
-        no_export: bool = typer.Option(False, help="Only train; do not write ONNX files and rig.json."),
-        progress_fd: int = typer.Option(
-            None,
-            "--progress-fd",
-            hidden=True,
-            help="Write progress records as JSON lines to this open file descriptor instead of a bar "
-            "on stderr (the farm's channel; pipeline.rig.progress).",
-        ),
-        opts: TrainRigOptions = None,
-    ):
-        """Train a per-rig GANimator on one clip, then export it (ONNX per level + rig.json + card)."""
-        from pipeline.rig.source import parse_frames
-        from pipeline.rig.train import TrainConfig
-
-        o = opts.check()
-        # Refuses a finished model in --out before anything is read or written; the new
-        # model is made beside it and moved into place when complete (pipeline.staging).
-        stage = StagedFolder(out, o.force)
-        cfg = TrainConfig(
-            source=str(source),
-            out=str(stage.work),
-            skeleton=o.skeleton,
-            frames=parse_frames(o.frames),
-            fps=o.fps,
-            schedule=o.schedule,
-            iters=o.iters,
-            ratio=o.ratio,
-            contacts=[c.strip() for c in o.contacts.split(",") if c.strip()] if o.contacts else None,
-            seed=o.seed,
-            threads=o.threads,
-            device=o.device,
-            licence=o.licence or _guess_licence(source),
-            credit=o.credit or _guess_credit(source),
-            name=o.name or out.resolve().name,
-            checkpoints=str(checkpoints) if checkpoints else None,
-        )
-        tr = _train_shown(cfg, progress_fd)
-        if no_export:
-            typer.echo(f"{tr.ckpt_dir}  (trained; run again without --no-export to export into {out})")
-            return
-        from pipeline.rig.export import export
-
-        meta = export(tr, stage.work)
-        stage.commit()
-        typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
-
-    @app.command("rig-extract")
-    def rig_extract(
-        source: Path = typer.Argument(..., help="A USD shot or a BVH."),
-        out: Path = typer.Argument(..., help="The .npz to write (for hosts without usd-core or the data)."),
-        skeleton: str = typer.Option(None, help="USD: the Skeleton prim path."),
-        frames: str = typer.Option(None, help="START:STOP frame indices."),
-    ):
-        """Save a reference clip as a self-contained .npz that `train-rig` reads."""
-        from pipeline.rig.source import load_rig_source, parse_frames, save_npz
-
-        motion = load_rig_source(source, skeleton, parse_frames(frames))
-        save_npz(motion, out)
-        typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
+    """Adds this package's commands to ``app``."""
+    app.command("train-rig")(train_rig)
+    app.command("rig-extract")(rig_extract)
 
 
 def _train_shown(cfg, progress_fd: int | None):

@@ -50,13 +50,11 @@ def choose_legs(parents, contacts: list[int]) -> list[int]:
     return sorted(picked)
 
 
-def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
-    """Write the level ONNX files, rig.json and the model card into ``out``; returns rig.json."""
+def _export_levels(tr: Trainer, out: Path) -> list[str]:
+    """Each level's generator as ``level_N.onnx`` in ``out`` (its masked weights baked in);
+    returns the file names."""
     import torch
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    cfg, spec = tr.cfg, tr.spec
     from pipeline.rig.networks import SkeletonConv
 
     files = []
@@ -84,6 +82,14 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
         for m in convs:
             m.baked = False
         files.append(name)
+    return files
+
+
+def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
+    """rig.json: the model's name and hash, skeleton, source clip, licence, levels, the
+    representation the levels read and write, its training (metrics kept from a previous
+    rig.json in ``out``)."""
+    cfg, spec = tr.cfg, tr.spec
     h = hashlib.sha256()
     for f in files:
         h.update(sha256(out / f).encode())
@@ -94,7 +100,7 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
     old = {}
     if (out / "rig.json").exists():
         old = json.loads((out / "rig.json").read_text())
-    meta = {
+    return {
         "kind": "rig",
         "name": cfg.name or out.resolve().name,
         "hash": h.hexdigest()[:16],
@@ -135,6 +141,14 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
         "training": summary,
         "metrics": old.get("metrics", {}),
     }
+
+
+def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
+    """Write the level ONNX files, rig.json and the model card into ``out``; returns rig.json."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = _export_levels(tr, out)
+    meta = _rig_meta(tr, out, files)
     if verify:
         meta["onnx_max_abs_diff"] = verify_onnx(tr, out, files)
     (out / "rig.json").write_text(json.dumps(meta, indent=1))
@@ -165,6 +179,23 @@ def _size_mb(folder: Path, files: list[str]) -> float:
     return sum((folder / f).stat().st_size for f in files) / 1e6
 
 
+def _credit(meta: dict) -> str:
+    """The card's credit line and what the clip's licence asks of the model's users."""
+    lic = meta["licence"]
+    credit = ""
+    if "BY-SA" in lic:
+        credit = (
+            "**Licence: CC BY-SA 4.0.** The model is trained on (and so derived from) the clip "
+            "above; share it and anything made from it under the same licence, with the credit "
+            "above."
+        )
+    elif "BY-NC" in lic:
+        credit = "**Licence: CC BY-NC 4.0 — non-commercial use only.**"
+    if meta.get("credit"):
+        credit = f"Credit: {meta['credit']}.\n\n{credit}"
+    return credit
+
+
 def write_card(out: str | Path, meta: dict) -> None:
     """MODEL_CARD.md from rig.json (re-run after adding metrics)."""
     out = Path(out)
@@ -179,17 +210,7 @@ def write_card(out: str | Path, meta: dict) -> None:
         for g in t["groups"]
     )
     lic = meta["licence"]
-    credit = ""
-    if "BY-SA" in lic:
-        credit = (
-            "**Licence: CC BY-SA 4.0.** The model is trained on (and so derived from) the clip "
-            "above; share it and anything made from it under the same licence, with the credit "
-            "above."
-        )
-    elif "BY-NC" in lic:
-        credit = "**Licence: CC BY-NC 4.0 — non-commercial use only.**"
-    if meta.get("credit"):
-        credit = f"Credit: {meta['credit']}.\n\n{credit}"
+    credit = _credit(meta)
     metrics = meta.get("metrics") or {}
     mtext = metrics.get("markdown") or "Not measured yet (see `scripts/rig_eval_elephant.py`)."
     text = f"""# {meta["name"]}: a per-rig GANimator

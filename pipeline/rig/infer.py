@@ -197,26 +197,7 @@ class RigInbetweener:
         spec = replace(self.spec, skeleton=sk)
         base = interpolate_keys(motion, keys).slice(a, b + 1)
         guide, begin = encode(base, spec)  # (F0, n): the keys' interpolation, Y-up
-        rng = np.random.default_rng(seed)
-        lens = self.lengths(n)
-        R = slice(6 * (spec.n_vertices - 1), 6 * spec.n_vertices)
-        q = None
-        for i, L in enumerate(lens):
-            g = resample_linear(guide, L)
-            idx = np.clip(np.round((kl + 0.5) * L / n - 0.5).astype(np.int64), 0, L - 1)
-            idx = np.unique(idx)
-            if i == 0:
-                if self.coarse == "keys":
-                    q = g  # key-frame editing: the coarsest motion is the keys'
-                    continue
-                z = rng.standard_normal(L) * self.amps[0]
-                q = self.level(0, np.zeros_like(g), z)
-            else:
-                up = resample_linear(q, L)
-                z = rng.standard_normal(L) * self.amps[i]
-                q = self.level(i, up, z)
-            q[R] = g[R]  # concatenation trick: the root displacement follows the keys
-            q = spread_residual(q, idx, g[:, idx])
+        q = self._generate(guide, kl, n, spec, np.random.default_rng(seed))
         rot_y, root_y, contacts = self._decode(q, begin, sk)
         rot_y = quat_continuity(rot_y, axis=0)
         rot, root = from_yup(rot_y, root_y, sk)
@@ -244,6 +225,30 @@ class RigInbetweener:
         out_root[keys] = motion.root_positions[keys]
         self.last_contacts = contacts
         return Motion(sk, out_rot, out_root, motion.fps, motion.name)
+
+    def _generate(self, guide: np.ndarray, kl: np.ndarray, n: int, spec, rng) -> np.ndarray:
+        """The levels run coarse to fine over the keys' interpolation ``guide`` (F0, n), each
+        drawn towards the keys (frame indices ``kl``); returns the finest level's motion."""
+        lens = self.lengths(n)
+        R = slice(6 * (spec.n_vertices - 1), 6 * spec.n_vertices)
+        q = None
+        for i, L in enumerate(lens):
+            g = resample_linear(guide, L)
+            idx = np.clip(np.round((kl + 0.5) * L / n - 0.5).astype(np.int64), 0, L - 1)
+            idx = np.unique(idx)
+            if i == 0:
+                if self.coarse == "keys":
+                    q = g  # key-frame editing: the coarsest motion is the keys'
+                    continue
+                z = rng.standard_normal(L) * self.amps[0]
+                q = self.level(0, np.zeros_like(g), z)
+            else:
+                up = resample_linear(q, L)
+                z = rng.standard_normal(L) * self.amps[i]
+                q = self.level(i, up, z)
+            q[R] = g[R]  # concatenation trick: the root displacement follows the keys
+            q = spread_residual(q, idx, g[:, idx])
+        return q
 
     def synthesize(self, n_frames: int, seed: int = 0) -> Motion:
         """A new motion of ``n_frames`` frames: noise at the coarsest level only (as the
