@@ -16,7 +16,7 @@ from pipeline.bench.methods import inbetweener_method, interpolation
 from pipeline.bench.run import evaluate, markdown, test_windows
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import TRANSITIONS, position_stats
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 
 
 def variants(model: str, supervised: str | None = None) -> dict:

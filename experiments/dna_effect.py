@@ -34,7 +34,7 @@ from pipeline.data.protocol import (
 )
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
-from pipeline.infer.model import OnnxInbetweener, take_latent
+from pipeline.infer.generator_onnx import OnnxInbetweener, take_latent
 
 SOURCES = ("gap", "same clip", "other clip")
 

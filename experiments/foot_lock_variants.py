@@ -21,7 +21,7 @@ from pipeline.bench.selection import EVERY, train_windows
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import CONTEXT, global_positions, position_stats
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 
 VARIANTS = (
     ("none", None),

@@ -24,7 +24,7 @@ from pipeline.bench.run import evaluate, test_windows
 from pipeline.bench.selection import EVERY, train_windows
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import position_stats
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 
 # (layout, pad_tail, min_window): the next multiple of 32 first, then longer windows.
 LAYOUTS = (

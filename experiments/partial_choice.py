@@ -24,7 +24,7 @@ from pipeline.bench.run import evaluate
 from pipeline.bench.selection import train_windows
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import position_stats
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 
 
 def compare(models: list[str], every: int, out: str | None) -> dict:

@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from pipeline.data.split import shared_data_dir
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.motion.bvh import read_bvh
 
 CLIP = "bandai_namco/dataset-2/dataset-2_walk_active_002.bvh.gz"

@@ -22,7 +22,7 @@ LAYERS = {
     "pipeline.infer": 3,  # in-betweeners at fill time: numpy + onnxruntime, never torch
     "pipeline.adapt": 3,  # rig adaptation on plain rig values: mapping, retargeting (no USD)
     "pipeline.usd": 4,  # USD I/O (beside the in-betweeners; the rest pose of a converted rig)
-    "pipeline.models": 5,  # the torch networks
+    "pipeline.networks": 5,  # the torch networks
     "pipeline.rig": 5,  # per-rig models: their training, ONNX in-betweener and store
     "pipeline.library": 5,  # a studio's motion library: its store, build and in-betweener
     "pipeline.train": 6,  # training and export of the networks

@@ -32,7 +32,7 @@ def thread_env(concurrency: int) -> dict[str, str]:
         "MKL_NUM_THREADS": n,
         "OPENBLAS_NUM_THREADS": n,
         "LP_NUM_THREADS": n,  # Mesa llvmpipe render threads
-        "TWEEN_ORT_THREADS": n,  # intra-op threads of the ORT sessions (pipeline.infer.model)
+        "TWEEN_ORT_THREADS": n,  # intra-op threads of the ORT sessions (pipeline.infer.generator_onnx)
     }
 
 

@@ -1,6 +1,6 @@
 """The trusted fill on blocking keys: long shots keyed every few frames, as an animator blocks.
 
-The trust bench (:mod:`pipeline.bench.trust`) keys every window at the protocol's 10 context
+The trust bench (:mod:`pipeline.bench.trust_bench`) keys every window at the protocol's 10 context
 frames and one target, so its probes are holes in that run of keys. A blocked shot has no such
 run: its probes leave single keys out (a gap twice as long as the shot's). Here each shot is
 :data:`SHOT` frames of an eval clip (``eval``), of a CMU take on the model skeleton (``cmu``),

@@ -176,7 +176,7 @@ def time_fill(model, rot, root, keys, repeats: int = 5) -> dict:
     """Median wall time of ``model.fill_batch`` over ``repeats`` runs (after one warm-up), its
     CPU time (the process's: on shared cores wall time also counts waiting for one), and the
     median wall time of each part: network, features, post (match_keys + lock_feet), other."""
-    import pipeline.infer.model as mod
+    import pipeline.infer.generator_onnx as mod
 
     sess = model.session("generator")
     spent: dict = {}
@@ -276,7 +276,7 @@ def run_speed(
 ) -> str:
     """The speed benchmark; returns its Markdown (and writes speed.json / speed.md to ``out``)."""
     from pipeline.infer.features import adapter_free_graph
-    from pipeline.infer.model import OnnxInbetweener, find_model
+    from pipeline.infer.generator_onnx import OnnxInbetweener, find_model
 
     folder = find_model(model_name)
     if folder is None:

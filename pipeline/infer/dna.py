@@ -1,7 +1,7 @@
 """Motion DNA (Generative Tweening §4.2): representative poses that a fill should contain.
 
 A DNA is a handful of poses, usually picked from a reference clip, that steer a take: the
-generator embeds them (``pipeline/models/dna.py``) and was trained to put such poses into
+generator embeds them (``pipeline/networks/dna.py``) and was trained to put such poses into
 the in-betweens. Each pose goes in as root-relative joint positions turned to face +X, so
 where the reference clip stands and faces does not matter.
 """

@@ -47,7 +47,7 @@ _OPTIONAL = {
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
 #: may leave them out (``pad``: models before v4's card held no pad layout, and ran with the
 #: last frame held: none of them ships); any other value is refused. ``generator``'s are the
-#: network's inputs and output (pipeline.models.generator.GeneratorConfig drops them).
+#: network's inputs and output (pipeline.networks.generator.GeneratorConfig drops them).
 FIXED = {"pad": "hold-key", "root": "generator", "mirror_average": False}
 RETIRED = {"residual": True, "tta": True, "noise_schedule": False, "key_mask": False,
            "full_timing": False, "rotation": "6d"}  # fmt: skip

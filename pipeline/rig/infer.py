@@ -119,7 +119,7 @@ class RigInbetweener:
     # -- the networks ------------------------------------------------------------------
     def _session(self, i: int):
         if i not in self._sessions:
-            from pipeline.infer.model import ort_session
+            from pipeline.infer.generator_onnx import ort_session
 
             self._sessions[i] = ort_session(self.folder / self.files[i])
         return self._sessions[i]

@@ -111,7 +111,7 @@ def read_rig_json(folder: str | Path) -> RigModelInfo:
 
 
 def models_root() -> Path:
-    from pipeline.infer.model import models_root as _root
+    from pipeline.infer.generator_onnx import models_root as _root
 
     return _root()
 

@@ -15,8 +15,8 @@ from pipeline.data import posebank
 from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
 from pipeline.infer.dna import n_dna_channels
-from pipeline.models.generator import Generator, GeneratorConfig
-from pipeline.models.path import PathConfig, PathPredictor
+from pipeline.networks.generator import Generator, GeneratorConfig
+from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.train.generator import read_checkpoint
 from pipeline.usd.take import load_takes
 

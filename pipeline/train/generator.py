@@ -29,10 +29,10 @@ from pipeline.infer.features import (
     feature_options,
     key_neighbours,
 )
-from pipeline.models.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
-from pipeline.models.generator import Generator, GeneratorConfig
-from pipeline.models.layers import batch_regularisation
 from pipeline.motion.fk import fk
+from pipeline.networks.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
+from pipeline.networks.generator import Generator, GeneratorConfig
+from pipeline.networks.layers import batch_regularisation
 from pipeline.train.batches import (
     PARTIAL_LAYOUTS,
     foot_contacts,

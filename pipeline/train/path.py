@@ -15,8 +15,8 @@ from tqdm import tqdm
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
-from pipeline.models.path import PathConfig, PathPredictor
 from pipeline.motion.fk import fk
+from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.train.batches import sample_batch
 
 
@@ -61,7 +61,7 @@ def multiscale_loss(vel: torch.Tensor, root: torch.Tensor, scales) -> torch.Tens
 
 
 def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
-    from pipeline.models.layers import batch_regularisation
+    from pipeline.networks.layers import batch_regularisation
 
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)

@@ -129,7 +129,7 @@ def _flag_type(hint) -> Any:
 @cache
 def train_flags() -> tuple[Flag, ...]:
     """The flags `tween train` makes from TrainConfig (and the model fields it lists)."""
-    from pipeline.models.generator import GeneratorConfig
+    from pipeline.networks.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig
 
     hints = typing.get_type_hints(TrainConfig)
@@ -160,7 +160,7 @@ def path_steps_default() -> int:
 
 def configs(values: dict):
     """Flag values (as click parsed them) -> (TrainConfig, PathTrainConfig)."""
-    from pipeline.models.generator import GeneratorConfig
+    from pipeline.networks.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig
     from pipeline.train.path import PathTrainConfig
 

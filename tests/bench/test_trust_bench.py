@@ -1,10 +1,10 @@
-"""The trusted fill's bench (python -m pipeline.bench.trust) runs end to end on a few windows."""
+"""The trusted fill's bench (python -m pipeline.bench.trust_bench) runs end to end on a few windows."""
 
 import numpy as np
 
 
 def test_trust_bench_fills_every_method_and_decides_every_window():
-    from pipeline.bench.trust import METHODS, run_trust_bench
+    from pipeline.bench.trust_bench import METHODS, run_trust_bench
 
     r = run_trust_bench(("eval",), limit=25, transitions=(5,))["sources"]["eval"]
     res = r["results"][5]

@@ -6,7 +6,7 @@ import torch
 from pipeline.data.cache import load_split
 from pipeline.data.pack import load_pack, pack
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
-from pipeline.models.generator import GeneratorConfig
+from pipeline.networks.generator import GeneratorConfig
 from pipeline.train.generator import TrainConfig, batches_from, step_batch
 
 

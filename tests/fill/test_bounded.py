@@ -19,7 +19,7 @@ import pytest
 from usd_fixtures import BANDAI_CLIP
 
 from pipeline.errors import TweenError
-from pipeline.infer.model import CHUNK_FRAMES, ModelFolderError, OnnxInbetweener
+from pipeline.infer.generator_onnx import CHUNK_FRAMES, ModelFolderError, OnnxInbetweener
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_inv, quat_mul

@@ -56,7 +56,7 @@ def tiny_dna_model(tmp_path_factory):
     torch = pytest.importorskip("torch")
     from dataclasses import asdict
 
-    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.networks.generator import Generator, GeneratorConfig
     from pipeline.train.export import export
 
     torch.manual_seed(0)
@@ -135,7 +135,7 @@ def test_fill_with_a_dna_steers_the_take_and_is_recorded(tiny_dna_model, bandai_
 
 def test_frozen_dna_training_leaves_every_other_weight_as_it_was(tmp_path):
     torch = pytest.importorskip("torch")
-    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.networks.generator import Generator, GeneratorConfig
     from pipeline.train.generator import TrainConfig, train
 
     small = dict(width=48, levels=(48, 64, 64))

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 import pipeline.infer.post as post
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import AdapterFreeSession, adapter_free_graph, build_features
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.motion import rotations as R
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk

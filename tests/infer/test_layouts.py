@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.rotations import quat_inv, quat_mul

@@ -64,8 +64,8 @@ def test_canonical_frame_puts_first_key_at_origin_facing_x():
 
 
 def test_generator_and_path_shapes():
-    from pipeline.models.generator import Generator, GeneratorConfig
-    from pipeline.models.path import PathConfig, PathPredictor
+    from pipeline.networks.generator import Generator, GeneratorConfig
+    from pipeline.networks.path import PathConfig, PathPredictor
 
     cfg = GeneratorConfig(width=32, levels=(32, 48, 64))
     g = Generator(cfg)
@@ -206,9 +206,9 @@ def test_locked_feet_holding_their_orientation_keep_the_toes_still(bandai_clip):
 def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, dna, adapter):
     from dataclasses import asdict
 
-    from pipeline.infer.model import OnnxInbetweener
-    from pipeline.models.generator import Generator, GeneratorConfig
-    from pipeline.models.path import PathConfig, PathPredictor
+    from pipeline.infer.generator_onnx import OnnxInbetweener
+    from pipeline.networks.generator import Generator, GeneratorConfig
+    from pipeline.networks.path import PathConfig, PathPredictor
     from pipeline.train.export import export, verify
 
     torch.manual_seed(0)
@@ -275,7 +275,7 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, dna
     "partial, dna, adapter", [(0.0, 0, False), (0.0, 16, False), (1.0, 0, True)]
 )
 def test_tiny_training_run_loss_falls(tmp_path, partial, dna, adapter):
-    from pipeline.models.generator import GeneratorConfig
+    from pipeline.networks.generator import GeneratorConfig
     from pipeline.train.generator import TrainConfig, train
 
     cfg = TrainConfig(

@@ -11,7 +11,7 @@ from pipeline.infer.features import (
     n_adapter_channels,
     n_input_channels,
 )
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.infer.post import match_keys
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.rotations import slerp_pairs
@@ -162,7 +162,7 @@ def test_partial_key_input_starts_as_its_init_and_full_keys_never_reach_it():
     """The adapter's side input, added to trained weights: zero at the start, and once trained
     still nothing for full keys (their side channels are zero)."""
     torch = pytest.importorskip("torch")
-    from pipeline.models.generator import Generator, GeneratorConfig
+    from pipeline.networks.generator import Generator, GeneratorConfig
 
     torch.manual_seed(0)
     cfg = GeneratorConfig(width=32, levels=(32, 48, 64))

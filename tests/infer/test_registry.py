@@ -23,8 +23,8 @@ from pipeline.infer.api import (
     rig_kinds,
     unregister,
 )
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.infer.interp import InterpolationInbetweener
-from pipeline.infer.model import OnnxInbetweener
 from pipeline.infer.spline import SplineInbetweener
 from pipeline.rig.infer import RigInbetweener
 

@@ -14,7 +14,7 @@ from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer import novelty, trust
 from pipeline.infer.api import Capabilities
 from pipeline.infer.folder import ModelFolderError
-from pipeline.infer.model import OnnxInbetweener
+from pipeline.infer.generator_onnx import OnnxInbetweener
 from pipeline.infer.spline import SplineInbetweener
 from pipeline.motion.augment import posture_offsets
 from pipeline.motion.bvh import read_bvh

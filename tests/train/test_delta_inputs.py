@@ -5,7 +5,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from pipeline.infer.features import n_input_channels  # noqa: E402
-from pipeline.models.generator import Generator, GeneratorConfig, relative_to_keys  # noqa: E402
+from pipeline.networks.generator import Generator, GeneratorConfig, relative_to_keys  # noqa: E402
 
 J = 21
 C = J * 6 + 3

@@ -245,7 +245,7 @@ def test_saved_configs_drop_retired_switches_and_refuse_other_values():
     names the switch, since no release runs it."""
     pytest.importorskip("torch")
     from pipeline.infer.folder import RETIRED, ModelFolderError
-    from pipeline.models.generator import GeneratorConfig
+    from pipeline.networks.generator import GeneratorConfig
 
     saved = {"width": 48, "levels": [48, 64], "key_adapter": True, **RETIRED, "extra": {}}
     cfg = GeneratorConfig.saved(saved)

@@ -18,8 +18,8 @@ from torch import nn
 from pipeline.infer.dna import n_dna_channels
 from pipeline.infer.features import n_adapter_channels, n_input_channels, n_output_channels
 from pipeline.infer.folder import without_retired
-from pipeline.models.dna import DnaEncoder
-from pipeline.models.layers import ResLayer
+from pipeline.networks.dna import DnaEncoder
+from pipeline.networks.layers import ResLayer
 
 
 @dataclass

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from torch import nn
 
-from pipeline.models.layers import ResLayer
+from pipeline.networks.layers import ResLayer
 
 
 @dataclass

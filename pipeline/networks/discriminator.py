@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from pipeline.models.layers import ResLayer
+from pipeline.networks.layers import ResLayer
 
 REAL, FAKE, GEN_TARGET = 1.0, -1.0, 0.2361  # the paper's labels and generator target
 

@@ -11,7 +11,7 @@ posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q
 length of the four fills, the decided fill's ratio to the better of model and spline and to
 the model, how often each choice was made and the time it took.
 
-``python -m pipeline.bench.trust [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz] [--model DIR]``
+``python -m pipeline.bench.trust_bench [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz] [--model DIR]``
 (``--limit``: the first N eval clips, and at most 2N CMU windows evenly spaced over the
 takes; ``--dump``: per-window probe errors and per-window L2P of blends at w = 0, ¼, ½, ¾, 1,
 what the thresholds of the decision were tuned on).
@@ -218,7 +218,9 @@ def markdown(report: dict, transitions=TRANSITIONS) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.bench.trust", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m pipeline.bench.trust_bench", description=__doc__.splitlines()[0]
+    )
     ap.add_argument("--limit", type=int, default=None, help="first N eval clips (and at most 2N CMU windows)")
     ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
     ap.add_argument("--out", type=Path, default=None, help="folder for trust.json and trust.md")
