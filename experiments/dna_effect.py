@@ -4,7 +4,7 @@ python experiments/dna_effect.py MODEL_DIR [--poses R] [--every K] [--out FILE.j
 
 For each window and transition length (30 and 45 frames, where there is room for a pose to
 show), the generator fills the gap with no DNA and with R representative poses
-(``pipeline.infer.dna.representative_frames``) taken from:
+(``pipeline.infer.dna_poses.representative_frames``) taken from:
 - ``gap``: the true in-between frames (what training showed it; an upper bound);
 - ``same clip``: the rest of the same take, outside the window (the same motion: the use
   the paper intends, "representative frames from the same motion class");
@@ -33,7 +33,7 @@ from pipeline.data.protocol import (
     position_stats,
 )
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
+from pipeline.infer.dna_poses import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.generator_onnx import OnnxInbetweener, take_latent
 
 SOURCES = ("gap", "same clip", "other clip")

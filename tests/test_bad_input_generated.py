@@ -172,7 +172,7 @@ def dailies_case(draw, ws: Path, a: Assets):
 
 
 def train_case(draw, ws: Path, a: Assets):
-    from pipeline.train.generator import _RANGES
+    from pipeline.train.generator_training import _RANGES
 
     out = ws / "run"
     if draw(st.booleans()):

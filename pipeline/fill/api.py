@@ -131,7 +131,7 @@ def dna_motion(opts: FillOptions, fps: float):
     if not opts.dna:
         return None
 
-    from pipeline.infer.dna import MAX_POSES, representative_frames
+    from pipeline.infer.dna_poses import MAX_POSES, representative_frames
     from pipeline.usd.take import model_take
 
     if not 1 <= opts.dna_poses <= MAX_POSES:

@@ -102,7 +102,7 @@ MAX_SEED = 2**31 - 1
 FORMATS = ("usda", "usdc")
 #: pipeline.infer.trust.TRUST_MODES, not imported for the check (that module pulls in scipy).
 TRUST_MODES = ("auto", "model", "spline")
-#: pipeline.infer.dna.MAX_POSES, not imported for the check (that module pulls in scipy).
+#: pipeline.infer.dna_poses.MAX_POSES, not imported for the check (that module pulls in scipy).
 MAX_DNA_POSES = 8
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from pipeline.data import posebank
 from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.api import Capabilities
-from pipeline.infer.dna import dna_poses, n_dna_channels
+from pipeline.infer.dna_poses import dna_poses, n_dna_channels
 from pipeline.infer.features import (
     NOISE_CHANNELS,
     ROOT_SCALE,
@@ -398,7 +398,7 @@ class OnnxInbetweener:
 
     def fill(self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None) -> Motion:
         """Fill ``motion`` between ``keys`` (take ``seed``); ``dna``: a Motion of representative
-        poses (see :func:`pipeline.infer.dna.representative_frames`) the fill should contain."""
+        poses (see :func:`pipeline.infer.dna_poses.representative_frames`) the fill should contain."""
         if len(self.skeleton) != len(motion.skeleton):
             raise ValueError(
                 f"{self.name}: motion has {len(motion.skeleton)} joints, model {len(self.skeleton)}"

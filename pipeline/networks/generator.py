@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields
 import torch
 from torch import nn
 
-from pipeline.infer.dna import n_dna_channels
+from pipeline.infer.dna_poses import n_dna_channels
 from pipeline.infer.features import n_adapter_channels, n_input_channels, n_output_channels
 from pipeline.infer.folder import without_retired
 from pipeline.networks.dna import DnaEncoder

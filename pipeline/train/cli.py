@@ -1,6 +1,6 @@
 """``tween train`` and ``tween export`` (need the ``[train]`` extra: torch).
 
-`tween train`'s flags are made from :class:`pipeline.train.generator.TrainConfig` (one flag
+`tween train`'s flags are made from :class:`pipeline.train.generator_training.TrainConfig` (one flag
 per field, its default and help declared there; pipeline/train/recipe.py). That command is
 built when `tween train` runs, as it imports torch: `tween --help` and `tween fill` do not.
 """

@@ -14,10 +14,10 @@ import torch
 from pipeline.data import posebank
 from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
-from pipeline.infer.dna import n_dna_channels
+from pipeline.infer.dna_poses import n_dna_channels
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
-from pipeline.train.generator import read_checkpoint
+from pipeline.train.generator_training import read_checkpoint
 from pipeline.usd.take import load_takes
 
 
@@ -203,7 +203,7 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     from pipeline.data.skeletons import bandai_skeleton
     from pipeline.infer.features import build_features, feature_options
     from pipeline.motion.bvh import read_bvh
-    from pipeline.train.path import path_inputs
+    from pipeline.train.path_training import path_inputs
 
     meta = json.loads((model_dir / "model.json").read_text())
     gen, gcfg, _ = _load(Generator, GeneratorConfig, run_dir / "generator.pt")

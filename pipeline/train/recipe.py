@@ -1,6 +1,6 @@
 """`tween train`'s flags, made from TrainConfig, and training recipes as files.
 
-**Flags.** Every field of :class:`pipeline.train.generator.TrainConfig` is one `tween train`
+**Flags.** Every field of :class:`pipeline.train.generator_training.TrainConfig` is one `tween train`
 flag (``gap_start`` -> ``--gap-start``) with the field's default and its ``help`` metadata;
 the GeneratorConfig fields that `tween train` sets are listed in the ``model`` field's
 ``flags`` metadata. Only what is not a TrainConfig field is declared here: ``--out``,
@@ -130,7 +130,7 @@ def _flag_type(hint) -> Any:
 def train_flags() -> tuple[Flag, ...]:
     """The flags `tween train` makes from TrainConfig (and the model fields it lists)."""
     from pipeline.networks.generator import GeneratorConfig
-    from pipeline.train.generator import TrainConfig
+    from pipeline.train.generator_training import TrainConfig
 
     hints = typing.get_type_hints(TrainConfig)
     ghints = typing.get_type_hints(GeneratorConfig)
@@ -153,7 +153,7 @@ def train_flags() -> tuple[Flag, ...]:
 
 
 def path_steps_default() -> int:
-    from pipeline.train.path import PathTrainConfig
+    from pipeline.train.path_training import PathTrainConfig
 
     return next(f.default for f in fields(PathTrainConfig) if f.name == "steps")
 
@@ -161,8 +161,8 @@ def path_steps_default() -> int:
 def configs(values: dict):
     """Flag values (as click parsed them) -> (TrainConfig, PathTrainConfig)."""
     from pipeline.networks.generator import GeneratorConfig
-    from pipeline.train.generator import TrainConfig
-    from pipeline.train.path import PathTrainConfig
+    from pipeline.train.generator_training import TrainConfig
+    from pipeline.train.path_training import PathTrainConfig
 
     kw, model = {}, {}
     for fl in train_flags():
@@ -189,8 +189,8 @@ def configs(values: dict):
 def train_run(out: Path, cfg, path_cfg) -> Path:
     """The training entry point of `tween train` and of every recipe stage: the path predictor
     (when it has steps), then the generator. Returns the generator checkpoint."""
-    from pipeline.train.generator import train as train_generator
-    from pipeline.train.path import train_path
+    from pipeline.train.generator_training import train as train_generator
+    from pipeline.train.path_training import train_path
 
     if path_cfg.steps:
         train_path(path_cfg, out)
@@ -207,7 +207,7 @@ def check_run(out: Path, cfg) -> None:
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
     if cfg.init:
-        from pipeline.train.generator import load_init
+        from pipeline.train.generator_training import load_init
 
         load_init(cfg.init)
 

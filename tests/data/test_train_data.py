@@ -7,7 +7,7 @@ from pipeline.data.cache import load_split
 from pipeline.data.pack import load_pack, pack
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_skeleton
 from pipeline.networks.generator import GeneratorConfig
-from pipeline.train.generator import TrainConfig, batches_from, step_batch
+from pipeline.train.generator_training import TrainConfig, batches_from, step_batch
 
 
 def test_pack_round_trip_is_within_quantisation(tmp_path):

@@ -177,7 +177,7 @@ def test_help_still_works(tmp_path):
 def test_fill_options_check():
     from pipeline.errors import TweenError
     from pipeline.fill.api import MAX_DNA_POSES, MAX_SEED, MAX_TAKES, FillOptions
-    from pipeline.infer.dna import MAX_POSES
+    from pipeline.infer.dna_poses import MAX_POSES
 
     assert MAX_DNA_POSES == MAX_POSES
 

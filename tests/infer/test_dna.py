@@ -5,7 +5,7 @@ import pytest
 
 from pipeline.data.protocol import yaw_quat
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.infer.dna import dna_poses, n_dna_channels, representative_frames
+from pipeline.infer.dna_poses import dna_poses, n_dna_channels, representative_frames
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_apply, quat_mul
@@ -40,7 +40,7 @@ def test_representative_frames_are_the_fastest_turning_and_spaced(bandai_clip):
 
 def test_training_pose_encoding_matches_the_farms(bandai_clip):
     torch = pytest.importorskip("torch")
-    from pipeline.train.generator import facing_poses
+    from pipeline.train.generator_training import facing_poses
 
     m = read_bvh(bandai_clip).continuous()
     rot, root = m.rotations[::50][:4], m.root_positions[::50][:4]
@@ -136,7 +136,7 @@ def test_fill_with_a_dna_steers_the_take_and_is_recorded(tiny_dna_model, bandai_
 def test_frozen_dna_training_leaves_every_other_weight_as_it_was(tmp_path):
     torch = pytest.importorskip("torch")
     from pipeline.networks.generator import Generator, GeneratorConfig
-    from pipeline.train.generator import TrainConfig, train
+    from pipeline.train.generator_training import TrainConfig, train
 
     small = dict(width=48, levels=(48, 64, 64))
     torch.manual_seed(1)

@@ -276,7 +276,7 @@ def test_onnx_matches_torch_and_fill_is_exact_at_keys(tmp_path, bandai_clip, dna
 )
 def test_tiny_training_run_loss_falls(tmp_path, partial, dna, adapter):
     from pipeline.networks.generator import GeneratorConfig
-    from pipeline.train.generator import TrainConfig, train
+    from pipeline.train.generator_training import TrainConfig, train
 
     cfg = TrainConfig(
         steps=60,

@@ -66,7 +66,7 @@ def test_contacts_swap_feet():
 
 
 def test_mirror_augmentation_keeps_windows_and_keys(clips):
-    from pipeline.train.generator import TrainConfig, step_batch
+    from pipeline.train.generator_training import TrainConfig, step_batch
 
     skel = bandai_skeleton()
     feet = [skel.index(n) for n in FOOT_JOINTS]

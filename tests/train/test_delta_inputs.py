@@ -42,7 +42,7 @@ def test_relative_channels_are_change_since_the_first_key_and_key_minus_baseline
 
 
 def test_an_absolute_checkpoint_continues_in_delta_mode_next_to_itself():
-    from pipeline.train.generator import to_delta_inputs
+    from pipeline.train.generator_training import to_delta_inputs
 
     plain = _net(False)
     delta = _net(True)

@@ -160,7 +160,7 @@ def test_tiny_recipe_runs_inits_and_resumes(tmp_path):
 
 
 def test_help_lists_every_trainconfig_field_with_its_help():
-    from pipeline.train.generator import TrainConfig
+    from pipeline.train.generator_training import TrainConfig
 
     res = _tween("train", "--help", env={"COLUMNS": "400"})
     assert res.exit_code == 0
@@ -181,8 +181,8 @@ def test_help_lists_every_trainconfig_field_with_its_help():
 
 
 def test_cli_defaults_are_trainconfig_defaults():
-    from pipeline.train.generator import TrainConfig
-    from pipeline.train.path import PathTrainConfig
+    from pipeline.train.generator_training import TrainConfig
+    from pipeline.train.path_training import PathTrainConfig
 
     cfg, path_cfg = configs(parse_train_args([]))
     assert cfg == TrainConfig()
@@ -222,7 +222,7 @@ def test_the_delta_model_ships_the_checkpoint_its_next_stage_resumes_from():
     import torch
 
     from pipeline.train.export import verify
-    from pipeline.train.generator import init_checkpoint
+    from pipeline.train.generator_training import init_checkpoint
 
     folder = ROOT / "models/delta"
     ckpt = init_checkpoint(str(folder))

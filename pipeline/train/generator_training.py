@@ -21,7 +21,7 @@ from tqdm import tqdm
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
-from pipeline.infer.dna import POSE_SCALE, dna_poses, representative_frames
+from pipeline.infer.dna_poses import POSE_SCALE, dna_poses, representative_frames
 from pipeline.infer.features import (
     NOISE_CHANNELS,
     ROOT_SCALE,
@@ -373,7 +373,7 @@ def sample_dna(cfg: TrainConfig, ctx: dict, between: np.ndarray, skel, step: int
 
 def facing_poses(pos: torch.Tensor, skel) -> torch.Tensor:
     """(B, L, J, 3) -> (B, L, J − 1, 3) root-relative positions turned to face +X, in metres
-    (the torch twin of ``pipeline.infer.dna.dna_poses``)."""
+    (the torch twin of ``pipeline.infer.dna_poses.dna_poses``)."""
     across = pos[..., skel.index("UpperLeg_L"), :] - pos[..., skel.index("UpperLeg_R"), :]
     fx, fz = -across[..., 2:3], across[..., 0:1]  # across × up, (B, L, 1)
     norm = torch.sqrt(fx**2 + fz**2).clamp_min(1e-6)
