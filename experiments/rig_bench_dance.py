@@ -5,7 +5,7 @@
 
 Synthesises ``--samples`` unconditional motions of ``--factor`` × the clip's length (the
 official evaluation: 200 samples of 2×, seed 0) and reports coverage, global diversity (PNN)
-and local diversity (pipeline/rig/metrics.py; the official evaluation's features and cost:
+and local diversity (pipeline/rig/diversity.py; the official evaluation's features and cost:
 6D rows of the local rotations + the contact joints' labels, non-squared L2, ε = 2.0) against
 the clip. Contact labels come from GANimator's velocity rule (0.018 m a frame) on the clip and
 on each sample alike (the official code used the network's predicted labels for samples).
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from pipeline.motion.clip import resample
-    from pipeline.rig import metrics
+    from pipeline.rig import diversity
     from pipeline.rig.infer import RigInbetweener
     from pipeline.rig.source import load_rig_source, parse_frames
 
@@ -86,8 +86,8 @@ def main(argv=None) -> int:
     )
 
     def feats(motion):
-        lab = metrics.contact_labels(motion, contacts) if contacts else None
-        return metrics.features(motion.rotations, lab)
+        lab = diversity.contact_labels(motion, contacts) if contacts else None
+        return diversity.features(motion.rotations, lab)
 
     src = feats(clip)
     n = int(round(a.factor * len(clip)))
@@ -102,9 +102,9 @@ def main(argv=None) -> int:
         q = feats(sample)
         r = {
             "seed": a.seed + i,
-            "coverage": metrics.coverage(q, src),
-            "global_diversity": metrics.global_diversity(q, src).value,
-            "local_diversity": metrics.local_diversity(q, src),
+            "coverage": diversity.coverage(q, src),
+            "global_diversity": diversity.global_diversity(q, src).value,
+            "local_diversity": diversity.local_diversity(q, src),
             "synth_s": round(t_syn, 3),
             "metrics_s": round(time.perf_counter() - t1 - t_syn, 3),
         }
@@ -122,9 +122,9 @@ def main(argv=None) -> int:
         )
     )
     static = {
-        "coverage": metrics.coverage(still_q, src),
-        "global_diversity": metrics.global_diversity(still_q, src).value,
-        "local_diversity": metrics.local_diversity(still_q, src),
+        "coverage": diversity.coverage(still_q, src),
+        "global_diversity": diversity.global_diversity(still_q, src).value,
+        "local_diversity": diversity.local_diversity(still_q, src),
     }
     rows = [(f"{inb.name} ({a.samples} samples × {n} frames)", mean["coverage"], mean["global_diversity"],
              mean["local_diversity"]),

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
-from pipeline.library.features import contacts, frame_features
+from pipeline.library.match_features import contacts, frame_features
 from pipeline.library.store import LibraryError, Writer, empty_manifest, is_library, open_library
 
 FPS = 30.0

@@ -30,7 +30,7 @@ from pipeline.infer.api import Capabilities
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.infer.spline import spline_keys
 from pipeline.library import match
-from pipeline.library.features import frame_features
+from pipeline.library.match_features import frame_features
 from pipeline.library.store import Library, LibraryError, open_library
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import slerp_pairs

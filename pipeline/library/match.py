@@ -4,7 +4,7 @@ For a gap from key a to key b, ``n`` frames apart, every library frame ``s`` who
 on to ``s + n`` is a candidate window. Its cost, in cm:
 
 - the pose miss at both ends: the root-mean-square joint-position miss between frame ``s``
-  and key a, and between ``s + n`` and key b (:mod:`pipeline.library.features`: facing and
+  and key a, and between ``s + n`` and key b (:mod:`pipeline.library.match_features`: facing and
   place do not count, posture and root height do);
 - the root's travel: how far the window's root displacement over the gap, seen from its first
   frame's facing, misses the keys' (``DISP_WEIGHT`` per cm), and its change of facing the

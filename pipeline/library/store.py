@@ -34,7 +34,7 @@ VERSION = 1
 ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
     "rotations": ("<f4", (21, 4)),  # local joint rotations, xyzw, on the model skeleton
     "roots": ("<f4", (3,)),  # root positions (cm, Y up)
-    "features": ("<f4", (64,)),  # pipeline.library.features.frame_features
+    "features": ("<f4", (64,)),  # pipeline.library.match_features.frame_features
     "sqnorm": ("<f4", ()),  # |features|² (the search's dot-product form)
     "facing": ("<f4", (4,)),  # yaw quaternion turning the pose to face +X
     "contacts": ("u1", (2,)),  # left / right foot on the ground

@@ -431,20 +431,20 @@ def test_tiny_rig_model_fills_a_blocked_shot_end_to_end(tmp_path, tiny_root, mon
 
 def test_tiny_rig_model_synthesises_and_scores(tiny_root):
     """The metrics on real model output: samples are finite, the clip scores itself perfectly."""
-    from pipeline.rig import metrics
+    from pipeline.rig import diversity
     from pipeline.rig.infer import RigInbetweener
     from pipeline.rig.source import load_rig_source, stored_path
 
     inb = RigInbetweener(tiny_root / "creature")
     clip = load_rig_source(stored_path(inb.meta["source"]["path"]))
-    src = metrics.features(clip.rotations)
+    src = diversity.features(clip.rotations)
     sample = inb.synthesize(122, seed=1)
     assert len(sample) == 122 and sample.skeleton.names == clip.skeleton.names
-    q = metrics.features(sample.rotations)
-    cov = metrics.coverage(q, src)
-    pnn = metrics.global_diversity(q, src)
+    q = diversity.features(sample.rotations)
+    cov = diversity.coverage(q, src)
+    pnn = diversity.global_diversity(q, src)
     assert 0.0 <= cov <= 1.0 and np.isfinite(pnn.value) and pnn.value > 0
-    assert metrics.coverage(src, src) == 1.0 and metrics.global_diversity(src, src).value == 0.0
+    assert diversity.coverage(src, src) == 1.0 and diversity.global_diversity(src, src).value == 0.0
 
 
 def test_shipped_elephant_model_fills_the_elephant(tmp_path, monkeypatch):

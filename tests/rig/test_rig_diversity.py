@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.motion.rotations import euler_to_quat
-from pipeline.rig import metrics
+from pipeline.rig import diversity
 
 
 def _clip(T=120, J=8, seed=0):
@@ -37,46 +37,46 @@ def _brute_pnn(c: np.ndarray, t_min: int) -> float:
 
 
 def test_sample_equal_to_source():
-    src = metrics.features(_clip())
-    assert metrics.coverage(src, src) == 1.0
-    assert metrics.local_diversity(src, src) == 0.0
-    pnn = metrics.global_diversity(src, src)
+    src = diversity.features(_clip())
+    assert diversity.coverage(src, src) == 1.0
+    assert diversity.local_diversity(src, src) == 0.0
+    pnn = diversity.global_diversity(src, src)
     assert pnn.value == 0.0
     assert pnn.segments == [(0, 120, 0)] and np.array_equal(pnn.labels, np.arange(120))
     # The paper's squared cost says the same.
-    assert metrics.coverage(src, src, mode="paper", eps=1e-6) == 1.0
+    assert diversity.coverage(src, src, mode="paper", eps=1e-6) == 1.0
 
 
 def test_constant_sample_has_low_coverage():
     q = _clip()
-    src = metrics.features(q)
-    static = metrics.features(np.repeat(q[60:61], 240, axis=0))
-    cov = metrics.coverage(static, src)
+    src = diversity.features(q)
+    static = diversity.features(np.repeat(q[60:61], 240, axis=0))
+    cov = diversity.coverage(static, src)
     assert cov < 0.2, cov
-    assert metrics.local_diversity(static, src) > 0  # a pose that is in the clip only once
+    assert diversity.local_diversity(static, src) > 0  # a pose that is in the clip only once
     # A sample that wanders away from the clip entirely covers nothing and is "diverse".
-    other = metrics.features(_clip(seed=5))
-    assert metrics.coverage(other, src) == 0.0
-    assert metrics.global_diversity(other, src).value > 1.0
+    other = diversity.features(_clip(seed=5))
+    assert diversity.coverage(other, src) == 0.0
+    assert diversity.global_diversity(other, src).value > 1.0
 
 
 def test_reordered_halves_keep_zero_pnn_and_lose_the_seam_windows():
     q = _clip(T=120)
-    src = metrics.features(q)
-    swapped = metrics.features(np.concatenate([q[60:], q[:60]]))
-    pnn = metrics.global_diversity(swapped, src)
+    src = diversity.features(q)
+    swapped = diversity.features(np.concatenate([q[60:], q[:60]]))
+    pnn = diversity.global_diversity(swapped, src)
     assert pnn.value == 0.0
     assert pnn.segments == [(0, 60, 60), (60, 120, 0)]
     # Windows of the source that cross frame 60 are not in the sample.
-    cov = metrics.coverage(swapped, src, eps=1e-3)
+    cov = diversity.coverage(swapped, src, eps=1e-3)
     assert cov == pytest.approx(1 - 29 / 91)  # 91 windows of 30 frames, 29 straddle the seam
     # Local diversity: only the sample windows across its seam have no exact match.
-    loc = metrics.local_diversity(swapped, src)
-    assert 0 < loc < metrics.local_diversity(metrics.features(_clip(seed=9)), src)
+    loc = diversity.local_diversity(swapped, src)
+    assert 0 < loc < diversity.local_diversity(diversity.features(_clip(seed=9)), src)
     # Segments shorter than T_min are not allowed: three 20-frame pieces cost something.
-    thirds = metrics.features(np.concatenate([q[40:60], q[0:20], q[20:40]]))
-    assert metrics.global_diversity(thirds, src, t_min=30).value > 1e-3
-    assert metrics.global_diversity(thirds, src, t_min=20).value < 1e-6
+    thirds = diversity.features(np.concatenate([q[40:60], q[0:20], q[20:40]]))
+    assert diversity.global_diversity(thirds, src, t_min=30).value > 1e-3
+    assert diversity.global_diversity(thirds, src, t_min=20).value < 1e-6
 
 
 @pytest.mark.parametrize("mode", ["code", "paper"])
@@ -85,8 +85,8 @@ def test_pnn_matches_the_brute_force_recursion(mode):
     for lq, lt, t_min in ((13, 9, 3), (10, 16, 4), (9, 9, 2)):
         q = rng.normal(size=(lq, 4))
         t = rng.normal(size=(lt, 4))
-        c = metrics.frame_costs(q, t, mode)
-        got = metrics.global_diversity(q, t, t_min=t_min, mode=mode)
+        c = diversity.frame_costs(q, t, mode)
+        got = diversity.global_diversity(q, t, t_min=t_min, mode=mode)
         assert got.value == pytest.approx(_brute_pnn(c, t_min), rel=1e-10, abs=1e-12)
         # The backtracked segmentation has exactly that cost and respects T_min.
         assert sum(c[a, got.labels[a]] for a in range(lq)) / lq == pytest.approx(got.value, rel=1e-10)
@@ -97,17 +97,17 @@ def test_pnn_matches_the_brute_force_recursion(mode):
 def test_window_costs_and_nn_against_direct_sums():
     rng = np.random.default_rng(1)
     q, t = rng.normal(size=(17, 3)), rng.normal(size=(11, 3))
-    c = metrics.frame_costs(q, t)
+    c = diversity.frame_costs(q, t)
     np.testing.assert_allclose(c, np.linalg.norm(q[:, None] - t[None], axis=-1), atol=1e-12)
-    w = metrics.window_costs(metrics.diagonal_prefix(c), 4)
+    w = diversity.window_costs(diversity.diagonal_prefix(c), 4)
     assert w.shape == (14, 8)
     for i in (0, 5, 13):
         for k in (0, 3, 7):
             assert w[i, k] == pytest.approx(sum(c[i + m, k + m] for m in range(4)))
-    with pytest.raises(metrics.MetricsError, match="does not fit"):
-        metrics.window_costs(metrics.diagonal_prefix(c), 12)
-    with pytest.raises(metrics.MetricsError, match="at least 30 frames"):
-        metrics.global_diversity(q, t)
+    with pytest.raises(diversity.MetricsError, match="does not fit"):
+        diversity.window_costs(diversity.diagonal_prefix(c), 12)
+    with pytest.raises(diversity.MetricsError, match="at least 30 frames"):
+        diversity.global_diversity(q, t)
 
 
 def test_features_and_contacts():
@@ -115,7 +115,7 @@ def test_features_and_contacts():
     from pipeline.motion.skeleton import Skeleton
 
     q = _clip(T=10, J=3)
-    f = metrics.features(q)
+    f = diversity.features(q)
     assert f.shape == (10, 18)
     # The first two rows of each rotation matrix (the official evaluation's 6D).
     from pipeline.motion.rotations import quat_to_matrix
@@ -125,9 +125,9 @@ def test_features_and_contacts():
     skel = Skeleton(("a", "b", "c"), np.array([-1, 0, 1]), np.array([[0, 0, 0], [0, 50, 0], [0, 50, 0]]))
     root = np.zeros((10, 3))
     root[5:, 0] = np.arange(5) * 10  # moves 10 cm a frame from frame 5 on
-    lab = metrics.contact_labels(Motion(skel, np.tile(q[:1], (10, 1, 1)), root, 30.0), ["c"])
+    lab = diversity.contact_labels(Motion(skel, np.tile(q[:1], (10, 1, 1)), root, 30.0), ["c"])
     assert lab[:, 0].tolist() == [0, 1, 1, 1, 1, 1, 0, 0, 0, 0]
-    assert metrics.features(q, lab[:, :1].repeat(1, 0)).shape == (10, 19)
+    assert diversity.features(q, lab[:, :1].repeat(1, 0)).shape == (10, 19)
 
 
 def test_dance_sized_pnn_is_fast_and_small_in_memory():
@@ -136,11 +136,11 @@ def test_dance_sized_pnn_is_fast_and_small_in_memory():
     import time
     import tracemalloc
 
-    src = metrics.features(_clip(T=1901, J=4, seed=2))
+    src = diversity.features(_clip(T=1901, J=4, seed=2))
     sample = np.concatenate([src[900:1901], src[0:900], src[0:1901]])  # 3,802 frames, 3 pieces
     tracemalloc.start()
     t0 = time.perf_counter()
-    pnn = metrics.global_diversity(sample, src)
+    pnn = diversity.global_diversity(sample, src)
     took = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
