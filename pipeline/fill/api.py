@@ -173,6 +173,19 @@ def composition(shot: str, opts: FillOptions) -> list[str]:
     return missing
 
 
+def warn_experimental(model: str) -> str | None:
+    """Says on stderr, in one line, that ``model`` is experimental (models/README.md); returns why."""
+    from pipeline.infer.folder import experimental
+
+    why = experimental(model)
+    if why:
+        print(
+            f"tween: warning: --model {model} is experimental ({why}); not for production shots",
+            file=sys.stderr,
+        )
+    return why
+
+
 def precheck(shot: str, opts: FillOptions) -> list[str]:
     """What a farm client checks before it starts a farm or contacts a broker: the options,
     the shot's content (characters, keys, rigs: the plan, without loading a model) and its
@@ -189,6 +202,7 @@ def precheck(shot: str, opts: FillOptions) -> list[str]:
         )
     _plan(shot, opts, None)
     check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts
+    warn_experimental(opts.model)
     return composition(shot, opts)
 
 
@@ -425,6 +439,7 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     """
 
     summary = validate_shot(shot, opts)
+    why = warn_experimental(opts.model)
     base = tempfile.gettempdir()
     clean_dead_temps(base, quiet=True)
     try:
@@ -438,4 +453,6 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
         shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
     result["retarget"] = summary["retarget"]  # per character: reference pose, joints the rig lacks
+    if why:
+        result["experimental"] = why
     return result

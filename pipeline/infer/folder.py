@@ -23,6 +23,19 @@ def find_model(name: str) -> Path | None:
     return cand if (cand / "model.json").exists() else None
 
 
+def experimental(name: str) -> str | None:
+    """Why the human model ``name`` is experimental (its model.json's ``experimental``), or
+    None for a shipped model, a built-in or a model that is not there."""
+    folder = find_model(name)
+    if folder is None:
+        return None
+    try:
+        why = json.loads((folder / "model.json").read_text()).get("experimental")
+    except (OSError, ValueError, AttributeError):
+        return None  # the fill itself says what is wrong with the folder
+    return str(why) if why else None
+
+
 class ModelFolderError(TweenError, ValueError):
     """A model folder that cannot be used: one line naming the file and what is wrong."""
 
@@ -42,6 +55,7 @@ _OPTIONAL = {
     "feet_orient": bool,
     "generator": dict,
     "kind": str,
+    "experimental": str,  # why no production shot should use it (said at every fill that does)
 }
 #: Settings with one value left: the one every shipped model has (the code for any other went
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
