@@ -20,100 +20,114 @@ from pipeline.fill.api import fill_shot
 from pipeline.fill.options import FillOptions, with_fill_options
 
 
+def _number(opt: str, text: str) -> float:
+    """``text`` as a finite number, or one line naming the option."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise TweenError(f"{opt} {text!r}: not a number") from None
+    if not math.isfinite(v):
+        raise TweenError(f"{opt} {text!r}: must be a finite number")
+    return v
+
+
+def _convert_options(keys_every: str, start: str, fps: str | None, up: str, name: str, frames: str | None):
+    """``tween convert``'s options, parsed: (key spacing, first time code, shot rate or None,
+    source frame span or None); a bad one is one line naming it."""
+    from pxr import Sdf
+
+    if not re.fullmatch(r"\s*\d+\s*", keys_every) or int(keys_every) < 1:
+        raise TweenError(f"--keys-every {keys_every!r}: expected a whole number of frames, 1 or more")
+    every = int(keys_every)
+    t0 = _number("--start", start)
+    rate = None
+    if fps is not None:
+        rate = _number("--fps", fps)
+        if not 0 < rate <= 1000:
+            raise TweenError(f"--fps {fps!r}: must be above 0 and at most 1000")
+    if up.lower() not in ("y", "z"):
+        raise TweenError(f"--up {up!r}: must be y or z")
+    if not Sdf.Path.IsValidIdentifier(name):
+        raise TweenError(
+            f"--name {name!r}: not a USD prim name (letters, digits, _; not starting with a digit)"
+        )
+    span = None
+    if frames is not None:
+        m = re.fullmatch(r"\s*(\d+)\s*-\s*(\d+)\s*", frames)
+        if not m:
+            raise TweenError(f"--frames {frames!r}: expected A-B, source frame numbers, e.g. 0-120")
+        span = int(m[1]), int(m[2])
+    return every, t0, rate, span
+
+
+def _check_shot_path(out: Path, force: bool) -> None:
+    """One line if the shot cannot be written at ``out``."""
+    if out.is_dir():
+        raise TweenError(f"{out}: is a folder; give the shot's file name (e.g. {out / 'shot.usda'})")
+    if out.suffix not in (".usda", ".usdc", ".usd"):
+        raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
+    if not out.parent.is_dir():
+        raise TweenError(f"{out}: the folder {out.parent} does not exist")
+    if (out.exists() or out.is_symlink()) and not force:  # fill layers may sublayer it
+        raise TweenError(f"{out}: exists; pass --force to replace it (fills of it keep pointing at it)")
+
+
+def convert(
+    bvh: Path = typer.Argument(..., help="BVH motion file (.bvh or .bvh.gz)."),
+    out: Path = typer.Argument(..., help="USD shot to write (.usda or .usdc)."),
+    keys_every: str = typer.Option("1", "--keys-every", help="Keep every Nth frame as a key (blocking)."),
+    start: str = typer.Option("1001", "--start", help="Time code of the first frame."),
+    fps: str = typer.Option(None, "--fps", help="Shot rate (resampled; default: the BVH's)."),
+    up: str = typer.Option("y", "--up", help="Stage up axis: y or z."),
+    frames: str = typer.Option(None, "--frames", help="Source frame span to keep, e.g. 0-120."),
+    name: str = typer.Option("Character", "--name", help="Name of the SkelRoot prim."),
+    force: bool = typer.Option(False, "--force", help="Replace OUT if it exists."),
+):
+    """BVH → UsdSkel shot with a skinned box mannequin."""
+
+    from pxr import Tf
+
+    from pipeline.motion.bvh import read_bvh
+    from pipeline.usd.convert import write_shot
+
+    # Numbers are parsed here, not by typer, so that a bad value is one line naming the
+    # option (typer's own message is a multi-line usage box). Nothing is read or written
+    # before the options and the output path check out.
+    every, t0, rate, span = _convert_options(keys_every, start, fps, up, name, frames)
+    _check_shot_path(out, force)
+    motion = read_bvh(bvh)
+    n = len(motion)
+    if span:
+        a, b = span
+        if not a < b < n:
+            raise TweenError(f"--frames {frames!r}: need A < B within the clip's frames 0-{n - 1} ({bvh})")
+        motion = motion.slice(a, b + 1)
+    if len(motion) < 2:
+        raise TweenError(f"{bvh}: fewer than two frames to convert")
+    if rate is not None and math.floor((len(motion) - 1) * rate / motion.fps + 1e-9) < 1:
+        raise TweenError(f"--fps {fps!r}: the shot would have fewer than two frames")
+    try:
+        path = write_shot(motion, out, start=t0, fps=rate, keys_every=every, up_axis=up.upper(), name=name)
+    except (OSError, Tf.ErrorException) as e:
+        why = " ".join(str(getattr(e, "strerror", None) or e).split())
+        raise TweenError(f"{out}: cannot write the shot: {why}") from None
+    typer.echo(path)
+
+
+@with_fill_options
+def fill_local(
+    shot: Path = typer.Argument(..., help="USD shot."),
+    job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
+    opts: FillOptions = None,
+):
+    """Fill a shot in this process and print the result as JSON."""
+
+    result = fill_shot(str(shot), opts, job_id=job_id)
+    print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
+    typer.echo(json.dumps(result, indent=1))
+
+
 def register(app: typer.Typer) -> None:
-    """Adds this package's commands to ``app``."""
-
-    @app.command()
-    def convert(
-        bvh: Path = typer.Argument(..., help="BVH motion file (.bvh or .bvh.gz)."),
-        out: Path = typer.Argument(..., help="USD shot to write (.usda or .usdc)."),
-        keys_every: str = typer.Option("1", "--keys-every", help="Keep every Nth frame as a key (blocking)."),
-        start: str = typer.Option("1001", "--start", help="Time code of the first frame."),
-        fps: str = typer.Option(None, "--fps", help="Shot rate (resampled; default: the BVH's)."),
-        up: str = typer.Option("y", "--up", help="Stage up axis: y or z."),
-        frames: str = typer.Option(None, "--frames", help="Source frame span to keep, e.g. 0-120."),
-        name: str = typer.Option("Character", "--name", help="Name of the SkelRoot prim."),
-        force: bool = typer.Option(False, "--force", help="Replace OUT if it exists."),
-    ):
-        """BVH → UsdSkel shot with a skinned box mannequin."""
-
-        from pxr import Sdf, Tf
-
-        from pipeline.motion.bvh import read_bvh
-        from pipeline.usd.convert import write_shot
-
-        # Numbers are parsed here, not by typer, so that a bad value is one line naming the
-        # option (typer's own message is a multi-line usage box). Nothing is read or written
-        # before the options and the output path check out.
-        def number(opt: str, text: str) -> float:
-            try:
-                v = float(text)
-            except ValueError:
-                raise TweenError(f"{opt} {text!r}: not a number") from None
-            if not math.isfinite(v):
-                raise TweenError(f"{opt} {text!r}: must be a finite number")
-            return v
-
-        if not re.fullmatch(r"\s*\d+\s*", keys_every) or int(keys_every) < 1:
-            raise TweenError(f"--keys-every {keys_every!r}: expected a whole number of frames, 1 or more")
-        every = int(keys_every)
-        t0 = number("--start", start)
-        rate = None
-        if fps is not None:
-            rate = number("--fps", fps)
-            if not 0 < rate <= 1000:
-                raise TweenError(f"--fps {fps!r}: must be above 0 and at most 1000")
-        if up.lower() not in ("y", "z"):
-            raise TweenError(f"--up {up!r}: must be y or z")
-        if not Sdf.Path.IsValidIdentifier(name):
-            raise TweenError(
-                f"--name {name!r}: not a USD prim name (letters, digits, _; not starting with a digit)"
-            )
-        span = None
-        if frames is not None:
-            m = re.fullmatch(r"\s*(\d+)\s*-\s*(\d+)\s*", frames)
-            if not m:
-                raise TweenError(f"--frames {frames!r}: expected A-B, source frame numbers, e.g. 0-120")
-            span = int(m[1]), int(m[2])
-        if out.is_dir():
-            raise TweenError(f"{out}: is a folder; give the shot's file name (e.g. {out / 'shot.usda'})")
-        if out.suffix not in (".usda", ".usdc", ".usd"):
-            raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
-        if not out.parent.is_dir():
-            raise TweenError(f"{out}: the folder {out.parent} does not exist")
-        if (out.exists() or out.is_symlink()) and not force:  # fill layers may sublayer it
-            raise TweenError(f"{out}: exists; pass --force to replace it (fills of it keep pointing at it)")
-        motion = read_bvh(bvh)
-        n = len(motion)
-        if span:
-            a, b = span
-            if not a < b < n:
-                raise TweenError(
-                    f"--frames {frames!r}: need A < B within the clip's frames 0-{n - 1} ({bvh})"
-                )
-            motion = motion.slice(a, b + 1)
-        if len(motion) < 2:
-            raise TweenError(f"{bvh}: fewer than two frames to convert")
-        if rate is not None and math.floor((len(motion) - 1) * rate / motion.fps + 1e-9) < 1:
-            raise TweenError(f"--fps {fps!r}: the shot would have fewer than two frames")
-        try:
-            path = write_shot(
-                motion, out, start=t0, fps=rate, keys_every=every, up_axis=up.upper(), name=name
-            )
-        except (OSError, Tf.ErrorException) as e:
-            why = " ".join(str(getattr(e, "strerror", None) or e).split())
-            raise TweenError(f"{out}: cannot write the shot: {why}") from None
-        typer.echo(path)
-
-    @app.command("fill-local")
-    @with_fill_options
-    def fill_local(
-        shot: Path = typer.Argument(..., help="USD shot."),
-        job_id: str = typer.Option("", "--job-id", help="Idempotency key: a layer with this id is reused."),
-        opts: FillOptions = None,
-    ):
-        """Fill a shot in this process and print the result as JSON."""
-
-        result = fill_shot(str(shot), opts, job_id=job_id)
-        print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
-        typer.echo(json.dumps(result, indent=1))
+    """Adds this package's commands to ``app``, in the order ``tween --help`` lists them."""
+    app.command()(convert)
+    app.command("fill-local")(fill_local)
