@@ -19,8 +19,6 @@ BEING_SPLIT = {
     ("pipeline/infer/post.py", "lock_feet"),
     ("pipeline/infer/spline.py", "spline_keys"),
     ("pipeline/train/generator_training.py", "step_batch"),
-    ("pipeline/train/recipe.py", "train_command"),
-    ("pipeline/train/recipe.py", "run_recipe"),
     ("pipeline/train/export.py", "export"),
 }
 

@@ -246,10 +246,9 @@ TRAIN_HELP = (
 )
 
 
-@cache
-def train_command():
-    """The click command of `tween train`, its options made from TrainConfig's fields."""
-    params = [
+def _run_folder_params() -> list[inspect.Parameter]:
+    """`tween train`'s parameters before TrainConfig's flags: the context, --out, --path-steps."""
+    return [
         inspect.Parameter("ctx", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=typer.Context),
         inspect.Parameter(
             "out",
@@ -271,16 +270,11 @@ def train_command():
             ),
         ),
     ]
-    for fl in train_flags():
-        params.append(
-            inspect.Parameter(
-                fl.name,
-                inspect.Parameter.KEYWORD_ONLY,
-                annotation=fl.kind,
-                default=typer.Option(fl.cli_default(), help=fl.help),
-            )
-        )
-    params += [
+
+
+def _recipe_params() -> list[inspect.Parameter]:
+    """`tween train`'s parameters after TrainConfig's flags: --recipe, --from-stage, --dry-run."""
+    return [
         inspect.Parameter(
             "recipe",
             inspect.Parameter.KEYWORD_ONLY,
@@ -306,6 +300,22 @@ def train_command():
             default=typer.Option(False, help="With --recipe: print each stage's command; train nothing."),
         ),
     ]
+
+
+@cache
+def train_command():
+    """The click command of `tween train`, its options made from TrainConfig's fields."""
+    params = _run_folder_params()
+    for fl in train_flags():
+        params.append(
+            inspect.Parameter(
+                fl.name,
+                inspect.Parameter.KEYWORD_ONLY,
+                annotation=fl.kind,
+                default=typer.Option(fl.cli_default(), help=fl.help),
+            )
+        )
+    params += _recipe_params()
 
     def train(ctx, **values):
         return _train(ctx, **values)
@@ -520,6 +530,17 @@ def run_recipe(
     start = rec.names.index(rec.stage(from_stage).name) if from_stage else 0
     say = echo if dry_run else (lambda m: print(m, file=sys.stderr))
     say(f"# recipe {rec.name} ({rec.source}): {len(rec.stages)} stages into {out}/")
+    last = _run_stages(rec, configs_, out, start, from_stage, dry_run, overrides, echo, say)
+    if rec.export is None:
+        if dry_run:
+            echo(rec.wall_line())
+        return last
+    return _run_export(rec, out, dry_run, echo, say)
+
+
+def _run_stages(rec, configs_, out, start, from_stage, dry_run, overrides, echo, say) -> Path | None:
+    """The recipe's stages from ``start`` on (each printed, with ``dry_run``, not run); returns
+    the last stage's generator checkpoint."""
     last, packed_said = None, False
     for i, (s, (cfg, path_cfg)) in enumerate(zip(rec.stages, configs_, strict=True)):
         run = out / s.name
@@ -562,10 +583,12 @@ def run_recipe(
                 indent=1,
             )  # fmt: skip
         )
-    if rec.export is None:
-        if dry_run:
-            echo(rec.wall_line())
-        return last
+    return last
+
+
+def _run_export(rec: Recipe, out: Path, dry_run: bool, echo, say) -> Path | None:
+    """The recipe's export into ``out``/model/ (printed, with ``dry_run``, not run; skipped
+    when its model.json exists); returns the model folder."""
     args = export_args(rec, out)
     steps = []
     if rec.export.path_from and rec.export.path_from != rec.export.stage:
