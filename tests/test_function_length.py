@@ -17,7 +17,6 @@ BEING_SPLIT = {
     ("pipeline/infer/features.py", "build_adapter_free_graph"),
     ("pipeline/infer/post.py", "match_keys"),
     ("pipeline/infer/post.py", "lock_feet"),
-    ("pipeline/infer/spline.py", "spline_keys"),
     ("pipeline/train/generator_training.py", "step_batch"),
     ("pipeline/train/export.py", "export"),
 }

@@ -49,6 +49,26 @@ def _curve(x: np.ndarray, y: np.ndarray, method: str, ends: str):
     return CubicHermiteSpline(x, y, slopes, axis=0)
 
 
+def _checked_inputs(rotations, root_positions, keys, method: str, ends: str):
+    """:func:`spline_keys`'s inputs as arrays, the keys sorted and unique; a ValueError for a
+    bad method or ends, mismatched shapes, fewer than two keys or a key outside the motion."""
+    if method not in METHODS:
+        raise ValueError(f"unknown spline method {method!r} (one of {', '.join(METHODS)})")
+    if ends not in ("auto", "flat"):
+        raise ValueError(f"unknown spline ends {ends!r} (auto or flat)")
+    rotations = np.asarray(rotations)
+    root_positions = np.asarray(root_positions)
+    T = rotations.shape[0]
+    if rotations.shape[-1] != 4 or root_positions.shape[0] != T or root_positions.shape[-1] != 3:
+        raise ValueError(f"rotations {rotations.shape} / root positions {root_positions.shape} do not match")
+    keys = np.unique(np.asarray(keys, np.int64))
+    if len(keys) < 2:
+        raise ValueError("a spline needs at least two keys")
+    if keys[0] < 0 or keys[-1] >= T:
+        raise ValueError(f"keys {keys[0]}..{keys[-1]} outside the motion's {T} frames")
+    return rotations, root_positions, keys
+
+
 def spline_keys(
     rotations: np.ndarray,
     root_positions: np.ndarray,
@@ -67,21 +87,7 @@ def spline_keys(
     ``ends``: ``"auto"`` (scipy's end slopes) or ``"flat"`` (ease in/out at the first and last
     key, as Blender's auto-clamped handles; PCHIP only).
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown spline method {method!r} (one of {', '.join(METHODS)})")
-    if ends not in ("auto", "flat"):
-        raise ValueError(f"unknown spline ends {ends!r} (auto or flat)")
-    rotations = np.asarray(rotations)
-    root_positions = np.asarray(root_positions)
-    T = rotations.shape[0]
-    if rotations.shape[-1] != 4 or root_positions.shape[0] != T or root_positions.shape[-1] != 3:
-        raise ValueError(f"rotations {rotations.shape} / root positions {root_positions.shape} do not match")
-    keys = np.unique(np.asarray(keys, np.int64))
-    if len(keys) < 2:
-        raise ValueError("a spline needs at least two keys")
-    if keys[0] < 0 or keys[-1] >= T:
-        raise ValueError(f"keys {keys[0]}..{keys[-1]} outside the motion's {T} frames")
-
+    rotations, root_positions, keys = _checked_inputs(rotations, root_positions, keys, method, ends)
     q = rotations[keys].reshape(len(keys), -1, 4).astype(np.float64)  # (K, M, 4)
     # Hemisphere-consistent keys: flip c_k = c_{k-1} · sign(q_k · q_{k-1}) (0 counts as +).
     step = np.where((q[1:] * q[:-1]).sum(-1) < 0, -1.0, 1.0)
