@@ -197,8 +197,8 @@ def build_features(
     for the generator without its adapter (:func:`adapter_free_graph`). Without
     ``key_adapter`` each joint's baseline and key copy follow its own keys.
     """
-    # (One function of 70 lines: each channel group is written in place, in the network's
-    # (B, C, N) layout and channel order, from intermediates the groups share.)
+    # Long because it is one vectorised kernel: each channel group is written in place, in the
+    # network's (B, C, N) layout and channel order, from intermediates the groups share.
     keys = np.asarray(keys, np.int64)
     B, N, J = rot.shape[:3]
     if joint_keys is not None:
@@ -345,8 +345,8 @@ def build_adapter_free_graph(path, n_joints: int, frames: int = 64) -> bytes | N
     missing (it comes with the ``train`` extra; the farm then runs the whole graph, as
     before), no adapter, a graph of another shape, or outputs that differ.
     """
-    # (One function: a graph edit read top to bottom: find the adapter, rewire its sum, narrow
-    # the input, prune, and check the result against the whole graph.)
+    # Long because it is one ONNX graph edit read top to bottom: find the adapter, rewire its
+    # sum, narrow the input, prune, and check the result against the whole graph.
     try:
         import onnx
         import onnxruntime as ort
