@@ -57,8 +57,8 @@ def match_keys(rot, root, key_rot, key_root, keys, joint_keys=None):
     (K, J + 1; the first and last keys full) each joint and the root match only the keys that
     key them, and their corrections spread between those.
     """
-    # (One function: the per-key correction and its spreading share the key indexing above;
-    # partial keys only select which channels each key corrects.)
+    # Long because it is one vectorised kernel: the per-key correction and its spreading share
+    # one key indexing; partial keys only select which channels each key corrects.
     B, N, J = rot.shape[:3]
     keys = np.asarray(keys)
     K = len(keys)
@@ -235,8 +235,8 @@ def lock_feet(
     With ``orient`` the foot's world orientation is held too (the key's, slerped between two
     such keys, else the contact's mean), so the toes stay put while the ankle is locked.
     """
-    # (One function: per leg, the contact segments, their targets and the ramp weights feed
-    # one IK call; apart, each step would need all of the others' arrays.)
+    # Long because it is one vectorised kernel: per leg, the contact segments, their targets
+    # and the ramp weights feed one IK call; apart, each step would need all the others' arrays.
     N = len(rot)
     keys = np.asarray(keys)
     ankles = [leg[2] for leg in legs]
