@@ -279,8 +279,8 @@ def rel_positions(pos: torch.Tensor) -> torch.Tensor:
 def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dict | None:
     """Everything step ``step`` trains on, made in numpy from (seed, step) alone, so that
     resuming replays the same batches and batch-making processes agree with each other."""
-    # (One function, in the order its random draws are taken: every run, resumed or replayed,
-    # depends on that order, which a split would make easy to change unseen.)
+    # Long because it runs in the order its random draws are taken: every run, resumed or
+    # replayed, depends on that order bit for bit, which a split would make easy to change unseen.
     rng = np.random.default_rng([cfg.seed, step])
     frac = min(step / max(cfg.curriculum * cfg.steps, 1), 1.0)
     max_gap = int(cfg.gap_start + frac * (cfg.gap_end - cfg.gap_start))
