@@ -10,12 +10,6 @@ PACKAGES = ("pipeline", "workers", "render")
 MAX_LINES = 60
 REASON = "# Long because"
 
-#: Long functions being split (issue 33), in the packages another change is refactoring; a
-#: name that leaves this list must not come back. Names no longer long are not an error here.
-BEING_SPLIT = {
-    ("pipeline/train/export.py", "export"),
-}
-
 
 def _long_functions():
     """(path, name, lines, whether the top of its body gives the reason) of every function
@@ -37,15 +31,10 @@ def _long_functions():
 
 
 def test_long_functions_say_why():
-    bad = [f"{path}: {name}() is {length} lines" for path, name, length, given in _long_functions()
-           if not given and (path, name) not in BEING_SPLIT]  # fmt: skip
+    bad = [
+        f"{path}: {name}() is {length} lines" for path, name, length, given in _long_functions() if not given
+    ]
     assert not bad, (
         f"functions over {MAX_LINES} lines: split them into named stages, or say why at the top of "
         f"the body in a comment starting {REASON!r}:\n" + "\n".join(bad)
     )
-
-
-def test_exceptions_are_in_the_packages_being_split():
-    outside = [p for p, _ in BEING_SPLIT if not p.startswith(("pipeline/infer/", "pipeline/fill/",
-                                                              "pipeline/bench/", "pipeline/train/"))]  # fmt: skip
-    assert not outside, outside

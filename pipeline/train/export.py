@@ -66,8 +66,8 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     """The model folder ``out_dir`` (model ``name``) from a run's checkpoints: the networks in
     ONNX, their torch weights, the pose bank and model.json (``extra``: its inference
     settings); returns model.json's content."""
-    # (One function: the files of one folder written in order, generator, path predictor,
-    # torch checkpoints, pose bank, then model.json with the hash of them all.)
+    # Long because it writes one folder's files in order: generator, path predictor, torch
+    # checkpoints, pose bank, then model.json with the hash of them all.
     out_dir.mkdir(parents=True, exist_ok=True)
     gen, gcfg, gstate = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
     files = {}
