@@ -109,16 +109,7 @@ def undo(shot: str, opts: dict, job: dict) -> list[str]:
     out_dir = Path(opts.get("out_dir") or write.default_out_dir(shot))
     done = write.find_job(out_dir, write.shot_stem(shot), job["id"]) if out_dir.is_dir() else None
     if done:
-        folder = review_dir(done)
-        removed += clean_scratch(folder, job["id"])
-        if done.get("review"):
-            for p in version_media(done["review"], folder):
-                p.unlink(missing_ok=True)
-                removed.append(str(p))
-        try:
-            os.rmdir(folder)  # the review folder, if this job's media were all it held
-        except OSError:
-            pass
+        removed += _drop_media(review_dir(done), job["id"], done.get("review"))
         for key in ("review", "layer"):  # the layer last: it is how the job's files are found
             p = done.get(key)
             if p and os.path.isfile(p):
@@ -134,10 +125,15 @@ def undo_render(job: dict) -> list[str]:
     """Removes what a render-only job made: its scratch, and the media of its version that were
     not there when it was submitted (``job["existing"]``). The fill version itself stays."""
     review = job["review"]
-    folder = os.path.join(os.path.dirname(review), "review")
-    removed = clean_scratch(folder, job["id"])
-    keep = set(job.get("existing") or ())
-    for p in version_media(review, folder):
+    return _drop_media(review_dir({"review": review}), job["id"], review, set(job.get("existing") or ()))
+
+
+def _drop_media(folder: str, job_id: str, review: str | None, keep=frozenset()) -> list[str]:
+    """Removes job ``job_id``'s render scratch in ``folder`` and the media there of the version
+    whose review layer is ``review`` (but those named in ``keep``), then ``folder`` if that
+    emptied it. Returns what it removed."""
+    removed = clean_scratch(folder, job_id)
+    for p in version_media(review, folder) if review else ():
         if p.name not in keep:
             p.unlink(missing_ok=True)
             removed.append(str(p))

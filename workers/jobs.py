@@ -209,7 +209,7 @@ def submit_review(review: str, *, roots=None, queue: str | None = None) -> str:
         jobpaths.check_under_roots(review, roots, "review layer")
     takes = len(list_takes(review)) or 1
     job_id = uuid.uuid4().hex
-    folder = os.path.join(os.path.dirname(review), "review")
+    folder = cleanup.review_dir({"review": review})
     job = {
         "id": job_id,
         "kind": "review",
