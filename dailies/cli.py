@@ -88,6 +88,21 @@ def _warm(roots: list[Path]) -> None:
         pass
 
 
+TRACKER_MAP_HELP = "JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT file names)."
+
+
+def _tracker(name: str | None, mapping_file: Path | None):
+    """(the tracker ``name`` made from its settings or None, the mapping read from
+    ``mapping_file`` or None): every --tracker/--tracker-map mistake is one line here."""
+    from dailies.tracker import read_mapping
+    from dailies.trackers import make
+
+    if mapping_file is not None and name is None:
+        raise TweenError("--tracker-map: give --tracker too")
+    mapping = read_mapping(mapping_file)
+    return (make(name) if name else None), mapping
+
+
 def dailies(
     roots: list[Path] = typer.Argument(..., help="Folders the shots and their fills are under."),
     host: str = typer.Option(
@@ -104,9 +119,7 @@ def dailies(
         "--tracker",
         help="Send approved takes to this tracker from the page: kitsu (TWEEN_KITSU_* settings).",
     ),
-    tracker_map: Path = typer.Option(
-        None, "--tracker-map", help="JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT file names)."
-    ),
+    tracker_map: Path = typer.Option(None, "--tracker-map", help=TRACKER_MAP_HELP),
 ):
     """Serve the dailies review page: takes side by side in sync, approve and publish."""
     # Everything checked before anything heavy is imported or the port is taken.
@@ -114,13 +127,7 @@ def dailies(
     check_tls(certfile, keyfile)
     if token is not None and len(token) < 16:
         raise TweenError("--token: at least 16 characters (it is the only login)")
-    from dailies.tracker import read_mapping
-    from dailies.trackers import make
-
-    if tracker_map is not None and tracker is None:
-        raise TweenError("--tracker-map: give --tracker too")
-    mapping = read_mapping(tracker_map)
-    sink = make(tracker) if tracker else None  # its settings checked now, not at the first click
+    sink, mapping = _tracker(tracker, tracker_map)  # its settings checked now, not at the first click
     import uvicorn
 
     from dailies.app import create_app
@@ -176,20 +183,13 @@ def publish(
         "--tracker",
         help="Also send the approved take's MP4 and note to this tracker: kitsu (TWEEN_KITSU_* settings).",
     ),
-    tracker_map: Path = typer.Option(
-        None, "--tracker-map", help="JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT file names)."
-    ),
+    tracker_map: Path = typer.Option(None, "--tracker-map", help=TRACKER_MAP_HELP),
 ):
     """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
-    from dailies.tracker import read_mapping
-    from dailies.trackers import make
     from pipeline.usd.dailies import publish as publish_take
 
-    if tracker_map is not None and tracker is None:
-        raise TweenError("--tracker-map: give --tracker too")
     # The tracker's settings and the mapping are checked before anything is written.
-    mapping = read_mapping(tracker_map)
-    sink = make(tracker) if tracker else None
+    sink, mapping = _tracker(tracker, tracker_map)
     r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
     print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
     typer.echo(r["layer"])
