@@ -23,7 +23,8 @@ Bandai split the shipped network was trained on the held-out takes too (they are
 takes), so there ``library-spline`` is the clean measure of the library.
 
 ``python -m pipeline.bench.library [--source cmu,bandai] [--every 10,30] [--stride 5]
-[--max-frames 300] [--methods library,library-spline,library-alone,default,spline] [--out DIR]``
+[--max-frames 300] [--methods library,library-spline,library-alone,default,spline] [--tuning]
+[--out DIR]``; ``--tuning`` measures the split the constants are chosen on instead (:func:`split`).
 """
 
 from __future__ import annotations
@@ -50,27 +51,32 @@ SOURCES = ("cmu", "bandai")
 _TAKE = re.compile(r"_(\d+)\.bvh(\.gz)?$")
 
 
-def split(source: str) -> tuple[list[Path], list[Path]]:
-    """(library takes, held-out takes) of a source, split by take."""
+def split(source: str, tuning: bool = False) -> tuple[list[Path], list[Path]]:
+    """(library takes, held-out takes) of a source, split by take; ``tuning``: the split the
+    constants of :mod:`pipeline.library` are chosen on (CMU: every subject's 3rd, 8th, … take
+    held out; Bandai: the dataset-2 takes numbered 3 mod 5), never the bench's."""
     if source == "cmu":
         files = cmu_files()
         by: dict[str, list[Path]] = {}
         for f in files:
             by.setdefault(f.name[:3], []).append(f)
-        held = {f for fs in by.values() for i, f in enumerate(fs) if i % 5 == 4}
+        held = {f for fs in by.values() for i, f in enumerate(fs) if i % 5 == (2 if tuning else 4)}
     elif source == "bandai":
         files = list_clips("train")
-        held = {f for f in files if f.name.startswith("dataset-2_") and int(_TAKE.search(f.name)[1]) % 5 == 4}
+        rest = 3 if tuning else 4
+        held = {
+            f for f in files if f.name.startswith("dataset-2_") and int(_TAKE.search(f.name)[1]) % 5 == rest
+        }
     else:
         raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
     return [f for f in files if f not in held], sorted(held)
 
 
-def library_for(source: str, files: list[Path]) -> Path:
+def library_for(source: str, files: list[Path], tuning: bool = False) -> Path:
     """The source's library (built once into the cache, as ``tween library build`` builds it)."""
     from pipeline.library.build import build
 
-    folder = cache_dir() / "bench-libraries" / f"{source}-split-v1"
+    folder = cache_dir() / "bench-libraries" / f"{source}-{'tuning' if tuning else 'split'}-v1"
     if not is_library(folder):
         print(f"library bench: building the {source} library from {len(files)} takes…", file=sys.stderr)
         tmp = folder.with_name(folder.name + ".partial")
@@ -92,12 +98,14 @@ def _fills(lib: Path) -> dict:
 
 
 def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_frames: int | None = 300,
-        limit: int | None = None) -> dict:  # fmt: skip
+        limit: int | None = None, tuning: bool = False) -> dict:  # fmt: skip
     report: dict = {"every": list(every), "methods": list(methods), "max_frames": max_frames, "sources": {}}
+    if tuning:
+        report["split"] = "tuning"
     t0 = time.perf_counter()
     for source in sources:
-        lib_files, held = split(source)
-        lib = library_for(source, lib_files)
+        lib_files, held = split(source, tuning)
+        lib = library_for(source, lib_files, tuning)
         if source == "bandai":
             held = held[::stride]
         held = held[: limit or None]
@@ -180,6 +188,8 @@ def main(argv=None) -> int:
     ap.add_argument("--stride", type=int, default=5, help="bandai: every N-th held-out take is scored")
     ap.add_argument("--limit", type=int, default=None, help="at most N held-out takes per source")
     ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
+    ap.add_argument("--tuning", action="store_true",
+                    help="the tuning split (where the constants are chosen), not the bench's")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None, help="folder for library.json and library.md")
     a = ap.parse_args(argv)
     methods = tuple(m for m in a.methods.split(",") if m)
@@ -190,7 +200,7 @@ def main(argv=None) -> int:
     if any(s not in SOURCES for s in sources):
         ap.error(f"--source: one or more of {', '.join(SOURCES)}")
     every = tuple(int(e) for e in a.every.split(",") if e)
-    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit)
+    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit, a.tuning)
     publish(rep, a.out, "library")
     return 0
 
