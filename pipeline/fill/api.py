@@ -159,6 +159,29 @@ def _joined(values) -> str:
     return "+".join(dict.fromkeys(values))
 
 
+def _licences(opts: FillOptions, cp, inb, alternatives) -> dict[str, str]:
+    """{in-betweener name: its licence} of what may fill the character ``cp``: its rig model,
+    or the human model, or a library and the network probed beside it (pipeline.fill.licence)."""
+    from pipeline.fill.licence import folder_licence, library_licence, model_licence
+
+    if cp.model:
+        return {inb.name: folder_licence(cp.model, "rig.json")}
+    if not opts.library:
+        return {inb.name: model_licence(opts.model)}
+    out = {inb.name: library_licence(open_library(opts.library).manifest)}
+    for alt in alternatives:  # the network the library is probed against (LIBRARY_VS_NETWORK)
+        out[alt.name] = model_licence("default")
+    return out
+
+
+def merged_licences(chars: list[dict]) -> dict[str, str]:
+    """{in-betweener name: licence} over the characters of a take (the fill's ``licence``)."""
+    out: dict[str, str] = {}
+    for c in chars:
+        out.update(c.get("licence") or {})
+    return out
+
+
 def composition(shot: str, opts: FillOptions) -> list[str]:
     """The assets the shot names that cannot be found (pipeline.usd.read.missing_assets), one
     warning line each on stderr; with ``opts.strict`` a ShotError instead."""
@@ -219,12 +242,14 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     models = {}
     inbs = [_char_model(cp, human) for cp in plan.chars]
+    alternatives = (_model("default"),) if opts.library and LIBRARY_VS_NETWORK else ()
     for cp, inb in zip(plan.chars, inbs, strict=True):
         models[cp.char.anim_path] = {
             "name": inb.name,
             "hash": inb.model_hash,
             "kind": "rig" if cp.model else "human",
             **({"folder": cp.model} if cp.model else {}),
+            "licence": _licences(opts, cp, inb, alternatives if cp.model is None else ()),
         }
     _check_dna(opts, inbs)
     dna = dna_motion(opts, float(inbs[0].fps))
@@ -333,6 +358,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
                       "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
                       "model_kind": "rig" if cp.model else "human",
+                      "licence": _licences(opts, cp, inb, alternatives if cp.model is None else ()),
                       "retarget": cp.retarget_info(), "trust": decision, "jumps": cp.jumps})  # fmt: skip
     meta = {"shot": os.path.realpath(shot), "take": take, "seed": opts.seed + take,
             "model": _joined(m.name for m in inbs), "model_hash": _joined(m.model_hash for m in inbs),
@@ -399,7 +425,10 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
     if "dna" in takes[0]:
         meta["dna"] = takes[0]["dna"]
+    meta["licence"] = merged_licences(takes[0]["chars"])
     result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
+    # Under which terms each in-betweener that filled the shot was made (pipeline.fill.licence).
+    result["licence"] = meta["licence"]
     # Per character: how far the human model was trusted against the spline (None: not asked).
     result["trust"] = {c["anim"]: c.get("trust") for c in takes[0]["chars"]}
     # Per character: the key pairs its body teleports between (pipeline.fill.jumps).

@@ -31,7 +31,8 @@ from usd_schemas import tokens
 SUFFIX = "_tween"
 ANIM_ATTRS = ("rotations", "translations", "scales")
 #: Provenance attributes of the fill's animation copied onto the published one.
-_PROVENANCE = (tokens.KEY_TIMES, tokens.MODEL, tokens.MODEL_HASH, tokens.JOB_ID, tokens.CREATED_AT)
+_PROVENANCE = (tokens.KEY_TIMES, tokens.MODEL, tokens.MODEL_HASH, tokens.MODEL_LICENCE, tokens.JOB_ID,
+               tokens.CREATED_AT)  # fmt: skip
 _DECISION = {
     "status": (tokens.REVIEW_STATUS, "Token"),
     "take": (tokens.APPROVED_TAKE, "Int"),
@@ -393,6 +394,7 @@ def _provenance(shot: str, src, path: Path, n: int, take: int, d: dict) -> dict:
         "model": info.get("model", ""),
         "modelHash": info.get("modelHash", ""),
         "models": dict(info.get("models", {})),
+        **({"licence": dict(info["licence"])} if "licence" in info else {}),
         "jobId": info.get("jobId", ""),
         "take": take,
         "approval": {k: d[k] for k in ("status", "take", "by", "at", "note")},

@@ -71,6 +71,7 @@ def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
                 "model": info.get("model", ""),
                 "model_hash": info.get("modelHash", ""),
                 "models": dict(info.get("models", {})),
+                "licence": dict(info.get("licence", {})),
             }
     return None
 
@@ -137,6 +138,9 @@ def _author_provenance(spec, c: dict, meta: dict) -> None:
                       (tokens.MODEL_HASH, c.get("model_hash", meta["model_hash"])),
                       (tokens.JOB_ID, meta["job_id"]), (tokens.CREATED_AT, meta["created_at"])):  # fmt: skip
         author_attr(spec, name, Sdf.ValueTypeNames.String, val)
+    if c.get("licence"):  # under which terms its in-betweeners were made (pipeline.fill.licence)
+        lic = "; ".join(f"{name}: {value}" for name, value in c["licence"].items())
+        author_attr(spec, tokens.MODEL_LICENCE, Sdf.ValueTypeNames.String, lic)
     tr = c.get("trust")
     if tr:  # how far the human model was trusted against the spline, and why
         author_attr(spec, tokens.TRUST, Sdf.ValueTypeNames.Token, tr["choice"])
@@ -321,6 +325,8 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
                     "shot": str(shot),
                     "createdAt": meta["created_at"],
                     **({"dna": meta["dna"]} if "dna" in meta else {}),
+                    # {in-betweener: licence} of what filled the shot (pipeline.fill.licence).
+                    **({"licence": dict(meta["licence"])} if meta.get("licence") else {}),
                 }  # fmt: skip
             }
             author_fill_layer(layer, stage, takes, meta)
