@@ -41,6 +41,23 @@ class ClipSet:
     rotations: np.ndarray
     roots: np.ndarray
     fps: float
+    #: (C,) how often each clip's windows are drawn, relative (None: every clip alike), and
+    #: (C,) the group (a corpus's source, pipeline.data.corpus) each clip belongs to.
+    weights: np.ndarray | None = None
+    groups: np.ndarray | None = None
+
+    def draw_p(self, ok: np.ndarray) -> np.ndarray | None:
+        """Probabilities of drawing each clip of ``ok`` (indices of the clips long enough for a
+        window); None: every clip alike. Each group keeps its whole weight, shared over its
+        clips in ``ok``: a source's short clips do not lower its share of windows."""
+        if self.weights is None:
+            return None
+        w = np.asarray(self.weights, np.float64)
+        g = np.zeros(len(w), np.int64) if self.groups is None else np.asarray(self.groups)
+        full = np.bincount(g, weights=w)
+        have = np.bincount(g[ok], weights=w[ok], minlength=len(full))
+        p = w[ok] * full[g[ok]] / have[g[ok]]
+        return p / p.sum()
 
     def clip(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         s, n = self.starts[i], self.lengths[i]

@@ -83,7 +83,8 @@ def sample_batch(
     """(rot (B, L, J, 4), root (B, L, 3)) windows from clips at least ``length`` long; each
     window's (clip, first frame in the clip) is appended to ``where`` when given."""
     ok = np.flatnonzero(clips.lengths >= length)
-    pick = rng.choice(ok, size=batch)
+    # p=None draws exactly as before: the train split's and --data's batches stay bit for bit.
+    pick = rng.choice(ok, size=batch, p=clips.draw_p(ok))
     rots, roots = [], []
     for c in pick:
         off = int(rng.integers(0, clips.lengths[c] - length + 1))

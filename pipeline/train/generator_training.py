@@ -97,6 +97,13 @@ class TrainConfig:
     data_include: str | None = _knob(
         None, "With --data: only the takes whose file names match these comma-separated globs."
     )
+    corpus: str | None = _knob(
+        None,
+        "A corpus description (TOML/JSON: sources of any rig, each with its licence and weight; "
+        "pipeline/data/corpus.py) instead of Bandai train: prepared once (resumable), windows "
+        "drawn by source weight.",
+        path=True,
+    )
     init: str | None = _knob(
         None,
         "Continue from these weights: a generator checkpoint, or a model folder (its "
@@ -162,6 +169,10 @@ class TrainConfig:
             if not values or not all(isinstance(x, int | float) and lo <= x <= hi for x in values):
                 flag = "--" + name.replace("_", "-")
                 raise ValueError(f"{flag} {v!r}: must be from {lo:g} to {hi:g}")
+        given = [f for f, v in (("--data", self.data), ("--data-pack", self.data_pack),
+                                ("--limit-clips", self.limit_clips), ("--pos-zscore", self.pos_zscore)) if v]  # fmt: skip
+        if self.corpus and given:
+            raise ValueError(f"--corpus {self.corpus}: reads its own sources; drop {', '.join(given)}")
         if self.gap_end < self.gap_start:
             raise ValueError(f"--gap-end {self.gap_end}: must be at least --gap-start {self.gap_start}")
 
@@ -438,13 +449,17 @@ def training_clips(cfg: TrainConfig):
         from pipeline.data.pack import load_pack
 
         clips = load_pack(cfg.data_pack)
+    elif cfg.corpus:
+        from pipeline.train.corpus import corpus_clips
+
+        clips = corpus_clips(cfg.corpus)
     else:
         clips = (
             load_takes(cfg.data, cfg.data_include) if cfg.data else load_split("train", limit=cfg.limit_clips)
         )
     short = [n for n in cfg.lengths if not (clips.lengths >= n).any()]
     if short:
-        where = cfg.data or "the train split"
+        where = cfg.corpus or cfg.data or "the train split"
         raise TweenError(
             f"{where}: no take of {max(short)} frames (at 30 fps) for --lengths {max(short)}; "
             f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"

@@ -43,6 +43,7 @@ class PathTrainConfig:
     limit_clips: int | None = None
     data: str | None = None  # a folder of the studio's own takes instead of the Bandai train split
     data_include: str | None = None  # file-name globs under ``data``
+    corpus: str | None = None  # a corpus description (pipeline.data.corpus) instead of either
     model: PathConfig = field(default_factory=PathConfig)
 
 
@@ -60,18 +61,26 @@ def multiscale_loss(vel: torch.Tensor, root: torch.Tensor, scales) -> torch.Tens
     return torch.stack(losses).mean()
 
 
+def _clips(cfg: PathTrainConfig):
+    """What the path predictor trains on: a corpus, a studio's takes or the train split."""
+    if cfg.corpus:
+        from pipeline.train.corpus import corpus_clips
+
+        return corpus_clips(cfg.corpus)
+    if cfg.data:
+        from pipeline.usd.take import load_takes
+
+        return load_takes(cfg.data, cfg.data_include)
+    return load_split("train", limit=cfg.limit_clips)
+
+
 def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     from pipeline.networks.layers import batch_regularisation
 
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     skel = bandai_skeleton()
-    if cfg.data:
-        from pipeline.usd.take import load_takes
-
-        clips = load_takes(cfg.data, cfg.data_include)
-    else:
-        clips = load_split("train", limit=cfg.limit_clips)
+    clips = _clips(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)  # the data read first: a refusal writes nothing
     model = PathPredictor(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)

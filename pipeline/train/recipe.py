@@ -182,7 +182,7 @@ def configs(values: dict):
         cfg = TrainConfig(**kw, model=GeneratorConfig(**model))
     except ValueError as e:
         raise typer.BadParameter(str(e)) from None
-    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include")}
+    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include", "corpus")}
     return cfg, PathTrainConfig(steps=values["path_steps"], **common)
 
 
@@ -206,6 +206,10 @@ def check_run(out: Path, cfg) -> None:
     refuse_model(out, "--out (a run folder)", force_hint=None)
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
+    if cfg.corpus:
+        from pipeline.data.corpus import load_corpus
+
+        load_corpus(cfg.corpus)
     if cfg.init:
         from pipeline.train.generator_training import load_init
 

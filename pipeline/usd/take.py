@@ -14,26 +14,28 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.adapt.mapping import MappingError, map_joints
+from pipeline.adapt.mapping import MappingError, load_override, map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import ShotError
 from pipeline.motion.clip import Motion
 
 
-def _usd_take(path: Path, fps: float, name: str, source: Path | None = None) -> Motion:
-    """``source``: the file the user named, when ``path`` is its conversion (a BVH's)."""
+def _usd_take(path: Path, fps: float, name: str, source: Path | None = None, override=None) -> Motion:
+    """``source``: the file the user named, when ``path`` is its conversion (a BVH's);
+    ``override``: a joint mapping file's roles (pipeline.adapt.mapping.load_override)."""
     from pipeline.adapt.retarget import Retarget
     from pipeline.usd.read import anim_values, read_shot, to_skeleton_order
 
     shot = read_shot(path)
     c = shot.characters[0]
     try:
-        rt = Retarget(c, map_joints(c.joints, c.parents), shot.up_axis, shot.meters_per_unit)
+        rt = Retarget(c, map_joints(c.joints, c.parents, override), shot.up_axis, shot.meters_per_unit)
     except MappingError as e:
-        # No --mapping here (training, libraries, DNA read takes by their names alone).
+        # Libraries and DNA read takes by their names alone; a corpus source may give a mapping.
+        how = "with the source's mapping" if override else "by their joint names alone"
         raise ShotError(
             source or path,
-            f"{e.reason} (takes are read by their joint names alone)",
+            f"{e.reason} (takes are read {how})",
             None if source else c.skel_path,
         ) from None
     times = np.arange(shot.start, shot.end + 1e-6, shot.tcps / fps)
@@ -44,9 +46,11 @@ def _usd_take(path: Path, fps: float, name: str, source: Path | None = None) -> 
     return Motion(bandai_skeleton(), q, root, fps, name).continuous()
 
 
-def model_take(path: str | Path, fps: float = 30.0) -> Motion:
-    """The take in ``path`` (.usd/.usda/.usdc, or .bvh/.bvh.gz) on the model skeleton."""
+def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None = None) -> Motion:
+    """The take in ``path`` (.usd/.usda/.usdc, or .bvh/.bvh.gz) on the model skeleton;
+    ``mapping``: a joint mapping file for its rig (as ``tween fill --mapping``)."""
     path = Path(path)
+    override = load_override(mapping)
     if not path.is_file():
         raise ShotError(path, "no such take file")
     if path.name.endswith((".bvh", ".bvh.gz")):
@@ -58,8 +62,10 @@ def model_take(path: str | Path, fps: float = 30.0) -> Motion:
         except (ValueError, IndexError, OSError) as e:
             raise ShotError(path, f"cannot read the BVH: {e}") from None
         with tempfile.TemporaryDirectory() as tmp:
-            return _usd_take(write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name, path)
-    return _usd_take(path, fps, path.name)
+            return _usd_take(
+                write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name, path, override
+            )
+    return _usd_take(path, fps, path.name, override=override)
 
 
 TAKE_SUFFIXES = (".bvh", ".bvh.gz", ".usd", ".usda", ".usdc", ".usdz")

@@ -29,7 +29,9 @@ def walk(tmp_path_factory):
 
 @pytest.mark.parametrize("folder", MODELS, ids=[p.name for p in MODELS])
 def test_every_shipped_model_declares_its_sources_and_licence(folder):
-    meta = json.loads(next(p for p in (folder / "model.json", folder / "rig.json") if p.is_file()).read_text())
+    meta = json.loads(
+        next(p for p in (folder / "model.json", folder / "rig.json") if p.is_file()).read_text()
+    )
     assert isinstance(meta["licence"], str) and meta["licence"] not in ("", NOT_STATED)
     assert isinstance(meta["commercial"], bool) and meta["sources"]
     for src in meta["sources"]:
@@ -61,14 +63,20 @@ def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, 
     layer = Sdf.Layer.FindOrOpen(res["layer"])
     assert dict(layer.customLayerData["tween"]["licence"]) == want
     stage = Usd.Stage.Open(res["layer"])
-    assert stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get() == "tween-bandai-v5.3: CC BY-NC 4.0"
+    assert (
+        stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get()
+        == "tween-bandai-v5.3: CC BY-NC 4.0"
+    )
     # Approved and published, the plain layer still says under which terms it was made.
     dailies.approve(str(walk), 0, out_dir=str(out), by="alice")
     pub = dailies.publish(str(walk), out_dir=str(out))
     player = Sdf.Layer.FindOrOpen(pub["layer"])
     assert dict(player.customLayerData["tween"]["licence"]) == want
     pstage = Usd.Stage.Open(pub["layer"])
-    assert pstage.GetPrimAtPath(pub["animations"][0]).GetAttribute(tokens.MODEL_LICENCE).Get() == "tween-bandai-v5.3: CC BY-NC 4.0"
+    assert (
+        pstage.GetPrimAtPath(pub["animations"][0]).GetAttribute(tokens.MODEL_LICENCE).Get()
+        == "tween-bandai-v5.3: CC BY-NC 4.0"
+    )
 
 
 def test_fill_local_json_names_the_licence_and_a_builtin_has_none(walk, tmp_path):
@@ -78,4 +86,6 @@ def test_fill_local_json_names_the_licence_and_a_builtin_has_none(walk, tmp_path
     res = json.loads(r.stdout)
     assert res["licence"] == {"interpolation": NO_WEIGHTS}
     stage = Usd.Stage.Open(res["layer"])
-    assert stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get() == f"interpolation: {NO_WEIGHTS}"
+    assert (
+        stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get() == f"interpolation: {NO_WEIGHTS}"
+    )
