@@ -173,7 +173,11 @@ def source_files(src: Source, listing) -> list[Path]:
 
 
 def _write_json(path: Path, data: dict) -> None:
+    """``data`` to ``path`` atomically, readable as the arrays are (mkstemp makes it private)."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         json.dump(data, f, indent=1)
     os.replace(tmp, path)
@@ -262,8 +266,9 @@ def prepare(
         writer.manifest["failed"] = []  # tried again: a file fixed since is read
         todo.append((src, writer, [f for f in files if str(f) not in done]))
     n = sum(len(t[2]) for t in todo)
-    bar = tqdm(total=n, desc=f"corpus {corpus.name}", unit="clip", file=sys.stderr,
-               disable=not progress or None, mininterval=2.0, delay=1.0)  # fmt: skip
+    # Shown in a log as on a terminal: a long prepare says how far it is wherever it runs.
+    bar = tqdm(total=n, desc=f"corpus {corpus.name}", unit="clip", file=sys.stderr, disable=not progress,
+               mininterval=2.0, delay=1.0)  # fmt: skip
     try:
         for src, writer, files in todo:
             bar.set_postfix_str(src.name, refresh=False)

@@ -137,12 +137,39 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     # see OnnxInbetweener._network (experiments/pad_layouts.py measured the layouts tried).
     meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
+    meta.update(data_terms(gstate.get("config", {})))
     bank = _pose_bank(out_dir, gstate.get("config", {}))
     if bank:
         meta["pose_bank"] = bank
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
     return meta
+
+
+def data_terms(config: dict) -> dict:
+    """model.json's ``licence`` and ``sources`` (models/README.md) for a run on a corpus: each
+    source's licence and hours, and the terms of the model it continued (``--init``), which a
+    fine-tune inherits. Empty for other runs (their card states the terms)."""
+    if not config.get("corpus"):
+        return {}
+    from pipeline.train.corpus import prepared
+
+    _, _, manifest = prepared(config["corpus"], progress=False)
+    sources = [{"name": f"{manifest['name']}/{s['name']} ({s['path']})", "licence": s["licence"],
+                "frames": s["frames"], "fps": manifest["fps"], "hours": s["hours"], "weight": s["weight"],
+                "use": "trained"} for s in manifest["sources"]]  # fmt: skip
+    init = Path(config["init"]) if config.get("init") else None
+    folder = init if init is None or init.is_dir() else init.parent.parent  # <model>/torch/generator.pt
+    if init is not None:
+        try:
+            given = json.loads((folder / "model.json").read_text())
+            sources.append({"name": given["name"], "licence": given.get("licence", "not stated"),
+                            "use": f"inherited: initialised from {init}"})  # fmt: skip
+        except (OSError, ValueError, KeyError):
+            sources.append(
+                {"name": str(init), "licence": "not stated", "use": "inherited: initialised from it"}
+            )
+    return {"licence": "; ".join(dict.fromkeys(s["licence"] for s in sources)), "sources": sources}
 
 
 def _pose_bank(out_dir: Path, config: dict) -> str | None:
@@ -154,8 +181,13 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
     if (config.get("model") or {}).get("delta"):
         return None
     try:
-        sets = [("bandai_namco train split", load_split("train"))]
-        if config.get("data"):
+        if config.get("corpus"):  # the corpus names its own sources (Bandai's among them or not)
+            from pipeline.train.corpus import corpus_clips
+
+            sets = [(f"corpus {config['corpus']}", corpus_clips(config["corpus"]))]
+        else:
+            sets = [("bandai_namco train split", load_split("train"))]
+        if config.get("data") and not config.get("corpus"):
             sets.append(
                 (f"takes of {config['data']}", load_takes(config["data"], config.get("data_include")))
             )

@@ -1,0 +1,45 @@
+"""`tween train --corpus FILE` (issue 30, item 1): a corpus of two rigs prepared on the way
+and trained on; what its export would record as the model's terms."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+CMU = "002_02.bvh.gz"
+
+
+def test_train_on_a_corpus_of_two_rigs_and_its_terms(data_dir, bandai_clip, tmp_path, monkeypatch):
+    torch = pytest.importorskip("torch")
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from pipeline.train.export import data_terms
+
+    monkeypatch.setenv("TWEEN_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "bandai").mkdir()
+    shutil.copy(bandai_clip, tmp_path / "bandai" / bandai_clip.name)
+    (tmp_path / "studio").mkdir()
+    shutil.copy(data_dir / "cmu_iclone" / CMU, tmp_path / "studio" / CMU)
+    desc = tmp_path / "corpus.toml"
+    desc.write_text('name = "two"\n[[source]]\nname = "bandai"\npath = "bandai"\nlicence = "CC BY-NC 4.0"\n'
+                    '[[source]]\nname = "studio"\npath = "studio"\nlicence = "CC0"\nweight = 2\n')  # fmt: skip
+    out = tmp_path / "run"
+    opts = ["--path-steps", "2", "--steps", "4", "--batch", "4", "--lengths", "64", "--adv-start", "-1"]
+    res = CliRunner().invoke(
+        app, ["train", "--corpus", str(desc), *opts, "--out", str(out)], catch_exceptions=False
+    )
+    assert res.exit_code == 0, res.output
+    assert [p.name for p in (tmp_path / "cache" / "corpora").iterdir()][0].startswith(
+        "corpus-"
+    )  # prepared once
+    run = torch.load(out / "generator.pt", weights_only=False)
+    assert run["config"]["corpus"] == str(desc) and run["step"] == 4
+    terms = data_terms(run["config"])
+    assert terms["licence"] == "CC BY-NC 4.0; CC0"
+    assert [(s["licence"], s["weight"]) for s in terms["sources"]] == [("CC BY-NC 4.0", 1.0), ("CC0", 2.0)]
+    # --corpus reads its own sources: with --data it is one line, nothing written.
+    bad = CliRunner().invoke(app, ["train", "--corpus", str(desc), "--data", str(tmp_path), *opts, "--out",
+                                   str(tmp_path / "r")])  # fmt: skip
+    assert bad.exit_code == 2 and "drop --data" in bad.output and not (tmp_path / "r").exists()
