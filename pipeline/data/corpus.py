@@ -31,6 +31,7 @@ cut off). A file that cannot be read is one stderr line naming it; the others go
 
 from __future__ import annotations
 
+import fcntl
 import fnmatch
 import hashlib
 import json
@@ -258,6 +259,15 @@ def prepare(
     on the model skeleton at ``fps`` (a Motion); ``listing(folder, include)`` a source's files."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    with open(out / ".lock", "w") as lock:
+        try:  # two prepares appending to the same arrays would interleave their clips
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise CorpusError(f"{out}: being prepared by another process; wait for it") from None
+        return _prepare(corpus, out, read, listing, progress, commit_s)
+
+
+def _prepare(corpus: Corpus, out: Path, read, listing, progress: bool, commit_s: float) -> dict:
     todo = []
     for src in corpus.sources:
         files = source_files(src, listing)

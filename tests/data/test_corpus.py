@@ -4,6 +4,7 @@ interruption, a bad file one line; training windows drawn by source weight."""
 
 from __future__ import annotations
 
+import fcntl
 import gzip
 import json
 import shutil
@@ -123,6 +124,11 @@ def test_an_interrupted_prepare_resumes_and_ends_as_a_fresh_one(sources, tmp_pat
     assert m["sources"] == json.loads((fresh / MANIFEST).read_text())["sources"]
     for f in ("bandai/rotations.bin", "bandai/roots.bin", "studio/rotations.bin", "studio/roots.bin"):
         assert (out / f).read_bytes() == (fresh / f).read_bytes()
+    # A second prepare of the same folder while one runs is refused in one line.
+    with open(out / ".lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        with pytest.raises(CorpusError, match="being prepared by another process"):
+            prepare(load_corpus(_describe(sources)), out, counted, take_files, progress=False)
     # Prepared, it reads nothing again.
     m2 = prepare(load_corpus(_describe(sources)), out, lambda *a: pytest.fail("read again"), take_files,
                  progress=False)  # fmt: skip
