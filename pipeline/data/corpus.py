@@ -320,6 +320,12 @@ class Frames:
     def __len__(self) -> int:
         return self.shape[0]
 
+    def __reduce__(self):
+        # Sent to batch-making processes (--workers) as file names, not as the frames: each
+        # maps the files itself, and the host keeps one copy in its page cache.
+        files = [(p.filename, p.dtype.str, p.shape) for p in self.parts]
+        return (_reopened, (files, self.scale, self.shape[1:]))
+
     def _decode(self, a: np.ndarray) -> np.ndarray:
         a = np.asarray(a, np.float32)
         return quat_normalize(a / self.scale).astype(np.float32) if self.scale else a
@@ -340,6 +346,10 @@ class Frames:
         if stop > self.bounds[i + 1]:
             raise IndexError(f"frames {start}:{stop} cross sources")
         return self._decode(self.parts[i][start - lo : stop - lo])
+
+
+def _reopened(files, scale, shape) -> Frames:
+    return Frames([np.memmap(f, dtype=d, mode="r", shape=tuple(n)) for f, d, n in files], scale, shape)
 
 
 def open_corpus(out: str | Path, corpus: Corpus | None = None) -> ClipSet:

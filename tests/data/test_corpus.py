@@ -7,6 +7,7 @@ from __future__ import annotations
 import fcntl
 import gzip
 import json
+import pickle
 import shutil
 import subprocess
 import sys
@@ -156,6 +157,9 @@ def test_windows_are_drawn_by_source_weight_and_unweighted_sets_draw_as_before(s
         sample_batch(cs, rng, 32, 64, where)
     share = np.mean([cs.names[c].startswith("studio/") for c, _ in where])
     assert abs(share - 0.75) < 0.03
+    # Batch-making processes (--workers) get the files' names, not the frames.
+    blob = pickle.dumps(cs)
+    assert len(blob) < 20_000 and np.array_equal(pickle.loads(blob).clip(3)[0], cs.clip(3)[0])
     # Without weights (the train split, --data) the draws are those of before, bit for bit.
     plain = ClipSet(cs.names, cs.starts, cs.lengths, np.random.rand(int(cs.lengths.sum()), 21, 4),
                     np.random.rand(int(cs.lengths.sum()), 3), 30.0)  # fmt: skip
