@@ -14,6 +14,7 @@ import torch
 from pipeline.data import posebank
 from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
+from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
@@ -154,7 +155,11 @@ def data_terms(config: dict) -> dict:
         return {}
     from pipeline.train.corpus import prepared
 
-    _, _, manifest = prepared(config["corpus"], progress=False)
+    try:
+        _, _, manifest = prepared(config["corpus"], progress=False)
+    except TweenError as e:  # a host without the corpus's data: the card must say it
+        print(f"tween: warning: no licence recorded in model.json ({e})", file=sys.stderr)
+        return {}
     sources = [{"name": f"{manifest['name']}/{s['name']} ({s['path']})", "licence": s["licence"],
                 "frames": s["frames"], "fps": manifest["fps"], "hours": s["hours"], "weight": s["weight"],
                 "use": "trained"} for s in manifest["sources"]]  # fmt: skip
@@ -191,7 +196,7 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
             sets.append(
                 (f"takes of {config['data']}", load_takes(config["data"], config.get("data_include")))
             )
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, TweenError) as e:
         print(f"tween: warning: {out_dir}: no pose bank written ({e}); its fills trust the network "
               "as if every shot were its own data", file=sys.stderr)  # fmt: skip
         return None

@@ -39,6 +39,7 @@ def test_train_on_a_corpus_of_two_rigs_and_its_terms(data_dir, bandai_clip, tmp_
     terms = data_terms(run["config"])
     assert terms["licence"] == "CC BY-NC 4.0; CC0"
     assert [(s["licence"], s["weight"]) for s in terms["sources"]] == [("CC BY-NC 4.0", 1.0), ("CC0", 2.0)]
+    assert data_terms({"corpus": str(tmp_path / "elsewhere.toml")}) == {}  # a host without it: a warning
     # --corpus reads its own sources: with --data it is one line, nothing written.
     bad = CliRunner().invoke(app, ["train", "--corpus", str(desc), "--data", str(tmp_path), *opts, "--out",
                                    str(tmp_path / "r")])  # fmt: skip
