@@ -695,15 +695,21 @@ class TrustedInbetweener:
 
     def _choose(self, first: TrustDecision, motion: Motion, keys, cuts) -> TrustDecision:
         """Of the primary's decision and each alternative's, the one whose probes beat the
-        spline by most (score: mean log error ratio spline / model); ``model`` follows."""
+        spline by most (score: mean log error ratio spline / model), an alternative only by
+        more than the primary's ``probe_margin`` (0 without one); ``model`` follows."""
         options = [(self.primary, first)] + [
             (a, decide(a, self.spline, motion, keys, cuts)) for a in self.alternatives
         ]
         rows = [{"name": m.name, "hash": m.model_hash, "score": d.score, "model_error_cm": d.model_error_cm}
                 for m, d in options]  # fmt: skip
+        margin = float(getattr(self.primary, "probe_margin", 0.0))
         best = max(
             range(len(options)),
-            key=lambda i: (options[i][1].score is not None, options[i][1].score or 0.0, -i),
+            key=lambda i: (
+                options[i][1].score is not None,
+                (options[i][1].score or 0.0) + (margin if i == 0 else 0.0),
+                -i,
+            ),
         )
         model, d = options[best]
         self.model = model

@@ -20,10 +20,11 @@ from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures
 from pipeline.infer.spline import spline_keys
 from pipeline.library import match
 from pipeline.library.build import build
-from pipeline.library.infer import LibraryInbetweener, gap_weight
+from pipeline.library.infer import LibraryInbetweener, gap_weight, key_bend_cm
 from pipeline.library.store import ARRAYS, MANIFEST, LibraryError, open_library
-from pipeline.motion.bvh import read_bvh
+from pipeline.motion.bvh import read_bvh, write_bvh
 from pipeline.motion.fk import fk
+from pipeline.motion.rotations import slerp_pairs
 from pipeline.usd.take import studio_take
 
 
@@ -195,6 +196,44 @@ def test_the_match_gate_prefers_the_spline_where_the_keys_barely_move():
     assert 0.0 < gap_weight(8.0, 30.0) < 1.0
 
 
+def test_the_gate_sends_keys_on_a_smooth_curve_to_the_spline():
+    t = np.arange(0.0, 70.0, 10.0)
+    # One "joint" on a parabola and the root's height: the cubic through the neighbours is exact.
+    feats = np.stack([-0.1 * t**2 + t, 3.0 * t, 0.05 * t**2, np.full_like(t, 90.0)], 1)
+    assert np.allclose(key_bend_cm(feats, t), 0.0, atol=1e-9)
+    bumped = feats.copy()
+    bumped[3, :3] += 4.0
+    bend = key_bend_cm(bumped, t)
+    assert bend[3] > 2.0 and bend[0] == bend[1] and bend[-1] == bend[-2]
+    assert gap_weight(2.0, 20.0, 0.3) == 0.0  # the spline follows such keys already
+    assert gap_weight(2.0, 20.0, 5.0) == 1.0 and 0.0 < gap_weight(2.0, 20.0, 0.75) < 1.0
+
+
+def test_a_slow_smooth_move_the_library_holds_is_the_splines(takes, tmp_path):
+    """A studio's take of a slow, smooth move (a pose drifting into the next over four
+    seconds), keyed every 10 frames: the library holds the very motion, so its match is
+    perfect and the match gate alone would take it; but the keys lie on a curve the spline
+    follows, so every gap is the spline's, and the fill is the spline's bit for bit."""
+    m = read_bvh(takes / BANDAI[2]).continuous()
+    a, b = m.rotations[0], m.rotations[3]
+    t = np.linspace(0.0, 1.0, 121)[:, None] * np.ones(len(a))
+    rot = slerp_pairs(np.broadcast_to(a, t.shape + (4,)), np.broadcast_to(b, t.shape + (4,)), t)
+    root = m.root_positions[0] + t[:, :1] * (m.root_positions[3] - m.root_positions[0])
+    slow = type(m)(m.skeleton, rot.astype(np.float32), root.astype(np.float32), m.fps)
+    (tmp_path / "takes").mkdir()
+    write_bvh(slow, tmp_path / "takes" / "slow.bvh")
+    build(tmp_path / "takes", tmp_path / "lib", progress=False)
+    inb = LibraryInbetweener(tmp_path / "lib")
+    keys = np.r_[0:91:10]
+    out = inb.fill(slow.slice(0, 91), keys)
+    gaps = inb.last_gaps
+    assert all(gap_weight(g["miss_cm"], g["change_cm"]) == 1.0 for g in gaps)  # matched in full
+    assert all(g["weight"] == 0.0 and "smooth curve" in g["why"] for g in gaps)
+    s_rot, s_root = spline_keys(slow.rotations[:91], slow.root_positions[:91], keys)
+    assert np.array_equal(out.rotations, s_rot.astype(np.float32))
+    assert np.array_equal(out.root_positions, s_root.astype(np.float32))
+
+
 def test_search_finds_the_window_of_least_cost_by_brute_force(library):
     """The search's best window is the one a plain loop over every window of every take finds,
     and a window of the library itself is found at no cost."""
@@ -271,3 +310,24 @@ def test_any_unreadable_take_is_one_line_and_the_good_take_goes_in(tmp_path_fact
     lines = [ln for ln in err.getvalue().splitlines() if f"bad{suffix}" in ln]
     assert len(lines) == len(res["failed"]) <= 1
     assert all(ln.startswith("tween: skipped take:") for ln in lines)
+
+
+@pytest.mark.parametrize(("lead", "chosen"), [(0.5, "library:studio"), (2.0, "network")])
+def test_the_network_fills_a_library_character_only_when_its_probes_beat_the_librarys_by_a_margin(
+    library, monkeypatch, lead, chosen
+):
+    """The probes' holes are twice the shot's gaps, which flatters the network: it takes over
+    from the library only when its score beats the library's by the library's margin (``lead``:
+    the network's lead in margins)."""
+    from pipeline.infer import trust
+
+    inb = LibraryInbetweener(library)
+    net = type("Net", (), {"name": "network", "model_hash": "n", "skeleton": inb.skeleton, "fps": inb.fps,
+                           "capabilities": inb.capabilities})()  # fmt: skip
+    assert 0.0 < inb.probe_margin < 1.0
+    scores = {inb.name: 0.1, "network": 0.1 + lead * inb.probe_margin}
+    monkeypatch.setattr(trust, "decide", lambda m, s, *a, **k: trust.TrustDecision("model", 1.0, 1.0, 2.0,
+                                                                                    score=scores[m.name]))  # fmt: skip
+    t = trust.TrustedInbetweener(inb, alternatives=(net,))
+    d = t.decide(None, np.array([0, 10, 20]))
+    assert d.source == chosen and t.model.name == chosen
