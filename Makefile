@@ -21,8 +21,10 @@ system-deps:
 demo: $(STAMP) system-deps
 	$(BIN)/tween fill examples/sh010_walk.usda --render --out-dir out/demo
 
+# One test process per core (pytest-xdist); a file's tests stay together in one process, so a
+# module's shared fixture (a farm, a trained model) is made once.
 test: $(STAMP) system-deps
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q -n auto --dist loadfile tests
 
 # The generated bad-input tests with ten times the examples per command, and every shipped clip
 # read (about 7 minutes).

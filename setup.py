@@ -44,6 +44,7 @@ setup(
         "secure": ["celery[auth]>=5.4"],
         "dev": [
             "pytest>=8",
+            "pytest-xdist>=3.5",  # make test runs the test files on every core (-n auto)
             "ruff>=0.6",
             "jinja2>=3",
             "threadpoolctl>=3",

@@ -8,6 +8,7 @@ mapped onto the model's, which is what a studio's shots look like to the model.
 
 from __future__ import annotations
 
+import os
 import sys
 
 import numpy as np
@@ -71,7 +72,7 @@ def cmu_windows(subjects: tuple[int, ...] | None = None) -> tuple[np.ndarray, np
 
     rots, roots = windows_of(takes(), TEST_WINDOW, TEST_STRIDE)
     rots, roots = normalize_windows(rots.astype(np.float32), roots.astype(np.float32))
-    tmp = cache.with_suffix(".tmp.npz")
+    tmp = cache.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, rots=rots, roots=roots)
     tmp.replace(cache)
     return rots, roots

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 import numpy as np
@@ -95,5 +96,8 @@ def position_stats(train: ClipSet, skeleton=None) -> tuple[np.ndarray, np.ndarra
         chunks.append(pos.reshape(-1, pos.shape[-2] * 3).astype(np.float64))
     flat = np.concatenate(chunks)
     mean, std = flat.mean(0), flat.std(0)
-    np.savez(key, mean=mean, std=std)
+    # Written aside and renamed: two processes (test workers, farm workers) may ask at once.
+    tmp = key.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, mean=mean, std=std)
+    os.replace(tmp, key)
     return mean, std

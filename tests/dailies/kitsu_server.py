@@ -39,6 +39,7 @@ def _pg(name: str) -> str | None:
 
 _BUILD: subprocess.Popen | None = None
 _BUILD_LOG = REPO / ".cache" / "zou-venv.log"
+_BUILD_LOCK = REPO / ".cache" / "zou-venv.lock"
 #: Written last: a venv without it was interrupted and is made again.
 _DONE = ZOU_VENV / ".complete"
 
@@ -49,11 +50,14 @@ def build_zou_venv() -> None:
     global _BUILD
     if _BUILD is not None or _DONE.exists():
         return
-    shutil.rmtree(ZOU_VENV, ignore_errors=True)
     ZOU_VENV.parent.mkdir(parents=True, exist_ok=True)
-    script = f'"{sys.executable}" -m venv "{ZOU_VENV}" && "{ZOU_VENV}/bin/pip" install -q zou gazu && touch "{_DONE}"'
-    with open(_BUILD_LOG, "wb") as log:
-        _BUILD = subprocess.Popen(["bash", "-c", script], stdout=log, stderr=subprocess.STDOUT)
+    # Under a file lock: with pytest-xdist every test process collects the Kitsu tests and
+    # asks for the venv; the first makes it, the others wait and find it complete.
+    script = (
+        f'[ -e "{_DONE}" ] || {{ rm -rf "{ZOU_VENV}" && "{sys.executable}" -m venv "{ZOU_VENV}" && '
+        f'"{ZOU_VENV}/bin/pip" install -q zou gazu && touch "{_DONE}"; }} > "{_BUILD_LOG}" 2>&1'
+    )
+    _BUILD = subprocess.Popen(["flock", str(_BUILD_LOCK), "bash", "-c", script], stdout=subprocess.DEVNULL)
 
 
 def _zou_venv() -> Path:

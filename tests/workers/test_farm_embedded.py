@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from cli_timing import cli_floor
 from redis_server import REPO, copy_shot, example_shot, layer_samples
 
 # Loaded into every Python process of the run (CLI, worker, pool children): records and
@@ -177,13 +178,15 @@ def test_what_needs_no_farm_is_checked_before_any_farm(tmp_path):
     shots.mkdir()
     noskel = shots / "noskel.usda"
     noskel.write_text('#usda 1.0\ndef Xform "World" {}\n')
+    floor = cli_floor(env, tmp_path)
     t0 = time.monotonic()
     res = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill", str(noskel)], env=env, cwd=tmp_path,
                          capture_output=True, text=True, timeout=60)  # fmt: skip
     assert (
         res.returncode == 2 and res.stderr.count("\n") == 1 and "no SkelRoot holds a skeleton" in res.stderr
     )
-    assert time.monotonic() - t0 < 6.0  # no embedded worker was started (about 8 s)
+    # Reading the shot costs about 1 s over the CLI's start-up; starting the embedded farm ~8 s.
+    assert time.monotonic() - t0 < floor + 4.0
     assert not (tmp_path / "cache" / "farm" / "logs").exists()
     shot = copy_shot(example_shot(), shots, "roots")
     down = dict(env, TWEEN_BROKER_URL="redis://127.0.0.1:1/0", TWEEN_SHOT_ROOTS=str(shots))
