@@ -15,7 +15,8 @@ Sources and their splits (never the sources issue 30 reserves for independent me
   takes whose number is 4 mod 5 held out (every ``--stride``-th of them is scored).
 
 Methods: ``library`` (the product's fill with ``--library LIB``: the library and the shipped
-network each probed on the shot's keys, the better trusted against the spline),
+network each probed on the shot's keys, the better trusted against the spline, the network
+only by the library's margin),
 ``library-spline`` (the library trusted against the spline, the network not consulted),
 ``library-alone`` (``--library LIB --trust model``: its per-gap windows and spline fallback,
 unchecked by probes), ``default`` (the shipped network's trusted fill), ``spline``. On the

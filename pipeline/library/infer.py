@@ -6,8 +6,9 @@ two keys and averaged. How far the gap takes them over the spline through the sa
 (what the animator's DCC draws) follows from their pose miss at the keys (cm, the mean
 joint-position distance between the keys and the windows' ends): in full up to
 ``TRUST_CM``, not at all from ``REFUSE_CM``, linearly between (the library's motion is
-then not the keys' motion); and from that miss against how much the keys move
-(:func:`gap_weight`). Gaps no take of the library spans, and gaps longer than
+then not the keys' motion); from that miss against how much the keys move; and not at all
+where the keys lie on a smooth curve, which the spline already follows (:func:`gap_weight`,
+:func:`key_bend_cm`). Gaps no take of the library spans, and gaps longer than
 ``MAX_GAP`` frames, are the spline's. Feet in contact in the retrieved windows are held
 in place by the fill's foot cleanup (:func:`pipeline.infer.post.lock_feet`). Keys are
 bitwise the input's. ``last_gaps`` keeps, per gap of the latest fill, its frames, pose miss,
@@ -15,8 +16,9 @@ weight and the windows it took (take name and frame), for the fill's record.
 
 The trusted fill (:mod:`pipeline.infer.trust`) wraps this in-betweener as it wraps the
 network (and beside it: the one whose probes do better decides): probes from the shot's
-own keys decide, per gap length, how far the whole is trusted over the spline. The
-constants were chosen on held-out takes of a split other than the bench's (docs/library.md).
+own keys decide, per gap length, how far the whole is trusted over the spline; the network
+decides instead only when its probes beat the library's by ``probe_margin``. The constants
+were chosen on held-out takes of a split other than the bench's (docs/library.md).
 """
 
 from __future__ import annotations
