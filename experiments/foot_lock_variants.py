@@ -2,7 +2,8 @@
 
 python experiments/foot_lock_variants.py MODEL_DIR [--every K]
 
-Compares ``OnnxInbetweener(feet_anchor=..., feet_orient=...)`` on the protocol's task on
+Compares the foot lock's settings (``feet`` and the ``feet_anchor`` / ``feet_orient`` that
+model.json gives an ``OnnxInbetweener``, set on it here) on the protocol's task on
 windows cut from every 4th train clip (``pipeline.bench.selection.train_windows``): L2P and
 foot skate ÷ interpolation, and foot skate per foot joint at 5 frames, where the bar is tightest.
 """
@@ -44,6 +45,16 @@ def skate_per_joint(method, rots, roots, T: int = 5) -> list[float]:
     return [float(slide[..., j][contact[..., j]].mean()) for j in range(len(feet))]
 
 
+def inbetweener(model: str, setting: tuple[bool, bool] | None) -> OnnxInbetweener:
+    """The model with one foot-lock setting: None (no lock) or (anchor, orient)."""
+    inb = OnnxInbetweener(model)
+    if setting is None:
+        inb.feet = False
+    else:
+        inb.feet_anchor, inb.feet_orient = setting
+    return inb
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("model", help="model folder")
@@ -54,11 +65,7 @@ def main(argv=None) -> int:
     base = evaluate(interpolation, rots, roots, mean, std)
     print(f"{len(rots)} train windows; ÷ interp at 5 / 15 / 30 / 45; skate per joint at 5 {FOOT_JOINTS}")
     for name, setting in VARIANTS:
-        if setting is None:
-            inb = OnnxInbetweener(a.model, feet=False)
-        else:
-            inb = OnnxInbetweener(a.model, feet_anchor=setting[0], feet_orient=setting[1])
-        method = inbetweener_method(inb)
+        method = inbetweener_method(inbetweener(a.model, setting))
         r = evaluate(method, rots, roots, mean, std)
         l2p, skate = ratio_cell(r, base, "L2P"), ratio_cell(r, base, "skate")
         joints = cell(skate_per_joint(method, rots, roots))

@@ -7,7 +7,9 @@ lives in the package (pipeline.bench.selection, pipeline.bench.ratios), tested h
 from __future__ import annotations
 
 import ast
+import importlib
 import importlib.util
+import inspect
 import subprocess
 import sys
 from pathlib import Path
@@ -92,6 +94,64 @@ def test_public_imports_only(path):
         origin = Path(spec.origin or next(iter(spec.submodule_search_locations or []), "")).resolve()
         for folder in FOLDERS:
             assert REPO / folder not in origin.parents, f"line {line}: {module} comes from {folder}/"
+
+
+def _bad_calls(tree: ast.AST) -> list[str]:
+    """Calls of a project function or class (imported by name) whose arguments its signature
+    does not take: what an import alone misses when a parameter goes."""
+    names = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module.split(".")[0] in PROJECT:
+            names.update({a.asname or a.name: (node.module, a.name) for a in node.names})
+    bad = []
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in names):
+            continue
+        module, attr = names[node.func.id]
+        obj = getattr(importlib.import_module(module), attr)
+        if any(isinstance(a, ast.Starred) for a in node.args) or any(k.arg is None for k in node.keywords):
+            continue  # *args / **kwargs: what they hold is not in the source
+        try:
+            inspect.signature(obj).bind(*node.args, **{k.arg: k.value for k in node.keywords})
+        except TypeError as e:
+            bad.append(f"line {node.lineno}: {node.func.id}(...): {e}")
+    return bad
+
+
+@pytest.mark.parametrize("path", PLAIN, ids=_id)
+def test_calls_fit_the_project_signatures(path):
+    """Each script's calls into the project still fit (issue: the inference switches went from
+    OnnxInbetweener's constructor and three experiments broke with every import still fine)."""
+    assert not _bad_calls(ast.parse(path.read_text(), str(path)))
+
+
+def test_bad_call_check_finds_a_removed_parameter():
+    tree = ast.parse(
+        "from pipeline.infer.generator_onnx import OnnxInbetweener\n"
+        "OnnxInbetweener('models/default', feet=False)\n"
+    )
+    assert _bad_calls(tree) == ["line 2: OnnxInbetweener(...): got an unexpected keyword argument 'feet'"]
+
+
+def test_experiment_settings_are_the_fills_own():
+    """The foot-lock and window experiments set attributes the fill reads, not new ones."""
+    from pipeline.infer.generator_onnx import OnnxInbetweener
+
+    mods = {}
+    for stem in ("foot_lock_variants", "pad_layouts"):
+        spec = importlib.util.spec_from_file_location(f"_script_{stem}", REPO / "experiments" / f"{stem}.py")
+        mods[stem] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mods[stem])
+    model = str(REPO / "models" / "default")
+    made = [mods["foot_lock_variants"].inbetweener(model, s) for _, s in mods["foot_lock_variants"].VARIANTS]
+    made += [mods["pad_layouts"].inbetweener(model, t, m) for t, m in mods["pad_layouts"].WINDOWS]
+    plain = set(vars(OnnxInbetweener(model)))
+    for inb in made:
+        assert all(n in plain or hasattr(OnnxInbetweener, n) for n in vars(inb)), sorted(
+            set(vars(inb)) - plain
+        )
+    assert {(m.pad_tail, m.min_window) for m in made[-5:]} == set(mods["pad_layouts"].WINDOWS)
+    assert not made[0].feet and (made[1].feet_anchor, made[1].feet_orient) == (True, False)
 
 
 @pytest.mark.parametrize("path", SCRIPTS, ids=_id)

@@ -135,7 +135,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         torch.save({k: pstate[k] for k in keep if k in pstate}, out_dir / "torch" / "path.pt")
     meta["files"] = files
     # Padded like training windows (64–128 frames, ending on a key, motion after a target);
-    # see OnnxInbetweener._network (experiments/pad_layouts.py measured the layouts tried).
+    # see OnnxInbetweener._network (models/default/HISTORY.md, Pad layout: the layouts tried).
     meta.update(pad="hold-key", pad_tail=16, min_window=64, feet_anchor=True, feet_orient=True)
     meta.update(extra or {})
     meta.update(data_terms(gstate.get("config", {})))
