@@ -467,6 +467,18 @@ def training_clips(cfg: TrainConfig):
     return clips
 
 
+def check_partial(cfg: TrainConfig, saved: dict | None = None) -> None:
+    """TweenError unless a ``--partial`` run trains a key adapter (``--key-adapter``, or the
+    ``--init`` network's: ``saved`` is its config's "model"). Without one the fill never gives
+    the network partial keys (it fills from the full ones and matches the rest afterwards:
+    OnnxInbetweener._solve), so training on them would teach it inputs it never sees."""
+    if cfg.partial > 0 and not (cfg.model.key_adapter or (saved or {}).get("key_adapter")):
+        raise TweenError(
+            f"--partial {cfg.partial:g}: partial keys train the key adapter; give --key-adapter "
+            "(or an --init network that has one)"
+        )
+
+
 def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
     """The run's config with the network of its ``--init`` checkpoint (inherit_model), and
     that checkpoint's weights (turned to delta inputs where the run adds them), or None."""
@@ -655,8 +667,9 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     dev = torch.device(cfg.device)
     skel = bandai_skeleton()
     feet = [skel.index(n) for n in FOOT_JOINTS]
-    clips = training_clips(cfg)
     cfg, init = _with_init(cfg, dev)
+    check_partial(cfg)  # the network the run trains, --init's add-ons included, before any data
+    clips = training_clips(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
     model = Generator(cfg.model).to(dev)
     opt, sched = _optimiser(cfg, model, init)

@@ -199,21 +199,21 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
 
 def check_run(out: Path, cfg) -> None:
     """What `tween train` reads, checked before it writes anything: the run folder is not a
-    model (a model is written by `tween export`), the takes folder holds takes, and --init is
-    a checkpoint that `tween train` wrote."""
+    model (a model is written by `tween export`), --init is a checkpoint that `tween train`
+    wrote, --partial has a key adapter to train, and the takes folder holds takes."""
+    from pipeline.train.generator_training import check_partial, load_init
     from pipeline.usd.take import take_files
 
     refuse_model(out, "--out (a run folder)", force_hint=None)
+    # --init first: whether --partial has a key adapter may be its network's to say.
+    saved = (load_init(cfg.init).get("config") or {}).get("model") if cfg.init else None
+    check_partial(cfg, saved)
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
     if cfg.corpus:
         from pipeline.data.corpus import load_corpus
 
         load_corpus(cfg.corpus)
-    if cfg.init:
-        from pipeline.train.generator_training import load_init
-
-        load_init(cfg.init)
 
 
 def _train(ctx: typer.Context, **values) -> None:

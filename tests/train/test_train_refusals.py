@@ -88,6 +88,29 @@ def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, mod
     assert f"{model_folder}: --out (a run folder) holds a finished model (model.json)" in line
 
 
+def test_partial_keys_need_a_key_adapter_before_any_data_is_read(tmp_path, capsys):
+    """--partial trains the key adapter: refused without --key-adapter unless the --init
+    network has one, before the takes are looked at (--data names no folder here)."""
+    import torch
+
+    state = torch.load(ROOT / "models/default/torch/generator.pt", map_location="cpu", weights_only=False)
+    assert state["config"]["model"]["key_adapter"]
+    state["config"]["model"]["key_adapter"] = False
+    torch.save(state, tmp_path / "no_adapter.pt")
+    out, missing = tmp_path / "run", tmp_path / "missing"
+    for init in ([], ["--init", tmp_path / "no_adapter.pt"]):
+        line = refused(
+            ["train", "--out", out, "--partial", "0.5", *init, "--data", missing, *TINY], capsys, tmp_path
+        )
+        assert "--partial 0.5: partial keys train the key adapter; give --key-adapter" in line, line
+    for given in (["--key-adapter"], ["--init", ROOT / "models/default"]):  # the adapter given, or inherited
+        line = refused(
+            ["train", "--out", out, "--partial", "0.5", *given, "--data", missing, *TINY], capsys, tmp_path
+        )
+        assert "--partial" not in line and str(missing) in line, line
+    assert not out.exists()
+
+
 def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path, capsys, model_folder):
     run = tmp_path / "run"
     _ok(["train", "--out", run, *TINY], capsys)
