@@ -404,8 +404,9 @@ def load_take(path: str) -> dict:
 
 def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: str = "") -> dict:
     """Writes the versioned fill layer (+ tweenTake variants when takes > 1) and the review
-    root layer; returns {"layer", "review", "version", "takes", "model", "model_hash"}.
-    Idempotent per ``job_id``."""
+    root layer; returns {"layer", "review", "version", "takes", "model", "model_hash", ...},
+    with "experimental" where the model is. Idempotent per ``job_id``."""
+    from pipeline.infer.folder import experimental
     from pipeline.usd.read import missing_assets, open_stage
 
     out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
@@ -438,6 +439,11 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     # Takes that came out bit-identical to an earlier one (the trusted fill decided for the
     # spline, which has no seed): said once and rendered once.
     result["same_as"] = same_takes(takes)
+    # Why the model is experimental (models/README.md), in every fill's JSON: fill-local's and
+    # the farm's, whose result is this stage's; the farm client says it on stderr.
+    why = experimental(opts.model)
+    if why:
+        result["experimental"] = why
     return result
 
 
@@ -468,7 +474,7 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     """
 
     summary = validate_shot(shot, opts)
-    why = warn_experimental(opts.model)
+    warn_experimental(opts.model)  # write_layers puts it in the JSON
     base = tempfile.gettempdir()
     clean_dead_temps(base, quiet=True)
     try:
@@ -482,6 +488,4 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
         shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
     result["retarget"] = summary["retarget"]  # per character: reference pose, joints the rig lacks
-    if why:
-        result["experimental"] = why
     return result
