@@ -191,9 +191,11 @@ class Movie:
         # on the 300-frame bench review half the CPU of superfast (1.85 s against 3.6 s, one
         # thread, 3.1 MB against 2.9 MB) at the same fidelity (luma PSNR against the rendered
         # frames 50.0 dB against 49.8 dB: clay and gradients are easy to code; what ultrafast
-        # gives up is search effort, not quality at a set crf). No B-frames: Main profile
-        # 4:2:0, which every player decodes. One thread: the encoder already runs beside the
-        # render loop (the review's writer thread), and slice threads cost CPU and bits.
+        # gives up is search effort, not quality at a set crf). Main profile 4:2:0 (CABAC, no
+        # 8x8 transform), which every player decodes, with 2 B-frames: ultrafast has none, and
+        # tune animation adds two (x264 writes bframes=2; docs/render.md). One thread: the
+        # encoder already runs beside the render loop (the review's writer thread), and slice
+        # threads cost CPU and bits.
         self.stream.options = {"preset": preset, "crf": "20", "tune": "animation"}
         if preset == "ultrafast":
             self.stream.options = {**self.stream.options, "x264-params": "cabac=1:deblock=1,1"}
