@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from pipeline.errors import TweenError
+from workers.settings import redact_url
 
 #: A fill job's id (``uuid4().hex``); stages and control records have dotted ids after it.
 JOB_ID = re.compile(r"[0-9a-f]{32}")
@@ -70,7 +71,6 @@ def listing(roots: list[Path], shot_folder: Path | None = None, stem: str | None
     ``roots`` (of one shot with ``shot_folder``/``stem``), newest first; a farm that is not
     configured or does not answer is a ``note``, not an error."""
     from workers.app import check_farm, farm_errors
-    from workers.settings import redact_url
 
     try:
         celery_app = _farm()

@@ -12,7 +12,7 @@ from importlib.metadata import entry_points
 import typer
 
 from pipeline import command
-from pipeline.data.cache import cache_root
+from pipeline.data.cache_paths import cache_root
 
 app = typer.Typer(
     name="tween",

@@ -20,6 +20,7 @@ from pathlib import Path
 from pipeline.errors import TweenError
 from pipeline.fill.api import FillOptions, fill_shot
 from workers import jobs
+from workers.settings import cache_dir, load_settings
 
 
 def _start_workers(n: int, env: dict, log_dir: Path, tag: str) -> list[subprocess.Popen]:
@@ -116,7 +117,6 @@ def _markdown(res: dict, overhead: float | None, broker_url: str) -> str:
 
 def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, out: Path) -> dict:
     from workers.app import app, configure
-    from workers.settings import cache_dir, load_settings
 
     base = app.conf.tween
     if base.embedded:

@@ -18,9 +18,9 @@ from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
-from workers import jobs
 from workers import paths as jobpaths
 from workers.runtime import thread_env
+from workers.settings import load_settings, redact_url
 
 
 def _opts(opts) -> dict:
@@ -28,7 +28,6 @@ def _opts(opts) -> dict:
     the farm payload."""
 
     from workers.jobs import make_opts
-    from workers.settings import load_settings
 
     out = make_opts(**asdict(opts.check()))
     default = load_settings().library  # the studio's library, for every job that names none
@@ -118,6 +117,8 @@ def _clock(t) -> str:
 def _settle(ids: list[str], intr: _Interrupts | None = None, alive=None, timeout: float = CANCEL_WAIT_S):
     """Polls cancelled jobs until none of their stages runs (or ``timeout``, or a second
     interrupt); then removes what each cancelled job wrote. Returns the last states."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+
     t0 = time.monotonic()
     seen = intr.count if intr else 0
     while True:
@@ -145,6 +146,8 @@ def _cancelled_line(s) -> str:
 def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> int:
     """Waits for the jobs and reports them; on SIGINT/SIGTERM cancels them, waits until they
     have stopped and undone their work, and returns 130."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+
     try:
         intr.armed = True
         if intr.count:  # interrupted while the jobs were being sent
@@ -271,6 +274,8 @@ def fill(
     With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
     embedded farm: a local worker on a SQLite broker, started and stopped here.
     """
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+
     # The options first: a bad one is refused before Celery is even imported.
     takes = opts.takes
     opts = _opts(opts)
@@ -324,6 +329,8 @@ def submit(
     opts: FillOptions = None,
 ):
     """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+
     opts = _opts(opts)
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
@@ -350,6 +357,7 @@ def status(
     as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
 ):
     """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
 
@@ -406,6 +414,7 @@ def cancel(
     """Cancel fill jobs on the farm that runs them: queued stages never run (even on a worker
     started later), a running stage stops at its next heartbeat, and nothing the job wrote
     is kept (no new version, no work or review files)."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
 
@@ -474,7 +483,6 @@ def worker(
     else:
         from workers.app import app as celery_app
     from workers.app import check_farm
-    from workers.settings import redact_url
 
     s = celery_app.conf.tween
     q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
@@ -501,6 +509,8 @@ def submit_train_rig(
 ):
     """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
     prints the job id (`tween status ID` shows its progress)."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+
     opts = opts.check().as_job()
     from workers.app import check_farm, farm_errors, rig_app
 
@@ -536,6 +546,7 @@ def submit_library(
 ):
     """Build a motion library on the farm's training queue (`tween worker --train`); prints
     the job id (`tween status ID` shows it)."""
+    import workers.jobs as jobs  # the farm's client: Celery, imported when used
     from workers.app import check_farm, farm_errors, train_app
 
     raise_settings_error()

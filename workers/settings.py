@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from urllib.parse import unquote
 
-from pipeline.data.cache import cache_root
+from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
 from workers import security
 

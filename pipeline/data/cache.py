@@ -11,24 +11,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.data.cache_paths import cache_dir, cache_root  # noqa: F401 (re-exported)
 from pipeline.data.split import list_clips
 from pipeline.motion.bvh import read_bvh
 
 CACHE_VERSION = 1
-
-
-def cache_root(env=None) -> Path:
-    """``$TWEEN_CACHE`` or ``~/.cache/usd-tween``: the one rule for where caches live (clip
-    sets, statistics, the embedded farm's broker); ``env`` defaults to the process's."""
-    env = os.environ if env is None else env
-    return Path(env.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
-
-
-def cache_dir() -> Path:
-    """:func:`cache_root`, created."""
-    d = cache_root()
-    d.mkdir(parents=True, exist_ok=True)
-    return d
 
 
 @dataclass

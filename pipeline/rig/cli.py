@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from pipeline import command
-from pipeline.data.cache import cache_root
+from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.rig.progress import JsonLinesWriter, ProgressBar

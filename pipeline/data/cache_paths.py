@@ -1,0 +1,20 @@
+"""Where caches live: one rule, in a module light enough for every command's start-up."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def cache_root(env=None) -> Path:
+    """``$TWEEN_CACHE`` or ``~/.cache/usd-tween``: the one rule for where caches live (clip
+    sets, statistics, the embedded farm's broker); ``env`` defaults to the process's."""
+    env = os.environ if env is None else env
+    return Path(env.get("TWEEN_CACHE", Path.home() / ".cache" / "usd-tween"))
+
+
+def cache_dir() -> Path:
+    """:func:`cache_root`, created."""
+    d = cache_root()
+    d.mkdir(parents=True, exist_ok=True)
+    return d
