@@ -481,13 +481,16 @@ def check_partial(cfg: TrainConfig, saved: dict | None = None) -> None:
 
 def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
     """The run's config with the network of its ``--init`` checkpoint (inherit_model), and
-    that checkpoint's weights (turned to delta inputs where the run adds them), or None."""
+    that checkpoint's weights (turned to delta inputs where the run adds them), or None.
+    TweenError where ``--partial`` has no key adapter to train (:func:`check_partial`)."""
     if not cfg.init:
+        check_partial(cfg)
         return cfg, None
     state = load_init(cfg.init, dev)
     init = state["model"]
     saved = state.get("config", {}).get("model") or {}
     cfg = replace(cfg, model=inherit_model(cfg.model, saved))
+    check_partial(cfg)
     if cfg.model.delta and not saved.get("delta", False):
         init = to_delta_inputs(init, cfg.model.n_joints)
     return cfg, init
@@ -667,8 +670,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     dev = torch.device(cfg.device)
     skel = bandai_skeleton()
     feet = [skel.index(n) for n in FOOT_JOINTS]
-    cfg, init = _with_init(cfg, dev)
-    check_partial(cfg)  # the network the run trains, --init's add-ons included, before any data
+    cfg, init = _with_init(cfg, dev)  # and check_partial, before any data is read
     clips = training_clips(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
     model = Generator(cfg.model).to(dev)

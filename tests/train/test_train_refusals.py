@@ -109,6 +109,13 @@ def test_partial_keys_need_a_key_adapter_before_any_data_is_read(tmp_path, capsy
         )
         assert "--partial" not in line and str(missing) in line, line
     assert not out.exists()
+    # A recipe's stage goes straight to the training, which checks the same first.
+    from pipeline.errors import TweenError
+    from pipeline.train.generator_training import TrainConfig, train
+
+    with pytest.raises(TweenError, match="--partial 0.5: partial keys train the key adapter"):
+        train(TrainConfig(partial=0.5, data=str(missing)), out)
+    assert not out.exists()
 
 
 def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path, capsys, model_folder):
