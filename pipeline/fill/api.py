@@ -405,15 +405,30 @@ def load_take(path: str) -> dict:
 def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: str = "") -> dict:
     """Writes the versioned fill layer (+ tweenTake variants when takes > 1) and the review
     root layer; returns {"layer", "review", "version", "takes", "model", "model_hash", ...},
-    with "experimental" where the model is. Idempotent per ``job_id``."""
-    from pipeline.infer.folder import experimental
-    from pipeline.usd.read import missing_assets, open_stage
+    with "experimental" where the model is (:func:`outcome`). Idempotent per ``job_id``."""
+    from pipeline.usd.read import open_stage
 
     out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
     if job_id and out_dir.is_dir():  # a fast path; write.write checks again under the folder lock
         done = write.find_job(out_dir, write.shot_stem(shot), job_id)
         if done:
+            # A task delivered again after it wrote: the same layer, and what its takes say
+            # (decisions, identical takes) as the first delivery returned them.
+            if take_files and all(os.path.exists(p) for p in take_files):
+                return {**done, **outcome(shot, opts, _load_takes(shot, take_files))}
             return done
+    takes = _load_takes(shot, take_files)
+    stage = open_stage(shot)
+    meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
+    if "dna" in takes[0]:
+        meta["dna"] = takes[0]["dna"]
+    meta["licence"] = merged_licences(takes[0]["chars"])
+    result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
+    return {**result, **outcome(shot, opts, takes)}
+
+
+def _load_takes(shot: str, take_files: list[str]) -> list[dict]:
+    """The take files, in take order, checked to be of this shot and its characters."""
     if not take_files:
         raise ShotError(shot, "no takes to write")
     takes = sorted((load_take(p) for p in take_files), key=lambda t: t["take"])
@@ -422,14 +437,17 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
             raise ShotError(shot, f"take file {t['shot']} was filled from another shot")
         if [c["anim"] for c in t["chars"]] != [c["anim"] for c in takes[0]["chars"]]:
             raise ShotError(shot, "take files disagree on the shot's characters")
-    stage = open_stage(shot)
-    meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
-    if "dna" in takes[0]:
-        meta["dna"] = takes[0]["dna"]
-    meta["licence"] = merged_licences(takes[0]["chars"])
-    result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
+    return takes
+
+
+def outcome(shot: str, opts: FillOptions, takes: list[dict]) -> dict:
+    """What the fill's JSON says beside the layers it wrote: licences, decisions, jumps, missing
+    assets, identical takes and an experimental model's reason."""
+    from pipeline.infer.folder import experimental
+    from pipeline.usd.read import missing_assets
+
     # Under which terms each in-betweener that filled the shot was made (pipeline.fill.licence).
-    result["licence"] = meta["licence"]
+    result = {"licence": merged_licences(takes[0]["chars"])}
     # Per character: how far the human model was trusted against the spline (None: not asked).
     result["trust"] = {c["anim"]: c.get("trust") for c in takes[0]["chars"]}
     # Per character: the key pairs its body teleports between (pipeline.fill.jumps).

@@ -105,6 +105,22 @@ def test_fill_take_idempotent_and_takes_variant_set(walk, tmp_path):
     assert world.GetAttribute("tween:approvedTake").Get() == -1
 
 
+def test_a_job_written_again_returns_what_the_first_write_returned(walk, tmp_path):
+    """A farm task delivered again after it wrote (a worker lost after the write): the same
+    layer, no new version, and the same decisions, identical takes and licences in its result
+    (the client prints them and the render stage skips identical takes by them)."""
+    o = FillOptions(out_dir=str(tmp_path / "out"), takes=2, seed=7)
+    validate_shot(str(walk), o)
+    files = [fill_take(str(walk), o, t, str(tmp_path / "work")) for t in range(2)]
+    first = write_layers(str(walk), o, files, job_id="j1")
+    again = write_layers(str(walk), o, files, job_id="j1")
+    assert again["layer"] == first["layer"] and again["version"] == first["version"] == 1
+    assert len(list((tmp_path / "out").glob("walk.tween.v*"))) == 1
+    for k in ("trust", "jumps", "same_as", "licence", "missing_assets"):
+        assert again[k] == first[k], k
+    assert any(first["trust"].values())  # the default model was trusted or not, by its probes
+
+
 def test_range_fills_part_and_keeps_the_rest(walk, tmp_path):
     res = fill_shot(str(walk), FillOptions(model="interp", out_dir=str(tmp_path), range="1015-1035"))
     stage = _open(res["review"])
