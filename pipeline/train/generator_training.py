@@ -29,6 +29,7 @@ from pipeline.infer.features import (
     feature_options,
     key_neighbours,
 )
+from pipeline.motion.augment import joint_offsets
 from pipeline.motion.fk import fk
 from pipeline.networks.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.networks.generator import Generator, GeneratorConfig
@@ -44,6 +45,7 @@ from pipeline.train.batches import (
 from pipeline.train.keymatch import match_partial_keys, partial_match_weights
 from pipeline.usd.take import load_takes
 
+OFFSET_SHARE = 0.5  # windows given --joint-offsets: the other half keeps the capture's own poses
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
 
 
@@ -118,6 +120,12 @@ class TrainConfig:
         0.0, "Weigh frames by gap length ** -this (0: every frame alike; 1: every gap alike)."
     )
     mirror: float = _knob(0.0, "Share of windows mirrored left/right (augmentation).")
+    joint_offsets: float = _knob(
+        0.0,
+        "Degrees (RMS angle) of a constant random rotation on each joint but the root, one per "
+        "window and joint, on half the windows, keys and targets alike: another actor's or "
+        "rig's posture (augmentation; 0: none).",
+    )
     partial: float = _knob(0.0, "Share of batches with partial keys (some joints only; needs --key-adapter).")
     partial_layout: str = _knob(
         "convert",
@@ -187,6 +195,7 @@ _RANGES = {
     "w_br": _WEIGHT, "w_adv": _WEIGHT, "w_dna": _WEIGHT, "noise_prob": _SHARE, "adv_start": (0, 1e9),
     "d_lr": (1e-12, 10.0), "seed": (0, 2**31 - 1), "threads": (1, 256), "checkpoint_minutes": (1e-3, 1e6),
     "limit_clips": (1, 1e9), "gap_weighting": (0.0, 10.0), "mirror": _SHARE, "partial": _SHARE,
+    "joint_offsets": (0.0, 90.0),
     "dna_prob": _SHARE, "dna_max": (1, 1000), "dna_from": _SHARE, "new_lr": (1e-6, 1e6), "workers": (0, 256),
 }  # fmt: skip
 
@@ -304,6 +313,10 @@ def step_batch(cfg: TrainConfig, clips, skel, feet: list[int], step: int) -> dic
         m = bandai_mirror()
         rot[flip] = m.rotations(rot[flip], skel.parents).astype(rot.dtype)
         root[flip] = m.root(root[flip]).astype(root.dtype)
+    if cfg.joint_offsets > 0:
+        # Its own stream too: the windows and keys stay those of a run without offsets.
+        orng = np.random.default_rng([cfg.seed, step, 5])
+        rot = joint_offsets(rot, orng, cfg.joint_offsets, OFFSET_SHARE)
     keys = sample_keys(rng, L, max_gap)
     adversarial = cfg.adv_start is not None and step >= cfg.adv_start
     noise = None
