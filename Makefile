@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-nightly bench lint format clean system-deps
+.PHONY: demo test test-serial test-nightly bench lint format clean system-deps
 
 $(STAMP): setup.py
 	$(PY) -m venv $(VENV)
@@ -21,10 +21,14 @@ system-deps:
 demo: $(STAMP) system-deps
 	$(BIN)/tween fill examples/sh010_walk.usda --render --out-dir out/demo
 
-# One process, in file order. `-n auto --dist loadfile` (pytest-xdist, in [dev]) takes it to
-# about 8 minutes on 2 cores, but one run in three failed tests/workers/test_farm_redis.py
-# (jobs never seen finished): a file's farm depends on what ran before it in the same process.
+# pytest-xdist (in [dev]): one process per core, each taking whole files, so a file's module
+# fixtures (a Redis farm, its workers) are set up once. Every farm test points the process's
+# Celery app at its own farm with tests/redis_server.py:configure_app, which drops what an
+# earlier file cached (result backend, pools); `make test-serial` runs it all in one process.
 test: $(STAMP) system-deps
+	$(BIN)/python -m pytest -q -n auto --dist loadfile tests
+
+test-serial: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q tests
 
 # The generated bad-input tests with ten times the examples per command, and every shipped clip

@@ -13,6 +13,7 @@ from redis_server import (
     REPO,
     WorkerPool,
     assert_same_samples,
+    configure_app,
     copy_shot,
     example_shot,
     farm_env,
@@ -54,11 +55,13 @@ def farm(tmp_path_factory):
         TWEEN_FILL_SOFT_TIME_LIMIT=SOFT,
     )
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), str(REPO / "tests")])
-    from workers.app import app, configure
+    from workers.app import app
     from workers.settings import load_settings
 
     old = app.conf.tween
-    configure(app, load_settings({**os.environ, **env}))
+    # configure_app, not configure: a module run earlier in this process (pytest-xdist's
+    # loadfile runs several) may have cached a result backend on another key prefix.
+    configure_app(app, load_settings({**os.environ, **env}))
     pool = WorkerPool(env, logs)
     try:
         pool.start(concurrency=1)
@@ -74,7 +77,7 @@ def farm(tmp_path_factory):
         )
     finally:
         pool.stop_all()
-        configure(app, old)
+        configure_app(app, old)
         server.cleanup()
 
 
