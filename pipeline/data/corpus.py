@@ -260,10 +260,14 @@ def prepare(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / ".lock", "w") as lock:
-        try:  # two prepares appending to the same arrays would interleave their clips
+        # Two prepares appending to the same arrays would interleave their clips, so one waits
+        # for the other; it then finds the clips committed and reads only what is left (two
+        # trainings started on the same corpus both go on).
+        try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            raise CorpusError(f"{out}: being prepared by another process; wait for it") from None
+            print(f"tween: {out}: being prepared by another process; waiting for it", file=sys.stderr)
+            fcntl.flock(lock, fcntl.LOCK_EX)
         return _prepare(corpus, out, read, listing, progress, commit_s)
 
 

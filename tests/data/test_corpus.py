@@ -11,6 +11,8 @@ import pickle
 import shutil
 import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -94,7 +96,7 @@ def test_two_rigs_go_the_fills_way_into_a_manifest_of_clips_frames_and_hours(sou
         np.testing.assert_allclose(root, want.root_positions, atol=1e-3)
 
 
-def test_an_interrupted_prepare_resumes_and_ends_as_a_fresh_one(sources, tmp_path):
+def test_an_interrupted_prepare_resumes_and_ends_as_a_fresh_one(sources, tmp_path, capsys):
     fresh = tmp_path / "fresh"
     _prepare(sources, fresh)
     out, read = tmp_path / "c", []
@@ -125,11 +127,15 @@ def test_an_interrupted_prepare_resumes_and_ends_as_a_fresh_one(sources, tmp_pat
     assert m["sources"] == json.loads((fresh / MANIFEST).read_text())["sources"]
     for f in ("bandai/rotations.bin", "bandai/roots.bin", "studio/rotations.bin", "studio/roots.bin"):
         assert (out / f).read_bytes() == (fresh / f).read_bytes()
-    # A second prepare of the same folder while one runs is refused in one line.
-    with open(out / ".lock", "w") as held:
-        fcntl.flock(held, fcntl.LOCK_EX)
-        with pytest.raises(CorpusError, match="being prepared by another process"):
-            prepare(load_corpus(_describe(sources)), out, counted, take_files, progress=False)
+    # A second prepare of the same folder while one runs waits for it, says so, then reads nothing.
+    held = open(out / ".lock", "w")
+    fcntl.flock(held, fcntl.LOCK_EX)
+    threading.Timer(1.0, held.close).start()  # the other process finishes after a second
+    t0 = time.monotonic()
+    waited = prepare(load_corpus(_describe(sources)), out, lambda *a: pytest.fail("read again"), take_files,
+                     progress=False)  # fmt: skip
+    assert time.monotonic() - t0 >= 0.9 and waited == m
+    assert "being prepared by another process; waiting for it" in capsys.readouterr().err
     # Prepared, it reads nothing again.
     m2 = prepare(load_corpus(_describe(sources)), out, lambda *a: pytest.fail("read again"), take_files,
                  progress=False)  # fmt: skip
