@@ -168,9 +168,13 @@ def _licences(opts: FillOptions, cp, inb, alternatives) -> dict[str, str]:
         return {inb.name: folder_licence(cp.model, "rig.json")}
     if not opts.library:
         return {inb.name: model_licence(opts.model)}
-    out = {inb.name: library_licence(open_library(opts.library).manifest)}
+    # The library and network already open in the in-betweeners: nothing is read again per
+    # character (a trusted fill wraps its library as ``model``).
+    library = getattr(getattr(inb, "model", inb), "library", None) or open_library(opts.library)
+    out = {inb.name: library_licence(library.manifest)}
     for alt in alternatives:  # the network the library is probed against (LIBRARY_VS_NETWORK)
-        out[alt.name] = model_licence("default")
+        folder = getattr(alt, "folder", None)
+        out[alt.name] = folder_licence(folder) if folder else model_licence("default")
     return out
 
 
