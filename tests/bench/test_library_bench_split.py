@@ -1,0 +1,35 @@
+"""The library bench's splits: nothing scored is in the library, and ``others`` holds out
+whole actors (CMU subjects 5-7) from a library of only what the default may train on."""
+
+import pytest
+
+from pipeline.bench import library as bench
+from pipeline.data.split import list_clips
+
+
+@pytest.mark.parametrize("source", ["cmu", "bandai", "others"])
+def test_no_held_out_take_is_in_the_library(source, data_dir):
+    lib, held = bench.split(source)
+    assert lib and held and not set(lib) & set(held)
+
+
+def test_others_holds_out_whole_actors_and_trains_on_none_of_them(data_dir):
+    lib, held = bench.split("others")
+    cmu = [f for f in lib if "cmu_iclone" in str(f)]
+    assert {f.name[:3] for f in cmu} == {"001", "002", "003"}
+    assert {f.name[:3] for f in held} == {"005", "006", "007"}
+    # The rest is the Bandai train split: never the protocol's eval split.
+    assert set(lib) - set(cmu) == set(list_clips("train"))
+    assert not set(lib) & set(list_clips("eval"))
+
+
+def test_others_has_no_tuning_split(data_dir, capsys):
+    with pytest.raises(ValueError, match="no tuning split"):
+        bench.split("others", tuning=True)
+    with pytest.raises(SystemExit) as ex:
+        bench.main(["--source", "others", "--tuning"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert ex.value.code == 2 and "no tuning split" in err[-1]
+    with pytest.raises(SystemExit) as ex:
+        bench.main(["--source", "elsewhere"])
+    assert ex.value.code == 2 and "others" in capsys.readouterr().err
