@@ -168,12 +168,11 @@ def _licences(opts: FillOptions, cp, inb, alternatives) -> dict[str, str]:
         return {inb.name: folder_licence(cp.model, "rig.json")}
     if not opts.library:
         return {inb.name: model_licence(opts.model)}
-    # The library and network already open in the in-betweeners: nothing is read again per
-    # character (a trusted fill wraps its library as ``model``).
-    library = getattr(getattr(inb, "model", inb), "library", None) or open_library(opts.library)
-    out = {inb.name: library_licence(library.manifest)}
+    # The library and network the fill already opened (``inb`` is ``_library``'s): nothing is
+    # read again per character.
+    out = {inb.name: library_licence(inb.library.manifest)}
     for alt in alternatives:  # the network the library is probed against (LIBRARY_VS_NETWORK)
-        folder = getattr(alt, "folder", None)
+        folder = getattr(alt, "folder", None)  # a plug-in kind may keep none: found by name
         out[alt.name] = folder_licence(folder) if folder else model_licence("default")
     return out
 
@@ -426,9 +425,10 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
     meta = {"model": takes[0]["model"], "model_hash": takes[0]["model_hash"], "job_id": job_id}
     if "dna" in takes[0]:
         meta["dna"] = takes[0]["dna"]
-    meta["licence"] = merged_licences(takes[0]["chars"])
+    said = outcome(shot, opts, takes)
+    meta["licence"] = said["licence"]
     result = write.write(shot, stage, takes, meta, opts.out_dir, opts.fmt, opts.review_layer)
-    return {**result, **outcome(shot, opts, takes)}
+    return {**result, **said}
 
 
 def _load_takes(shot: str, take_files: list[str]) -> list[dict]:
