@@ -12,7 +12,11 @@ decided fill (:mod:`pipeline.infer.trust`, per gap length) fill it, and each is 
 mean global joint-position error (cm, FK on the model skeleton) over the frames between the
 keys.
 
-``python -m pipeline.bench.blocking [--every 10,30] [--sources eval,cmu,posture30] [--limit N] [--model DIR] [--out DIR]``
+The decided fill probes the library the model ships beside its network as the product's fill
+does (``--no-library``: the network against the spline only). The ``cmu`` source holds the
+library's own takes (subjects 1-3): measure other actors with :mod:`pipeline.bench.studio`.
+
+``python -m pipeline.bench.blocking [--every 10,30] [--sources eval,cmu,posture30] [--limit N] [--model DIR] [--no-library] [--out DIR]``
 """
 
 from __future__ import annotations
@@ -103,25 +107,31 @@ def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
     return trust._errors_cm(skel, rot[:, frames], root[:, frames], true_rot[:, frames], true_root[:, frames])
 
 
-def fill_blocked(model, spline, rots, roots, every: int):
+def fill_blocked(model, spline, rots, roots, every: int, alternatives=()):
     """Shots keyed every ``every`` frames, filled three ways (infer.trust.trusted_fill_windows):
     (keys, free frames, the model's fill, the spline's fill, the trust decisions, the model's
     weight per shot and frame, the decided fill), each fill a (rotations, roots) pair. What
-    :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot)."""
+    :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot). ``alternatives``:
+    probed beside the model as the product's fill probes them (the library it ships)."""
+    return _fill_blocked(model, spline, rots, roots, every, alternatives)[:7]
+
+
+def _fill_blocked(model, spline, rots, roots, every: int, alternatives=()):
     n = rots.shape[1]
     keys = np.r_[np.arange(0, n - 1, every), n - 1]
     free = np.setdiff1d(np.arange(n), keys)
-    f = trust.trusted_fill_windows(model, spline, rots, roots, keys)
-    return keys, free, f.model, f.spline, f.decisions, f.weights, f.decided
+    f = trust.trusted_fill_windows(model, spline, rots, roots, keys, alternatives=alternatives)
+    return keys, free, f.model, f.spline, f.decisions, f.weights, f.decided, f.chosen
 
 
-def evaluate(model, spline, rots, roots, every: int) -> dict:
+def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
     """Mean error (cm) of model, spline and decided fill on shots keyed every ``every`` frames,
-    the model's mean weight between the keys, and the seconds it took."""
+    the model's mean weight between the keys, the share of shots an alternative decided, and
+    the seconds it took."""
     skel = model.skeleton
     t0 = time.perf_counter()
-    _, free, (m_r, m_p), (s_r, s_p), decisions, w, (d_r, d_p) = fill_blocked(
-        model, spline, rots, roots, every
+    _, free, (m_r, m_p), (s_r, s_p), decisions, w, (d_r, d_p), chosen = _fill_blocked(
+        model, spline, rots, roots, every, alternatives
     )
     err = {
         name: float(_errors_cm(skel, r, p, rots, roots, free).mean())
@@ -133,42 +143,57 @@ def evaluate(model, spline, rots, roots, every: int) -> dict:
         "decided_over_model": err["decided"] / err["model"],
         "mean_weight": float(w[:, free].mean()),
         "probes": len(decisions[0].probes),
+        "alternative_share": float(np.mean(chosen > 0)),
         "seconds": time.perf_counter() - t0,
     }
 
 
-def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = "default") -> dict:
+def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = "default",
+        library: bool = True) -> dict:  # fmt: skip
+    """``library``: the decided fill also probes the library the model ships beside its
+    network (model.json's ``"library"``), as the product's fill does."""
     from pipeline.infer.api import load_inbetweener
     from pipeline.infer.spline import SplineInbetweener
+    from pipeline.library.infer import LibraryInbetweener
 
     net = load_inbetweener(model)
     spline = SplineInbetweener(net.skeleton)
+    folder = getattr(net, "library_folder", None) if library else None
+    alternatives = (LibraryInbetweener(str(folder)),) if folder is not None else ()
     report: dict = {"model": net.name, "hash": net.model_hash, "shot": SHOT, "limit": limit, "sources": {}}
+    if alternatives:
+        report["library"] = {"name": alternatives[0].name, "hash": alternatives[0].model_hash}
     for src in sources:
         rots, roots = shots(src, limit)
         print(f"blocking bench: {src}, {len(rots)} shots of {SHOT} frames…", file=sys.stderr)
         report["sources"][src] = {
             "shots": int(len(rots)),
-            "results": {int(e): evaluate(net, spline, rots, roots, int(e)) for e in every},
+            "results": {int(e): evaluate(net, spline, rots, roots, int(e), alternatives) for e in every},
         }
     report["markdown"] = markdown(report)
     return report
 
 
 def markdown(report: dict) -> str:
+    lib = report.get("library")
+    beside = (
+        f", with {lib['name']} ({lib['hash']}) probed beside it"
+        if lib
+        else ", the network against the spline only"
+    )
     lines = [
-        f"Model {report['model']} ({report['hash']}); shots of {report['shot']} frames keyed every N frames; "
-        "mean joint-position error (cm) between the keys.",
+        f"Model {report['model']} ({report['hash']}){beside}; shots of {report['shot']} frames keyed every N "
+        "frames; mean joint-position error (cm) between the keys; lib: the shots the library decided.",
         "",
-        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ | lib |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for src, s in report["sources"].items():
         for e, r in s["results"].items():
             lines.append(
                 f"| {src} | {e} | {s['shots']} | {r['probes']} | {r['model']:.3f} | {r['spline']:.3f} | "
                 f"{r['decided']:.3f} | {r['decided_over_better']:.3f} | {r['decided_over_model']:.3f} | "
-                f"{r['mean_weight']:.2f} |"
+                f"{r['mean_weight']:.2f} | {r.get('alternative_share', 0.0):.2f} |"
             )
     return "\n".join(lines) + "\n"
 
@@ -181,11 +206,13 @@ def main(argv=None) -> int:
     ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
     ap.add_argument("--limit", type=int, default=None, help="first N eval clips / CMU takes")
     ap.add_argument("--model", default="default", help="the network: default, or a model folder")
+    ap.add_argument("--no-library", action="store_true",
+                    help="the network against the spline only (not the library the model ships beside it)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None, help="folder for blocking.json and blocking.md")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     every = tuple(int(e) for e in a.every.split(",") if e)
-    report = run(tuple(s for s in a.sources.split(",") if s), every, a.limit, a.model)
+    report = run(tuple(s for s in a.sources.split(",") if s), every, a.limit, a.model, not a.no_library)
     report["seconds"] = time.perf_counter() - t0
     publish(report, a.out, "blocking")
     return 0

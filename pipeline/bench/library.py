@@ -99,7 +99,8 @@ def library_for(source: str, files: list[Path], tuning: bool = False) -> Path:
     return folder
 
 
-def _fills(lib: Path) -> dict:
+def fills_for(lib: Path) -> dict:
+    """Each method's fill options (``FillOptions`` fields) with the library ``lib``."""
     return {
         "library": {"library": str(lib), "trust": "auto"},
         "library-spline": {"library": str(lib), "trust": "auto"},
@@ -127,7 +128,7 @@ def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_f
                 for e in every:
                     print(f"library bench: {source} take {i + 1}/{len(held)} {f.name}, keys every {e}…",
                           file=sys.stderr)  # fmt: skip
-                    per[int(e)][f.name] = _evaluate(f, int(e), methods, Path(tmp), max_frames, _fills(lib))
+                    per[int(e)][f.name] = evaluate(f, int(e), methods, Path(tmp), max_frames, fills_for(lib))
         report["sources"][source] = {"library_takes": len(lib_files), "held_out": [f.name for f in held],
                                      "per_take": per, "summary": summary(per, methods)}  # fmt: skip
     report["seconds"] = time.perf_counter() - t0
@@ -135,7 +136,7 @@ def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_f
     return report
 
 
-def _evaluate(path: Path, every: int, methods, work: Path, max_frames, fills: dict) -> dict:
+def evaluate(path: Path, every: int, methods, work: Path, max_frames, fills: dict) -> dict:
     """evaluate_take, with ``library-spline`` filled without the network's probes."""
     from pipeline.fill import api
 

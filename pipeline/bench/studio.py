@@ -123,7 +123,9 @@ def evaluate_take(
         row |= {"mapped_sum": float(err[:, mapped].sum()), "mapped_n": int(err[:, mapped].size)}
         d = next(iter((out.get("trust") or {}).values()), None)
         if d is not None:
-            row["trust"] = {k: d.get(k) for k in ("choice", "weight", "novelty_cm")}
+            row["trust"] = {k: d.get(k) for k in ("choice", "weight", "novelty_cm", "source")}
+            if len(d.get("candidates") or []) > 1:  # each probed in-betweener's score
+                row["trust"]["scores"] = {c["name"]: c["score"] for c in d["candidates"]}
             if d.get("library"):
                 gaps = d["library"]["gaps"]
                 row["trust"]["library_share"] = round(float(np.mean([g["share"] for g in gaps])), 4)

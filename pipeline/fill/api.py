@@ -44,6 +44,9 @@ _MODELS: dict[tuple[int, str], object] = {}
 #: A library fill also probes the human network (False: the library against the spline only;
 #: the library bench measures both).
 LIBRARY_VS_NETWORK = True
+#: A human model's shipped library (model.json "library") is probed beside its network
+#: (False: the network against the spline only; the benches measure both).
+SHIPPED_LIBRARY = True
 
 
 def _load_rig(folder: str):
@@ -115,6 +118,19 @@ def _human(opts: FillOptions):
     return _model(opts.model)
 
 
+def _alternatives(opts: FillOptions, human) -> tuple:
+    """What the trusted fill probes beside the human in-betweener, the better on the shot's
+    own keys deciding: with ``--library``, the default network (LIBRARY_VS_NETWORK); else the
+    library the human model ships beside its network (model.json's ``"library"``), with
+    ``--trust auto`` only (SHIPPED_LIBRARY)."""
+    if opts.library:
+        return (_model("default"),) if LIBRARY_VS_NETWORK else ()
+    folder = getattr(human, "library_folder", None)
+    if folder is None or opts.trust != "auto" or not SHIPPED_LIBRARY:
+        return ()
+    return (_library(str(folder)),)
+
+
 def _plan(shot: str, opts: FillOptions, human):
     from pipeline.fill.plan import RIG_AUTO, RIG_OFF, make_plan
 
@@ -166,12 +182,13 @@ def _licences(opts: FillOptions, cp, inb, alternatives) -> dict[str, str]:
 
     if cp.model:
         return {inb.name: folder_licence(cp.model, "rig.json")}
-    if not opts.library:
-        return {inb.name: model_licence(opts.model)}
-    # The library and network the fill already opened (``inb`` is ``_library``'s): nothing is
-    # read again per character.
-    out = {inb.name: library_licence(inb.library.manifest)}
-    for alt in alternatives:  # the network the library is probed against (LIBRARY_VS_NETWORK)
+    # The libraries and networks the fill already opened (with --library ``inb`` is
+    # ``_library``'s): nothing is read again per character.
+    out = {inb.name: library_licence(inb.library.manifest) if opts.library else model_licence(opts.model)}
+    for alt in alternatives:  # what is probed beside it (_alternatives)
+        if alt.capabilities.per_gap:  # a library
+            out[alt.name] = library_licence(alt.library.manifest)
+            continue
         folder = getattr(alt, "folder", None)  # a plug-in kind may keep none: found by name
         out[alt.name] = folder_licence(folder) if folder else model_licence("default")
     return out
@@ -245,7 +262,7 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     models = {}
     inbs = [_char_model(cp, human) for cp in plan.chars]
-    alternatives = (_model("default"),) if opts.library and LIBRARY_VS_NETWORK else ()
+    alternatives = _alternatives(opts, human)
     for cp, inb in zip(plan.chars, inbs, strict=True):
         models[cp.char.anim_path] = {
             "name": inb.name,
@@ -270,7 +287,10 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
             beside = ", with the human network probed beside it" if opts.trust == "auto" else ""
             print(f"tween: {shot} {anim}: {m['name']}{beside}", file=sys.stderr)
         else:
-            print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}", file=sys.stderr)
+            beside = "".join(
+                f", with {a.name} probed beside it" for a in alternatives if m["kind"] == "human"
+            )
+            print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}{beside}", file=sys.stderr)
     return summary
 
 
@@ -336,8 +356,8 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     plan = _plan(shot, opts, human)
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
-    # A library's characters are also probed against the human network (the better decides).
-    alternatives = (_model("default"),) if opts.library and LIBRARY_VS_NETWORK else ()
+    # A human character is also probed with what ships or is asked beside it (the better decides).
+    alternatives = _alternatives(opts, human)
     try:
         identity = [_fill_identity(m) for m in (*inbs, *alternatives)]
         digest = _digest(shot, plan.shot.stage, opts, take, identity)

@@ -56,6 +56,7 @@ _OPTIONAL = {
     "generator": dict,
     "kind": str,
     "experimental": str,  # why no production shot should use it (said at every fill that does)
+    "library": str,  # a motion library shipped beside the network (shipped_library)
 }
 #: Settings with one value left: the one every shipped model has (the code for any other went
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
@@ -189,3 +190,20 @@ def check_onnx_file(path: Path) -> None:
                 raise ModelFolderError(bad)
     if not graph:
         raise ModelFolderError(f"{path}: not an ONNX model (no graph in its {size} bytes)")
+
+
+def shipped_library(folder: str | Path, meta: dict) -> Path | None:
+    """The motion library a model folder ships beside its network (``model.json``'s
+    ``"library"``, relative to the folder), which the trusted fill probes beside the network
+    (pipeline.fill.api); None without one. ModelFolderError where the name leaves the folder
+    or names no library."""
+    name = meta.get("library")
+    if not name:
+        return None
+    path = Path(folder) / "model.json"
+    lib = Path(folder) / name
+    if Path(name).is_absolute() or ".." in Path(name).parts:
+        raise ModelFolderError(f"{path}: 'library' must be a folder inside the model folder, not {name!r}")
+    if not (lib / "library.json").is_file():
+        raise ModelFolderError(f"{path}: 'library' names {name!r}, which holds no library.json")
+    return lib

@@ -32,6 +32,7 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     find_model,
     models_root,
     read_model_json,
+    shipped_library,
 )
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.motion.clip import Motion
@@ -114,6 +115,8 @@ class OnnxInbetweener:
         self._sessions: dict[str, object] = {}
         self._pose_bank = self._load_pose_bank()
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
+        #: The motion library shipped beside the network (None: none), probed beside it.
+        self.library_folder = shipped_library(self.folder, self.meta)
 
     #: Fills without partial keys run the generator without its partial-key adapter (the
     #: same output, 0.30 MFLOP a frame less: features.adapter_free_graph); False: always the

@@ -703,15 +703,7 @@ class TrustedInbetweener:
         rows = [{"name": m.name, "hash": m.model_hash, "score": d.score, "model_error_cm": d.model_error_cm}
                 for m, d in options]  # fmt: skip
         margin = float(getattr(self.primary, "probe_margin", 0.0))
-        best = max(
-            range(len(options)),
-            key=lambda i: (
-                options[i][1].score is not None,
-                (options[i][1].score or 0.0) + (margin if i == 0 else 0.0),
-                -i,
-            ),
-        )
-        model, d = options[best]
+        model, d = options[pick([d.score for _, d in options], margin)]
         self.model = model
         others = ", ".join(
             f"{r['name']} {r['score']:+.2f}"
@@ -782,7 +774,9 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
 class WindowFills:
     """:func:`trusted_fill_windows`' fills, each (rotations, roots) of the N shots: the
     network's, the spline's and the decided one; the ``decisions``, the model's ``weights``
-    per shot and frame (N, T), and the ``seconds`` the network's fill and the probes took."""
+    per shot and frame (N, T), the ``seconds`` the network's fill and the probes took, and
+    per shot which in-betweener was decided on (``chosen``: 0 the model, k the k-th of the
+    alternatives)."""
 
     model: tuple
     spline: tuple
@@ -790,23 +784,58 @@ class WindowFills:
     decisions: list
     weights: np.ndarray
     seconds: dict
+    chosen: np.ndarray | None = None
 
 
-def trusted_fill_windows(model, spline, rots, roots, keys, cache: dict | None = None) -> WindowFills:
+def trusted_fill_windows(model, spline, rots, roots, keys, cache: dict | None = None,
+                         alternatives=()) -> WindowFills:  # fmt: skip
     """:func:`trusted_fill`'s steps for N shots sharing their ``keys`` on the model skeleton
-    (the benchmark's windows: no cuts, overrides or alternatives), each batched over the
-    shots: the network's fill, the spline's, one decision per shot (:func:`decide_batch`, one
-    model call a probe; ``cache`` as there) and the blend, gap by gap."""
+    (the benchmark's windows: no cuts or overrides), each batched over the shots: the
+    network's fill, the spline's, one decision per shot (:func:`decide_batch`, one model call
+    a probe; ``cache`` as there) and the blend, gap by gap. ``alternatives`` (a library the
+    model ships beside it) are probed as :class:`TrustedInbetweener` probes them, and a
+    shot :func:`pick` gives one is filled by it."""
     t0 = time.perf_counter()
     m = fill_windows(model, rots, roots, keys, BATCH, model.skeleton)
     t_model = time.perf_counter() - t0
     s = spline.fill_batch(rots, roots, keys)
     t0 = time.perf_counter()
     decisions = decide_batch(model, spline, rots, roots, keys, cache=cache)
+    chosen, filled = np.zeros(len(decisions), np.int64), m
+    if alternatives:
+        decisions, chosen, filled = _alternatives_windows(model, spline, rots, roots, keys, decisions, m,
+                                                          alternatives)  # fmt: skip
     t_probes = time.perf_counter() - t0
     w = np.stack([d.frame_weights(keys, np.shape(rots)[1]) for d in decisions])
     seconds = {"model_fill": t_model, "probes": t_probes}
-    return WindowFills(m, s, blend_arrays(w, *m, *s), decisions, w, seconds)
+    return WindowFills(m, s, blend_arrays(w, *filled, *s), decisions, w, seconds, chosen)
+
+
+def _alternatives_windows(model, spline, rots, roots, keys, decisions, fills, alternatives):
+    """(decisions, chosen, fills) with each shot's in-betweener picked among ``model`` and
+    the ``alternatives`` by their probes (:func:`pick`, the model's ``probe_margin``); an
+    alternative fills only the shots it is picked for."""
+    margin = float(getattr(model, "probe_margin", 0.0))
+    options = [decisions] + [decide_batch(a, spline, rots, roots, keys, model.skeleton) for a in alternatives]
+    names = [model.name] + [a.name for a in alternatives]
+    chosen = np.array([pick([o[i].score for o in options], margin) for i in range(len(decisions))], np.int64)
+    out_r, out_p = np.array(fills[0], copy=True), np.array(fills[1], copy=True)
+    for k, alt in enumerate(alternatives, start=1):
+        sel = np.flatnonzero(chosen == k)
+        if len(sel):
+            out_r[sel], out_p[sel] = fill_windows(alt, rots[sel], roots[sel], keys, BATCH, model.skeleton)
+    picked = [replace(options[c][i], source=names[c]) for i, c in enumerate(chosen)]
+    return picked, chosen, (out_r, out_p)
+
+
+def pick(scores, margin: float = 0.0) -> int:
+    """Which of several in-betweeners probed on one shot is decided on, from their probes'
+    ``scores`` (None: no probes), the first (the primary) ahead by ``margin``: a score ranks
+    before none, then the higher, then the earlier."""
+    return max(
+        range(len(scores)),
+        key=lambda i: (scores[i] is not None, (scores[i] or 0.0) + (margin if i == 0 else 0.0), -i),
+    )
 
 
 def trusted(inbetweener, trust: str = "auto", alternatives=()):

@@ -330,6 +330,9 @@ BROKEN = {
     "pose bank of another rig": (_bytes("pose_bank.npz", lambda p: _npz(poses=np.zeros((8, 19, 3), np.float16))), "pose_bank.npz", "a pose bank of 19 joints for a model of 21"),
     "pose bank without poses": (_bytes("pose_bank.npz", lambda p: _npz(other=np.zeros(3))), "pose_bank.npz", "not a pose bank"),
     "pose bank a number": (_json(pose_bank=3), "model.json", "pose_bank must be a file name, not 3"),
+    "library missing": (_remove("library"), "model.json", "'library' names 'library', which holds no library.json"),
+    "library outside the folder": (_json(library="../default"), "model.json", "'library' must be a folder inside the model folder"),
+    "library a number": (_json(library=3), "model.json", "'library' must be a string"),
 }  # fmt: skip
 
 
@@ -337,7 +340,7 @@ def _broken_folder(tmp_path: Path, make) -> Path:
     folder = tmp_path / "broken"
     folder.mkdir()
     shutil.copyfile(DEFAULT / "model.json", folder / "model.json")
-    for f in ("generator.onnx", "path.onnx", "pose_bank.npz"):
+    for f in ("generator.onnx", "path.onnx", "pose_bank.npz", "library"):
         (folder / f).symlink_to(DEFAULT / f)
     make(folder)
     return folder

@@ -192,10 +192,14 @@ def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
     assert 1e-6 < abs(abs(float(usd @ filled[1006.0][th])) - 1) < 0.05
 
 
-def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path):
+def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, monkeypatch):
     """Where the decision is the spline, the default fill is the animator's own curves on
     the rig (``--model spline``) bit for bit, every one of its 100 joints; a blend lies
-    between the network's fill and that spline, keys exact."""
+    between the network's fill and that spline, keys exact. (The network against the spline:
+    the library shipped beside it holds this very take.)"""
+    from pipeline.fill import api
+
+    monkeypatch.setattr(api, "SHIPPED_LIBRARY", False)
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
     runs = {
         name: fill_shot(str(shot), FillOptions(model=model, trust=trust, out_dir=str(tmp_path / name)))

@@ -143,7 +143,7 @@ def _copy_model(src: Path, dst: Path, **changes) -> Path:
     """``src`` with its ONNX files and pose bank linked and its JSON changed."""
     dst.mkdir(parents=True)
     for f in src.iterdir():
-        if f.suffix in (".onnx", ".npz"):
+        if f.suffix in (".onnx", ".npz") or f.name == "library":
             (dst / f.name).symlink_to(f)
     file = "rig.json" if (src / "rig.json").exists() else "model.json"
     meta = json.loads((src / file).read_text())

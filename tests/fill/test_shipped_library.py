@@ -1,0 +1,89 @@
+"""The library the default model ships beside its network (models/default/library, CMU
+subjects 1-3): probed on the shot's own keys beside the network, the better deciding, and
+recorded like a studio's library; the benches' batched windows choose as the fill does."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from pxr import Usd
+from usd_fixtures import ANIM, BANDAI_CLIP, CMU_CLIP, FILLED, bandai_shot, cmu_shot
+
+from pipeline.fill.api import fill_shot
+from pipeline.fill.options import FillOptions
+from pipeline.infer.api import load_inbetweener
+from pipeline.infer.spline import SplineInbetweener
+from pipeline.infer.trust import TrustedInbetweener, pick, trusted_fill_windows
+from pipeline.library.infer import LibraryInbetweener
+from pipeline.motion.clip import Motion
+from pipeline.usd.take import model_take
+from usd_schemas import tokens
+
+LIB = "library:cmu-subjects-1-3"
+
+
+def test_the_default_ships_a_library_it_probes_beside_the_network():
+    net = load_inbetweener("default")
+    assert net.library_folder is not None and (net.library_folder / "library.json").is_file()
+    manifest = json.loads((net.library_folder / "library.json").read_text())
+    # Only trainable, commercially usable takes of subjects the benches do not hold out, and no
+    # machine's paths.
+    assert {t["name"][:3] for t in manifest["takes"]} == {"001", "002", "003"}
+    assert all(
+        not t["file"].startswith("/") and t["file"].startswith("cmu_iclone/") for t in manifest["takes"]
+    )
+    assert manifest["licence"].startswith("CMU Graphics Lab")
+
+
+def test_a_take_of_the_library_is_filled_from_it_and_recorded(tmp_path):
+    # A CMU subject 1 take: the library holds it, so its probes beat the network's.
+    shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
+    res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "auto")))
+    d = res["trust"][ANIM]
+    assert d["source"] == LIB and {c["name"] for c in d["candidates"]} == {LIB, "tween-bandai-v5.3"}
+    scores = {c["name"]: c["score"] for c in d["candidates"]}
+    assert scores[LIB] > scores["tween-bandai-v5.3"]
+    assert d["library"]["gaps"] and any(g["weight"] > 0 for g in d["library"]["gaps"])
+    stage = Usd.Stage.Open(res["layer"])
+    assert stage.GetPrimAtPath(FILLED).GetAttribute(tokens.LIBRARY_GAPS).Get() is not None
+    # The network alone probes nothing beside it.
+    alone = fill_shot(str(shot), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "net")))
+    assert not alone["trust"][ANIM].get("candidates") and LIB not in alone["licence"]
+
+
+def test_a_walk_of_the_training_studio_stays_the_networks(tmp_path):
+    shot = bandai_shot(tmp_path / "walk.usda", frames=91, keys_every=10)
+    res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "out")))
+    d = res["trust"][ANIM]
+    assert d["source"] == "tween-bandai-v5.3" and d["choice"] == "model"
+
+
+@pytest.mark.parametrize("every", [10, 30])
+def test_the_batched_windows_choose_as_the_fill_does(every):
+    """trusted_fill_windows with the library beside the network: per shot the in-betweener
+    TrustedInbetweener decides on, and its fill, shot for shot."""
+    net = load_inbetweener("default")
+    lib = LibraryInbetweener(str(net.library_folder))
+    spline = SplineInbetweener(net.skeleton)
+    walk = model_take(BANDAI_CLIP, 30.0)  # the network's kind of motion
+    cmu = model_take(CMU_CLIP, 30.0)  # a take the library holds
+    T = 91
+    rots = np.stack([walk.rotations[:T], cmu.rotations[:T]]).astype(np.float32)
+    roots = np.stack([walk.root_positions[:T], cmu.root_positions[:T]]).astype(np.float32)
+    keys = np.r_[np.arange(0, T - 1, every), T - 1]
+    f = trusted_fill_windows(net, spline, rots, roots, keys, alternatives=(lib,))
+    assert list(f.chosen) == [0, 1]
+    for i in range(2):
+        one = TrustedInbetweener(net, spline, alternatives=(lib,))
+        got = one.fill(Motion(net.skeleton, rots[i], roots[i], 30.0), keys)
+        assert f.decisions[i].source == one.last_decision.source
+        assert f.decisions[i].score == pytest.approx(one.last_decision.score, abs=1e-6)
+        np.testing.assert_allclose(f.decided[1][i], got.root_positions, atol=1e-4)
+        np.testing.assert_allclose(np.abs((f.decided[0][i] * got.rotations).sum(-1)), 1.0, atol=1e-4)
+
+
+def test_pick_ranks_a_score_before_none_and_the_primary_by_its_margin():
+    assert pick([0.1, 0.2]) == 1 and pick([0.1, 0.2], margin=0.15) == 0
+    assert pick([None, -0.5]) == 1 and pick([None, None]) == 0 and pick([0.3, 0.3]) == 0
