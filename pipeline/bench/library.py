@@ -56,6 +56,8 @@ SOURCES = ("cmu", "bandai")  # the default run's
 ALL_SOURCES = (*SOURCES, "others")
 #: ``others``: the CMU subjects in the library (trainable) and those held out (docs/models.md).
 OTHERS_LIBRARY, OTHERS_HELD = (1, 2, 3), (5, 6, 7)
+#: Why ``others`` has no tuning split (split's error and the CLI's refusal).
+NO_TUNING = "others: no tuning split (its held-out subjects are never tuned on)"
 _TAKE = re.compile(r"_(\d+)\.bvh(\.gz)?$")
 
 
@@ -77,7 +79,7 @@ def split(source: str, tuning: bool = False) -> tuple[list[Path], list[Path]]:
         }
     elif source == "others":
         if tuning:
-            raise ValueError("others: no tuning split (its held-out subjects are never tuned on)")
+            raise ValueError(NO_TUNING)
         return list_clips("train") + cmu_files(OTHERS_LIBRARY), cmu_files(OTHERS_HELD)
     else:
         raise ValueError(f"unknown source {source!r} (one of {', '.join(ALL_SOURCES)})")
@@ -213,7 +215,7 @@ def main(argv=None) -> int:
     if any(s not in ALL_SOURCES for s in sources):
         ap.error(f"--source: one or more of {', '.join(ALL_SOURCES)}")
     if a.tuning and "others" in sources:
-        ap.error("--tuning: 'others' has no tuning split (its held-out subjects are never tuned on)")
+        ap.error(f"--tuning: {NO_TUNING}")
     every = tuple(int(e) for e in a.every.split(",") if e)
     rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit, a.tuning)
     publish(rep, a.out, "library")

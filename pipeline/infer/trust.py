@@ -688,8 +688,10 @@ class TrustedInbetweener:
             d = TrustDecision("spline", 0.0, None, None, [], "trust=spline: the spline", None, "spline")
         else:
             d = decide(self.model, self.spline, motion, keys, cuts)
-            if self.alternatives:
+            if self.alternatives and probes_beside(self.primary, d):
                 d = self._choose(d, motion, keys, cuts)
+            elif self.alternatives:
+                d.reason += "; keys as familiar as its training data: nothing probed beside it"
         self.last_decision = d
         return d
 
@@ -702,8 +704,7 @@ class TrustedInbetweener:
         ]
         rows = [{"name": m.name, "hash": m.model_hash, "score": d.score, "model_error_cm": d.model_error_cm}
                 for m, d in options]  # fmt: skip
-        margin = float(getattr(self.primary, "probe_margin", 0.0))
-        model, d = options[pick([d.score for _, d in options], margin)]
+        model, d = options[pick([d.score for _, d in options], *choice_rule(self.primary))]
         self.model = model
         others = ", ".join(
             f"{r['name']} {r['score']:+.2f}"
@@ -815,26 +816,53 @@ def _alternatives_windows(model, spline, rots, roots, keys, decisions, fills, al
     """(decisions, chosen, fills) with each shot's in-betweener picked among ``model`` and
     the ``alternatives`` by their probes (:func:`pick`, the model's ``probe_margin``); an
     alternative fills only the shots it is picked for."""
-    margin = float(getattr(model, "probe_margin", 0.0))
-    options = [decisions] + [decide_batch(a, spline, rots, roots, keys, model.skeleton) for a in alternatives]
+    rule = choice_rule(model)
+    chosen = np.zeros(len(decisions), np.int64)
+    todo = np.array([i for i, d in enumerate(decisions) if probes_beside(model, d)], np.int64)
+    if not len(todo):
+        return decisions, chosen, fills
+    options = [[decisions[i] for i in todo]]
+    options += [decide_batch(a, spline, rots[todo], roots[todo], keys, model.skeleton) for a in alternatives]
     names = [model.name] + [a.name for a in alternatives]
-    chosen = np.array([pick([o[i].score for o in options], margin) for i in range(len(decisions))], np.int64)
+    chosen[todo] = [pick([o[n].score for o in options], *rule) for n in range(len(todo))]
+    picked = list(decisions)
+    for n, i in enumerate(todo):
+        picked[i] = replace(options[chosen[i]][n], source=names[chosen[i]])
     out_r, out_p = np.array(fills[0], copy=True), np.array(fills[1], copy=True)
     for k, alt in enumerate(alternatives, start=1):
         sel = np.flatnonzero(chosen == k)
         if len(sel):
             out_r[sel], out_p[sel] = fill_windows(alt, rots[sel], roots[sel], keys, BATCH, model.skeleton)
-    picked = [replace(options[c][i], source=names[c]) for i, c in enumerate(chosen)]
     return picked, chosen, (out_r, out_p)
 
 
-def pick(scores, margin: float = 0.0) -> int:
+def probes_beside(primary, first: TrustDecision) -> bool:
+    """Whether the alternatives are probed beside ``primary`` on a shot it decided ``first``
+    on: not where the primary keeps the shots whose keys are as familiar as its training
+    data (``keeps_own``, familiarity 1; :mod:`pipeline.infer.novelty`). There its probes,
+    holes twice the shot's gaps, undersell it: on the blocking bench's eval shots keyed every
+    30 the library shipped beside the network was decided on for 12 % of them, at 1.35x the
+    network's error (docs/models.md)."""
+    return not (getattr(primary, "keeps_own", False) and (first.familiarity or 0.0) >= 1.0)
+
+
+def choice_rule(primary) -> tuple[float, float | None]:
+    """(margin, floor) of :func:`pick` for alternatives probed beside ``primary``: its
+    ``probe_margin``, and with ``keeps_own`` a floor of 0: an alternative must beat the
+    spline on the probes. A library that has nothing like the keys gives the spline there
+    (score 0), while the network's own decision, worse than the spline at the probes' long
+    holes, still blends in what it does better between the keys (experiments/library_margin.py)."""
+    return float(getattr(primary, "probe_margin", 0.0)), 0.0 if getattr(primary, "keeps_own", False) else None
+
+
+def pick(scores, margin: float = 0.0, floor: float | None = None) -> int:
     """Which of several in-betweeners probed on one shot is decided on, from their probes'
     ``scores`` (None: no probes), the first (the primary) ahead by ``margin``: a score ranks
-    before none, then the higher, then the earlier."""
+    before none, then the higher, then the earlier. With a ``floor`` an alternative (not the
+    first) is decided on only with a score above it."""
+    ok = [i for i, sc in enumerate(scores) if i == 0 or floor is None or (sc is not None and sc > floor)]
     return max(
-        range(len(scores)),
-        key=lambda i: (scores[i] is not None, (scores[i] or 0.0) + (margin if i == 0 else 0.0), -i),
+        ok, key=lambda i: (scores[i] is not None, (scores[i] or 0.0) + (margin if i == 0 else 0.0), -i)
     )
 
 

@@ -54,10 +54,13 @@ def test_a_take_of_the_library_is_filled_from_it_and_recorded(tmp_path):
 
 
 def test_a_walk_of_the_training_studio_stays_the_networks(tmp_path):
+    """An eval-split walk of the studio the network was trained on (familiarity 1)."""
     shot = bandai_shot(tmp_path / "walk.usda", frames=91, keys_every=10)
     res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "out")))
     d = res["trust"][ANIM]
-    assert d["source"] == "tween-bandai-v5.3" and d["choice"] == "model"
+    # Keys as familiar as its training data keep the network: the library is not even probed.
+    assert d["familiarity"] == 1.0 and d["choice"] == "model" and not d["candidates"]
+    assert "nothing probed beside it" in d["reason"]
 
 
 @pytest.mark.parametrize("every", [10, 30])
@@ -87,3 +90,6 @@ def test_the_batched_windows_choose_as_the_fill_does(every):
 def test_pick_ranks_a_score_before_none_and_the_primary_by_its_margin():
     assert pick([0.1, 0.2]) == 1 and pick([0.1, 0.2], margin=0.15) == 0
     assert pick([None, -0.5]) == 1 and pick([None, None]) == 0 and pick([0.3, 0.3]) == 0
+    # With a floor an alternative must beat the spline (score above 0) as well as the primary.
+    assert pick([-2.0, 0.0], floor=0.0) == 0 and pick([-2.0, 0.01], floor=0.0) == 1
+    assert pick([None, 0.0], floor=0.0) == 0 and pick([None, 0.2], floor=0.0) == 1
