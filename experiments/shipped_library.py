@@ -1,5 +1,5 @@
 """A small library shipped beside the network: the CMU takes of some subjects as a library,
-probed beside the shipped network with a given probe margin (``LibraryInbetweener.probe_margin``;
+probed beside the shipped network with a given probe margin (``LibraryInbetweener.capabilities.probe_margin``;
 a studio's own library gets 0.25), measured through the product path on other actors (CMU
 subjects 5-7) and on Bandai eval-split takes (every ``--bandai-stride``-th), keys every 10 and 30.
 Offline study, not a test or a benchmark (docs/models.md, "Longer offset fine-tunes and delta
@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 from pipeline.bench.heldout import cmu_files
@@ -37,7 +38,7 @@ def main(argv=None) -> int:
     lib = a.out / f"library-cmu-{'-'.join(map(str, subjects))}"
     if not is_library(lib):
         build(None, lib, files=cmu_files(subjects), licence="CMU Graphics Lab terms", name=lib.name)
-    LibraryInbetweener.probe_margin = a.margin
+    LibraryInbetweener.capabilities = replace(LibraryInbetweener.capabilities, probe_margin=a.margin)
     fills = {"library": {"library": str(lib), "trust": "auto"}, "default": {"model": "default", "trust": "auto"},
              "spline": {"model": "spline", "trust": "auto"}}  # fmt: skip
     rep = {"every": [10, 30], "methods": list(METHODS), "max_frames": 300, "sources": {}}

@@ -49,6 +49,12 @@ class Capabilities:
     familiar a shot's keys are (:mod:`pipeline.infer.novelty`). ``per_gap``: fills each gap
     from its own two keys (no window spans a key, so a cut needs no splitting) and keeps
     ``last_gaps``, a JSON-ready record per gap of its latest fill (a motion library).
+
+    Probed beside others by the trusted fill (:mod:`pipeline.infer.trust`) as the primary:
+    ``probe_margin``, the score (mean log error ratio at the probes) by which another must beat
+    it to fill a shot instead; ``keeps_own``: it keeps shots whose keys are as familiar as its
+    training data (nothing is probed beside it there), and another fills a shot only where its
+    probes beat the spline as well.
     """
 
     partial_keys: bool = False
@@ -57,6 +63,8 @@ class Capabilities:
     any_rig: bool = False
     novelty: bool = False
     per_gap: bool = False
+    probe_margin: float = 0.0
+    keeps_own: bool = False
 
 
 @runtime_checkable

@@ -81,15 +81,11 @@ class OnnxInbetweener:
     ``capabilities.dna`` is set per model folder, and so is ``capabilities.novelty`` (a pose
     bank named in model.json)."""
 
-    capabilities = Capabilities(partial_keys=True, batch=True)
-    #: A shot keeps this network where its keys are as familiar as its training data (its
-    #: shipped library is not probed there), and where nothing probed beside it beats the
-    #: spline on the probes (pipeline.infer.trust.probes_beside, pick).
-    keeps_own = True
-    #: Score (mean log error ratio at the probes) by which its shipped library must beat this
-    #: network on a shot to fill it instead (pipeline.infer.trust.pick); chosen on a tuning
-    #: split (experiments/library_margin.py, docs/models.md).
-    probe_margin = 0.25
+    #: Probed beside its shipped library (model.json "library"): a shot keeps this network
+    #: where its keys are as familiar as its training data, and where the library's probes do
+    #: not beat the spline and this network's by 0.25 (chosen on a tuning split:
+    #: experiments/library_margin.py, docs/models.md; pipeline.infer.trust.probes_beside, pick).
+    capabilities = Capabilities(partial_keys=True, batch=True, probe_margin=0.25, keeps_own=True)
     #: Lock the feet where the network says they touch the ground (post.lock_feet); tests
     #: that compare the network's own output turn it off.
     feet = True

@@ -698,7 +698,7 @@ class TrustedInbetweener:
     def _choose(self, first: TrustDecision, motion: Motion, keys, cuts) -> TrustDecision:
         """Of the primary's decision and each alternative's, the one whose probes beat the
         spline by most (score: mean log error ratio spline / model), an alternative only by
-        more than the primary's ``probe_margin`` (0 without one); ``model`` follows."""
+        more than the primary's ``capabilities.probe_margin``; ``model`` follows."""
         options = [(self.primary, first)] + [
             (a, decide(a, self.spline, motion, keys, cuts)) for a in self.alternatives
         ]
@@ -843,7 +843,7 @@ def probes_beside(primary, first: TrustDecision) -> bool:
     holes twice the shot's gaps, undersell it: on the blocking bench's eval shots keyed every
     30 the library shipped beside the network was decided on for 12 % of them, at 1.35x the
     network's error (docs/models.md)."""
-    return not (getattr(primary, "keeps_own", False) and (first.familiarity or 0.0) >= 1.0)
+    return not (primary.capabilities.keeps_own and (first.familiarity or 0.0) >= 1.0)
 
 
 def choice_rule(primary) -> tuple[float, float | None]:
@@ -852,7 +852,8 @@ def choice_rule(primary) -> tuple[float, float | None]:
     spline on the probes. A library that has nothing like the keys gives the spline there
     (score 0), while the network's own decision, worse than the spline at the probes' long
     holes, still blends in what it does better between the keys (experiments/library_margin.py)."""
-    return float(getattr(primary, "probe_margin", 0.0)), 0.0 if getattr(primary, "keeps_own", False) else None
+    caps = primary.capabilities
+    return float(caps.probe_margin), 0.0 if caps.keeps_own else None
 
 
 def pick(scores, margin: float = 0.0, floor: float | None = None) -> int:

@@ -17,7 +17,7 @@ weight and the windows it took (take name and frame), for the fill's record.
 The trusted fill (:mod:`pipeline.infer.trust`) wraps this in-betweener as it wraps the
 network (and beside it: the one whose probes do better decides): probes from the shot's
 own keys decide, per gap length, how far the whole is trusted over the spline; the network
-decides instead only when its probes beat the library's by ``probe_margin``. The constants
+decides instead only when its probes beat the library's by ``capabilities.probe_margin``. The constants
 were chosen on held-out takes of a split other than the bench's (docs/library.md).
 """
 
@@ -96,12 +96,12 @@ class LibraryInbetweener:
     """Fills the frames between keys from a studio's library (:mod:`pipeline.library`)."""
 
     fps = 30.0
-    capabilities = Capabilities(partial_keys=True, novelty=True, per_gap=True)
-    #: Score (mean log error ratio at the probes) by which the network probed beside the
-    #: library must beat it to fill the character instead (pipeline.infer.trust): the probes'
-    #: holes are twice the shot's gaps, and on the tuning split they picked the network where
-    #: the library was better (keys every 10: 0.212 pooled, against the library's 0.198).
-    probe_margin = 0.25
+    #: ``probe_margin``: the score (mean log error ratio at the probes) by which the network
+    #: probed beside the library must beat it to fill the character instead
+    #: (pipeline.infer.trust): the probes' holes are twice the shot's gaps, and on the tuning
+    #: split they picked the network where the library was better (keys every 10: 0.212
+    #: pooled, against the library's 0.198).
+    capabilities = Capabilities(partial_keys=True, novelty=True, per_gap=True, probe_margin=0.25)
 
     def __init__(self, library: str | Library, feet: bool = True, best: int = match.BEST):
         self.library = library if isinstance(library, Library) else open_library(library)

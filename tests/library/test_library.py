@@ -324,8 +324,9 @@ def test_the_network_fills_a_library_character_only_when_its_probes_beat_the_lib
     inb = LibraryInbetweener(library)
     net = type("Net", (), {"name": "network", "model_hash": "n", "skeleton": inb.skeleton, "fps": inb.fps,
                            "capabilities": inb.capabilities})()  # fmt: skip
-    assert 0.0 < inb.probe_margin < 1.0
-    scores = {inb.name: 0.1, "network": 0.1 + lead * inb.probe_margin}
+    margin = inb.capabilities.probe_margin
+    assert 0.0 < margin < 1.0
+    scores = {inb.name: 0.1, "network": 0.1 + lead * margin}
     monkeypatch.setattr(trust, "decide", lambda m, s, *a, **k: trust.TrustDecision("model", 1.0, 1.0, 2.0,
                                                                                     score=scores[m.name]))  # fmt: skip
     t = trust.TrustedInbetweener(inb, alternatives=(net,))
