@@ -93,3 +93,30 @@ def test_pick_ranks_a_score_before_none_and_the_primary_by_its_margin():
     # With a floor an alternative must beat the spline (score above 0) as well as the primary.
     assert pick([-2.0, 0.0], floor=0.0) == 0 and pick([-2.0, 0.01], floor=0.0) == 1
     assert pick([None, 0.0], floor=0.0) == 0 and pick([None, 0.2], floor=0.0) == 1
+
+
+def test_a_broken_shipped_library_is_one_line_and_nothing_written(tmp_path, monkeypatch):
+    """A model folder whose library is damaged (a truncated array) is refused in one line
+    naming the file, before anything is written; the user's shot is untouched."""
+    import shutil
+
+    from pipeline.errors import TweenError
+    from pipeline.fill import api
+
+    root = tmp_path / "models"
+    folder = root / "default"
+    shutil.copytree(
+        load_inbetweener("default").folder, folder, ignore=shutil.ignore_patterns("torch", "bench")
+    )
+    with open(folder / "library" / "features.bin", "r+b") as f:
+        f.truncate(1000)
+    monkeypatch.setenv("TWEEN_MODELS", str(root))
+    monkeypatch.setattr(api, "_MODELS", {})
+    shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
+    before = shot.read_bytes()
+    out = tmp_path / "out"
+    with pytest.raises(TweenError) as ei:
+        fill_shot(str(shot), FillOptions(model="default", out_dir=str(out)))
+    msg = str(ei.value)
+    assert msg.startswith(str(folder / "library" / "features.bin")) and "\n" not in msg, msg
+    assert shot.read_bytes() == before and not (out.exists() and any(out.iterdir()))
