@@ -89,24 +89,11 @@ def test_capabilities_of_each_built_in():
     assert interp.capabilities == Capabilities(partial_keys=False, dna=False, batch=False, any_rig=True)
     assert spline.capabilities == Capabilities(partial_keys=False, dna=False, batch=True, any_rig=True)
     # The shipped networks keep their own kind of motion from what is probed beside them.
-    assert default.capabilities == Capabilities(
-        partial_keys=True,
-        dna=False,
-        batch=True,
-        any_rig=False,
-        novelty=True,
-        probe_margin=0.25,
-        keeps_own=True,
-    )
-    assert dna.capabilities == Capabilities(
-        partial_keys=True,
-        dna=True,
-        batch=True,
-        any_rig=False,
-        novelty=True,
-        probe_margin=0.25,
-        keeps_own=True,
-    )
+    for model, takes_dna in ((default, False), (dna, True)):
+        shipped = dict(
+            partial_keys=True, batch=True, any_rig=False, novelty=True, probe_margin=0.25, keeps_own=True
+        )
+        assert model.capabilities == Capabilities(dna=takes_dna, **shipped)
     # The pose bank is per folder too: the delta model ships none (docs/trust.md).
     assert load_model("models/delta").capabilities.novelty is False
     assert default.pose_bank is not None
