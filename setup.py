@@ -70,7 +70,10 @@ setup(
         ],
         # Model families by kind (pipeline.infer.api's registry): the in-betweener class of a
         # model.json / rig.json kind, called with its folder; folderless ones under every name.
-        "tween.models": ["generator-onnx = pipeline.infer.generator_onnx:OnnxInbetweener"],
+        "tween.models": [
+            "generator-onnx = pipeline.infer.generator_onnx:OnnxInbetweener",
+            "motion-library = pipeline.library.model:LibraryModel",
+        ],
         "tween.rig_models": [
             "rig-ganimator-onnx = pipeline.rig.infer:RigInbetweener",
             "rig = pipeline.rig.infer:RigInbetweener",  # rig.json files written before kinds had names

@@ -5,7 +5,7 @@ subjects 5-7) and on Bandai eval-split takes (every ``--bandai-stride``-th), key
 Offline study, not a test or a benchmark (docs/models.md, "Longer offset fine-tunes and delta
 inputs").
 
-``python experiments/shipped_library.py OUT [--subjects 1,2,3] [--margin 0.25] [--bandai-stride 15]``
+``python experiments/shipped_library.py OUT [--subjects 1,2,3] [--margin 0.25] [--bandai-stride 15] [--methods library,default,spline]``
 """
 
 from __future__ import annotations
@@ -33,7 +33,12 @@ def main(argv=None) -> int:
     ap.add_argument("--subjects", default="1,2,3", help="CMU subjects in the library")
     ap.add_argument("--margin", type=float, default=0.25, help="the library's probe margin")
     ap.add_argument("--bandai-stride", type=int, default=15, help="every N-th Bandai eval take")
+    ap.add_argument("--methods", default=",".join(METHODS),
+                    help="columns: library, default, spline, or a human model's name (its trusted fill)")  # fmt: skip
     a = ap.parse_args(argv)
+    methods = tuple(m for m in a.methods.split(",") if m)
+    if "spline" not in methods:
+        methods += ("spline",)  # every ratio is to it
     subjects = tuple(int(s) for s in a.subjects.split(","))
     lib = a.out / f"library-cmu-{'-'.join(map(str, subjects))}"
     if not is_library(lib):
@@ -41,18 +46,19 @@ def main(argv=None) -> int:
     LibraryInbetweener.capabilities = replace(LibraryInbetweener.capabilities, probe_margin=a.margin)
     fills = {"library": {"library": str(lib), "trust": "auto"}, "default": {"model": "default", "trust": "auto"},
              "spline": {"model": "spline", "trust": "auto"}}  # fmt: skip
-    rep = {"every": [10, 30], "methods": list(METHODS), "max_frames": 300, "sources": {}}
+    fills |= {m: {"model": m, "trust": "auto"} for m in methods if m not in fills}
+    rep = {"every": [10, 30], "methods": list(methods), "max_frames": 300, "sources": {}}
     held_sets = (("CMU 5-7", cmu_files((5, 6, 7))), ("Bandai eval", list_clips("eval")[:: a.bandai_stride]))
     for name, held in held_sets:
         per: dict = {10: {}, 30: {}}
         with tempfile.TemporaryDirectory() as tmp:
             for f in held:
                 for e in per:
-                    per[e][f.name] = evaluate_take(f, e, METHODS, Path(tmp), 300, True, 30.0, fills=fills)
+                    per[e][f.name] = evaluate_take(f, e, methods, Path(tmp), 300, True, 30.0, fills=fills)
         rep["sources"][f"{name}, margin {a.margin:g}"] = {
             "held_out": [f.name for f in held],
             "per_take": per,
-            "summary": summary(per, METHODS),
+            "summary": summary(per, methods),
         }
     (a.out / "shipped_library.json").write_text(json.dumps(rep, indent=1))
     (a.out / "shipped_library.md").write_text(markdown(rep))

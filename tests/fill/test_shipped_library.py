@@ -120,3 +120,61 @@ def test_a_broken_shipped_library_is_one_line_and_nothing_written(tmp_path, monk
     msg = str(ei.value)
     assert msg.startswith(str(folder / "library" / "features.bin")) and "\n" not in msg, msg
     assert shot.read_bytes() == before and not (out.exists() and any(out.iterdir()))
+
+
+def test_the_commercial_library_model_fills_with_no_network(tmp_path):
+    """``--model cmu-library`` (kind motion-library): the library alone, trusted against the
+    spline; only the CMU terms reach the fill, and its folder says it may be used commercially."""
+    from pipeline.infer.api import folder_kind
+    from pipeline.library.model import LibraryModel
+
+    folder = load_inbetweener("default").folder.parent / "cmu-library"
+    meta = json.loads((folder / "model.json").read_text())
+    assert folder_kind(folder) == "motion-library" and meta["commercial"] is True
+    assert all("NC" not in s["licence"].split() for s in meta["sources"])
+    assert isinstance(load_inbetweener("cmu-library"), LibraryModel)
+    shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
+    res = fill_shot(str(shot), FillOptions(model="cmu-library", out_dir=str(tmp_path / "out")))
+    assert res["licence"] == {"cmu-library-v1": meta["licence"]} and res["model"] == "cmu-library-v1"
+    d = res["trust"][ANIM]
+    assert not d["candidates"] and d["library"]["gaps"]  # nothing probed beside it; its gaps recorded
+
+
+@pytest.mark.parametrize(
+    "change, says",
+    [
+        ({"kind": "motion-library", "library": 3}, "'library' must name the library's folder"),
+        (
+            {"kind": "motion-library", "library": "../default/library"},
+            "must be a folder inside the model folder",
+        ),
+        ({"kind": "motion-library", "name": ""}, "'name' must be a non-empty string"),
+    ],
+)
+def test_a_broken_library_model_is_one_line_naming_its_json(tmp_path, change, says):
+    from pipeline.infer.folder import ModelFolderError
+    from pipeline.library.model import LibraryModel
+
+    src = load_inbetweener("default").folder.parent / "cmu-library"
+    folder = tmp_path / "lib-model"
+    folder.mkdir()
+    (folder / "library").symlink_to(src / "library")
+    meta = json.loads((src / "model.json").read_text()) | change
+    (folder / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelFolderError) as ei:
+        LibraryModel(folder)
+    assert str(ei.value).startswith(f"{folder / 'model.json'}: ") and says in str(ei.value)
+
+
+def test_a_library_model_whose_library_changed_is_refused(tmp_path):
+    from pipeline.infer.folder import ModelFolderError
+    from pipeline.library.model import LibraryModel
+
+    src = load_inbetweener("default").folder.parent / "cmu-library"
+    folder = tmp_path / "lib-model"
+    folder.mkdir()
+    (folder / "library").symlink_to(src / "library")
+    meta = json.loads((src / "model.json").read_text()) | {"hash": "library-0000000000000000"}
+    (folder / "model.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelFolderError, match="its library is 'library-059fec1137a3c46d'"):
+        LibraryModel(folder)

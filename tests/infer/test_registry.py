@@ -59,7 +59,13 @@ def registered():
 def test_every_shipped_model_folder_declares_its_kind_and_loads_by_it():
     folders = shipped_folders()
     assert {p.name for p, _ in folders} >= {"default", "dna", "elephant"}
-    want = {"model.json": OnnxInbetweener, "rig.json": RigInbetweener}
+    from pipeline.library.model import LibraryModel
+
+    want = {
+        "generator-onnx": OnnxInbetweener,
+        "motion-library": LibraryModel,
+        "rig-ganimator-onnx": RigInbetweener,
+    }
     for folder, file in folders:
         meta = json.loads((folder / file).read_text())
         assert meta.get("kind") in kinds(file), (folder, meta.get("kind"))  # written out, not defaulted
@@ -68,7 +74,7 @@ def test_every_shipped_model_folder_declares_its_kind_and_loads_by_it():
         assert (folder / file).read_text().startswith(f'{{\n "kind": "{meta["kind"]}",\n "name": ')
         for name in (folder, folder.name):  # a folder, or a name under the models root
             inb = load_model(name)
-            assert isinstance(inb, Inbetweener) and isinstance(inb, want[file])
+            assert isinstance(inb, Inbetweener) and isinstance(inb, want[meta["kind"]])
             assert inb.model_hash == meta["hash"] and inb.name == meta["name"]
     assert type(load_model("interp")) is InterpolationInbetweener
     assert type(load_model("interpolation")) is InterpolationInbetweener
