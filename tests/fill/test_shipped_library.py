@@ -8,6 +8,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from pxr import Usd
 from usd_fixtures import ANIM, BANDAI_CLIP, CMU_CLIP, FILLED, bandai_shot, cmu_shot
 
@@ -178,3 +180,21 @@ def test_a_library_model_whose_library_changed_is_refused(tmp_path):
     (folder / "model.json").write_text(json.dumps(meta))
     with pytest.raises(ModelFolderError, match="its library is 'library-059fec1137a3c46d'"):
         LibraryModel(folder)
+
+
+@given(
+    scores=st.lists(st.one_of(st.none(), st.floats(-5, 5)), min_size=1, max_size=4),
+    margin=st.floats(0, 1),
+    floor=st.one_of(st.none(), st.just(0.0)),
+)
+def test_pick_by_generation(scores, margin, floor):
+    """The pick is one of the shots' in-betweeners; an alternative it picks has a score, beats
+    the floor, and beats the primary's score by the margin; a larger margin never takes the
+    shot from the primary."""
+    i = pick(scores, margin, floor)
+    assert 0 <= i < len(scores)
+    if i > 0:
+        assert scores[i] is not None and (floor is None or scores[i] > floor)
+        assert scores[0] is None or scores[i] >= scores[0] + margin
+    if i == 0:
+        assert pick(scores, margin + 0.5, floor) == 0
