@@ -814,8 +814,9 @@ def trusted_fill_windows(model, spline, rots, roots, keys, cache: dict | None = 
 
 def _alternatives_windows(model, spline, rots, roots, keys, decisions, fills, alternatives):
     """(decisions, chosen, fills) with each shot's in-betweener picked among ``model`` and
-    the ``alternatives`` by their probes (:func:`pick`, the model's ``probe_margin``); an
-    alternative fills only the shots it is picked for."""
+    the ``alternatives`` by their probes (:func:`pick` under the model's :func:`choice_rule`,
+    on the shots :func:`probes_beside` leaves open); an alternative fills only the shots it is
+    picked for."""
     rule = choice_rule(model)
     chosen = np.zeros(len(decisions), np.int64)
     todo = np.array([i for i, d in enumerate(decisions) if probes_beside(model, d)], np.int64)
