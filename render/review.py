@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.progress import interval
 from pipeline.usd.files import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
 from render.geometry import Geometry
@@ -274,7 +275,7 @@ def _render_frames(
         thumbs, frames = [], []
         it = range(len(shot.times))
         if progress:
-            it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr)
+            it = tqdm(it, desc=f"review {shot.name}", unit="f", file=sys.stderr, mininterval=interval())
         finish_frame = _frame_finisher(plan, movie, tmp, stem, exr, write_frames, thumbs, frames)
         writer = FrameWriter((h, w, 4), finish_frame, frame_threads=FRAME_THREADS if write_frames else 0)
         try:

@@ -14,6 +14,7 @@ from tqdm import tqdm
 from pipeline.data.cache_paths import cache_dir, cache_root  # noqa: F401 (re-exported)
 from pipeline.data.split import list_clips
 from pipeline.motion.bvh import read_bvh
+from pipeline.progress import interval
 
 CACHE_VERSION = 1
 
@@ -84,6 +85,7 @@ def load_files(files: list[Path], split: str, read=None) -> ClipSet:
         file=sys.stderr,
         unit="clip",
         disable=len(files) < (50 if read is None else 2),
+        mininterval=interval(),
     ):
         m = read_bvh(f).continuous() if read is None else read(f)
         fps = fps or m.fps

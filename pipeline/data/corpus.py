@@ -53,6 +53,7 @@ from pipeline.data.skeletons import bandai_skeleton
 from pipeline.data.split import is_eval, shared_data_dir
 from pipeline.errors import TweenError
 from pipeline.motion.rotations import quat_normalize
+from pipeline.progress import interval
 
 KIND, VERSION = "tween-corpus", 1
 MANIFEST, SOURCE_MANIFEST = "corpus.json", "clips.json"
@@ -282,7 +283,7 @@ def _prepare(corpus: Corpus, out: Path, read, listing, progress: bool, commit_s:
     n = sum(len(t[2]) for t in todo)
     # Shown in a log as on a terminal: a long prepare says how far it is wherever it runs.
     bar = tqdm(total=n, desc=f"corpus {corpus.name}", unit="clip", file=sys.stderr, disable=not progress,
-               mininterval=2.0, delay=1.0)  # fmt: skip
+               mininterval=max(2.0, interval()), delay=1.0)  # fmt: skip
     try:
         for src, writer, files in todo:
             bar.set_postfix_str(src.name, refresh=False)

@@ -12,6 +12,7 @@ from pipeline.data.cache import ClipSet, cache_dir
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_apply, quat_mul
+from pipeline.progress import interval
 
 CONTEXT = 10
 TRANSITIONS = (5, 15, 30, 45)
@@ -90,7 +91,8 @@ def position_stats(train: ClipSet, skeleton=None) -> tuple[np.ndarray, np.ndarra
 
     rots, roots = cut_windows(train, STATS_WINDOW, STATS_STRIDE)
     chunks = []
-    for s in tqdm(range(0, len(rots), 1000), desc="train statistics", unit=" ×1000 windows", file=sys.stderr):
+    for s in tqdm(range(0, len(rots), 1000), desc="train statistics", unit=" ×1000 windows", file=sys.stderr,
+                  mininterval=interval()):  # fmt: skip
         r, p = normalize_windows(rots[s : s + 1000], roots[s : s + 1000], skeleton)
         _, pos = global_positions(r, p, skeleton)
         chunks.append(pos.reshape(-1, pos.shape[-2] * 3).astype(np.float64))

@@ -23,6 +23,7 @@ from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.library.match_features import contacts, frame_features
 from pipeline.library.store import LibraryError, Writer, empty_manifest, is_library, open_library
+from pipeline.progress import interval
 
 FPS = 30.0
 
@@ -160,7 +161,7 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     created, was_empty = not out.exists(), out.is_dir() and not any(out.iterdir())
     writer = Writer(out, manifest)
     bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
-               disable=not progress or None, mininterval=2.0, delay=1.0)  # fmt: skip
+               disable=not progress or None, mininterval=max(2.0, interval()), delay=1.0)  # fmt: skip
     try:
         added, failed, held = _add_takes(writer, bar, len(todo), manifest, licence, mirror, on_progress)
         if not manifest["takes"] and failed:

@@ -22,6 +22,8 @@ from typing import IO
 
 from tqdm import tqdm
 
+from pipeline.progress import interval
+
 
 @dataclass(frozen=True)
 class Progress:
@@ -107,6 +109,7 @@ class ProgressBar:
                 file=self.file,
                 disable=self.disable,
                 dynamic_ncols=True,
+                mininterval=interval(self.file),
             )
         bar = self._bar
         post = {k: f"{v:.3g}" for k, v in p.loss.items()}

@@ -34,6 +34,7 @@ from pipeline.motion.fk import fk
 from pipeline.networks.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.layers import batch_regularisation
+from pipeline.progress import interval
 from pipeline.train.batches import (
     PARTIAL_LAYOUTS,
     foot_contacts,
@@ -708,7 +709,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         torch.save(state, path.with_suffix(".tmp"))
         path.with_suffix(".tmp").replace(path)
 
-    bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator")
+    bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator", mininterval=interval())
     batches = batches_from(cfg, clips, skel, feet, step)
     model.train()
     while step < cfg.steps:

@@ -17,6 +17,7 @@ from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
 from pipeline.motion.fk import fk
 from pipeline.networks.path import PathConfig, PathPredictor
+from pipeline.progress import interval
 from pipeline.train.batches import sample_batch
 
 
@@ -95,7 +96,7 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
         step = state["step"]
     log = (out_dir / "path_log.jsonl").open("a")
     t0 = time.time()
-    bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="path predictor")
+    bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="path predictor", mininterval=interval())
     while step < cfg.steps:
         rng = np.random.default_rng([cfg.seed, 7, step])
         rot, root = sample_batch(clips, rng, cfg.batch, cfg.length)
