@@ -26,39 +26,19 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.bench.blocking import SHOT, STRIDE
+from pipeline.bench.blocking import SHOT, STRIDE, errors_cm
 from pipeline.bench.heldout import cmu_files
-from pipeline.bench.library import split
+from pipeline.bench.library import split, subjects_library
 from pipeline.bench.long_gaps import cmu_on_model_skeleton
 from pipeline.data.cache import load_files
 from pipeline.data.protocol import windows_of
 from pipeline.infer.api import load_inbetweener
 from pipeline.infer.spline import SplineInbetweener
 from pipeline.infer.trust import choice_rule, pick, probes_beside, trusted_fill_windows
-from pipeline.library.build import build
 from pipeline.library.infer import LibraryInbetweener
-from pipeline.library.store import is_library
 from pipeline.motion.augment import posture_offsets
-from pipeline.motion.fk import fk
 
 MARGINS = (-0.25, -0.1, 0.0, 0.1, 0.25, 0.5)
-
-
-def library(out: Path, subjects: tuple[int, ...]) -> Path:
-    """The library of these CMU subjects' takes (built once into ``out``)."""
-    lib = out / f"library-cmu-{'-'.join(map(str, subjects))}"
-    if not is_library(lib):
-        build(None, lib, files=cmu_files(subjects), licence="CMU Graphics Lab terms", name=lib.name)
-    return lib
-
-
-def shot_errors(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
-    """(N,) mean world joint-position error (cm) over ``frames``."""
-    _, a = fk(rot[:, frames], root[:, frames], skel.parents, skel.offsets)
-    _, b = fk(true_rot[:, frames], true_root[:, frames], skel.parents, skel.offsets)
-    return (
-        np.linalg.norm(np.asarray(a, np.float64) - b, axis=-1).mean(axis=(1, 2)) * 100 * skel.meters_per_unit
-    )
 
 
 def measure(net, spline, lib, rots, roots, every: int) -> dict:
@@ -70,14 +50,14 @@ def measure(net, spline, lib, rots, roots, every: int) -> dict:
     skel = net.skeleton
     f = trusted_fill_windows(net, spline, rots, roots, keys)
     beside = np.array([probes_beside(net, d) for d in f.decisions])
-    out = {"network": shot_errors(skel, *f.decided, rots, roots, free),
-           "spline": shot_errors(skel, *f.spline, rots, roots, free),
+    out = {"network": errors_cm(skel, *f.decided, rots, roots, free),
+           "spline": errors_cm(skel, *f.spline, rots, roots, free),
            "s_net": np.array([d.score if d.score is not None else np.nan for d in f.decisions]),
            "beside": beside, "library": np.full(len(rots), np.nan), "s_lib": np.full(len(rots), np.nan)}  # fmt: skip
     todo = np.flatnonzero(beside)
     if len(todo):
         g = trusted_fill_windows(lib, spline, rots[todo], roots[todo], keys)
-        out["library"][todo] = shot_errors(skel, *g.decided, rots[todo], roots[todo], free)
+        out["library"][todo] = errors_cm(skel, *g.decided, rots[todo], roots[todo], free)
         out["s_lib"][todo] = [d.score if d.score is not None else np.nan for d in g.decisions]
     return out
 
@@ -100,7 +80,7 @@ def sources(out: Path, stride: int, shipped: Path):
         takes = [m for m in takes if len(m) > SHOT]  # subject 3's two takes are shorter than a shot
         if takes:
             r, p = windows_of(((m.rotations, m.root_positions) for m in takes), SHOT, STRIDE)
-            cmu.append((library(out, tuple(x for x in (1, 2, 3) if x != s)), r, p))
+            cmu.append((subjects_library(out, tuple(x for x in (1, 2, 3) if x != s)), r, p))
     clips = load_files(split("bandai", True)[1][::stride], "bandai-tuning")
     r, p = windows_of((clips.clip(c) for c in range(len(clips))), SHOT, STRIDE)
     posed = posture_offsets(r, np.random.default_rng(0), 30.0, 1.0)

@@ -17,12 +17,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from pipeline.bench.heldout import cmu_files
-from pipeline.bench.library import markdown, summary
+from pipeline.bench.library import markdown, subjects_library, summary
 from pipeline.bench.studio import evaluate_take
 from pipeline.data.split import list_clips
-from pipeline.library.build import build
 from pipeline.library.infer import LibraryInbetweener
-from pipeline.library.store import is_library
 
 METHODS = ("library", "default", "spline")
 
@@ -40,9 +38,7 @@ def main(argv=None) -> int:
     if "spline" not in methods:
         methods += ("spline",)  # every ratio is to it
     subjects = tuple(int(s) for s in a.subjects.split(","))
-    lib = a.out / f"library-cmu-{'-'.join(map(str, subjects))}"
-    if not is_library(lib):
-        build(None, lib, files=cmu_files(subjects), licence="CMU Graphics Lab terms", name=lib.name)
+    lib = subjects_library(a.out, subjects)
     LibraryInbetweener.capabilities = replace(LibraryInbetweener.capabilities, probe_margin=a.margin)
     fills = {"library": {"library": str(lib), "trust": "auto"}, "default": {"model": "default", "trust": "auto"},
              "spline": {"model": "spline", "trust": "auto"}}  # fmt: skip

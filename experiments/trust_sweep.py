@@ -40,12 +40,12 @@ def dump(net, spl, src: str, every: int, out: Path) -> Path:
     E = np.zeros((len(rots), len(GRID)))
     for i, w in enumerate(GRID):
         b_r, b_p = trust.blend_arrays(np.full(len(rots), w), m_r, m_p, s_r, s_p)
-        E[:, i] = blocking._errors_cm(skel, b_r, b_p, rots, roots, free)
+        E[:, i] = blocking.errors_cm(skel, b_r, b_p, rots, roots, free)
     path = out / f"d_{src}_{every}.npz"
     np.savez(
         path,
         E=E,
-        decided=blocking._errors_cm(skel, d_r, d_p, rots, roots, free),
+        decided=blocking.errors_cm(skel, d_r, d_p, rots, roots, free),
         em=np.array([[p["model_cm"] for p in d.probes] for d in ds]),
         es=np.array([[p["spline_cm"] for p in d.probes] for d in ds]),
         nov=np.array([np.nan if d.novelty_cm is None else d.novelty_cm for d in ds]),

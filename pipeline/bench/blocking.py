@@ -103,7 +103,8 @@ def _windows(clips, source: str):
         raise TweenError(f"{source}: no clip longer than {SHOT} frames (raise --limit)") from None
 
 
-def _errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
+def errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
+    """(N,) mean world joint-position error (cm) of N shots over ``frames``."""
     return trust._errors_cm(skel, rot[:, frames], root[:, frames], true_rot[:, frames], true_root[:, frames])
 
 
@@ -134,7 +135,7 @@ def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
         model, spline, rots, roots, every, alternatives
     )
     err = {
-        name: float(_errors_cm(skel, r, p, rots, roots, free).mean())
+        name: float(errors_cm(skel, r, p, rots, roots, free).mean())
         for name, (r, p) in {"model": (m_r, m_p), "spline": (s_r, s_p), "decided": (d_r, d_p)}.items()
     }
     return {

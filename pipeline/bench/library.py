@@ -101,6 +101,17 @@ def library_for(source: str, files: list[Path], tuning: bool = False) -> Path:
     return folder
 
 
+def subjects_library(out: Path, subjects: tuple[int, ...]) -> Path:
+    """The library of these CMU subjects' takes, ``out/library-cmu-1-2-3`` (built once), as the
+    offline studies of a shipped library use it (experiments/shipped_library.py, library_margin.py)."""
+    from pipeline.library.build import build
+
+    lib = Path(out) / f"library-cmu-{'-'.join(map(str, subjects))}"
+    if not is_library(lib):
+        build(None, lib, files=cmu_files(subjects), licence="CMU Graphics Lab terms", name=lib.name)
+    return lib
+
+
 def fills_for(lib: Path) -> dict:
     """Each method's fill options (``FillOptions`` fields) with the library ``lib``."""
     return {
