@@ -153,14 +153,14 @@ def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = 
         library: bool = True) -> dict:  # fmt: skip
     """``library``: the decided fill also probes the library the model ships beside its
     network (model.json's ``"library"``), as the product's fill does."""
+    from pipeline.fill.api import FillOptions, probed_beside
     from pipeline.infer.api import load_inbetweener
     from pipeline.infer.spline import SplineInbetweener
-    from pipeline.library.infer import LibraryInbetweener
 
     net = load_inbetweener(model)
     spline = SplineInbetweener(net.skeleton)
-    folder = getattr(net, "library_folder", None) if library else None
-    alternatives = (LibraryInbetweener(str(folder)),) if folder is not None else ()
+    # What the product's fill probes beside the network (--trust auto), chosen by its own rule.
+    alternatives = probed_beside(FillOptions(model=model), net) if library else ()
     report: dict = {"model": net.name, "hash": net.model_hash, "shot": SHOT, "limit": limit, "sources": {}}
     if alternatives:
         report["library"] = {"name": alternatives[0].name, "hash": alternatives[0].model_hash}

@@ -118,7 +118,7 @@ def _human(opts: FillOptions):
     return _model(opts.model)
 
 
-def _alternatives(opts: FillOptions, human) -> tuple:
+def probed_beside(opts: FillOptions, human) -> tuple:
     """What the trusted fill probes beside the human in-betweener, the better on the shot's
     own keys deciding: with ``--library``, the default network (LIBRARY_VS_NETWORK); else the
     library the human model ships beside its network (model.json's ``"library"``), with
@@ -185,7 +185,7 @@ def _licences(opts: FillOptions, cp, inb, alternatives) -> dict[str, str]:
     # The libraries and networks the fill already opened (with --library ``inb`` is
     # ``_library``'s): nothing is read again per character.
     out = {inb.name: library_licence(inb.library.manifest) if opts.library else model_licence(opts.model)}
-    for alt in alternatives:  # what is probed beside it (_alternatives)
+    for alt in alternatives:  # what is probed beside it (probed_beside)
         if alt.capabilities.per_gap:  # a library
             out[alt.name] = library_licence(alt.library.manifest)
             continue
@@ -262,7 +262,7 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
     models = {}
     inbs = [_char_model(cp, human) for cp in plan.chars]
-    alternatives = _alternatives(opts, human)
+    alternatives = probed_beside(opts, human)
     for cp, inb in zip(plan.chars, inbs, strict=True):
         models[cp.char.anim_path] = {
             "name": inb.name,
@@ -357,7 +357,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
     # A human character is also probed with what ships or is asked beside it (the better decides).
-    alternatives = _alternatives(opts, human)
+    alternatives = probed_beside(opts, human)
     try:
         identity = [_fill_identity(m) for m in (*inbs, *alternatives)]
         digest = _digest(shot, plan.shot.stage, opts, take, identity)

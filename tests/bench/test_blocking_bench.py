@@ -24,6 +24,14 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
     assert r["decided"] <= 1.05 * max(r["model"], r["spline"])
     assert 0.0 <= r["mean_weight"] <= 1.0
     assert "| cmu | 10 |" in capsys.readouterr().out
+    # The shipped library is probed beside the network as the fill probes it (probed_beside).
+    assert "cmu-subjects-1-3" in report["library"]["name"] and report["library"]["hash"]
+
+
+def test_blocking_bench_without_the_library_probes_the_network_only(tmp_path):
+    args = ["--sources", "cmu", "--every", "30", "--limit", "1", "--out", str(tmp_path), "--no-library"]
+    assert blocking.main(args) == 0
+    assert "library" not in json.loads((tmp_path / "blocking.json").read_text())
 
 
 def test_too_short_clips_are_one_clear_error():
