@@ -26,9 +26,7 @@ from pipeline.library.store import open_library
 
 OUT = Path(__file__).resolve().parents[1] / "models" / "default" / "library"
 SUBJECTS = (1, 2, 3)
-LICENCE = (
-    "CMU Graphics Lab Motion Capture Database terms (mocap.cs.cmu.edu): free for any use, credit the lab"
-)
+LICENCE = "CMU Graphics Lab Motion Capture Database terms (mocap.cs.cmu.edu): free for all uses, commercial products included, but not to be resold as data, even converted; credit the lab"
 
 
 def main(argv=None) -> int:

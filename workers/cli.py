@@ -23,6 +23,14 @@ from workers.runtime import thread_env
 from workers.settings import load_settings, redact_url
 
 
+def _jobs():
+    """workers.jobs, the farm's client: it imports Celery, so only the commands that reach
+    the farm import it (``tween fill-local`` and ``--help`` stay fast)."""
+    import workers.jobs
+
+    return workers.jobs
+
+
 def _opts(opts) -> dict:
     """The job's options, checked (one line naming the option) before anything is sent, as
     the farm payload."""
@@ -117,7 +125,7 @@ def _clock(t) -> str:
 def _settle(ids: list[str], intr: _Interrupts | None = None, alive=None, timeout: float = CANCEL_WAIT_S):
     """Polls cancelled jobs until none of their stages runs (or ``timeout``, or a second
     interrupt); then removes what each cancelled job wrote. Returns the last states."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
 
     t0 = time.monotonic()
     seen = intr.count if intr else 0
@@ -146,7 +154,7 @@ def _cancelled_line(s) -> str:
 def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> int:
     """Waits for the jobs and reports them; on SIGINT/SIGTERM cancels them, waits until they
     have stopped and undone their work, and returns 130."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
 
     try:
         intr.armed = True
@@ -274,7 +282,7 @@ def fill(
     With no broker configured (TWEEN_BROKER_URL or the farm config file) this runs an
     embedded farm: a local worker on a SQLite broker, started and stopped here.
     """
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
 
     # The options first: a bad one is refused before Celery is even imported.
     takes = opts.takes
@@ -329,7 +337,7 @@ def submit(
     opts: FillOptions = None,
 ):
     """Submit shots to the farm; prints one job id per shot (stdout) and returns at once."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
 
     opts = _opts(opts)
     from workers.app import app as celery_app
@@ -357,7 +365,7 @@ def status(
     as_json: bool = typer.Option(False, "--json", help="One JSON object per job."),
 ):
     """State of farm jobs: queued, running (stage), success (layer paths) or failure (reason)."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
 
@@ -414,7 +422,7 @@ def cancel(
     """Cancel fill jobs on the farm that runs them: queued stages never run (even on a worker
     started later), a running stage stops at its next heartbeat, and nothing the job wrote
     is kept (no new version, no work or review files)."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
 
@@ -509,7 +517,7 @@ def submit_train_rig(
 ):
     """Train a per-rig model on the farm's rig training queue (`tween worker --train-rig`);
     prints the job id (`tween status ID` shows its progress)."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
 
     opts = opts.check().as_job()
     from workers.app import check_farm, farm_errors, rig_app
@@ -546,7 +554,7 @@ def submit_library(
 ):
     """Build a motion library on the farm's training queue (`tween worker --train`); prints
     the job id (`tween status ID` shows it)."""
-    import workers.jobs as jobs  # the farm's client: Celery, imported when used
+    jobs = _jobs()
     from workers.app import check_farm, farm_errors, train_app
 
     raise_settings_error()
