@@ -14,7 +14,12 @@ beats the network's plus the margin and the spline (``pick``, ``choice_rule``). 
 ratio to the spline over the six cells, declared before the run. Offline study, not a test or a
 benchmark (docs/models.md, The library shipped beside the network).
 
-``python experiments/library_margin.py OUT [--bandai-stride 6] [--margins -0.25,...,0.5]``
+``--beside MODEL`` probes a further network beside the library (each rule's table then has a
+column with it too); ``--heldout`` adds held-out cells (CMU 5-7, the blocking bench's eval and
+posture shots) to the table, which no choice reads.
+
+``python experiments/library_margin.py OUT [--bandai-stride 6] [--margins -0.25,...,0.5]
+[--beside models/delta] [--heldout]``
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.bench.blocking import SHOT, STRIDE, errors_cm
+from pipeline.bench.blocking import SHOT, STRIDE, errors_cm, shots
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.library import split, subjects_library
 from pipeline.bench.long_gaps import cmu_on_model_skeleton
@@ -41,9 +46,10 @@ from pipeline.motion.augment import posture_offsets
 MARGINS = (-0.25, -0.1, 0.0, 0.1, 0.25, 0.5)
 
 
-def measure(net, spline, lib, rots, roots, every: int) -> dict:
-    """Per shot: the network's, the library's and the spline's errors, both scores, and
-    whether the library is probed at all."""
+def measure(net, spline, alts, rots, roots, every: int) -> dict:
+    """Per shot: the network's, each alternative's (``alt0`` the library, then any network
+    probed beside it) and the spline's errors, the scores, and whether the alternatives are
+    probed at all."""
     n = rots.shape[1]
     keys = np.r_[np.arange(0, n - 1, every), n - 1]
     free = np.setdiff1d(np.arange(n), keys)
@@ -53,22 +59,26 @@ def measure(net, spline, lib, rots, roots, every: int) -> dict:
     out = {"network": errors_cm(skel, *f.decided, rots, roots, free),
            "spline": errors_cm(skel, *f.spline, rots, roots, free),
            "s_net": np.array([d.score if d.score is not None else np.nan for d in f.decisions]),
-           "beside": beside, "library": np.full(len(rots), np.nan), "s_lib": np.full(len(rots), np.nan)}  # fmt: skip
+           "beside": beside}  # fmt: skip
     todo = np.flatnonzero(beside)
-    if len(todo):
-        g = trusted_fill_windows(lib, spline, rots[todo], roots[todo], keys)
-        out["library"][todo] = errors_cm(skel, *g.decided, rots[todo], roots[todo], free)
-        out["s_lib"][todo] = [d.score if d.score is not None else np.nan for d in g.decisions]
+    for k, alt in enumerate(alts):
+        out[f"alt{k}"], out[f"s_alt{k}"] = np.full(len(rots), np.nan), np.full(len(rots), np.nan)
+        if len(todo):
+            g = trusted_fill_windows(alt, spline, rots[todo], roots[todo], keys)
+            out[f"alt{k}"][todo] = errors_cm(skel, *g.decided, rots[todo], roots[todo], free)
+            out[f"s_alt{k}"][todo] = [d.score if d.score is not None else np.nan for d in g.decisions]
     return out
 
 
-def pooled(m: dict, margin: float, floor: float | None) -> float:
-    """Pooled error ratio to the spline of the picks a margin (and the network's floor) gives."""
+def pooled(m: dict, margin, floor, alts: int = 1) -> float:
+    """Pooled error ratio to the spline of the picks a margin and floors (``pick``'s) give,
+    among the network and its first ``alts`` alternatives."""
     err = m["network"].copy()
     for i in np.flatnonzero(m["beside"]):
-        scores = [None if np.isnan(s) else float(s) for s in (m["s_net"][i], m["s_lib"][i])]
-        if pick(scores, margin, floor) == 1:
-            err[i] = m["library"][i]
+        s = [m["s_net"][i]] + [m[f"s_alt{k}"][i] for k in range(alts)]
+        chosen = pick([None if np.isnan(x) else float(x) for x in s], margin, floor)
+        if chosen:
+            err[i] = m[f"alt{chosen - 1}"][i]
     return float(err.sum() / m["spline"].sum())
 
 
@@ -88,38 +98,93 @@ def sources(out: Path, stride: int, shipped: Path):
             ("Bandai train 3 mod 5, posture 30", [(shipped, posed, p)])]  # fmt: skip
 
 
+def heldout(shipped: Path):
+    """(name, [(library folder, rotations, roots)]) of held-out shots, reported beside the
+    tuning cells and never used to choose: CMU subjects 5-7 (other actors) and the blocking
+    bench's eval shots, as they are and with posture offsets of 10 and 30 degrees."""
+    takes = [cmu_on_model_skeleton(f) for f in cmu_files((5, 6, 7))]
+    r, p = windows_of(((m.rotations, m.root_positions) for m in takes if len(m) > SHOT), SHOT, STRIDE)
+    out = [("held out: CMU 5-7", [(shipped, r, p)])]
+    return out + [
+        (f"held out: blocking {src}", [(shipped, *shots(src))]) for src in ("eval", "posture10", "posture30")
+    ]
+
+
+# Long because: one offline study, read top to bottom: measure every cell, then every rule.
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="folder for the libraries and library_margin.json")
     ap.add_argument("--bandai-stride", type=int, default=6, help="every N-th Bandai tuning take")
     ap.add_argument("--margins", default=",".join(map(str, MARGINS)), help="the network's margins to compare")
+    ap.add_argument(
+        "--beside", default=None, help="a further network probed beside the library, e.g. models/delta"
+    )
+    ap.add_argument(
+        "--heldout", action="store_true", help="also measure held-out cells (reported, never chosen on)"
+    )
+    ap.add_argument("--reuse", action="store_true", help="read the cells a previous run saved in OUT")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     margins = [float(m) for m in a.margins.split(",")]
     net = load_inbetweener("default")
-    spline = SplineInbetweener(net.skeleton)
-    floor = choice_rule(net)[1]
-    cells: dict = {}
-    for name, parts in sources(a.out, a.bandai_stride, net.library_folder):
-        for every in (10, 30):
-            print(f"library margin: {name}, keys every {every}…", file=sys.stderr)
-            got = [measure(net, spline, LibraryInbetweener(str(lib)), r.astype(np.float32), p.astype(np.float32),
-                           every) for lib, r, p in parts]  # fmt: skip
-            cells[f"{name}, keys every {every}"] = {k: np.concatenate([g[k] for g in got]) for k in got[0]}
+    more = [load_inbetweener(a.beside)] if a.beside else []
+    lib = LibraryInbetweener(str(net.library_folder))
+    cells, tune = (
+        _reused(a.out) if a.reuse else measure_cells(a.out, net, [lib, *more], a.bandai_stride, a.heldout)
+    )
+    # The network's margin x swept; the library's and a network beside it as they declare them.
+    margins_of, floor = choice_rule(net, [lib, *more])
+    rules = {f"margin {x:g}": ([x, *margins_of[1:2]], 1) for x in margins}
+    if more:
+        rules |= {f"margin {x:g}, + {more[0].name}": ([x, *margins_of[1:]], 2) for x in margins}
     table = {c: {"shots": int(len(m["network"])), "probed": int(m["beside"].sum()),
                  "network": float(m["network"].sum() / m["spline"].sum()),
-                 **{f"margin {x:g}": pooled(m, x, floor) for x in margins}} for c, m in cells.items()}  # fmt: skip
-    cost = {x: float(np.mean([np.log(table[c][f"margin {x:g}"]) for c in table])) for x in margins}
-    best = min(margins, key=lambda x: (cost[x], -x))
-    for c, m in cells.items():  # per shot, for what a later rule may be checked on
-        np.savez(a.out / f"{c.replace(' ', '_').replace(',', '')}.npz", **m)
-    (a.out / "library_margin.json").write_text(
-        json.dumps({"table": table, "cost": cost, "chosen": best, "floor": floor}, indent=1)
-    )
+                 **{r: pooled(m, x, floor, k) for r, (x, k) in rules.items()}} for c, m in cells.items()}  # fmt: skip
+    cost = {r: float(np.mean([np.log(table[c][r]) for c in tune])) for r in rules}
+    best = min(margins, key=lambda x: (cost[f"margin {x:g}"], -x))
+    out = {"table": table, "cost": cost, "chosen": best, "margins": margins_of, "floor": floor,
+           "tuning_cells": tune}  # fmt: skip
+    if more:  # kept: less cost, and every tuning cell within 0.1 % of the library's alone
+        base, with_it = f"margin {best:g}", f"margin {best:g}, + {more[0].name}"
+        out["beside_kept"] = cost[with_it] < cost[base] and all(
+            table[c][with_it] <= 1.001 * table[c][base] for c in tune
+        )
+    (a.out / "library_margin.json").write_text(json.dumps(out, indent=1))
     for c, row in table.items():
         print(f"{c}: " + ", ".join(f"{k} {v:.4g}" for k, v in row.items()))
-    print("mean log ratio: " + ", ".join(f"{x:g}: {cost[x]:+.4f}" for x in margins) + f"; chosen {best:g}")
+    print("mean log ratio over the tuning cells: " + ", ".join(f"{r}: {v:+.4f}" for r, v in cost.items()))
+    print(f"chosen margin {best:g}" + (f"; {more[0].name} kept beside: {out['beside_kept']}" if more else ""))
     return 0
+
+
+def measure_cells(out: Path, net, alts, stride: int, held: bool) -> tuple[dict, list]:
+    """Every cell's per-shot measures (saved in ``out``, one .npz a cell), and the tuning cells' names."""
+    spline = SplineInbetweener(net.skeleton)
+    parts_of = sources(out, stride, net.library_folder)
+    tuning = len(parts_of)
+    if held:
+        parts_of += heldout(net.library_folder)
+    cells: dict = {}
+    for name, parts in parts_of:
+        for every in (10, 30):
+            print(f"library margin: {name}, keys every {every}…", file=sys.stderr)
+            got = [measure(net, spline, [LibraryInbetweener(str(lib)), *alts[1:]], r.astype(np.float32),
+                           p.astype(np.float32), every) for lib, r, p in parts]  # fmt: skip
+            cells[f"{name}, keys every {every}"] = {k: np.concatenate([g[k] for g in got]) for k in got[0]}
+    for c, m in cells.items():  # per shot, for what a later rule may be checked on (--reuse)
+        np.savez(out / _npz_name(c), **m)
+    tune = list(cells)[: 2 * tuning]
+    (out / "cells.json").write_text(json.dumps({"cells": list(cells), "tuning": tune}))
+    return cells, tune
+
+
+def _npz_name(cell: str) -> str:
+    return cell.replace(" ", "_").replace(",", "").replace(":", "") + ".npz"
+
+
+def _reused(out: Path) -> tuple[dict, list]:
+    names = json.loads((out / "cells.json").read_text())
+    return {c: dict(np.load(out / _npz_name(c))) for c in names["cells"]}, names["tuning"]
 
 
 if __name__ == "__main__":

@@ -120,15 +120,16 @@ def _human(opts: FillOptions):
 
 def probed_beside(opts: FillOptions, human) -> tuple:
     """What the trusted fill probes beside the human in-betweener, the better on the shot's
-    own keys deciding: with ``--library``, the default network (LIBRARY_VS_NETWORK); else the
-    library the human model ships beside its network (model.json's ``"library"``), with
-    ``--trust auto`` only (SHIPPED_LIBRARY)."""
+    own keys deciding: with ``--library``, the default network (LIBRARY_VS_NETWORK); else,
+    with ``--trust auto`` only (SHIPPED_LIBRARY), the library the human model ships beside its
+    network (model.json's ``"library"``), then the models it ships beside it (``"beside"``)."""
     if opts.library:
         return (_model("default"),) if LIBRARY_VS_NETWORK else ()
-    folder = getattr(human, "library_folder", None)
-    if folder is None or opts.trust != "auto" or not SHIPPED_LIBRARY:
+    if opts.trust != "auto" or not SHIPPED_LIBRARY:
         return ()
-    return (_library(str(folder)),)
+    folder = getattr(human, "library_folder", None)  # a plug-in kind may ship none
+    out = (_library(str(folder)),) if folder is not None else ()
+    return out + tuple(_model(str(f)) for f in getattr(human, "beside_folders", ()))
 
 
 def _plan(shot: str, opts: FillOptions, human):

@@ -54,7 +54,8 @@ class Capabilities:
     ``probe_margin``, the score (mean log error ratio at the probes) by which another must beat
     it to fill a shot instead; ``keeps_own``: it keeps shots whose keys are as familiar as its
     training data (nothing is probed beside it there), and another fills a shot only where its
-    probes beat the spline as well.
+    probes beat the spline as well. A later alternative must beat it by its ``probe_margin``
+    too (:func:`pipeline.infer.trust.pick`).
     """
 
     partial_keys: bool = False

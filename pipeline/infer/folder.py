@@ -57,6 +57,7 @@ _OPTIONAL = {
     "kind": str,
     "experimental": str,  # why no production shot should use it (said at every fill that does)
     "library": str,  # a motion library shipped beside the network (shipped_library)
+    "beside": list,  # model folders inside it, probed beside the network after the library (beside_models)
 }
 #: Settings with one value left: the one every shipped model has (the code for any other went
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
@@ -207,3 +208,24 @@ def shipped_library(folder: str | Path, meta: dict) -> Path | None:
     if not (lib / "library.json").is_file():
         raise ModelFolderError(f"{path}: 'library' names {name!r}, which holds no library.json")
     return lib
+
+
+def beside_models(folder: str | Path, meta: dict) -> tuple[Path, ...]:
+    """The models a model folder ships beside its network (``model.json``'s ``"beside"``:
+    folders inside the model folder, each a model folder of its own), which the trusted fill
+    probes after its library (pipeline.fill.api); () without any. Inside, so that a copy of the
+    folder carries them. ModelFolderError where an entry is not a folder inside it holding a
+    model.json."""
+    names = meta.get("beside") or []
+    path = Path(folder) / "model.json"
+    out = []
+    for name in names:
+        if not isinstance(name, str) or not name or Path(name).is_absolute() or ".." in Path(name).parts:
+            raise ModelFolderError(
+                f"{path}: 'beside' must list folders inside the model folder, not {name!r}"
+            )
+        other = Path(folder) / name
+        if not (other / "model.json").is_file():
+            raise ModelFolderError(f"{path}: 'beside' names {name!r}, which holds no model.json")
+        out.append(other)
+    return tuple(out)

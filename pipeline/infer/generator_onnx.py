@@ -28,6 +28,7 @@ from pipeline.infer.features import (
 )
 from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, where callers find it)
     ModelFolderError,
+    beside_models,
     check_onnx_file,
     find_model,
     models_root,
@@ -81,10 +82,11 @@ class OnnxInbetweener:
     ``capabilities.dna`` is set per model folder, and so is ``capabilities.novelty`` (a pose
     bank named in model.json)."""
 
-    #: Probed beside its shipped library (model.json "library"): a shot keeps this network
-    #: where its keys are as familiar as its training data, and where the library's probes do
-    #: not beat the spline and this network's by 0.25 (chosen on a tuning split:
-    #: experiments/library_margin.py, docs/models.md; pipeline.infer.trust.probes_beside, pick).
+    #: Probed beside its shipped library and networks (model.json "library", "beside"): a
+    #: shot keeps this network where its keys are as familiar as its training data, and where
+    #: no alternative's probes beat the spline and this network's by 0.25 (chosen on a tuning
+    #: split: experiments/library_margin.py, docs/models.md; pipeline.infer.trust.probes_beside,
+    #: pick). Probed beside another, it must beat that one's margin in turn.
     capabilities = Capabilities(partial_keys=True, batch=True, probe_margin=0.25, keeps_own=True)
     #: Lock the feet where the network says they touch the ground (post.lock_feet); tests
     #: that compare the network's own output turn it off.
@@ -121,6 +123,8 @@ class OnnxInbetweener:
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
         #: The motion library shipped beside the network (None: none), probed beside it.
         self.library_folder = shipped_library(self.folder, self.meta)
+        #: The models shipped beside it (model.json's ``"beside"``), probed after the library.
+        self.beside_folders = beside_models(self.folder, self.meta)
 
     #: Fills without partial keys run the generator without its partial-key adapter (the
     #: same output, 0.30 MFLOP a frame less: features.adapter_free_graph); False: always the

@@ -704,7 +704,7 @@ class TrustedInbetweener:
         ]
         rows = [{"name": m.name, "hash": m.model_hash, "score": d.score, "model_error_cm": d.model_error_cm}
                 for m, d in options]  # fmt: skip
-        model, d = options[pick([d.score for _, d in options], *choice_rule(self.primary))]
+        model, d = options[pick([d.score for _, d in options], *choice_rule(self.primary, self.alternatives))]
         self.model = model
         others = ", ".join(
             f"{r['name']} {r['score']:+.2f}"
@@ -817,7 +817,7 @@ def _alternatives_windows(model, spline, rots, roots, keys, decisions, fills, al
     the ``alternatives`` by their probes (:func:`pick` under the model's :func:`choice_rule`,
     on the shots :func:`probes_beside` leaves open); an alternative fills only the shots it is
     picked for."""
-    rule = choice_rule(model)
+    rule = choice_rule(model, alternatives)
     chosen = np.zeros(len(decisions), np.int64)
     todo = np.array([i for i, d in enumerate(decisions) if probes_beside(model, d)], np.int64)
     if not len(todo):
@@ -847,25 +847,36 @@ def probes_beside(primary, first: TrustDecision) -> bool:
     return not (primary.capabilities.keeps_own and (first.familiarity or 0.0) >= 1.0)
 
 
-def choice_rule(primary) -> tuple[float, float | None]:
-    """(margin, floor) of :func:`pick` for alternatives probed beside ``primary``: its
-    ``probe_margin``, and with ``keeps_own`` a floor of 0: an alternative must beat the
-    spline on the probes. A library that has nothing like the keys gives the spline there
-    (score 0), while the network's own decision, worse than the spline at the probes' long
-    holes, still blends in what it does better between the keys (experiments/library_margin.py)."""
-    caps = primary.capabilities
-    return float(caps.probe_margin), 0.0 if caps.keeps_own else None
+def choice_rule(primary, alternatives=()) -> tuple[list[float], float | None]:
+    """(margins, floor) of :func:`pick` for ``alternatives`` probed beside ``primary``: each
+    candidate's ``probe_margin``, what a later one must beat it by (the primary's; and a
+    library's, whose probes, holes twice the shot's gaps, undersell it against a network's),
+    and with ``keeps_own`` a floor of 0: an alternative must beat the spline on the probes. A
+    library that has nothing like the keys gives the spline at the probes (score 0), while the
+    network's own decision, worse than the spline at the probes' long holes, still blends in
+    what it does better between the keys (experiments/library_margin.py)."""
+    margins = [float(m.capabilities.probe_margin) for m in (primary, *alternatives)]
+    return margins, 0.0 if primary.capabilities.keeps_own else None
 
 
-def pick(scores, margin: float = 0.0, floor: float | None = None) -> int:
+def pick(scores, margin=0.0, floor=None) -> int:
     """Which of several in-betweeners probed on one shot is decided on, from their probes'
-    ``scores`` (None: no probes), the first (the primary) ahead by ``margin``: a score ranks
-    before none, then the higher, then the earlier. With a ``floor`` an alternative (not the
-    first) is decided on only with a score above it."""
-    ok = [i for i, sc in enumerate(scores) if i == 0 or floor is None or (sc is not None and sc > floor)]
-    return max(
-        ok, key=lambda i: (scores[i] is not None, (scores[i] or 0.0) + (margin if i == 0 else 0.0), -i)
-    )
+    ``scores`` (None: no probes), in order, the first the primary: the last alternative with
+    a score that beats every earlier candidate's score (where it has one) by that candidate's
+    ``margin`` and its own ``floor``; else the primary. ``margin``: one per candidate, or one
+    number, the primary's (the others' 0); ``floor``: one per candidate (the first's unread) or
+    one for every alternative, None for none. Equal scores keep the earlier."""
+    n = len(scores)
+    margins = list(margin) if isinstance(margin, (list, tuple)) else [float(margin)] + [0.0] * (n - 1)
+    floors = list(floor) if isinstance(floor, (list, tuple)) else [floor] * n
+    chosen = 0
+    for i in range(1, n):
+        sc = scores[i]
+        if sc is None or (floors[i] is not None and not sc > floors[i]):
+            continue
+        if all(scores[j] is None or sc > scores[j] + margins[j] for j in range(i)):
+            chosen = i
+    return chosen
 
 
 def trusted(inbetweener, trust: str = "auto", alternatives=()):

@@ -58,16 +58,21 @@ def test_the_licence_of_a_folder_a_builtin_and_a_bad_one(tmp_path):
 def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, tmp_path):
     out = tmp_path / "out"
     res = fill_shot(str(walk), FillOptions(model="default", out_dir=str(out)))
-    # The network, and the library it ships beside it (probed on the shot's keys with it).
+    # The network, and the library and delta network it ships beside it (probed on the shot's
+    # keys with it).
     cmu = json.loads((ROOT / "models" / "default" / "library" / "library.json").read_text())["licence"]
-    want = {"tween-bandai-v5.3": "CC BY-NC 4.0", "library:cmu-subjects-1-3": cmu}
+    want = {
+        "tween-bandai-v5.3": "CC BY-NC 4.0",
+        "library:cmu-subjects-1-3": cmu,
+        "tween-bandai-delta-v2": "CC BY-NC 4.0",
+    }
     assert res["licence"] == want and cmu.startswith("CMU Graphics Lab")
     layer = Sdf.Layer.FindOrOpen(res["layer"])
     assert dict(layer.customLayerData["tween"]["licence"]) == want
     stage = Usd.Stage.Open(res["layer"])
     assert (
         stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get()
-        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}"
+        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v2: CC BY-NC 4.0"
     )
     # The network alone (--trust model) probes nothing beside it: its licence only.
     alone = fill_shot(str(walk), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "alone")))
@@ -80,7 +85,7 @@ def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, 
     pstage = Usd.Stage.Open(pub["layer"])
     assert (
         pstage.GetPrimAtPath(pub["animations"][0]).GetAttribute(tokens.MODEL_LICENCE).Get()
-        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}"
+        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v2: CC BY-NC 4.0"
     )
 
 

@@ -149,7 +149,7 @@ def _copy_model(src: Path, dst: Path, **changes) -> Path:
     """``src`` with its ONNX files and pose bank linked and its JSON changed."""
     dst.mkdir(parents=True)
     for f in src.iterdir():
-        if f.suffix in (".onnx", ".npz") or f.name == "library":
+        if f.suffix in (".onnx", ".npz") or f.name in ("library", "delta"):
             (dst / f.name).symlink_to(f)
     file = "rig.json" if (src / "rig.json").exists() else "model.json"
     meta = json.loads((src / file).read_text())
@@ -324,7 +324,7 @@ def test_experimental_models_are_said_at_every_fill_and_keep_their_hash(tmp_path
     from pipeline.infer.folder import experimental
 
     flagged = {p.parent.name for p in MODELS.glob("*/model.json") if experimental(p.parent.name)}
-    assert flagged == {"delta", "cmu-s123"}
+    assert flagged == {"cmu-s123"}  # delta ships beside the default (model.json "beside")
     assert experimental("default") is None and experimental("interp") is None
     readme = (MODELS / "README.md").read_text()
     assert all(f"`{name}/` |" in readme and "**experimental**" in readme for name in flagged)
@@ -337,11 +337,11 @@ def test_experimental_models_are_said_at_every_fill_and_keep_their_hash(tmp_path
             meta = json.loads((MODELS / name / "model.json").read_text())
             assert model_hash(MODELS / name, meta) == meta["hash"]
     shot = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--model", "delta",
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--model", "cmu-s123",
                         "--out-dir", str(tmp_path)], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr
     warned = [ln for ln in r.stderr.splitlines() if ln.startswith("tween: warning:")]
     assert warned == [
-        f"tween: warning: --model delta is experimental ({experimental('delta')}); not for production shots"
+        f"tween: warning: --model cmu-s123 is experimental ({experimental('cmu-s123')}); not for production shots"
     ]
-    assert json.loads(r.stdout)["experimental"] == experimental("delta")
+    assert json.loads(r.stdout)["experimental"] == experimental("cmu-s123")
