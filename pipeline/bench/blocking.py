@@ -145,6 +145,7 @@ def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
         "mean_weight": float(w[:, free].mean()),
         "probes": len(decisions[0].probes),
         "alternative_share": float(np.mean(chosen > 0)),
+        "alternative_shares": [float(np.mean(chosen == k)) for k in range(1, len(alternatives) + 1)],
         "seconds": time.perf_counter() - t0,
     }
 
@@ -162,8 +163,9 @@ def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = 
     # What the product's fill probes beside the network (--trust auto), chosen by its own rule.
     alternatives = probed_beside(FillOptions(model=model), net) if library else ()
     report: dict = {"model": net.name, "hash": net.model_hash, "shot": SHOT, "limit": limit, "sources": {}}
+    report["beside"] = [{"name": a.name, "hash": a.model_hash} for a in alternatives]
     if alternatives:
-        report["library"] = {"name": alternatives[0].name, "hash": alternatives[0].model_hash}
+        report["library"] = report["beside"][0]
     for src in sources:
         rots, roots = shots(src, limit)
         print(f"blocking bench: {src}, {len(rots)} shots of {SHOT} frames…", file=sys.stderr)
@@ -176,25 +178,26 @@ def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = 
 
 
 def markdown(report: dict) -> str:
-    lib = report.get("library")
-    beside = (
-        f", with {lib['name']} ({lib['hash']}) probed beside it"
-        if lib
-        else ", the network against the spline only"
-    )
+    beside = report.get("beside") or ([report["library"]] if report.get("library") else [])
+    said = ", ".join(f"{b['name']} ({b['hash']})" for b in beside)
+    heads = ["lib" if b["name"].startswith("library:") else b["name"] for b in beside]
     lines = [
-        f"Model {report['model']} ({report['hash']}){beside}; shots of {report['shot']} frames keyed every N "
-        "frames; mean joint-position error (cm) between the keys; lib: the shots the library decided.",
+        f"Model {report['model']} ({report['hash']})"
+        + (f", with {said} probed beside it" if beside else ", the network against the spline only")
+        + f"; shots of {report['shot']} frames keyed every N frames; mean joint-position error (cm) "
+        "between the keys" + (f"; {', '.join(heads)}: the share of shots each decided." if beside else "."),
         "",
-        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ | lib |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ |"
+        + "".join(f" {h} |" for h in heads),
+        "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(heads),
     ]
     for src, s in report["sources"].items():
         for e, r in s["results"].items():
+            shares = r.get("alternative_shares") or [r.get("alternative_share", 0.0)][: len(heads)]
             lines.append(
                 f"| {src} | {e} | {s['shots']} | {r['probes']} | {r['model']:.3f} | {r['spline']:.3f} | "
                 f"{r['decided']:.3f} | {r['decided_over_better']:.3f} | {r['decided_over_model']:.3f} | "
-                f"{r['mean_weight']:.2f} | {r.get('alternative_share', 0.0):.2f} |"
+                f"{r['mean_weight']:.2f} |" + "".join(f" {x:.2f} |" for x in shares)
             )
     return "\n".join(lines) + "\n"
 

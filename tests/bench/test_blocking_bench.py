@@ -24,8 +24,14 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
     assert r["decided"] <= 1.05 * max(r["model"], r["spline"])
     assert 0.0 <= r["mean_weight"] <= 1.0
     assert "| cmu | 10 |" in capsys.readouterr().out
-    # The shipped library is probed beside the network as the fill probes it (probed_beside).
+    # The shipped library and delta network are probed beside the network as the fill probes
+    # them (probed_beside), each with the share of shots it decided.
     assert "cmu-subjects-1-3" in report["library"]["name"] and report["library"]["hash"]
+    assert [b["name"] for b in report["beside"]][1:] == ["tween-bandai-delta-v2"]
+    assert len(r["alternative_shares"]) == 2 and sum(r["alternative_shares"]) == pytest.approx(
+        r["alternative_share"]
+    )
+    assert "| lib | tween-bandai-delta-v2 |" in report["markdown"]
 
 
 def test_blocking_bench_without_the_library_probes_the_network_only(tmp_path):

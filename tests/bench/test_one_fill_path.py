@@ -32,13 +32,14 @@ def _samples(layer_path: str) -> dict:
 
 
 def test_the_bench_entry_and_fill_local_fill_a_shot_bit_for_bit(tmp_path, capsys):
-    # A walk on a rig posed up to 30° off the actors', keyed every 20 frames: the trusted fill
-    # decides for a blend (weight about one half), so the network's and the spline's fills
-    # both reach the rig and meet there.
+    # A walk on a rig posed up to 30° off the actors', keyed every 30 frames: the trusted fill
+    # decides for a blend (weight about a third; the delta network shipped beside it does no
+    # better at the probes), so the network's and the spline's fills both reach the rig and
+    # meet there. (Keyed every 20 the delta network fills it alone.)
     clip = read_bvh(BANDAI_CLIP).slice(0, 81)
     rot = posture_offsets(clip.rotations[None], np.random.default_rng(0), 30.0, 1.0)[0]
     clip = replace(clip, rotations=rot)
-    shot = rv.write_rig_shot(rv.model_rig_of(clip), tmp_path / "shot.usda", keys_every=20)
+    shot = rv.write_rig_shot(rv.model_rig_of(clip), tmp_path / "shot.usda", keys_every=30)
     review = rv.fill_review(shot, "default", tmp_path / "bench")
     capsys.readouterr()
     with pytest.raises(SystemExit) as done:
