@@ -98,9 +98,13 @@ def test_pick_ranks_a_score_before_none_and_the_primary_by_its_margin():
     assert pick([None, 0.0], floor=0.0) == 0 and pick([None, 0.2], floor=0.0) == 1
 
 
-def test_a_broken_shipped_library_is_one_line_and_nothing_written(tmp_path, monkeypatch):
-    """A model folder whose library is damaged (a truncated array) is refused in one line
-    naming the file, before anything is written; the user's shot is untouched."""
+@pytest.mark.parametrize("damaged, size", [("library/features.bin", 1000), ("delta/generator.onnx", 100_000)])
+def test_a_broken_file_shipped_beside_the_network_is_one_line_and_nothing_written(
+    tmp_path, monkeypatch, damaged, size
+):
+    """A model folder whose library (a truncated array) or delta network (a truncated ONNX
+    file) is damaged is refused in one line naming the file, before anything is written, even
+    for a walk that would probe neither; the user's shot is untouched."""
     import shutil
 
     from pipeline.errors import TweenError
@@ -111,8 +115,8 @@ def test_a_broken_shipped_library_is_one_line_and_nothing_written(tmp_path, monk
     shutil.copytree(
         load_inbetweener("default").folder, folder, ignore=shutil.ignore_patterns("torch", "bench")
     )
-    with open(folder / "library" / "features.bin", "r+b") as f:
-        f.truncate(1000)
+    with open(folder / damaged, "r+b") as f:
+        f.truncate(size)
     monkeypatch.setenv("TWEEN_MODELS", str(root))
     monkeypatch.setattr(api, "_MODELS", {})
     shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
@@ -121,7 +125,7 @@ def test_a_broken_shipped_library_is_one_line_and_nothing_written(tmp_path, monk
     with pytest.raises(TweenError) as ei:
         fill_shot(str(shot), FillOptions(model="default", out_dir=str(out)))
     msg = str(ei.value)
-    assert msg.startswith(str(folder / "library" / "features.bin")) and "\n" not in msg, msg
+    assert msg.startswith(str(folder / damaged)) and "\n" not in msg, msg
     assert shot.read_bytes() == before and not (out.exists() and any(out.iterdir()))
 
 
