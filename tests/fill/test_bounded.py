@@ -340,7 +340,7 @@ def _broken_folder(tmp_path: Path, make) -> Path:
     folder = tmp_path / "broken"
     folder.mkdir()
     shutil.copyfile(DEFAULT / "model.json", folder / "model.json")
-    for f in ("generator.onnx", "path.onnx", "pose_bank.npz", "library"):
+    for f in ("generator.onnx", "path.onnx", "pose_bank.npz", "library", "delta"):
         (folder / f).symlink_to(DEFAULT / f)
     make(folder)
     return folder

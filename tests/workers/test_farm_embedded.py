@@ -160,18 +160,18 @@ def test_an_experimental_model_is_said_once_and_in_the_farm_result(tmp_path):
 
     env = _env(tmp_path)
     shot = copy_shot(example_shot(), tmp_path / "shots", "exp")
-    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "delta", "--no-progress"]
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "cmu-s123", "--no-progress"]
     res = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stderr[-3000:]
-    why = experimental("delta")
+    why = experimental("cmu-s123")
     warned = [ln for ln in res.stderr.splitlines() if ln.startswith("tween: warning:")]
-    assert warned == [f"tween: warning: --model delta is experimental ({why}); not for production shots"]
+    assert warned == [f"tween: warning: --model cmu-s123 is experimental ({why}); not for production shots"]
     job = res.stderr.split(": job ", 1)[1].split()[0]
     cmd = [sys.executable, "-m", "pipeline.cli", "status", job, "--json"]
     st = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert st.returncode == 0, st.stderr[-3000:]
     result = json.loads(st.stdout)["result"]
-    assert result["model"] == "tween-bandai-delta-v2" and result["experimental"] == why
+    assert result["model"] == "tween-cmu-s123-delta-ft" and result["experimental"] == why
 
 
 def test_a_run_leaves_no_queue_or_message_in_the_embedded_broker(tmp_path):
