@@ -117,3 +117,25 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
     if rc == 130:
         print("tween: interrupted", file=sys.stderr)
     sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def run_main(main, argv: list[str] | None = None, log_dir: Path | None = None):
+    """Runs an argparse entry point ``main(argv) -> int`` (the benches' ``python -m``
+    commands) under the same rules as :func:`run` and exits: one ``tween: error:`` line and 2
+    for an error the user can act on, 1 for a bug of ours, 130 when interrupted."""
+    try:
+        rc = main(argv)
+    except TweenError as e:
+        print(f"tween: error: {e}", file=sys.stderr)
+        sys.exit(2)
+    except KeyboardInterrupt:
+        print("tween: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except OSError as e:
+        line = _os_error_line(e)
+        print(f"tween: error: {line}" if line else _bug_line(e, log_dir, argv), file=sys.stderr)
+        sys.exit(2 if line else 1)
+    except Exception as e:
+        print(_bug_line(e, log_dir, argv), file=sys.stderr)
+        sys.exit(1)
+    sys.exit(rc if isinstance(rc, int) else 0)

@@ -65,7 +65,9 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
         takes = (cmu_on_model_skeleton(f) for f in files)
         rots, roots = _windows(((m.rotations, m.root_positions) for m in takes), source)
     else:
-        raise ValueError(f"unknown source {source!r} (one of eval, cmu, postureN, {', '.join(MISSING)})")
+        raise TweenError(
+            f"--sources: unknown source {source!r} (one of eval, cmu, postureN, {', '.join(MISSING)})"
+        )
     return rots.astype(np.float32), roots.astype(np.float32)
 
 
@@ -223,4 +225,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from pipeline.command import run_main
+    from pipeline.data.cache_paths import cache_root
+
+    run_main(main, log_dir=cache_root() / "logs")  # a bug's traceback goes there, as tween's

@@ -8,6 +8,7 @@ mapped onto the model's, which is what a studio's shots look like to the model.
 
 from __future__ import annotations
 
+import errno
 import os
 import sys
 
@@ -49,7 +50,8 @@ def cmu_files(subjects: tuple[int, ...] | None = None) -> list:
         files = [f for f in files if f.name[:3].isdigit() and int(f.name[:3]) in subjects]
     if not files:
         which = "" if subjects is None else f" of subjects {', '.join(map(str, subjects))}"
-        raise FileNotFoundError(f"no CMU takes{which} under {folder}")
+        # The folder named, so that every entry point says it in one line (pipeline.command).
+        raise FileNotFoundError(errno.ENOENT, f"no CMU takes{which} there", str(folder))
     return files
 
 

@@ -11,6 +11,7 @@ joints against the clip. A rig-independent fill scores the same on every variant
 
 from __future__ import annotations
 
+import errno
 import json
 import sys
 import tempfile
@@ -21,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.adapt.mapping import MODEL_JOINTS
-from pipeline.data.split import list_clips
+from pipeline.data.split import list_clips, shared_data_dir
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_apply, quat_inv, quat_mul
@@ -458,6 +459,6 @@ def bench_clips(n: int = 8, frames: int = 241) -> list[Motion]:
 
     files = list_clips("eval")
     if not files:
-        raise FileNotFoundError("no eval clips under the shared data folder")
+        raise FileNotFoundError(errno.ENOENT, "no eval clips there", str(shared_data_dir()))
     pick = [files[int(i)] for i in np.linspace(0, len(files) - 1, min(n, len(files)))]
     return [read_bvh(f).slice(0, frames) for f in pick]

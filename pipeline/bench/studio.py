@@ -220,4 +220,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from pipeline.command import run_main
+    from pipeline.data.cache_paths import cache_root
+
+    run_main(main, log_dir=cache_root() / "logs")  # a bug's traceback goes there, as tween's

@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline.bench.report import publish
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
+from pipeline.errors import TweenError
 from pipeline.infer import novelty, trust
 
 SOURCES = ("eval", "cmu", "posture30", "mirrored")
@@ -41,8 +42,8 @@ def source_windows(source: str, limit: int | None = None):
 
     if source == "eval":
         return test_windows(limit)
-    if source == "cmu":
-        r, p = test_windows(source="cmu")
+    if source.partition(":")[0] == "cmu":
+        r, p = test_windows(source=source)
         if limit:
             idx = np.unique(np.linspace(0, len(r) - 1, min(len(r), 2 * limit)).astype(int))
             r, p = r[idx], p[idx]
@@ -51,7 +52,7 @@ def source_windows(source: str, limit: int | None = None):
         return test_windows(limit, mirrored=True)
     if source.startswith("posture"):
         return test_windows(limit, posture=float(source[len("posture") :]))
-    raise ValueError(f"unknown source {source!r} (one of {', '.join(SOURCES)})")
+    raise TweenError(f"--sources: unknown source {source!r} (one of {', '.join(SOURCES)})")
 
 
 def _per_window_l2p(gp_p, gp_t, mean, std) -> np.ndarray:
@@ -74,8 +75,10 @@ def _shots(rots, roots, T: int):
     return r, p, np.r_[np.arange(CONTEXT), tgt]
 
 
-def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None) -> dict:
-    """Per transition length: L2P / L2Q of each method, choices and seconds."""
+def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None,
+                    alternatives=()) -> dict:  # fmt: skip
+    """Per transition length: L2P / L2Q of each method, choices (and the share of windows each
+    of ``alternatives`` decided) and seconds."""
     from pipeline.infer.interp import interpolate_between
 
     out = {}
@@ -83,7 +86,7 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
     for T in transitions:
         sl = slice(CONTEXT, CONTEXT + T)
         rr, pp, keys = _shots(rots, roots, T)
-        wf = trust.trusted_fill_windows(model, spline, rr, pp, keys, cache)
+        wf = trust.trusted_fill_windows(model, spline, rr, pp, keys, cache, alternatives)
         (m_r, m_p), (s_r, s_p), (d_r, d_p), decisions = wf.model, wf.spline, wf.decided, wf.decisions
         w = np.array([d.weight for d in decisions])
         i_r, i_p = interpolate_between(
@@ -103,6 +106,7 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
         choices = [d.choice for d in decisions]
         res["choices"] = {c: choices.count(c) for c in trust.CHOICES}
         res["mean_weight"] = float(w.mean())
+        res["alternative_shares"] = [float(np.mean(wf.chosen == k)) for k in range(1, len(alternatives) + 1)]
         res["probes"] = len(decisions[0].probes)
         res["seconds"] = wf.seconds
         if dump is not None:
@@ -128,24 +132,31 @@ def run_trust_bench(
     transitions=TRANSITIONS,
     dump: str | None = None,
     model: str = "default",
+    beside: bool = False,
 ) -> dict:
     """Every source's table (see the module docstring): ``{"sources": {source: {"windows": N,
-    "seconds": s, "results": {T: {method: {"L2P", "L2Q"}, "choices", ...}}}}, "markdown": str}``."""
+    "seconds": s, "results": {T: {method: {"L2P", "L2Q"}, "choices", ...}}}}, "markdown": str}``.
+    ``beside``: the decided fill also probes what the fill probes beside the network (the
+    library and networks its model folder ships; pipeline.fill.api.probed_beside)."""
     from pipeline.data.cache import load_split
+    from pipeline.fill.api import FillOptions, probed_beside
     from pipeline.infer.api import load_inbetweener
     from pipeline.infer.spline import SplineInbetweener
 
     mean, std = position_stats(load_split("train"))
-    model = load_inbetweener(model)
-    spline = SplineInbetweener(model.skeleton)
+    net = load_inbetweener(model)
+    spline = SplineInbetweener(net.skeleton)
+    alternatives = probed_beside(FillOptions(model=model), net) if beside else ()
+    model = net
     report: dict = {"model": model.name, "hash": model.model_hash, "limit": limit, "sources": {}}
+    report["beside"] = [{"name": a.name, "hash": a.model_hash} for a in alternatives]
     dumps = {}
     for src in sources:
         t0 = time.perf_counter()
         rots, roots = source_windows(src, limit)
         print(f"trust bench: {src}, {len(rots)} windows…", file=sys.stderr)
         d = {} if dump else None
-        results = evaluate_source(model, spline, rots, roots, mean, std, transitions, d)
+        results = evaluate_source(model, spline, rots, roots, mean, std, transitions, d, alternatives)
         report["sources"][src] = {
             "windows": int(len(rots)),
             "seconds": time.perf_counter() - t0,
@@ -179,8 +190,16 @@ def run_trust_bench(
 
 
 def markdown(report: dict, transitions=TRANSITIONS) -> str:
+    beside = report.get("beside") or []
+    said = ", ".join(f"{b['name']} ({b['hash']})" for b in beside)
     lines = [
-        f"Model {report['model']} ({report['hash']}); each window one shot keyed at its context and target.",
+        f"Model {report['model']} ({report['hash']})"
+        + (
+            f", with {said} probed beside it (each one's share of windows after the choices)"
+            if beside
+            else ""
+        )
+        + "; each window one shot keyed at its context and target.",
         "",
     ]
     head = "| source | method | " + " | ".join(str(t) for t in transitions) + " |"
@@ -205,6 +224,7 @@ def markdown(report: dict, transitions=TRANSITIONS) -> str:
         cells = [
             f"{r[t]['choices']['model']}/{r[t]['choices']['blend']}/{r[t]['choices']['spline']}; "
             f"w̄ {r[t]['mean_weight']:.2f}; {r[t]['probes']}"
+            + "".join(f"; {x:.2f}" for x in r[t].get("alternative_shares") or [])
             for t in transitions
         ]
         lines.append(f"| {src} | choices | " + " | ".join(cells) + " |")
@@ -226,13 +246,19 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="folder for trust.json and trust.md")
     ap.add_argument("--dump", default=None, help="npz of per-window probe errors and blend L2P (tuning)")
     ap.add_argument("--model", default="default", help="the network: default, or a model folder")
+    ap.add_argument("--beside", action="store_true",
+                    help="also probe what the fill probes beside the network (its library and networks)")  # fmt: skip
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    report = run_trust_bench(tuple(s for s in a.sources.split(",") if s), a.limit, dump=a.dump, model=a.model)
+    sources = tuple(s for s in a.sources.split(",") if s)
+    report = run_trust_bench(sources, a.limit, dump=a.dump, model=a.model, beside=a.beside)
     report["seconds"] = time.perf_counter() - t0
     publish(report, a.out, "trust")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from pipeline.command import run_main
+    from pipeline.data.cache_paths import cache_root
+
+    run_main(main, log_dir=cache_root() / "logs")  # a bug's traceback goes there, as tween's

@@ -1,0 +1,71 @@
+"""The benches' ``python -m`` entry points answer bad input as every ``tween`` command does:
+one ``tween: error:`` line on stderr, exit status 2, nothing written (pipeline.command.run_main)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.command import run_main
+from pipeline.errors import TweenError
+
+
+@pytest.mark.parametrize(
+    "module, args, says",
+    [
+        ("pipeline.bench.blocking", ["--sources", "eval", "--limit", "1", "--every", "10"], "raise --limit"),
+        ("pipeline.bench.blocking", ["--sources", "bogus"], "--sources: unknown source 'bogus'"),
+        ("pipeline.bench.trust_bench", ["--sources", "bogus"], "--sources: unknown source 'bogus'"),
+        ("pipeline.bench.trust_bench", ["--sources", "posture30", "--limit", "3"], "raise --limit"),
+        ("pipeline.bench.studio", ["--subjects", "99"], "no CMU takes of subjects 99 there"),
+    ],
+)
+def test_a_bench_entry_point_refuses_bad_input_in_one_line(tmp_path, module, args, says):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", module, *args, "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, r.stderr[-2000:]
+    errors = [ln for ln in lines if ln.startswith("tween: error:")]
+    assert len(errors) == 1 and says in errors[0] and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert not out.exists()
+
+
+@settings(max_examples=30, deadline=None)
+@given(kind=st.sampled_from(["user", "file", "bug", "ok"]), text=st.text(min_size=1, max_size=40))
+def test_run_main_by_generation(kind, text):
+    """Whatever the entry point raises, run_main exits 2 for the user's errors (one line
+    naming the file for an OS error on one), 1 for anything else, else the entry's status."""
+
+    def main(argv):
+        if kind == "user":
+            raise TweenError(text)
+        if kind == "file":
+            raise FileNotFoundError(2, "No such file or directory", f"/nowhere/{len(text)}.usda")
+        if kind == "bug":
+            raise KeyError(text)
+        return 0
+
+    err = io.StringIO()
+    logs = Path(tempfile.mkdtemp())
+    with pytest.raises(SystemExit) as done, contextlib.redirect_stderr(err):
+        run_main(main, [], log_dir=logs)
+    assert done.value.code == {"user": 2, "file": 2, "bug": 1, "ok": 0}[kind]
+    first = (err.getvalue().splitlines() or [""])[0]
+    if kind == "user":
+        assert first == f"tween: error: {text}".splitlines()[0]
+    elif kind == "file":
+        assert first == f"tween: error: /nowhere/{len(text)}.usda: No such file or directory"
+    elif kind == "bug":
+        assert first.startswith("tween: internal error (a bug in usd-tween, not in your input): KeyError")
+        assert len(err.getvalue().splitlines()) == 1 and len(list(logs.iterdir())) == 1  # the traceback
+    else:
+        assert err.getvalue() == ""
