@@ -55,6 +55,35 @@ def source_windows(source: str, limit: int | None = None):
     raise TweenError(f"--sources: unknown source {source!r} (one of {', '.join(SOURCES)})")
 
 
+def parse_sources(text: str) -> tuple[str, ...]:
+    """``--sources``: comma-separated, a ``cmu:`` source keeping the subject numbers after it
+    (``eval,cmu:5,6,7,posture30``); each checked before anything runs (TweenError)."""
+    from pipeline.bench.heldout import parse_source
+
+    out: list[str] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        if part.isdigit() and out and out[-1].startswith("cmu:"):
+            out[-1] += "," + part
+        else:
+            out.append(part)
+    for src in out:
+        if src.partition(":")[0] == "cmu":
+            parse_source(src)
+        elif src not in SOURCES and not (src.startswith("posture") and _is_number(src[len("posture") :])):
+            raise TweenError(
+                f"--sources: unknown source {src!r} (one of {', '.join(SOURCES)}, cmu:5,6,7, postureN)"
+            )
+    return tuple(out)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _per_window_l2p(gp_p, gp_t, mean, std) -> np.ndarray:
     n, t = gp_p.shape[:2]
     a = (gp_p.reshape(n, t, -1) - mean) / std
@@ -250,7 +279,7 @@ def main(argv=None) -> int:
                     help="also probe what the fill probes beside the network (its library and networks)")  # fmt: skip
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    sources = tuple(s for s in a.sources.split(",") if s)
+    sources = parse_sources(a.sources)
     report = run_trust_bench(sources, a.limit, dump=a.dump, model=a.model, beside=a.beside)
     report["seconds"] = time.perf_counter() - t0
     publish(report, a.out, "trust")

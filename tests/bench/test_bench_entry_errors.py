@@ -69,3 +69,13 @@ def test_run_main_by_generation(kind, text):
         assert len(err.getvalue().splitlines()) == 1 and len(list(logs.iterdir())) == 1  # the traceback
     else:
         assert err.getvalue() == ""
+
+
+def test_trust_bench_sources_keep_cmu_subjects_and_are_checked_first():
+    from pipeline.bench.trust_bench import parse_sources
+
+    assert parse_sources("eval,cmu:5,6,7,posture30") == ("eval", "cmu:5,6,7", "posture30")
+    assert parse_sources("cmu,posture10,mirrored") == ("cmu", "posture10", "mirrored")
+    for bad in ("eval,bogus", "cmu:x", "posturex", "eval,5"):
+        with pytest.raises(TweenError):
+            parse_sources(bad)
