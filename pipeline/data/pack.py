@@ -9,16 +9,17 @@ with it, so it is written here. The result is an ordinary :class:`ClipSet`.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import lzma
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.data.cache import ClipSet
+from pipeline.errors import TweenError
 from pipeline.motion.rotations import quat_normalize
 
 ROT_SCALE = 4096.0
@@ -83,14 +84,21 @@ def load_pack(path: str | Path) -> ClipSet:
     return ClipSet(head["names"], starts, lengths, rot, roots.astype(np.float32), float(head["fps"]))
 
 
-def main() -> None:
+def main(argv=None) -> int:
     """``python -m pipeline.data.pack OUT`` packs the train split (with its checksum printed)."""
-
     from pipeline.data.cache import load_split
 
-    out = pack(load_split("train"), Path(sys.argv[1]))
+    ap = argparse.ArgumentParser(prog="python -m pipeline.data.pack", description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path, help="the packed file to write (.npz)")
+    a = ap.parse_args(argv)
+    if not a.out.parent.is_dir():  # before the split is read: a minute of parsing otherwise
+        raise TweenError(f"{a.out}: its folder {a.out.parent} is not a folder that exists")
+    out = pack(load_split("train"), a.out)
     print(out, hashlib.sha256(out.read_bytes()).hexdigest()[:16], f"{out.stat().st_size / 1e6:.1f} MB")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from pipeline.command import run_main
+
+    run_main(main)

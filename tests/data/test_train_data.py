@@ -60,3 +60,23 @@ def test_gap_weighting_evens_out_gaps():
         # With α = 1 a frame weighs 1 / its gap's length (times one normalising constant).
         per_gap = [w[a + 1 : b] * (b - a) for a, b in zip(keys[:-1], keys[1:], strict=True) if b - a > 1]
         assert np.allclose(np.concatenate(per_gap), per_gap[0][0], rtol=1e-5)
+
+
+def test_the_pack_entry_point_answers_help_and_writes_nothing_else(tmp_path):
+    """``python -m pipeline.data.pack --help`` is its help (it once packed the split into a
+    file named --help), and an output path through a file is one line naming it, exit 2."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "pipeline.data.pack", "--help"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0 and r.stdout.startswith("usage: python -m pipeline.data.pack")
+    assert list(tmp_path.iterdir()) == []
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    r = subprocess.run([sys.executable, "-m", "pipeline.data.pack", str(blocker / "train.npz")],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("tween: error:") == 1 and "Traceback" not in r.stderr, (
+        r.stderr
+    )
+    assert str(blocker) in r.stderr and blocker.read_text() == "not a folder"
