@@ -22,6 +22,7 @@ import numpy as np
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import facing_turn
 from pipeline.data.skeletons import bandai_skeleton
+from pipeline.errors import TweenError
 from pipeline.motion.fk import fk
 from pipeline.motion.rotations import quat_apply
 
@@ -81,6 +82,10 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=POSES)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
+    if not a.out.parent.is_dir():  # before the split is read
+        raise TweenError(f"{a.out}: its folder {a.out.parent} is not a folder that exists")
+    if not 1 <= a.poses:
+        raise TweenError(f"--poses {a.poses}: must be at least 1")
     train = load_split("train")
     bank = build(train.rotations, train.roots, a.poses, a.seed)
     save(
@@ -91,4 +96,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from pipeline.command import run_main
+
+    run_main(main)

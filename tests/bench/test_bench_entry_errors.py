@@ -1,4 +1,4 @@
-"""The benches' ``python -m`` entry points answer bad input as every ``tween`` command does:
+"""The benches' (and the data tools') ``python -m`` entry points answer bad input as every ``tween`` command does:
 one ``tween: error:`` line on stderr, exit status 2, nothing written (pipeline.command.run_main)."""
 
 from __future__ import annotations
@@ -26,12 +26,19 @@ from pipeline.errors import TweenError
         ("pipeline.bench.trust_bench", ["--sources", "bogus"], "--sources: unknown source 'bogus'"),
         ("pipeline.bench.trust_bench", ["--sources", "posture30", "--limit", "3"], "raise --limit"),
         ("pipeline.bench.studio", ["--subjects", "99"], "no CMU takes of subjects 99 there"),
+        ("pipeline.data.posebank", ["--poses", "0"], "--poses 0: must be at least 1"),
+        ("pipeline.data.posebank", ["--poses", "5", "NOFOLDER"], "is not a folder that exists"),
     ],
 )
 def test_a_bench_entry_point_refuses_bad_input_in_one_line(tmp_path, module, args, says):
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", module, *args, "--out", str(out)],
-                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    if module == "pipeline.data.posebank":  # its output is a file argument, not --out
+        args = [a.replace("NOFOLDER", str(out / "bank.npz")) for a in args] + (
+            [str(out)] if "NOFOLDER" not in args else []
+        )
+    else:
+        args = [*args, "--out", str(out)]
+    r = subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=300)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2, r.stderr[-2000:]
     errors = [ln for ln in lines if ln.startswith("tween: error:")]
