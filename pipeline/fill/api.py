@@ -288,9 +288,8 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
             beside = ", with the human network probed beside it" if opts.trust == "auto" else ""
             print(f"tween: {shot} {anim}: {m['name']}{beside}", file=sys.stderr)
         else:
-            beside = "".join(
-                f", with {a.name} probed beside it" for a in alternatives if m["kind"] == "human"
-            )
+            names = [a.name for a in alternatives] if m["kind"] == "human" else []
+            beside = f", with {' and '.join(names)} probed beside it" if names else ""
             print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}{beside}", file=sys.stderr)
     return summary
 

@@ -96,9 +96,11 @@ def test_a_walk_on_another_posture_is_the_delta_networks():
     )
 
 
-def test_an_unfamiliar_shot_probes_it_and_names_its_licence(tmp_path):
+def test_an_unfamiliar_shot_probes_it_and_names_its_licence(tmp_path, capsys):
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
     res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "out")))
+    said = f"human model tween-bandai-v5.3, with library:cmu-subjects-1-3 and {DELTA} probed beside it"
+    assert said in capsys.readouterr().err
     assert DELTA in {c["name"] for c in res["trust"][ANIM]["candidates"]}
     assert res["licence"][DELTA] == "CC BY-NC 4.0"
     # --trust model is the network alone: nothing is probed beside it.
