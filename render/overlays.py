@@ -6,6 +6,9 @@ only the frame / time code text is rendered per frame, and compositing touches t
 
 from __future__ import annotations
 
+import json
+import os
+
 import numpy as np
 
 FONT = "DroidSansMono"
@@ -74,14 +77,30 @@ def _over(dst: np.ndarray, src) -> None:
     dst[...] = ((dst * layer.inv + layer.rgb + 128) >> 8).astype(np.uint8)
 
 
+def decided_label(facts: dict) -> str:
+    """What to call the network that filled a character: "model" for its own, else (a network
+    shipped beside it that the probes chose, ``tween:trustEvidence``'s ``source``) that one's
+    name after the prefix the two names share ("delta-v2" for tween-bandai-delta-v2 beside
+    tween-bandai-v5.3; "model" where they share none: the network beside a studio library)."""
+    try:
+        source = json.loads(facts.get("trust_evidence") or "{}").get("source")
+    except (ValueError, AttributeError):  # evidence of another shape: say no more than before
+        return "model"
+    own = str(facts.get("model") or "")
+    if not isinstance(source, str) or source == own:
+        return "model"
+    shared = os.path.commonprefix([source, own])
+    return source[len(shared) :] if shared and len(shared) < len(source) else "model"
+
+
 def fill_sources(facts: dict) -> list[tuple[float, float, str]]:
     """(from, to, label) per gap the trusted fill decided on: a motion library's gaps
     (``tween:libraryGaps`` / ``tween:libraryShare``: "library", "spline", "library NN%"),
-    else the model's (``tween:trustGaps`` / ``tween:trustGapWeights``: "model", "spline",
-    "model NN%")."""
+    else the network's (``tween:trustGaps`` / ``tween:trustGapWeights``: "model", "spline",
+    "model NN%"; a network shipped beside it by its :func:`decided_label`)."""
     for name, gaps, share in (
         ("library", "library_gaps", "library_share"),
-        ("model", "trust_gaps", "trust_gap_weights"),
+        (decided_label(facts), "trust_gaps", "trust_gap_weights"),
     ):
         g, w = facts.get(gaps), facts.get(share)
         if g is None or w is None or len(g) != len(w) or not len(g):

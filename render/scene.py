@@ -32,6 +32,7 @@ FACT_ATTRS = {
     "trust_gap_weights": tokens.TRUST_GAP_WEIGHTS,
     "library_gaps": tokens.LIBRARY_GAPS,
     "library_share": tokens.LIBRARY_SHARE,
+    "trust_evidence": tokens.TRUST_EVIDENCE,  # its "source": the in-betweener the probes chose
 }
 
 

@@ -64,3 +64,24 @@ def test_the_layer_records_what_filled_each_gap(tmp_path):
     assert gaps == [tuple(g["times"]) for g in d["gap_weights"]] and len(gaps) == 4
     assert weights == [g["weight"] for g in d["gap_weights"]]
     assert all(0.0 <= w <= 1.0 for w in weights)
+
+
+def test_a_network_shipped_beside_is_named_where_the_probes_chose_it():
+    import json
+
+    from render.overlays import decided_label
+
+    facts = {"model": "tween-bandai-v5.3", "trust_gaps": [(1, 11), (11, 21)], "trust_gap_weights": [1.0, 0.25],
+             "trust_evidence": json.dumps({"source": "tween-bandai-delta-v2", "choice": "blend"})}  # fmt: skip
+    assert [source_at(fill_sources(facts), t) for t in (5, 15)] == ["delta-v2", "delta-v2 25%"]
+    own = dict(facts, trust_evidence=json.dumps({"source": "tween-bandai-v5.3"}))
+    assert decided_label(own) == "model" and decided_label({"model": "m"}) == "model"
+    # Evidence of another shape, or a network sharing no prefix (beside a studio's library).
+    for ev in ("not json", json.dumps([1]), json.dumps({"source": 3})):
+        assert decided_label(dict(facts, trust_evidence=ev)) == "model"
+    assert (
+        decided_label(
+            {"model": "library:studio", "trust_evidence": json.dumps({"source": "tween-bandai-v5.3"})}
+        )
+        == "model"
+    )
