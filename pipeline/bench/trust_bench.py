@@ -173,10 +173,9 @@ def run_trust_bench(
     from pipeline.infer.spline import SplineInbetweener
 
     mean, std = position_stats(load_split("train"))
-    net = load_inbetweener(model)
-    spline = SplineInbetweener(net.skeleton)
-    alternatives = probed_beside(FillOptions(model=model), net) if beside else ()
-    model = net
+    model, name = load_inbetweener(model), model
+    spline = SplineInbetweener(model.skeleton)
+    alternatives = probed_beside(FillOptions(model=name), model) if beside else ()
     report: dict = {"model": model.name, "hash": model.model_hash, "limit": limit, "sources": {}}
     report["beside"] = [{"name": a.name, "hash": a.model_hash} for a in alternatives]
     dumps = {}

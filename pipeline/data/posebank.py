@@ -76,16 +76,21 @@ def load(path: str | Path) -> np.ndarray:
     return poses
 
 
+def _at_least_one(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{n}: must be at least 1")
+    return n
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipeline.data.posebank", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="the bank file to write (.npz)")
-    ap.add_argument("--poses", type=int, default=POSES)
+    ap.add_argument("--poses", type=_at_least_one, default=POSES)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     if not a.out.parent.is_dir():  # before the split is read
         raise TweenError(f"{a.out}: its folder {a.out.parent} is not a folder that exists")
-    if not 1 <= a.poses:
-        raise TweenError(f"--poses {a.poses}: must be at least 1")
     train = load_split("train")
     bank = build(train.rotations, train.roots, a.poses, a.seed)
     save(
