@@ -71,7 +71,7 @@ def measure(net, spline, alts, rots, roots, every: int) -> dict:
 
 
 def pooled(m: dict, margin, floor, alts: int = 1) -> float:
-    """Pooled error ratio to the spline of the picks a margin and floors (``pick``'s) give,
+    """Pooled error ratio to the spline of the picks margins and a floor (``pick``'s) give,
     among the network and its first ``alts`` alternatives."""
     err = m["network"].copy()
     for i in np.flatnonzero(m["beside"]):

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.retarget import typical_local
+from pipeline.bench.heldout import posture_degrees
 from pipeline.bench.report import publish
 from pipeline.data.protocol import windows_of
 from pipeline.data.skeletons import bandai_skeleton
@@ -47,7 +48,7 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
     """(rotations (N, SHOT, J, 4), roots (N, SHOT, 3)) of a source, on the model skeleton."""
     from pipeline.data.cache import load_split
 
-    posture = _posture(source)
+    posture = posture_degrees(source)
     if source == "eval" or posture or source in MISSING:
         clips = load_split("eval", limit=limit)
         rots, roots = _windows((clips.clip(c) for c in range(len(clips))), source)
@@ -69,15 +70,6 @@ def shots(source: str, limit: int | None = None) -> tuple[np.ndarray, np.ndarray
             f"--sources: unknown source {source!r} (one of eval, cmu, postureN, {', '.join(MISSING)})"
         )
     return rots.astype(np.float32), roots.astype(np.float32)
-
-
-def _posture(source: str) -> float:
-    """N for a source ``postureN`` (offsets up to N degrees), else 0."""
-    tail = source[len("posture") :] if source.startswith("posture") else ""
-    try:
-        return float(tail) if tail else 0.0
-    except ValueError:
-        return 0.0
 
 
 def without_joints(rots: np.ndarray, names) -> np.ndarray:
@@ -166,8 +158,6 @@ def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = 
     alternatives = probed_beside(FillOptions(model=model), net) if library else ()
     report: dict = {"model": net.name, "hash": net.model_hash, "shot": SHOT, "limit": limit, "sources": {}}
     report["beside"] = [{"name": a.name, "hash": a.model_hash} for a in alternatives]
-    if alternatives:
-        report["library"] = report["beside"][0]
     for src in sources:
         rots, roots = shots(src, limit)
         print(f"blocking bench: {src}, {len(rots)} shots of {SHOT} frames…", file=sys.stderr)
@@ -180,7 +170,7 @@ def run(sources=SOURCES, every=(10, 30), limit: int | None = None, model: str = 
 
 
 def markdown(report: dict) -> str:
-    beside = report.get("beside") or ([report["library"]] if report.get("library") else [])
+    beside = report["beside"]
     said = ", ".join(f"{b['name']} ({b['hash']})" for b in beside)
     heads = ["lib" if b["name"].startswith("library:") else b["name"] for b in beside]
     lines = [
@@ -195,11 +185,10 @@ def markdown(report: dict) -> str:
     ]
     for src, s in report["sources"].items():
         for e, r in s["results"].items():
-            shares = r.get("alternative_shares") or [r.get("alternative_share", 0.0)][: len(heads)]
             lines.append(
                 f"| {src} | {e} | {s['shots']} | {r['probes']} | {r['model']:.3f} | {r['spline']:.3f} | "
                 f"{r['decided']:.3f} | {r['decided_over_better']:.3f} | {r['decided_over_model']:.3f} | "
-                f"{r['mean_weight']:.2f} |" + "".join(f" {x:.2f} |" for x in shares)
+                f"{r['mean_weight']:.2f} |" + "".join(f" {x:.2f} |" for x in r["alternative_shares"])
             )
     return "\n".join(lines) + "\n"
 

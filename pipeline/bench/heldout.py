@@ -42,6 +42,17 @@ def parse_source(source: str) -> tuple[str, tuple[int, ...] | None]:
     return name, subjects
 
 
+def posture_degrees(source: str) -> float | None:
+    """N for a source ``postureN`` (eval windows with posture offsets up to N degrees), None for
+    any other source (or a ``posture`` with no number after it)."""
+    if not source.startswith("posture"):
+        return None
+    try:
+        return float(source[len("posture") :])
+    except ValueError:
+        return None
+
+
 def cmu_files(subjects: tuple[int, ...] | None = None) -> list:
     """The CMU takes (``NNN_TT.bvh.gz``), of the given subjects only when given."""
     folder = shared_data_dir() / "cmu_iclone"

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.heldout import parse_source, posture_degrees
 from pipeline.bench.report import publish
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
 from pipeline.errors import TweenError
@@ -50,16 +51,14 @@ def source_windows(source: str, limit: int | None = None):
         return r, p
     if source == "mirrored":
         return test_windows(limit, mirrored=True)
-    if source.startswith("posture"):
-        return test_windows(limit, posture=float(source[len("posture") :]))
+    if posture_degrees(source) is not None:
+        return test_windows(limit, posture=posture_degrees(source))
     raise TweenError(f"--sources: unknown source {source!r} (one of {', '.join(SOURCES)})")
 
 
 def parse_sources(text: str) -> tuple[str, ...]:
     """``--sources``: comma-separated, a ``cmu:`` source keeping the subject numbers after it
     (``eval,cmu:5,6,7,posture30``); each checked before anything runs (TweenError)."""
-    from pipeline.bench.heldout import parse_source
-
     out: list[str] = []
     for part in (p.strip() for p in text.split(",") if p.strip()):
         if part.isdigit() and out and out[-1].startswith("cmu:"):
@@ -69,19 +68,11 @@ def parse_sources(text: str) -> tuple[str, ...]:
     for src in out:
         if src.partition(":")[0] == "cmu":
             parse_source(src)
-        elif src not in SOURCES and not (src.startswith("posture") and _is_number(src[len("posture") :])):
+        elif src not in SOURCES and posture_degrees(src) is None:
             raise TweenError(
                 f"--sources: unknown source {src!r} (one of {', '.join(SOURCES)}, cmu:5,6,7, postureN)"
             )
     return tuple(out)
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _per_window_l2p(gp_p, gp_t, mean, std) -> np.ndarray:

@@ -863,16 +863,14 @@ def pick(scores, margin=0.0, floor=None) -> int:
     """Which of several in-betweeners probed on one shot is decided on, from their probes'
     ``scores`` (None: no probes), in order, the first the primary: the last alternative with
     a score that beats every earlier candidate's score (where it has one) by that candidate's
-    ``margin`` and its own ``floor``; else the primary. ``margin``: one per candidate, or one
-    number, the primary's (the others' 0); ``floor``: one per candidate (the first's unread) or
-    one for every alternative, None for none. Equal scores keep the earlier."""
+    ``margin`` and the ``floor`` (None: none); else the primary. ``margin``: one per
+    candidate, or one number, the primary's (the others' 0). Equal scores keep the earlier."""
     n = len(scores)
     margins = list(margin) if isinstance(margin, (list, tuple)) else [float(margin)] + [0.0] * (n - 1)
-    floors = list(floor) if isinstance(floor, (list, tuple)) else [floor] * n
     chosen = 0
     for i in range(1, n):
         sc = scores[i]
-        if sc is None or (floors[i] is not None and not sc > floors[i]):
+        if sc is None or (floor is not None and not sc > floor):
             continue
         if all(scores[j] is None or sc > scores[j] + margins[j] for j in range(i)):
             chosen = i

@@ -7,6 +7,7 @@ import pytest
 
 from pipeline.adapt.retarget import typical_local
 from pipeline.bench import blocking
+from pipeline.bench.heldout import posture_degrees
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.motion.fk import fk
@@ -26,8 +27,9 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
     assert "| cmu | 10 |" in capsys.readouterr().out
     # The shipped library and delta network are probed beside the network as the fill probes
     # them (probed_beside), each with the share of shots it decided.
-    assert "cmu-subjects-1-3" in report["library"]["name"] and report["library"]["hash"]
-    assert [b["name"] for b in report["beside"]][1:] == ["tween-bandai-delta-v2"]
+    library, *networks = report["beside"]
+    assert "cmu-subjects-1-3" in library["name"] and library["hash"]
+    assert [b["name"] for b in networks] == ["tween-bandai-delta-v2"]
     assert len(r["alternative_shares"]) == 2 and sum(r["alternative_shares"]) == pytest.approx(
         r["alternative_share"]
     )
@@ -37,7 +39,7 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
 def test_blocking_bench_without_the_library_probes_the_network_only(tmp_path):
     args = ["--sources", "cmu", "--every", "30", "--limit", "1", "--out", str(tmp_path), "--no-library"]
     assert blocking.main(args) == 0
-    assert "library" not in json.loads((tmp_path / "blocking.json").read_text())
+    assert json.loads((tmp_path / "blocking.json").read_text())["beside"] == []
 
 
 def test_too_short_clips_are_one_clear_error():
@@ -71,5 +73,6 @@ def test_a_rig_without_a_joint_keeps_its_childrens_world_rotations():
 
 
 def test_posture_sources_take_any_angle():
-    assert blocking._posture("posture10") == 10.0 and blocking._posture("posture30") == 30.0
-    assert blocking._posture("eval") == 0.0 and blocking._posture("posturex") == 0.0
+    # One parser for the blocking and trust benches (pipeline.bench.heldout.posture_degrees).
+    assert posture_degrees("posture10") == 10.0 and posture_degrees("posture30") == 30.0
+    assert posture_degrees("eval") is None and posture_degrees("posturex") is None

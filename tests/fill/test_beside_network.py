@@ -54,10 +54,8 @@ def test_pick_in_order_with_a_margin_per_candidate():
     assert pick([-0.15, 0.0, 0.14], margins, floors) == 0  # beats the network, not the library
     assert pick([-0.58, 0.04, 0.78], margins, floors) == 2
     assert pick([None, None, 0.2], margins, floors) == 2 and pick([None, 0.0, 0.2], margins, floors) == 0
-    # A floor for every alternative, and a per-candidate floor list (the first unread).
-    assert (
-        pick([-1.0, -0.01, 0.3], margins, 0.0) == 2 and pick([-1.0, 0.0, 0.3], margins, [None, 0.0, 0.5]) == 0
-    )
+    # The floor: an alternative under it is passed over (its margin still counts for later ones).
+    assert pick([-1.0, -0.01, 0.3], margins, 0.0) == 2 and pick([-1.0, 0.0, 0.3], margins, 0.5) == 0
     # One number is the primary's margin, as before: the alternatives then by their scores.
     assert pick([-1.0, 0.04, 0.3], 0.25, 0.0) == 2 and pick([0.2, 0.04, 0.3], 0.25, 0.0) == 0
 
