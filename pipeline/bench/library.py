@@ -49,6 +49,8 @@ from pipeline.bench.report import publish
 from pipeline.bench.studio import evaluate_take
 from pipeline.data.cache import cache_dir
 from pipeline.data.split import list_clips
+from pipeline.errors import TweenError
+from pipeline.infer.api import load_model
 from pipeline.library.store import is_library
 
 METHODS = ("library", "library-spline", "library-alone", "default", "spline")
@@ -112,20 +114,22 @@ def subjects_library(out: Path, subjects: tuple[int, ...]) -> Path:
     return lib
 
 
-def fills_for(lib: Path) -> dict:
-    """Each method's fill options (``FillOptions`` fields) with the library ``lib``."""
+def fills_for(lib: Path, model: str = "default") -> dict:
+    """Each method's fill options (``FillOptions`` fields) with the library ``lib``; ``model``:
+    the network probed beside it and filling ``default`` (a studio's fine-tune, ``--model``)."""
     return {
-        "library": {"library": str(lib), "trust": "auto"},
-        "library-spline": {"library": str(lib), "trust": "auto"},
-        "library-alone": {"library": str(lib), "trust": "model"},
-        "default": {"model": "default", "trust": "auto"},
+        "library": {"library": str(lib), "model": model, "trust": "auto"},
+        "library-spline": {"library": str(lib), "model": model, "trust": "auto"},
+        "library-alone": {"library": str(lib), "model": model, "trust": "model"},
+        "default": {"model": model, "trust": "auto"},
         "spline": {"model": "spline", "trust": "auto"},
     }
 
 
 def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_frames: int | None = 300,
-        limit: int | None = None, tuning: bool = False) -> dict:  # fmt: skip
-    report: dict = {"every": list(every), "methods": list(methods), "max_frames": max_frames, "sources": {}}
+        limit: int | None = None, tuning: bool = False, model: str = "default") -> dict:  # fmt: skip
+    report: dict = {"every": list(every), "methods": list(methods), "max_frames": max_frames, "model": model,
+                    "sources": {}}  # fmt: skip
     if tuning:
         report["split"] = "tuning"
     t0 = time.perf_counter()
@@ -141,7 +145,9 @@ def run(sources=SOURCES, every=(10, 30), methods=METHODS, stride: int = 5, max_f
                 for e in every:
                     print(f"library bench: {source} take {i + 1}/{len(held)} {f.name}, keys every {e}…",
                           file=sys.stderr)  # fmt: skip
-                    per[int(e)][f.name] = evaluate(f, int(e), methods, Path(tmp), max_frames, fills_for(lib))
+                    per[int(e)][f.name] = evaluate(
+                        f, int(e), methods, Path(tmp), max_frames, fills_for(lib, model)
+                    )
         report["sources"][source] = {"library_takes": len(lib_files), "held_out": [f.name for f in held],
                                      "per_take": per, "summary": summary(per, methods)}  # fmt: skip
     report["seconds"] = time.perf_counter() - t0
@@ -216,6 +222,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
     ap.add_argument("--tuning", action="store_true",
                     help="the tuning split (where the constants are chosen), not the bench's")  # fmt: skip
+    ap.add_argument("--model", default="default",
+                    help="the network beside the library and in 'default': a name or model folder (a studio's fine-tune)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None, help="folder for library.json and library.md")
     a = ap.parse_args(argv)
     methods = tuple(m for m in a.methods.split(",") if m)
@@ -228,7 +236,11 @@ def main(argv=None) -> int:
     if a.tuning and "others" in sources:
         ap.error(f"--tuning: {NO_TUNING}")
     every = tuple(int(e) for e in a.every.split(",") if e)
-    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit, a.tuning)
+    try:  # a model that is not there (or is damaged) is one line naming it, before the library is built
+        load_model(a.model)
+    except FileNotFoundError as e:
+        raise TweenError(f"--model {a.model}: {e}") from None
+    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit, a.tuning, a.model)
     publish(rep, a.out, "library")
     return 0
 

@@ -44,6 +44,8 @@ _MODELS: dict[tuple[int, str], object] = {}
 #: A library fill also probes the human network (False: the library against the spline only;
 #: the library bench measures both).
 LIBRARY_VS_NETWORK = True
+#: ``--model`` values that name no network: a library fill refuses them.
+NOT_NETWORKS = ("interp", "interpolation", "spline")
 #: A human model's shipped library (model.json "library") is probed beside its network
 #: (False: the network against the spline only; the benches measure both).
 SHIPPED_LIBRARY = True
@@ -112,19 +114,23 @@ def _human(opts: FillOptions):
     if rig_folder(opts.model):
         return None
     if opts.library:
-        if opts.model != "default":
-            raise TweenError(f"--library {opts.library}: fills from the library; drop --model {opts.model}")
+        if opts.model in NOT_NETWORKS:  # nothing to probe beside the library
+            raise TweenError(
+                f"--library {opts.library}: fills from the library with a network probed beside it; "
+                f"--model {opts.model} is no network (drop it, or name a network such as a studio's fine-tune)"
+            )
         return _library(opts.library)
     return _model(opts.model)
 
 
 def probed_beside(opts: FillOptions, human) -> tuple:
     """What the trusted fill probes beside the human in-betweener, the better on the shot's
-    own keys deciding: with ``--library``, the default network (LIBRARY_VS_NETWORK); else,
+    own keys deciding: with ``--library``, the network ``--model`` names (the default, or a
+    studio's fine-tune on the takes the library holds; LIBRARY_VS_NETWORK); else,
     with ``--trust auto`` only (SHIPPED_LIBRARY), the library the human model ships beside its
     network (model.json's ``"library"``), then the models it ships beside it (``"beside"``)."""
     if opts.library:
-        return (_model("default"),) if LIBRARY_VS_NETWORK else ()
+        return (_model(opts.model),) if LIBRARY_VS_NETWORK else ()
     if opts.trust != "auto" or not SHIPPED_LIBRARY:
         return ()
     folder = getattr(human, "library_folder", None)  # a plug-in kind may ship none
@@ -285,7 +291,8 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
         if (
             opts.library and m["kind"] == "human"
         ):  # pipeline.library: with auto, the network is probed beside it
-            beside = ", with the human network probed beside it" if opts.trust == "auto" else ""
+            names = [a.name for a in alternatives] if opts.trust == "auto" else []
+            beside = f", with the human network {' and '.join(names)} probed beside it" if names else ""
             print(f"tween: {shot} {anim}: {m['name']}{beside}", file=sys.stderr)
         else:
             names = [a.name for a in alternatives] if m["kind"] == "human" else []

@@ -69,7 +69,8 @@ class FillOptions:
         None,
         "--library",
         help="A studio's motion library (`tween library build`): each gap of a human character is "
-        "filled from its best-matching takes, fitted to the keys, where they match; the spline elsewhere. "
+        "filled from its best-matching takes, fitted to the keys, where they match; the spline elsewhere; "
+        "the network --model names (the default's, or a studio's fine-tune) is probed beside it. "
         "Default: the farm's `library` setting (TWEEN_LIBRARY), else none.",
         path="dir",
     )

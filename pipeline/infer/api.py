@@ -49,6 +49,10 @@ class Capabilities:
     familiar a shot's keys are (:mod:`pipeline.infer.novelty`). ``per_gap``: fills each gap
     from its own two keys (no window spans a key, so a cut needs no splitting) and keeps
     ``last_gaps``, a JSON-ready record per gap of its latest fill (a motion library).
+    ``familiar_credit``: on keys like its training data (or, without a pose bank, on every
+    shot) the trusted fill leans to it on long gaps, as its measured lead over the spline there
+    earns; False (model.json ``"familiar_credit": false``, which ``tween export`` writes for a
+    fine-tune on a studio's takes, whose lead nothing measured): its probes alone decide.
 
     Probed beside others by the trusted fill (:mod:`pipeline.infer.trust`) as the primary:
     ``probe_margin``, the score (mean log error ratio at the probes) by which another must beat
@@ -64,6 +68,7 @@ class Capabilities:
     any_rig: bool = False
     novelty: bool = False
     per_gap: bool = False
+    familiar_credit: bool = True
     probe_margin: float = 0.0
     keeps_own: bool = False
 

@@ -58,6 +58,7 @@ _OPTIONAL = {
     "experimental": str,  # why no production shot should use it (said at every fill that does)
     "library": str,  # a motion library shipped beside the network (shipped_library)
     "beside": list,  # model folders inside it, probed beside the network after the library (beside_models)
+    "familiar_credit": bool,  # false: the trusted fill's probes alone decide (Capabilities)
 }
 #: Settings with one value left: the one every shipped model has (the code for any other went
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model

@@ -97,7 +97,10 @@ class OnnxInbetweener:
         self.meta = read_model_json(self.folder)
         dna = bool(self.meta.get("generator", {}).get("dna", 0))
         self.capabilities = replace(
-            type(self).capabilities, dna=dna, novelty=bool(self.meta.get("pose_bank"))
+            type(self).capabilities,
+            dna=dna,
+            novelty=bool(self.meta.get("pose_bank")),
+            familiar_credit=self.meta.get("familiar_credit", True),
         )
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)

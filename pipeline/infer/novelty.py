@@ -60,7 +60,8 @@ def novelty_cm(rots: np.ndarray, roots: np.ndarray, bank: np.ndarray, skeleton) 
 
 def familiarity(novelty: float | None) -> float:
     """1 for a shot as familiar as the training data, 0 for an unseen one. None (a model
-    without a pose bank): 1, so such a model keeps the decision it had before banks."""
+    without a pose bank): 1, so such a model keeps the decision it had before banks (a model
+    whose model.json withholds the familiar credit gets 0 from the trust decision instead)."""
     if novelty is None:
         return 1.0
     return float(np.clip((NOVEL_CM - novelty) / (NOVEL_CM - FAMILIAR_CM), 0.0, 1.0))

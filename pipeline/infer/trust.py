@@ -419,6 +419,10 @@ def _describe_weights(gaps: list[dict]) -> str:
     return "per gap length: " + ", ".join(parts) + (", …" if len(gaps) > 4 else "")
 
 
+#: What a decision's reason adds for a model without the familiar credit (keyed by the credit).
+_NO_CREDIT = {True: "", False: "; no familiar credit (model.json): the probes alone decide"}
+
+
 def _decision(
     em: np.ndarray,
     es: np.ndarray,
@@ -426,6 +430,7 @@ def _decision(
     keys=(),
     novelty: float | None = None,
     travel: np.ndarray | None = None,
+    credit: bool = True,
 ) -> TrustDecision:
     if not probes:
         return TrustDecision(
@@ -441,7 +446,7 @@ def _decision(
     holes = [p.gap for p in probes]
     counted = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
     mean_lr = float(np.mean(lr))
-    familiar = familiarity(novelty)
+    familiar = familiarity(novelty) if credit else 0.0
     gaps = _gap_weights(lr, keys, min(holes), familiar, counted)
     frames = np.array([g["length"] * g["count"] for g in gaps], np.float64)
     ws = np.array([g["weight"] for g in gaps], np.float64)
@@ -463,7 +468,7 @@ def _decision(
     cyc = f"; {aliased} on keys repeating one pose (counted less)" if aliased else ""
     reason = (
         f"{len(probes)} probe(s) from the keys: model {me:.2f} cm, spline {se:.2f} cm at the "
-        f"left-out keys (model better on {better}){cyc}{seen}; score {mean_lr:+.2f} → "
+        f"left-out keys (model better on {better}){cyc}{seen}{_NO_CREDIT[credit]}; score {mean_lr:+.2f} → "
         + _describe_weights(gaps)
     )
     return TrustDecision(
@@ -476,7 +481,7 @@ def _decision(
         round(mean_lr, 6),
         gaps=gaps,
         novelty_cm=None if novelty is None else round(float(novelty), 4),
-        familiarity=None if novelty is None else round(familiar, 6),
+        familiarity=None if novelty is None and credit else round(familiar, 6),
     )
 
 
@@ -508,7 +513,8 @@ def decide_batch(
             np.asarray(rots)[:, k], np.asarray(roots)[:, k], bank, skeleton or model.skeleton
         )
     travel = probe_travel_cm(np.asarray(roots), probes, skeleton or model.skeleton)
-    return [_decision(em[i], es[i], probes, keys, novelty[i], travel[i]) for i in range(len(rots))]
+    credit = model.capabilities.familiar_credit  # False: a studio's fine-tune (docs/trust.md)
+    return [_decision(em[i], es[i], probes, keys, novelty[i], travel[i], credit) for i in range(len(rots))]
 
 
 def probe_travel_cm(roots: np.ndarray, probes: list[Probe], skeleton) -> np.ndarray:

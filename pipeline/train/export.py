@@ -142,6 +142,10 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     bank = _pose_bank(out_dir, gstate.get("config", {}))
     if bank:
         meta["pose_bank"] = bank
+    if gstate.get("config", {}).get("data"):
+        # A fine-tune on a studio's takes: nothing measured its lead over the spline on them,
+        # so the trusted fill gives it no familiar credit (docs/trust.md, Familiar credit).
+        meta["familiar_credit"] = False
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
     return meta
@@ -209,7 +213,8 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
 
 # Inference settings in model.json that change what a fill gives. ``root`` changes it too
 # but was never hashed; it stays out so that earlier models keep their hashes.
-HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_orient")
+HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_orient",
+                   "familiar_credit")  # fmt: skip
 
 
 def model_hash(out_dir: Path, meta: dict) -> str:

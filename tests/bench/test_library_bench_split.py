@@ -5,6 +5,7 @@ import pytest
 
 from pipeline.bench import library as bench
 from pipeline.data.split import list_clips
+from pipeline.errors import TweenError
 
 
 @pytest.mark.parametrize("source", ["cmu", "bandai", "others"])
@@ -33,3 +34,22 @@ def test_others_has_no_tuning_split(data_dir, capsys):
     with pytest.raises(SystemExit) as ex:
         bench.main(["--source", "elsewhere"])
     assert ex.value.code == 2 and "others" in capsys.readouterr().err
+
+
+def test_model_is_the_network_of_every_method_but_the_spline(tmp_path):
+    fills = bench.fills_for(tmp_path / "lib", "runs/studio/model")
+    assert {m: f["model"] for m, f in fills.items()} == {
+        "library": "runs/studio/model",
+        "library-spline": "runs/studio/model",
+        "library-alone": "runs/studio/model",
+        "default": "runs/studio/model",
+        "spline": "spline",
+    }
+    assert bench.fills_for(tmp_path / "lib")["library"]["model"] == "default"
+
+
+def test_a_model_that_is_not_there_is_refused_before_anything_runs(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(bench, "run", lambda *a, **k: pytest.fail("ran with a missing --model"))
+    with pytest.raises(TweenError, match="--model .*nowhere"):
+        bench.main(["--source", "cmu", "--model", str(tmp_path / "nowhere"), "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()

@@ -333,6 +333,7 @@ BROKEN = {
     "library missing": (_remove("library"), "model.json", "'library' names 'library', which holds no library.json"),
     "library outside the folder": (_json(library="../default"), "model.json", "'library' must be a folder inside the model folder"),
     "library a number": (_json(library=3), "model.json", "'library' must be a string"),
+    "familiar credit a string": (_json(familiar_credit="no"), "model.json", "'familiar_credit' must be true or false"),
 }  # fmt: skip
 
 

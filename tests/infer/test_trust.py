@@ -482,3 +482,28 @@ def test_the_window_benches_decided_fill_is_the_trusted_fill_shot_for_shot(banda
         one = trust.trusted_fill(trust.TrustedInbetweener(model, SplineInbetweener(SKEL)), shot, keys)
         assert np.array_equal(got.decided[0][i], one.rotations)
         assert np.array_equal(got.decided[1][i], one.root_positions)
+
+
+class SplineStandIn(StandIn):
+    """A network whose fill is the spline's: its probes tie the spline's (score 0)."""
+
+    def fill_batch(self, rot, root, keys):
+        self.calls += 1
+        return SplineInbetweener(SKEL).fill_batch(rot, root, keys)
+
+
+def test_a_network_without_familiar_credit_is_judged_by_its_probes_alone(walk):
+    """A studio's fine-tune (model.json ``"familiar_credit": false``, as ``tween export``
+    writes it for a run on ``--data``): tied with the spline at the probes, it gets one half on
+    a blocked shot, not a familiar model's lean to it on gaps longer than the probes' holes."""
+    keys = np.arange(0, 41, 10)
+    rot, root = walk.rotations[None, :41], walk.root_positions[None, :41]
+    given = trust.decide_batch(SplineStandIn("oracle"), SplineInbetweener(SKEL), rot, root, keys)[0]
+    assert given.score == pytest.approx(0.0, abs=1e-9) and given.familiarity is None
+    assert given.gaps[0]["threshold"] == pytest.approx(trust.threshold_for(9)) and given.weight > 0.9
+    studio = SplineStandIn("oracle")
+    studio.capabilities = replace(StandIn.capabilities, familiar_credit=False)
+    net = trust.decide_batch(studio, SplineInbetweener(SKEL), rot, root, keys)[0]
+    assert net.score == given.score and net.familiarity == 0.0
+    assert net.gaps[0]["threshold"] == 0.0 and net.weight == pytest.approx(0.5)
+    assert "no familiar credit" in net.reason and "no familiar credit" not in given.reason

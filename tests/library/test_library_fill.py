@@ -127,9 +127,29 @@ def test_a_missing_or_foreign_library_is_one_line_and_writes_nothing(shot, tmp_p
     assert not out.exists()
 
 
-def test_a_library_fill_takes_no_other_model(shot, library, tmp_path):
-    with pytest.raises(TweenError, match="--library .*drop --model interp"):
-        fill_shot(str(shot), FillOptions(library=str(library), model="interp", out_dir=str(tmp_path / "o")))
+@pytest.mark.parametrize("model", ["interp", "spline"])
+def test_a_library_fill_probes_a_network_not_a_curve(shot, library, tmp_path, model):
+    with pytest.raises(TweenError, match=f"--library .*--model {model} is no network"):
+        fill_shot(str(shot), FillOptions(library=str(library), model=model, out_dir=str(tmp_path / "o")))
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_library_fill_probes_the_network_model_names(cmu_shot, library, tmp_path):
+    """A studio's own network (here the delta model, as a fine-tune from it would be) is what
+    --model names beside --library: probed on the keys instead of the default, named on stderr
+    and with its licence in the fill's JSON."""
+    r = _run(
+        "fill-local", cmu_shot, "--library", library, "--model", "models/delta", "--out-dir", tmp_path / "o"
+    )
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    d = res["trust"][ANIM]
+    names = [c["name"] for c in d["candidates"]]
+    delta = json.loads(Path("models/delta/model.json").read_text())["name"]
+    assert (
+        names == ["library:studio", delta] and f"with the human network {delta} probed beside it" in r.stderr
+    )
+    assert res["licence"][delta] == json.loads(Path("models/delta/model.json").read_text())["licence"]
 
 
 def test_the_farms_library_setting_is_every_jobs_default(library, monkeypatch, tmp_path):

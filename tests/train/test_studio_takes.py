@@ -90,6 +90,15 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
     assert run["config"]["data_include"] == "00*" and run["step"] == 6
     moved = [k for k in base["model"] if not torch.equal(base["model"][k], run["model"][k])]
     assert moved and set(run["model"]) == set(base["model"])  # continued, every weight kept
+    # Exported, it claims no familiar credit: its probes alone decide in the trusted fill.
+    from pipeline.infer.generator_onnx import OnnxInbetweener
+    from pipeline.train import export as ex
+
+    monkeypatch.setattr(ex, "_pose_bank", lambda *a: None)  # (the train split is not read here)
+    meta = ex.export(out, tmp_path / "model", "studio")
+    assert meta["familiar_credit"] is False
+    assert OnnxInbetweener(tmp_path / "model").capabilities.familiar_credit is False
+    assert OnnxInbetweener("models/default").capabilities.familiar_credit is True
     # Takes too short for a training window, and a folder with no checkpoint: one line each.
     from pipeline.cli import main
 
