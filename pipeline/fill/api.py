@@ -44,8 +44,6 @@ _MODELS: dict[tuple[int, str], object] = {}
 #: A library fill also probes the human network (False: the library against the spline only;
 #: the library bench measures both).
 LIBRARY_VS_NETWORK = True
-#: ``--model`` values that name no network: a library fill refuses them.
-NOT_NETWORKS = ("interp", "interpolation", "spline")
 #: A human model's shipped library (model.json "library") is probed beside its network
 #: (False: the network against the spline only; the benches measure both).
 SHIPPED_LIBRARY = True
@@ -113,12 +111,7 @@ def _human(opts: FillOptions):
     None when a rig model is forced."""
     if rig_folder(opts.model):
         return None
-    if opts.library:
-        if opts.model in NOT_NETWORKS:  # nothing to probe beside the library
-            raise TweenError(
-                f"--library {opts.library}: fills from the library with a network probed beside it; "
-                f"--model {opts.model} is no network (drop it, or name a network such as a studio's fine-tune)"
-            )
+    if opts.library:  # (FillOptions.check refused a --model that is no network)
         return _library(opts.library)
     return _model(opts.model)
 

@@ -103,6 +103,8 @@ MAX_SEED = 2**31 - 1
 FORMATS = ("usda", "usdc")
 #: pipeline.infer.trust.TRUST_MODES, not imported for the check (that module pulls in scipy).
 TRUST_MODES = ("auto", "model", "spline")
+#: ``--model`` values that name no network: a library fill refuses them.
+NOT_NETWORKS = ("interp", "interpolation", "spline")
 #: pipeline.infer.dna_poses.MAX_POSES, not imported for the check (that module pulls in scipy).
 MAX_DNA_POSES = 8
 
@@ -140,6 +142,11 @@ def check_fill_options(opts: FillOptions) -> None:
         raise TweenError(f"--dna-poses {opts.dna_poses!r}: must be a whole number from 1 to {MAX_DNA_POSES}")
     if not isinstance(opts.model, str) or not opts.model.strip():
         raise TweenError(f"--model {opts.model!r}: expected default, interp, or a model name or folder")
+    if opts.library and opts.model in NOT_NETWORKS:  # nothing to probe beside the library
+        raise TweenError(
+            f"--library {opts.library}: fills from the library with a network probed beside it; "
+            f"--model {opts.model} is no network (drop it, or name a network such as a studio's fine-tune)"
+        )
     if opts.keys is not None:
         if not isinstance(opts.keys, str):
             raise TweenError(f"--keys {opts.keys!r}: expected key time codes, e.g. 1001,1012,1030")

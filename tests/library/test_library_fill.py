@@ -132,6 +132,10 @@ def test_a_library_fill_probes_a_network_not_a_curve(shot, library, tmp_path, mo
     with pytest.raises(TweenError, match=f"--library .*--model {model} is no network"):
         fill_shot(str(shot), FillOptions(library=str(library), model=model, out_dir=str(tmp_path / "o")))
     assert not (tmp_path / "o").exists()
+    # Through the farm's command, refused before any farm starts: one line, exit 2.
+    r = _run("fill", shot, "--library", library, "--model", model, "--out-dir", tmp_path / "o")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and f"--model {model} is no network" in r.stderr
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_library_fill_probes_the_network_model_names(cmu_shot, library, tmp_path):
