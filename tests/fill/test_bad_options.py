@@ -51,10 +51,22 @@ CASES = [
     ("fill-local-takes-0", ["fill-local", "s.usda", "--takes", "0"], {}, "--takes"),
     ("fill-local-seed", ["fill-local", "s.usda", "--seed", "-1"], {}, "--seed"),
     ("fill-local-format", ["fill-local", "s.usda", "--format", "abc"], {}, "--format"),
+    (
+        "fill-library-spline",
+        ["fill", "s.usda", "--library", "lib", "--model", "spline"],
+        {},
+        "--model spline is no network",
+    ),
     ("unknown-command", ["nosuch"], {}, "nosuch"),
     # the farm: options first, then the broker (fast, one line, password hidden)
     ("submit-takes-0", ["submit", "s.usda", "--takes", "0"], REDIS_DOWN, "--takes"),
     ("submit-redis-down", ["submit", "s.usda"], REDIS_DOWN, REDIS_SHOWN),
+    (
+        "submit-library-interp",
+        ["submit", "s.usda", "--library", "lib", "--model", "interp"],
+        REDIS_DOWN,
+        "--model interp is no network",
+    ),
     ("status-redis-down", ["status", JOB], REDIS_DOWN, REDIS_SHOWN),
     ("worker-redis-down", ["worker", "-c", "1"], REDIS_DOWN, REDIS_SHOWN),
     ("fill-redis-down", ["fill", "s.usda", "--no-progress"], REDIS_DOWN, REDIS_SHOWN),
@@ -225,6 +237,7 @@ def test_fill_options_check():
         (dict(range="1001-inf"), "--range"),
         (dict(model=""), "--model"),
         (dict(out_dir=""), "--out-dir"),
+        (dict(library="lib", model="interpolation"), "--model interpolation is no network"),
     ]:
         with pytest.raises(TweenError, match=opt):
             FillOptions(**bad).check()
