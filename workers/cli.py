@@ -15,7 +15,7 @@ import typer
 
 from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
-from pipeline.fill.options import PATH_FIELDS, FillOptions, with_fill_options
+from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from workers import paths as jobpaths
@@ -39,7 +39,8 @@ def _opts(opts) -> dict:
 
     out = make_opts(**asdict(opts.check()))
     default = load_settings().library  # the studio's library, for every job that names none
-    if not out.get("library") and default:
+    # (a job asking for a curve, --model spline or interp, gets the curve: no network to probe)
+    if not out.get("library") and default and out.get("model") not in NOT_NETWORKS:
         out["library"] = os.path.abspath(os.path.expanduser(default))
     return out
 

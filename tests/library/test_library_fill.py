@@ -162,12 +162,18 @@ def test_the_farms_library_setting_is_every_jobs_default(library, monkeypatch, t
     monkeypatch.setenv("TWEEN_FARM_CONFIG", os.devnull)
     monkeypatch.setenv("TWEEN_LIBRARY", str(library))
     assert _opts(FillOptions())["library"] == os.path.abspath(library)
+    # A job that asks for a curve gets it: the farm's library is no network's to probe beside.
+    assert not _opts(FillOptions(model="spline")).get("library")
+    assert _opts(FillOptions(model="models/delta"))["library"] == os.path.abspath(library)
     own = tmp_path / "own"
     assert _opts(FillOptions(library=str(own)))["library"] == str(own)  # a job's own wins
     monkeypatch.delenv("TWEEN_LIBRARY")
     (tmp_path / "farm.toml").write_text(f'library = "{library}"\n')
     monkeypatch.setenv("TWEEN_FARM_CONFIG", str(tmp_path / "farm.toml"))
     assert _opts(FillOptions())["library"] == os.path.abspath(library)
+    # A job that asks for a curve gets it: the farm's library is no network's to probe beside.
+    assert not _opts(FillOptions(model="spline")).get("library")
+    assert _opts(FillOptions(model="models/delta"))["library"] == os.path.abspath(library)
 
 
 def test_a_library_outside_the_shot_roots_is_refused(shot, library, tmp_path):
