@@ -217,6 +217,12 @@ BY_TEST = {
     "tween train --data /shows/takes --init models/default --out runs/studio": (
         "tests/train/test_studio_takes.py::test_fine_tune_continues_a_model_folder_with_its_shape"
     ),
+    "tween export runs/studio --out runs/studio/model": (
+        "tests/train/test_studio_takes.py::test_fine_tune_continues_a_model_folder_with_its_shape"
+    ),
+    "tween fill-local sh010.usda --library /shows/library --model runs/studio/model": (
+        "tests/library/test_library_fill.py::test_a_library_fill_probes_the_network_model_names"
+    ),
     # dailies and the schema
     'tween approve sh010.usda --take 1 [--note "good arc on the turn"] [--out-dir DIR]': (
         "tests/usd/test_dailies.py::test_approve_writes_next_version_with_decision"

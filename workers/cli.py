@@ -152,6 +152,17 @@ def _cancelled_line(s) -> str:
     return f"tween: {s.shot}: job {s.id} cancelled" + (f" by {by}" if by else "") + ", nothing of it kept"
 
 
+def _from_interrupt(e: BaseException | None) -> bool:
+    """Whether ``e`` is the interrupt, or an error raised while a library cleaned up after it:
+    the handler raises where the signal lands, and SQLAlchemy closing a connection there turns
+    it into an AssertionError whose context is the interrupt (the SQLite farm's result store)."""
+    while e is not None:
+        if isinstance(e, _Interrupted):
+            return True
+        e = e.__context__
+    return False
+
+
 def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> int:
     """Waits for the jobs and reports them; on SIGINT/SIGTERM cancels them, waits until they
     have stopped and undone their work, and returns 130."""
@@ -164,7 +175,9 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> 
             raise _Interrupted()
         states = jobs.wait(ids, progress=progress, alive=alive)
         intr.armed = False
-    except _Interrupted:
+    except BaseException as e:
+        if not _from_interrupt(e):
+            raise
         intr.armed = False
         print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
         jobs.cancel(ids, why="tween fill interrupted")

@@ -2,6 +2,7 @@
 humanoid rig, BVH or USD, mapped and retargeted as the fill does; the network's shape from
 the checkpoint it continues."""
 
+import json
 import shutil
 
 import numpy as np
@@ -95,7 +96,11 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
     from pipeline.train import export as ex
 
     monkeypatch.setattr(ex, "_pose_bank", lambda *a: None)  # (the train split is not read here)
-    meta = ex.export(out, tmp_path / "model", "studio")
+    res = CliRunner().invoke(
+        app, ["export", str(out), "--out", str(tmp_path / "model")], catch_exceptions=False
+    )
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "model" / "model.json").read_text())
     assert meta["familiar_credit"] is False
     assert OnnxInbetweener(tmp_path / "model").capabilities.familiar_credit is False
     assert OnnxInbetweener("models/default").capabilities.familiar_credit is True

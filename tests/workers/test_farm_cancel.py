@@ -27,6 +27,8 @@ from redis_server import (
     start_redis,
 )
 
+from workers import cli as fill_cli
+
 SLOW = dict(TWEEN_TEST_FILL_DELAY=3, TWEEN_TEST_FRAME_DELAY=0.2)
 
 
@@ -277,3 +279,38 @@ def test_cancel_of_a_finished_job_is_one_line(farm, monkeypatch):
         res.stderr == f"tween: error: {done.id} /x/sh.usda: already finished (success), nothing to cancel\n"
     )
     assert jobs.control.cancel_record(farm.app, done.id) is None  # nothing was written
+
+
+def _closing_turns_it_into(error: Exception):
+    """What SQLAlchemy did when the interrupt landed inside its connection close: a cleanup
+    that fails while the interrupt is being raised, so the interrupt is the error's context."""
+
+    def wait(*a, **k):
+        try:
+            raise fill_cli._Interrupted()
+        finally:
+            raise error
+
+    return wait
+
+
+def test_an_interrupt_a_library_turns_into_its_own_error_still_cancels(monkeypatch, capsys):
+    """The handler raises where the signal lands; a library cleaning up there (the SQLite
+    farm's result store closing a connection) may raise its own error instead, with the
+    interrupt as its context. That is still the interrupt: the jobs are cancelled, 130. An
+    error with no interrupt behind it stays an error."""
+    calls = []
+    jobs = SimpleNamespace(
+        wait=_closing_turns_it_into(AssertionError()),
+        cancel=lambda ids, why: calls.append(("cancel", tuple(ids), why)),
+    )
+    monkeypatch.setattr(fill_cli, "_jobs", lambda: jobs)
+    monkeypatch.setattr(fill_cli, "_settle", lambda ids, intr, alive: [])
+    intr = fill_cli._Interrupts()
+    assert fill_cli._run_jobs(["j1"], intr, progress=False) == fill_cli.EXIT_CANCELLED
+    assert calls == [("cancel", ("j1",), "tween fill interrupted")] and not intr.armed
+    assert "interrupted: cancelling 1 job(s) (j1)" in capsys.readouterr().err
+    jobs.wait = lambda *a, **k: (_ for _ in ()).throw(AssertionError("a bug"))
+    with pytest.raises(AssertionError, match="a bug"):
+        fill_cli._run_jobs(["j2"], fill_cli._Interrupts(), progress=False)
+    assert len(calls) == 1
