@@ -339,7 +339,9 @@ def fill(
                 _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress, alive=w.alive)
                 w.cold = code == EXIT_CANCELLED
-        except _Interrupted:
+        except BaseException as e:  # the interrupt, or a library's error raised while it landed
+            if not _from_interrupt(e):
+                raise
             code = EXIT_CANCELLED
     raise typer.Exit(code)
 
