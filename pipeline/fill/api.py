@@ -304,6 +304,8 @@ def trust_line(d: dict) -> str:
         line += (
             f"; keys {d['novelty_cm']:.1f} cm from its training poses (familiarity {d['familiarity']:.2f})"
         )
+    if d.get("familiar_credit") is False:  # a studio's fine-tune (model.json): familiarity counted 0
+        line += "; no familiar credit (model.json): its probes alone decide"
     if d.get("source") and len(d.get("candidates") or []) > 1:
         line += f"; decided on {d['source']} by the probes"
     lib = d.get("library")

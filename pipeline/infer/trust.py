@@ -115,7 +115,8 @@ class TrustDecision:
     dict per gap length of the shot (``length``, ``count``, the probes' shortest hole
     ``probe_hole``, ``threshold``, shrunk ``score``, ``weight``), the weight of every gap of
     that length; ``novelty_cm`` / ``familiarity``: how far the keys are from the model's pose
-    bank and what that made of it (None without a bank); ``cuts``: gaps ([first, last]
+    bank and what that made of it (None without a bank; ``familiar_credit`` False: the model
+    has none, so familiarity counted 0, docs/trust.md); ``cuts``: gaps ([first, last]
     key frame) the body teleports across, which the spline fills whatever their length's
     weight (:meth:`with_cuts`); ``source``: the in-betweener decided on, where there were
     several (``candidates``: each one's name, hash, probe score and error); ``reason``: one
@@ -135,6 +136,7 @@ class TrustDecision:
     cuts: list[list[int]] = field(default_factory=list)
     source: str | None = None
     candidates: list[dict] = field(default_factory=list)
+    familiar_credit: bool = True
 
     def to_json(self) -> dict:
         """Plain JSON types only (what a layer attribute or log line can carry)."""
@@ -419,6 +421,8 @@ def _describe_weights(gaps: list[dict]) -> str:
     return "per gap length: " + ", ".join(parts) + (", …" if len(gaps) > 4 else "")
 
 
+#: A decision without probes.
+UNCHECKED = "no probe possible (fewer than three keys): the model, unchecked"
 #: What a decision's reason adds for a model without the familiar credit (keyed by the credit).
 _NO_CREDIT = {True: "", False: "; no familiar credit (model.json): the probes alone decide"}
 
@@ -433,15 +437,7 @@ def _decision(
     credit: bool = True,
 ) -> TrustDecision:
     if not probes:
-        return TrustDecision(
-            "model",
-            1.0,
-            None,
-            None,
-            [],
-            "no probe possible (fewer than three keys): the model, unchecked",
-            None,
-        )
+        return TrustDecision("model", 1.0, None, None, [], UNCHECKED, None)
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
     holes = [p.gap for p in probes]
     counted = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)
@@ -482,6 +478,7 @@ def _decision(
         gaps=gaps,
         novelty_cm=None if novelty is None else round(float(novelty), 4),
         familiarity=None if novelty is None and credit else round(familiar, 6),
+        familiar_credit=credit,
     )
 
 

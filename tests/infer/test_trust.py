@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.data.protocol import yaw_quat
 from pipeline.data.skeletons import bandai_skeleton
+from pipeline.fill.api import trust_line
 from pipeline.infer import novelty, trust
 from pipeline.infer.api import Capabilities
 from pipeline.infer.folder import ModelFolderError
@@ -507,3 +508,5 @@ def test_a_network_without_familiar_credit_is_judged_by_its_probes_alone(walk):
     assert net.score == given.score and net.familiarity == 0.0
     assert net.gaps[0]["threshold"] == 0.0 and net.weight == pytest.approx(0.5)
     assert "no familiar credit" in net.reason and "no familiar credit" not in given.reason
+    assert net.to_json()["familiar_credit"] is False and given.to_json()["familiar_credit"] is True
+    assert "no familiar credit" in trust_line(net.to_json()) and "credit" not in trust_line(given.to_json())
