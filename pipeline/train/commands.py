@@ -25,6 +25,12 @@ def export(
     force: bool = typer.Option(
         False, "--force", help="Replace the model in --out (it stays in use until the new one is verified)."
     ),
+    familiar_credit: bool = typer.Option(
+        None,
+        "--familiar-credit/--no-familiar-credit",
+        help="Whether the trusted fill leans to this network on keys like its training data (docs/trust.md). "
+        "Default: not for a fine-tune on --data takes (nothing measured its lead on them), yes otherwise.",
+    ),
 ):
     """Export both networks to ONNX and check onnxruntime against torch."""
     from pipeline.infer.folder import FIXED
@@ -45,6 +51,7 @@ def export(
         "min_window": min_window,
         "feet_anchor": feet_anchor,
         "feet_orient": feet_orient,
+        "familiar_credit": familiar_credit,
     }
     try:
         meta = do_export(run, stage.make(), name or out.resolve().name, settings)

@@ -142,9 +142,12 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     bank = _pose_bank(out_dir, gstate.get("config", {}))
     if bank:
         meta["pose_bank"] = bank
-    if gstate.get("config", {}).get("data"):
+    credit = meta.pop("familiar_credit", None)  # --[no-]familiar-credit; None: by the run
+    if credit is None:
         # A fine-tune on a studio's takes: nothing measured its lead over the spline on them,
         # so the trusted fill gives it no familiar credit (docs/trust.md, Familiar credit).
+        credit = not gstate.get("config", {}).get("data")
+    if not credit:  # (absent means true: models exported before the key keep their hash)
         meta["familiar_credit"] = False
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))

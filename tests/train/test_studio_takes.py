@@ -102,6 +102,11 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
     assert res.exit_code == 0, res.output
     meta = json.loads((tmp_path / "model" / "model.json").read_text())
     assert meta["familiar_credit"] is False
+    # A studio that measured its fine-tune ahead of the spline gives it the credit at export.
+    res = CliRunner().invoke(app, ["export", str(out), "--out", str(tmp_path / "m2"), "--familiar-credit"],
+                             catch_exceptions=False)  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "familiar_credit" not in json.loads((tmp_path / "m2" / "model.json").read_text())
     assert OnnxInbetweener(tmp_path / "model").capabilities.familiar_credit is False
     assert OnnxInbetweener("models/default").capabilities.familiar_credit is True
     # Takes too short for a training window, and a folder with no checkpoint: one line each.
