@@ -196,7 +196,8 @@ def markdown(rep: dict) -> str:
     lines = [
         f"Held-out takes (first {rep['max_frames']} frames at 30 fps), converted, blocked, filled and "
         "scored on their own rig: mapped joints' world error (cm) between the keys; ÷ spline pooled "
-        "(median take, worst take).",
+        "(median take, worst take)."
+        + ("" if rep.get("model", "default") == "default" else f" The network: {rep['model']}."),
         "",
         "| source | keys every | " + " | ".join(rep["methods"]) + " |",
         "|---|---|" + "---|" * len(rep["methods"]),

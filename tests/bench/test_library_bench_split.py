@@ -53,3 +53,9 @@ def test_a_model_that_is_not_there_is_refused_before_anything_runs(tmp_path, cap
     with pytest.raises(TweenError, match="--model .*nowhere"):
         bench.main(["--source", "cmu", "--model", str(tmp_path / "nowhere"), "--out", str(tmp_path / "out")])
     assert not (tmp_path / "out").exists()
+
+
+def test_the_report_names_a_network_other_than_the_default():
+    rep = {"max_frames": 300, "methods": ["spline"], "sources": {}}
+    assert "The network" not in bench.markdown(rep)
+    assert "The network: runs/studio/model." in bench.markdown({**rep, "model": "runs/studio/model"})
