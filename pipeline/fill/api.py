@@ -281,16 +281,14 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
         models=models,
     )
     for anim, m in models.items():
-        if (
-            opts.library and m["kind"] == "human"
-        ):  # pipeline.library: with auto, the network is probed beside it
-            names = [a.name for a in alternatives] if opts.trust == "auto" else []
-            beside = f", with the human network {' and '.join(names)} probed beside it" if names else ""
-            print(f"tween: {shot} {anim}: {m['name']}{beside}", file=sys.stderr)
-        else:
-            names = [a.name for a in alternatives] if m["kind"] == "human" else []
-            beside = f", with {' and '.join(names)} probed beside it" if names else ""
-            print(f"tween: {shot} {anim}: {m['kind']} model {m['name']}{beside}", file=sys.stderr)
+        human = m["kind"] == "human"
+        # What is probed beside a human character's in-betweener: with --trust auto only (the
+        # probes decide nothing otherwise, though --library keeps its network for the licence).
+        names = [a.name for a in alternatives] if human and opts.trust == "auto" else []
+        what = m["name"] if opts.library and human else f"{m['kind']} model {m['name']}"
+        net = "the human network " if opts.library else ""
+        beside = f", with {net}{' and '.join(names)} probed beside it" if names else ""
+        print(f"tween: {shot} {anim}: {what}{beside}", file=sys.stderr)
     return summary
 
 
