@@ -118,13 +118,17 @@ def _human(opts: FillOptions):
 
 def probed_beside(opts: FillOptions, human) -> tuple:
     """What the trusted fill probes beside the human in-betweener, the better on the shot's
-    own keys deciding: with ``--library``, the network ``--model`` names (the default, or a
-    studio's fine-tune on the takes the library holds; LIBRARY_VS_NETWORK); else,
-    with ``--trust auto`` only (SHIPPED_LIBRARY), the library the human model ships beside its
-    network (model.json's ``"library"``), then the models it ships beside it (``"beside"``)."""
+    own keys deciding; with ``--trust auto`` only (otherwise nothing: what is not probed can
+    fill nothing, so neither is it loaded nor does the fill name its licence). With
+    ``--library``, the network ``--model`` names (the default, or a studio's fine-tune on the
+    takes the library holds; LIBRARY_VS_NETWORK); else (SHIPPED_LIBRARY) the library the human
+    model ships beside its network (model.json's ``"library"``), then the models it ships
+    beside it (``"beside"``)."""
+    if opts.trust != "auto":  # the probes decide nothing: nothing is loaded beside it
+        return ()
     if opts.library:
         return (_model(opts.model),) if LIBRARY_VS_NETWORK else ()
-    if opts.trust != "auto" or not SHIPPED_LIBRARY:
+    if not SHIPPED_LIBRARY:
         return ()
     folder = getattr(human, "library_folder", None)  # a plug-in kind may ship none
     out = (_library(str(folder)),) if folder is not None else ()
@@ -282,9 +286,7 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     )
     for anim, m in models.items():
         human = m["kind"] == "human"
-        # What is probed beside a human character's in-betweener: with --trust auto only (the
-        # probes decide nothing otherwise, though --library keeps its network for the licence).
-        names = [a.name for a in alternatives] if human and opts.trust == "auto" else []
+        names = [a.name for a in alternatives] if human else []  # probed_beside: --trust auto only
         what = m["name"] if opts.library and human else f"{m['kind']} model {m['name']}"
         net = "the human network " if opts.library else ""
         beside = f", with {net}{' and '.join(names)} probed beside it" if names else ""
