@@ -36,7 +36,8 @@ def shots(name: str):
 def dump(net, spl, src: str, every: int, out: Path) -> Path:
     skel = net.skeleton
     rots, roots = shots(src)
-    _, free, (m_r, m_p), (s_r, s_p), ds, _, (d_r, d_p) = blocking.fill_blocked(net, spl, rots, roots, every)
+    _, free, f = blocking.fill_blocked(net, spl, rots, roots, every)
+    (m_r, m_p), (s_r, s_p), ds, (d_r, d_p) = f.model, f.spline, f.decisions, f.decided
     E = np.zeros((len(rots), len(GRID)))
     for i, w in enumerate(GRID):
         b_r, b_p = trust.blend_arrays(np.full(len(rots), w), m_r, m_p, s_r, s_p)

@@ -103,20 +103,16 @@ def errors_cm(skel, rot, root, true_rot, true_root, frames) -> np.ndarray:
 
 
 def fill_blocked(model, spline, rots, roots, every: int, alternatives=()):
-    """Shots keyed every ``every`` frames, filled three ways (infer.trust.trusted_fill_windows):
-    (keys, free frames, the model's fill, the spline's fill, the trust decisions, the model's
-    weight per shot and frame, the decided fill), each fill a (rotations, roots) pair. What
-    :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot). ``alternatives``:
-    probed beside the model as the product's fill probes them (the library it ships)."""
-    return _fill_blocked(model, spline, rots, roots, every, alternatives)[:7]
-
-
-def _fill_blocked(model, spline, rots, roots, every: int, alternatives=()):
+    """Shots keyed every ``every`` frames, filled three ways: (keys, free frames,
+    :class:`pipeline.infer.trust.WindowFills`: the model's fill, the spline's, the decisions,
+    the model's weight per shot and frame, the decided fill and which in-betweener each shot
+    took). What :func:`evaluate` scores (and experiments/trust_sweep.py studies per shot).
+    ``alternatives``: probed beside the model as the product's fill probes them (the library
+    it ships)."""
     n = rots.shape[1]
     keys = np.r_[np.arange(0, n - 1, every), n - 1]
     free = np.setdiff1d(np.arange(n), keys)
-    f = trust.trusted_fill_windows(model, spline, rots, roots, keys, alternatives=alternatives)
-    return keys, free, f.model, f.spline, f.decisions, f.weights, f.decided, f.chosen
+    return keys, free, trust.trusted_fill_windows(model, spline, rots, roots, keys, alternatives=alternatives)
 
 
 def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
@@ -125,21 +121,19 @@ def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
     the seconds it took."""
     skel = model.skeleton
     t0 = time.perf_counter()
-    _, free, (m_r, m_p), (s_r, s_p), decisions, w, (d_r, d_p), chosen = _fill_blocked(
-        model, spline, rots, roots, every, alternatives
-    )
+    _, free, f = fill_blocked(model, spline, rots, roots, every, alternatives)
     err = {
         name: float(errors_cm(skel, r, p, rots, roots, free).mean())
-        for name, (r, p) in {"model": (m_r, m_p), "spline": (s_r, s_p), "decided": (d_r, d_p)}.items()
+        for name, (r, p) in {"model": f.model, "spline": f.spline, "decided": f.decided}.items()
     }
     return {
         **err,
         "decided_over_better": err["decided"] / min(err["model"], err["spline"]),
         "decided_over_model": err["decided"] / err["model"],
-        "mean_weight": float(w[:, free].mean()),
-        "probes": len(decisions[0].probes),
-        "alternative_share": float(np.mean(chosen > 0)),
-        "alternative_shares": [float(np.mean(chosen == k)) for k in range(1, len(alternatives) + 1)],
+        "mean_weight": float(f.weights[:, free].mean()),
+        "probes": len(f.decisions[0].probes),
+        "alternative_share": float(np.mean(f.chosen > 0)),
+        "alternative_shares": [float(np.mean(f.chosen == k)) for k in range(1, len(alternatives) + 1)],
         "seconds": time.perf_counter() - t0,
     }
 
