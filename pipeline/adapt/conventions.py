@@ -6,7 +6,8 @@ Each entry of ``CONVENTIONS`` is one convention (the dict's order breaks ties, s
 - ``label``: its name in messages.
 - ``prefixes``: what may precede every name (``mixamorig:``); a name matches with or without it.
 - ``roles``: model joint → rig name patterns, best first. Limb roles (``UpperArm``, no side)
-  carry a side placeholder and stand for both ``UpperArm_L`` and ``UpperArm_R``. Spine, Chest
+  carry a side placeholder and stand for both ``UpperArm_L`` and ``UpperArm_R``. Hips may be
+  left out where its name is too common to take (the topology finds it). Spine, Chest
   and Neck are left out on purpose: they come from the topology (Chest = the lowest common
   ancestor of the arms), whatever the number of spine joints. A convention that names them
   (the model skeleton's own) has its names taken.
@@ -25,6 +26,7 @@ letters and digits read as ``_``: ``spine.001``, ``spine_001``, ``DEF-thigh.L``,
 from __future__ import annotations
 
 _FINGERS = ("Thumb", "Index", "Middle", "Ring", "Pinky")
+_UNITY_FINGERS = ("Thumb", "Index", "Middle", "Ring", "Little")  # Unity, VRM and Rokoko say Little
 
 CONVENTIONS: dict[str, dict] = {
     # The model skeleton's own names (Bandai-Namco motion dataset): an identity mapping.
@@ -163,5 +165,134 @@ CONVENTIONS: dict[str, dict] = {
         },
         "torso": ("Spine", "Spine{n}", "Neck", "Neck{n}"),
         "extras": ("Bip{n}", "{L} Finger*", "{L} Toe*", "HeadNub", "{L} ForeTwist*", "Ponytail*"),
+    },
+    # Unity's humanoid bone names (HumanBodyBones), as Unity rigs and VRM 1.0 models name them.
+    "unity": {
+        "label": "Unity Humanoid",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Hips",), "Head": ("Head",),
+            "Shoulder": ("{Left}Shoulder",), "UpperArm": ("{Left}UpperArm",), "LowerArm": ("{Left}LowerArm",),
+            "Hand": ("{Left}Hand",), "UpperLeg": ("{Left}UpperLeg",), "LowerLeg": ("{Left}LowerLeg",),
+            "Foot": ("{Left}Foot",), "Toes": ("{Left}Toes",),
+        },
+        "torso": ("Spine", "Chest", "UpperChest", "Neck"),
+        "extras": ("Root", "Jaw", "{Left}Eye")
+        + tuple(f"{{Left}}{f}{p}" for f in _UNITY_FINGERS for p in ("Proximal", "Intermediate", "Distal")),
+    },
+    # VRoid Studio / VRM 0.x (J_Bip_C_Hips, J_Bip_L_UpperLeg; J_Adj_ and J_Sec_ helper and
+    # spring bones).
+    "vrm": {
+        "label": "VRoid / VRM 0.x",
+        "prefixes": ("J_Bip_",),
+        "roles": {
+            "Hips": ("C_Hips",), "Head": ("C_Head",),
+            "Shoulder": ("{L}_Shoulder",), "UpperArm": ("{L}_UpperArm",), "LowerArm": ("{L}_LowerArm",),
+            "Hand": ("{L}_Hand",), "UpperLeg": ("{L}_UpperLeg",), "LowerLeg": ("{L}_LowerLeg",),
+            "Foot": ("{L}_Foot",), "Toes": ("{L}_ToeBase",),
+        },
+        "torso": ("C_Spine", "C_Chest", "C_UpperChest", "C_Neck"),
+        "extras": ("Root", "J_Adj_*", "J_Sec_*") + tuple(f"{{L}}_{f}{{n}}" for f in _UNITY_FINGERS),
+    },
+    # Xsens MVN segments (Pelvis, the L5/L3/T12/T8 spine, RightUpperLeg, RightToe).
+    "xsens": {
+        "label": "Xsens MVN",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Pelvis",), "Head": ("Head",),
+            "Shoulder": ("{Left}Shoulder",), "UpperArm": ("{Left}UpperArm",), "LowerArm": ("{Left}ForeArm",),
+            "Hand": ("{Left}Hand",), "UpperLeg": ("{Left}UpperLeg",), "LowerLeg": ("{Left}LowerLeg",),
+            "Foot": ("{Left}Foot",), "Toes": ("{Left}Toe",),
+        },
+        "torso": ("L5", "L3", "T12", "T8", "Neck"),
+        "extras": ("{Left}Toe_End", "{Left}Hand_End") + tuple(f"{{Left}}{f}{{n}}" for f in _FINGERS),
+    },
+    # Rokoko Studio / Smartsuit (leftThigh, leftShin, spine1-4).
+    "rokoko": {
+        "label": "Rokoko",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Hips",), "Head": ("Head",),
+            "Shoulder": ("{Left}Shoulder",), "UpperArm": ("{Left}Arm",), "LowerArm": ("{Left}ForeArm",),
+            "Hand": ("{Left}Hand",), "UpperLeg": ("{Left}Thigh",), "LowerLeg": ("{Left}Shin",),
+            "Foot": ("{Left}Foot",), "Toes": ("{Left}Toe",),
+        },
+        "torso": ("Spine{n}", "Neck"),
+        "extras": ("Root", "{Left}ToeTip", "{Left}Toe_End") + tuple(f"{{Left}}{f}*" for f in _UNITY_FINGERS),
+    },
+    # OptiTrack Motive skeletons: the asset's name, then Hip, Ab, LThigh, LUArm (Skeleton1_LThigh).
+    "optitrack": {
+        "label": "OptiTrack Motive",
+        "prefixes": ("*_",),
+        "roles": {
+            "Hips": ("Hip",), "Head": ("Head",),
+            "Shoulder": ("{L}Shoulder",), "UpperArm": ("{L}UArm",), "LowerArm": ("{L}FArm",),
+            "Hand": ("{L}Hand",), "UpperLeg": ("{L}Thigh",), "LowerLeg": ("{L}Shin",),
+            "Foot": ("{L}Foot",), "Toes": ("{L}Toe",),
+        },
+        "torso": ("Ab", "Chest", "Neck"),
+        "extras": tuple(f"{{L}}{f}{{n}}" for f in _FINGERS),
+    },
+    # SMPL, SMPL-H and SMPL-X body models (L_Hip or left_hip rotates the thigh, L_Knee the shin,
+    # L_Collar the clavicle, L_Shoulder the upper arm).
+    "smpl": {
+        "label": "SMPL / SMPL-X",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Pelvis",), "Head": ("Head",),
+            "Shoulder": ("{L}_Collar", "{left}_collar"), "UpperArm": ("{L}_Shoulder", "{left}_shoulder"),
+            "LowerArm": ("{L}_Elbow", "{left}_elbow"), "Hand": ("{L}_Wrist", "{left}_wrist"),
+            "UpperLeg": ("{L}_Hip", "{left}_hip"), "LowerLeg": ("{L}_Knee", "{left}_knee"),
+            "Foot": ("{L}_Ankle", "{left}_ankle"), "Toes": ("{L}_Foot", "{left}_foot"),
+        },
+        "torso": ("Spine{n}", "Neck"),
+        "extras": ("root", "Jaw", "{L}_Hand", "{left}_hand", "{left}_eye_smplhf")
+        + tuple(f"{{left}}_{f.lower()}{{n}}" for f in _FINGERS),
+    },
+    # Advanced Skeleton (Maya): side suffixes _L/_R/_M; Shoulder_L is the upper arm, Scapula_L
+    # the clavicle, Hip_L the thigh.
+    "advanced_skeleton": {
+        "label": "Advanced Skeleton",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Root_M",), "Head": ("Head_M",),
+            "Shoulder": ("Scapula_{L}",), "UpperArm": ("Shoulder_{L}",), "LowerArm": ("Elbow_{L}",),
+            "Hand": ("Wrist_{L}",), "UpperLeg": ("Hip_{L}",), "LowerLeg": ("Knee_{L}",),
+            "Foot": ("Ankle_{L}",), "Toes": ("Toes_{L}",),
+        },
+        "torso": ("Spine{n}_M", "Chest_M", "Neck_M", "Neck{n}_M", "NeckPart{n}_M"),
+        "extras": ("HeadEnd_M", "Jaw_M", "JawEnd_M", "Eye_{L}", "EyeEnd_{L}", "ToesEnd_{L}", "*Part{n}_{L}",
+                   "*Finger{n}_{L}", "Cup_{L}"),
+    },
+    # LaFAN1 (Ubisoft La Forge's in-betweening capture): Mixamo's names, toes LeftToe.
+    "lafan1": {
+        "label": "LaFAN1",
+        "prefixes": (),
+        "roles": {
+            "Hips": ("Hips",), "Head": ("Head",),
+            "Shoulder": ("{Left}Shoulder",), "UpperArm": ("{Left}Arm",), "LowerArm": ("{Left}ForeArm",),
+            "Hand": ("{Left}Hand",), "UpperLeg": ("{Left}UpLeg",), "LowerLeg": ("{Left}Leg",),
+            "Foot": ("{Left}Foot",), "Toes": ("{Left}Toe",),
+        },
+        "torso": ("Spine", "Spine{n}", "Neck"),
+        "extras": (),
+    },
+    # MakeHuman's default skeleton (MakeHuman 1.x, Blender's MPFB): two segments per limb bone
+    # (upperleg01.L, upperleg02.L), toes per digit (toe1-1.L the big toe's). Its pelvis is
+    # "root", too common a name to take (many rigs have a root above the hips): the hips come
+    # from the topology (the joint the legs and the spine branch from).
+    "makehuman": {
+        "label": "MakeHuman",
+        "prefixes": (),
+        "roles": {
+            "Head": ("head",),
+            "Shoulder": ("clavicle.{L}",), "UpperArm": ("upperarm01.{L}",), "LowerArm": ("lowerarm01.{L}",),
+            "Hand": ("wrist.{L}",), "UpperLeg": ("upperleg01.{L}",), "LowerLeg": ("lowerleg01.{L}",),
+            "Foot": ("foot.{L}",), "Toes": ("toe1-1.{L}",),
+        },
+        "torso": ("root", "spine0{n}", "neck0{n}"),
+        "extras": ("pelvis.{L}", "shoulder01.{L}", "upperarm02.{L}", "lowerarm02.{L}", "upperleg02.{L}",
+                   "lowerleg02.{L}", "toe{n}-{n}.{L}", "metacarpal{n}.{L}", "finger{n}-{n}.{L}", "jaw",
+                   "eye.{L}", "levator*", "orbicularis*", "oculi*", "tongue*", "breast.{L}"),
     },
 }  # fmt: skip

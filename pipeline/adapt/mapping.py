@@ -2,7 +2,8 @@
 
 The rig's names are read against every naming convention in ``pipeline.adapt.conventions``
 (the model skeleton's own Bandai names, Character Creator, Mixamo, HumanIK, UE5 Mannequin,
-Rigify, DAZ/Poser, CMU, 3ds Max Biped), one data entry each; the convention that explains the
+Rigify, DAZ/Poser, CMU, 3ds Max Biped, Unity Humanoid, VRoid/VRM, Xsens MVN, Rokoko, OptiTrack
+Motive, SMPL, Advanced Skeleton, MakeHuman, LaFAN1), one data entry each; the convention that explains the
 most joints names them. Then a JSON override file ``{"<model joint>": "<rig joint name or
 path>" | null}``. The torso is found from the topology (chest = the lowest common ancestor of
 the arms), so the number of spine joints a rig has does not matter. Hand-written: no

@@ -17,7 +17,8 @@ from pipeline.adapt.mapping import (
     map_joints_info,
 )
 
-_SIDE = {"L": {"{L}": "L", "{l}": "l", "{Left}": "Left"}, "R": {"{L}": "R", "{l}": "r", "{Left}": "Right"}}
+_SIDE = {"L": {"{L}": "L", "{l}": "l", "{Left}": "Left", "{left}": "left"},
+         "R": {"{L}": "R", "{l}": "r", "{Left}": "Right", "{left}": "right"}}  # fmt: skip
 
 
 def _side(text, s):
@@ -186,6 +187,109 @@ CASES = {
          "Hand": "Bip01 {L} Hand", "UpperLeg": "Bip01 {L} Thigh", "LowerLeg": "Bip01 {L} Calf",
          "Foot": "Bip01 {L} Foot", "Toes": "Bip01 {L} Toe0"},
     ),
+    "unity": (  # a Unity humanoid (HumanBodyBones names), as VRM 1.0 names them too
+        ["Root < ", "Hips < Root", "Spine < Hips", "Chest < Spine", "UpperChest < Chest", "Neck < UpperChest",
+         "Head < Neck", "Jaw < Head", "{Left}Eye < Head", "{Left}Shoulder < UpperChest",
+         "{Left}UpperArm < {Left}Shoulder", "{Left}LowerArm < {Left}UpperArm", "{Left}Hand < {Left}LowerArm",
+         "{Left}ThumbProximal < {Left}Hand", "{Left}LittleProximal < {Left}Hand",
+         "{Left}LittleIntermediate < {Left}LittleProximal", "{Left}UpperLeg < Hips",
+         "{Left}LowerLeg < {Left}UpperLeg", "{Left}Foot < {Left}LowerLeg", "{Left}Toes < {Left}Foot"],
+        {"Hips": "Hips", "Spine": "Spine", "Chest": "UpperChest", "Neck": "Neck", "Head": "Head",
+         "Shoulder": "{Left}Shoulder", "UpperArm": "{Left}UpperArm", "LowerArm": "{Left}LowerArm",
+         "Hand": "{Left}Hand", "UpperLeg": "{Left}UpperLeg", "LowerLeg": "{Left}LowerLeg", "Foot": "{Left}Foot",
+         "Toes": "{Left}Toes"},
+    ),
+    "vrm": (  # VRoid Studio's export: J_Bip_ body, J_Adj_ helpers, J_Sec_ spring bones
+        ["Root < ", "J_Bip_C_Hips < Root", "J_Bip_C_Spine < J_Bip_C_Hips", "J_Bip_C_Chest < J_Bip_C_Spine",
+         "J_Bip_C_UpperChest < J_Bip_C_Chest", "J_Bip_C_Neck < J_Bip_C_UpperChest", "J_Bip_C_Head < J_Bip_C_Neck",
+         "J_Adj_{L}_FaceEye < J_Bip_C_Head", "J_Sec_Hair1_01 < J_Bip_C_Head",
+         "J_Bip_{L}_Shoulder < J_Bip_C_UpperChest", "J_Bip_{L}_UpperArm < J_Bip_{L}_Shoulder",
+         "J_Bip_{L}_LowerArm < J_Bip_{L}_UpperArm", "J_Bip_{L}_Hand < J_Bip_{L}_LowerArm",
+         "J_Bip_{L}_Thumb1 < J_Bip_{L}_Hand", "J_Bip_{L}_Index1 < J_Bip_{L}_Hand",
+         "J_Bip_{L}_UpperLeg < J_Bip_C_Hips", "J_Bip_{L}_LowerLeg < J_Bip_{L}_UpperLeg",
+         "J_Bip_{L}_Foot < J_Bip_{L}_LowerLeg", "J_Bip_{L}_ToeBase < J_Bip_{L}_Foot"],
+        {"Hips": "J_Bip_C_Hips", "Spine": "J_Bip_C_Spine", "Chest": "J_Bip_C_UpperChest", "Neck": "J_Bip_C_Neck",
+         "Head": "J_Bip_C_Head", "Shoulder": "J_Bip_{L}_Shoulder", "UpperArm": "J_Bip_{L}_UpperArm",
+         "LowerArm": "J_Bip_{L}_LowerArm", "Hand": "J_Bip_{L}_Hand", "UpperLeg": "J_Bip_{L}_UpperLeg",
+         "LowerLeg": "J_Bip_{L}_LowerLeg", "Foot": "J_Bip_{L}_Foot", "Toes": "J_Bip_{L}_ToeBase"},
+    ),
+    "xsens": (  # MVN's 23 segments
+        ["Pelvis < ", "L5 < Pelvis", "L3 < L5", "T12 < L3", "T8 < T12", "Neck < T8", "Head < Neck",
+         "{Left}Shoulder < T8", "{Left}UpperArm < {Left}Shoulder", "{Left}ForeArm < {Left}UpperArm",
+         "{Left}Hand < {Left}ForeArm", "{Left}UpperLeg < Pelvis", "{Left}LowerLeg < {Left}UpperLeg",
+         "{Left}Foot < {Left}LowerLeg", "{Left}Toe < {Left}Foot"],
+        {"Hips": "Pelvis", "Spine": "L5", "Chest": "T8", "Neck": "Neck", "Head": "Head",
+         "Shoulder": "{Left}Shoulder", "UpperArm": "{Left}UpperArm", "LowerArm": "{Left}ForeArm",
+         "Hand": "{Left}Hand", "UpperLeg": "{Left}UpperLeg", "LowerLeg": "{Left}LowerLeg", "Foot": "{Left}Foot",
+         "Toes": "{Left}Toe"},
+    ),
+    "rokoko": (  # Rokoko Studio's export
+        ["Root < ", "Hips < Root", "Spine1 < Hips", "Spine2 < Spine1", "Spine3 < Spine2", "Spine4 < Spine3",
+         "Neck < Spine4", "Head < Neck", "{Left}Shoulder < Spine4", "{Left}Arm < {Left}Shoulder",
+         "{Left}ForeArm < {Left}Arm", "{Left}Hand < {Left}ForeArm", "{Left}ThumbProximal < {Left}Hand",
+         "{Left}Thigh < Hips", "{Left}Shin < {Left}Thigh", "{Left}Foot < {Left}Shin", "{Left}Toe < {Left}Foot",
+         "{Left}ToeTip < {Left}Toe"],
+        {"Hips": "Hips", "Spine": "Spine1", "Chest": "Spine4", "Neck": "Neck", "Head": "Head",
+         "Shoulder": "{Left}Shoulder", "UpperArm": "{Left}Arm", "LowerArm": "{Left}ForeArm", "Hand": "{Left}Hand",
+         "UpperLeg": "{Left}Thigh", "LowerLeg": "{Left}Shin", "Foot": "{Left}Foot", "Toes": "{Left}Toe"},
+    ),
+    "optitrack": (  # Motive's skeleton, its asset name before every bone
+        ["Skeleton1_Hip < ", "Skeleton1_Ab < Skeleton1_Hip", "Skeleton1_Chest < Skeleton1_Ab",
+         "Skeleton1_Neck < Skeleton1_Chest", "Skeleton1_Head < Skeleton1_Neck",
+         "Skeleton1_{L}Shoulder < Skeleton1_Chest", "Skeleton1_{L}UArm < Skeleton1_{L}Shoulder",
+         "Skeleton1_{L}FArm < Skeleton1_{L}UArm", "Skeleton1_{L}Hand < Skeleton1_{L}FArm",
+         "Skeleton1_{L}Thumb1 < Skeleton1_{L}Hand", "Skeleton1_{L}Thigh < Skeleton1_Hip",
+         "Skeleton1_{L}Shin < Skeleton1_{L}Thigh", "Skeleton1_{L}Foot < Skeleton1_{L}Shin",
+         "Skeleton1_{L}Toe < Skeleton1_{L}Foot"],
+        {"Hips": "Skeleton1_Hip", "Spine": "Skeleton1_Ab", "Chest": "Skeleton1_Chest", "Neck": "Skeleton1_Neck",
+         "Head": "Skeleton1_Head", "Shoulder": "Skeleton1_{L}Shoulder", "UpperArm": "Skeleton1_{L}UArm",
+         "LowerArm": "Skeleton1_{L}FArm", "Hand": "Skeleton1_{L}Hand", "UpperLeg": "Skeleton1_{L}Thigh",
+         "LowerLeg": "Skeleton1_{L}Shin", "Foot": "Skeleton1_{L}Foot", "Toes": "Skeleton1_{L}Toe"},
+    ),
+    "smpl": (  # SMPL-X's body joints (SMPL says Pelvis, L_Hip, L_Knee)
+        ["root < ", "pelvis < root", "{left}_hip < pelvis", "{left}_knee < {left}_hip",
+         "{left}_ankle < {left}_knee", "{left}_foot < {left}_ankle", "spine1 < pelvis", "spine2 < spine1",
+         "spine3 < spine2", "neck < spine3", "head < neck", "jaw < head", "{left}_eye_smplhf < head",
+         "{left}_collar < spine3", "{left}_shoulder < {left}_collar", "{left}_elbow < {left}_shoulder",
+         "{left}_wrist < {left}_elbow", "{left}_index1 < {left}_wrist", "{left}_thumb1 < {left}_wrist"],
+        {"Hips": "pelvis", "Spine": "spine1", "Chest": "spine3", "Neck": "neck", "Head": "head",
+         "Shoulder": "{left}_collar", "UpperArm": "{left}_shoulder", "LowerArm": "{left}_elbow",
+         "Hand": "{left}_wrist", "UpperLeg": "{left}_hip", "LowerLeg": "{left}_knee", "Foot": "{left}_ankle",
+         "Toes": "{left}_foot"},
+    ),
+    "advanced_skeleton": (  # Maya's Advanced Skeleton deform joints
+        ["Root_M < ", "Hip_{L} < Root_M", "HipPart1_{L} < Hip_{L}", "Knee_{L} < HipPart1_{L}",
+         "Ankle_{L} < Knee_{L}", "Toes_{L} < Ankle_{L}", "ToesEnd_{L} < Toes_{L}", "Spine1_M < Root_M",
+         "Chest_M < Spine1_M", "Neck_M < Chest_M", "Head_M < Neck_M", "HeadEnd_M < Head_M", "Jaw_M < Head_M",
+         "Scapula_{L} < Chest_M", "Shoulder_{L} < Scapula_{L}", "ShoulderPart1_{L} < Shoulder_{L}",
+         "Elbow_{L} < ShoulderPart1_{L}", "Wrist_{L} < Elbow_{L}", "IndexFinger1_{L} < Wrist_{L}",
+         "Cup_{L} < Wrist_{L}"],
+        {"Hips": "Root_M", "Spine": "Spine1_M", "Chest": "Chest_M", "Neck": "Neck_M", "Head": "Head_M",
+         "Shoulder": "Scapula_{L}", "UpperArm": "Shoulder_{L}", "LowerArm": "Elbow_{L}", "Hand": "Wrist_{L}",
+         "UpperLeg": "Hip_{L}", "LowerLeg": "Knee_{L}", "Foot": "Ankle_{L}", "Toes": "Toes_{L}"},
+    ),
+    "lafan1": (  # LaFAN1's BVH files
+        ["Hips < ", "{Left}UpLeg < Hips", "{Left}Leg < {Left}UpLeg", "{Left}Foot < {Left}Leg",
+         "{Left}Toe < {Left}Foot", "Spine < Hips", "Spine1 < Spine", "Spine2 < Spine1", "Neck < Spine2",
+         "Head < Neck", "{Left}Shoulder < Spine2", "{Left}Arm < {Left}Shoulder", "{Left}ForeArm < {Left}Arm",
+         "{Left}Hand < {Left}ForeArm"],
+        {**_MIXAMO_ROLES, "Toes": "{Left}Toe"},
+    ),
+    "makehuman": (  # MakeHuman's default skeleton (MPFB in Blender)
+        ["root < ", "spine05 < root", "spine04 < spine05", "spine03 < spine04", "spine02 < spine03",
+         "spine01 < spine02", "neck01 < spine01", "neck02 < neck01", "neck03 < neck02", "head < neck03",
+         "jaw < head", "clavicle.{L} < spine01", "shoulder01.{L} < clavicle.{L}",
+         "upperarm01.{L} < shoulder01.{L}", "upperarm02.{L} < upperarm01.{L}",
+         "lowerarm01.{L} < upperarm02.{L}", "lowerarm02.{L} < lowerarm01.{L}", "wrist.{L} < lowerarm02.{L}",
+         "metacarpal1.{L} < wrist.{L}", "finger2-1.{L} < metacarpal1.{L}", "pelvis.{L} < root",
+         "upperleg01.{L} < pelvis.{L}", "upperleg02.{L} < upperleg01.{L}", "lowerleg01.{L} < upperleg02.{L}",
+         "lowerleg02.{L} < lowerleg01.{L}", "foot.{L} < lowerleg02.{L}", "toe1-1.{L} < foot.{L}",
+         "toe1-2.{L} < toe1-1.{L}", "toe2-1.{L} < foot.{L}"],
+        {"Hips": "root", "Spine": "spine05", "Chest": "spine01", "Neck": "neck01", "Head": "head",
+         "Shoulder": "clavicle.{L}", "UpperArm": "upperarm01.{L}", "LowerArm": "lowerarm01.{L}",
+         "Hand": "wrist.{L}", "UpperLeg": "upperleg01.{L}", "LowerLeg": "lowerleg01.{L}", "Foot": "foot.{L}",
+         "Toes": "toe1-1.{L}"},
+    ),
 }  # fmt: skip
 
 
@@ -349,7 +453,9 @@ def test_error_lists_the_likeliest_rig_joints_first_on_one_line():
     assert head == "joints do not map onto the model skeleton: no " + ", ".join(REQUIRED)
     names = listed.removeprefix("rig joints not placed: ").split(", ")
     assert names[-1] == "… (13 more)" and len(names) == 9  # 22 joints, root known (UE), 8 shown
-    assert {"arm_up_l", "arm_up_r", "leg_up_l", "leg_up_r"} <= set(names) and "tail7" not in names
+    # The limbs lead (their names are like the missing joints'), none of the tail.
+    limbs = {f"{j}_{s}" for j in ("arm_up", "arm_low", "leg_up", "leg_low", "paw") for s in "lr"}
+    assert set(names[:8]) <= limbs and {"arm_up_l", "arm_up_r"} <= set(names)
     assert (
         line
         == "write them in a --mapping JSON file: {"
@@ -379,7 +485,8 @@ def test_conventions_are_well_formed():
     centre = {m for m in MODEL_JOINTS if m.rpartition("_")[2] not in "LR"}
     for name, c in CONVENTIONS.items():
         assert set(c) == {"label", "prefixes", "roles", "torso", "extras"}, name
-        assert set(c["roles"]) <= centre | set(LIMBS) and {"Hips", "Head", "UpperArm"} <= set(c["roles"])
+        # Hips may come from the topology alone (MakeHuman's "root" is too common a name to take).
+        assert set(c["roles"]) <= centre | set(LIMBS) and {"Head", "UpperArm"} <= set(c["roles"])
         for role, pats in c["roles"].items():
             for p in pats:
                 assert ("{" in p.replace("{n}", "")) == (role in LIMBS), (name, p)
