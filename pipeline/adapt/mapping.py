@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pipeline import jsonfile
+from pipeline.adapt import chains
 from pipeline.adapt.conventions import CONVENTIONS
 from pipeline.errors import TweenError
 
@@ -164,21 +165,12 @@ def map_joints_info(
     Every convention reads the names; the one that explains the most rig joints (placed or
     known as its extras) wins, then the one placing the most model joints, then the first in
     ``CONVENTIONS``. Per model joint, the first matching pattern wins, then the joint nearest
-    the root.
+    the root. Limbs no convention places come from the rig's own words and chains
+    (:func:`pipeline.adapt.chains.limbs`).
     """
     parents = np.asarray(parents)
     names = [t.rsplit("/", 1)[-1] for t in joints]
-    depth = _depths(parents)
-    best = None
-    for order, conv in enumerate(CONVENTIONS):
-        found, explained = _read(conv, names)
-        key = (-len(explained), -len(found), order)
-        if best is None or key < best[0]:
-            best = (key, conv, found, explained)
-    _, conv, found, explained = best
-    if not found:
-        conv = None
-    out = {m: min(c, key=lambda pi: (pi[0], depth[pi[1]], pi[1]))[1] for m, c in found.items()}
+    conv, out, explained = _named(names, parents)
     removed = set()
     for role, target in (override or {}).items():
         if target is None:
@@ -214,6 +206,30 @@ def map_joints_info(
         )
     roles = {m: out[m] for m in MODEL_JOINTS if m in out}
     return JointMapping(roles, conv, tuple(m for m in MODEL_JOINTS if m not in out))
+
+
+def _named(names: list[str], parents: np.ndarray) -> tuple[str | None, dict[str, int], set[int]]:
+    """(the convention that names the rig, model joint → rig joint as the names place them,
+    the rig joints that convention knows): see :func:`map_joints_info`."""
+    depth = _depths(parents)
+    best = None
+    for order, conv in enumerate(CONVENTIONS):
+        found, explained = _read(conv, names)
+        key = (-len(explained), -len(found), order)
+        if best is None or key < best[0]:
+            best = (key, conv, found, explained)
+    _, conv, found, explained = best
+    if not found:
+        conv = None
+    out = {m: min(c, key=lambda pi: (pi[0], depth[pi[1]], pi[1]))[1] for m, c in found.items()}
+    if any(r not in out for r in REQUIRED if r not in ("Hips", "Head")):
+        # No convention places every limb: the rig's own words and chains (pipeline.adapt.chains)
+        # place the ones it left, never over a joint it placed.
+        taken = set(out.values())
+        for m, j in chains.limbs(names, parents).items():
+            if m not in out and j not in taken:
+                out[m] = j
+    return conv, out, explained
 
 
 def _missing_message(missing, names, out, explained, conv) -> tuple[str, str]:
@@ -326,6 +342,11 @@ def _head_from_topology(names, parents: np.ndarray, chest: int, arms: tuple[int,
     first = j = max(kids, key=lambda c: (size[c], -c))
     while len(children.get(j, [])) == 1:
         j = children[j][0]
-    if not children.get(j) and j != first and parents[j] != first and _END.search(names[j]):
+    if (
+        not children.get(j)
+        and j != first
+        and parents[j] != first
+        and (_END.search(names[j]) or chains.end_site(names[j]))
+    ):
         j = int(parents[j])  # an end site (HeadTop_End, face_end) above the head
     return j

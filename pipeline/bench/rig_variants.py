@@ -80,6 +80,11 @@ NAMES: dict[str, dict[str, str]] = {
                           "Head": "Head_M", "Shoulder": "Scapula_{L}", "UpperArm": "Shoulder_{L}",
                           "LowerArm": "Elbow_{L}", "Hand": "Wrist_{L}", "UpperLeg": "Hip_{L}",
                           "LowerLeg": "Knee_{L}", "Foot": "Ankle_{L}", "Toes": "Toes_{L}"},
+    # A studio's own naming, no convention's (pipeline.adapt.chains places its limbs).
+    "studio": {"Hips": "C_pelvis_jnt", "Spine": "C_spine1_jnt", "Chest": "C_chest_jnt", "Neck": "C_neck_jnt",
+               "Head": "C_head_jnt", "Shoulder": "{L}_clav_jnt", "UpperArm": "{L}_shoulder_jnt",
+               "LowerArm": "{L}_elbow_jnt", "Hand": "{L}_wrist_jnt", "UpperLeg": "{L}_thigh_jnt",
+               "LowerLeg": "{L}_knee_jnt", "Foot": "{L}_ankle_jnt", "Toes": "{L}_ball_jnt"},
 }  # fmt: skip
 #: Every variant of the bench, in table order.
 VARIANTS = (

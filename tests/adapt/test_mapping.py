@@ -422,19 +422,30 @@ def test_no_neck_no_spine_and_a_head_found_from_the_topology():
 
 
 def test_error_names_model_joints_rig_joints_and_the_mapping_line():
-    edges = [e.replace("{Left}Arm", "{l}ArmUp") for e in _mixamo_edges()]
+    # Upper arms no convention names, and hands that no word shows: nothing places the arms.
+    edges = [e.replace("{Left}Arm", "{l}ArmUp").replace("{Left}Hand", "{l}Paw") for e in _mixamo_edges()]
     joints, parents = _rig(edges)
     with pytest.raises(MappingError) as ei:
         map_joints(joints, parents)
     msg = str(ei.value)
     assert msg == (
         "joints do not map onto the model skeleton: no UpperArm_L, UpperArm_R (names read as Mixamo); "
-        "rig joints not placed: lArmUp, rArmUp; write them in a --mapping JSON file: "
-        '{"UpperArm_L": "<rig joint>", "UpperArm_R": "<rig joint>"}'
+        "rig joints not placed: lArmUp, rArmUp, lPaw, rPaw, lPawThumb1, rPawThumb1, lPawThumb2, rPawThumb2, "
+        '… (8 more); write them in a --mapping JSON file: {"UpperArm_L": "<rig joint>", "UpperArm_R": "<rig joint>"}'
     )
     # The line it shows is what fixes it.
     roles = map_joints(joints, parents, {"UpperArm_L": "lArmUp", "UpperArm_R": "rArmUp"})
-    assert joints[roles["UpperArm_L"]].endswith("/lArmUp") and len(roles) == 21
+    assert joints[roles["UpperArm_L"]].endswith("/lArmUp") and len(roles) == 19  # no hands
+
+
+def test_a_limb_no_convention_names_is_placed_from_its_words_and_chain():
+    # Mixamo's upper arms renamed: the hands say where the arms end, the chain down to them
+    # from the chest holds them (pipeline.adapt.chains), the rest stays Mixamo's.
+    edges = [e.replace("{Left}Arm", "{l}ArmUp") for e in _mixamo_edges()]
+    joints, parents = _rig(edges)
+    info = map_joints_info(joints, parents)
+    assert info.convention == "mixamo" and info.missing == ()
+    assert _names(joints, info.roles) == _expected(_MIXAMO_ROLES | {"UpperArm": "{l}ArmUp"})
 
 
 def test_error_lists_the_likeliest_rig_joints_first_on_one_line():
@@ -491,3 +502,65 @@ def test_conventions_are_well_formed():
             for p in pats:
                 assert ("{" in p.replace("{n}", "")) == (role in LIMBS), (name, p)
         _compiled(name)  # every pattern compiles
+
+
+# A studio's own naming (no convention's): side prefixes, a _jnt suffix, twist joints inside
+# the chains, a clavicle called "clav", the upper arm called "shoulder".
+_STUDIO = ["root < ", "C_pelvis_jnt < root", "C_spine1_jnt < C_pelvis_jnt", "C_spine2_jnt < C_spine1_jnt",
+           "C_chest_jnt < C_spine2_jnt", "C_neck_jnt < C_chest_jnt", "C_head_jnt < C_neck_jnt",
+           "C_headEnd_jnt < C_head_jnt", "{L}_clav_jnt < C_chest_jnt", "{L}_shoulder_jnt < {L}_clav_jnt",
+           "{L}_shoulderTwist_jnt < {L}_shoulder_jnt", "{L}_elbow_jnt < {L}_shoulderTwist_jnt",
+           "{L}_wrist_jnt < {L}_elbow_jnt", "{L}_index1_jnt < {L}_wrist_jnt", "{L}_thigh_jnt < C_pelvis_jnt",
+           "{L}_knee_jnt < {L}_thigh_jnt", "{L}_ankle_jnt < {L}_knee_jnt", "{L}_ball_jnt < {L}_ankle_jnt",
+           "{L}_heel_jnt < {L}_ankle_jnt"]  # fmt: skip
+
+
+def test_a_studio_rig_of_its_own_naming_maps_from_words_and_chains():
+    joints, parents = _rig(_STUDIO)
+    info = map_joints_info(joints, parents)
+    want = {"Hips": "C_pelvis_jnt", "Spine": "C_spine1_jnt", "Chest": "C_chest_jnt", "Neck": "C_neck_jnt",
+            "Head": "C_head_jnt", "Shoulder": "{L}_clav_jnt", "UpperArm": "{L}_shoulder_jnt",
+            "LowerArm": "{L}_elbow_jnt", "Hand": "{L}_wrist_jnt", "UpperLeg": "{L}_thigh_jnt",
+            "LowerLeg": "{L}_knee_jnt", "Foot": "{L}_ankle_jnt", "Toes": "{L}_ball_jnt"}  # fmt: skip
+    assert _names(joints, info.roles) == _expected(want)
+    # Sides as words anywhere, camel case, a namespace: the same joints.
+    renamed = [re.sub(r"\{L\}_(\w)", lambda m: "Hero:{Left}" + m[1].upper(), e).replace("C_", "Hero:")
+               for e in _STUDIO]  # fmt: skip
+    joints, parents = _rig(renamed)
+    got = _names(joints, map_joints(joints, parents))
+    assert got["UpperArm_R"] == "Hero:RightShoulder_jnt" and got["Toes_L"] == "Hero:LeftBall_jnt"
+    assert got["Head"] == "Hero:head_jnt" and got["Hips"] == "Hero:pelvis_jnt"
+
+
+def _quadruped():
+    edges = ["root < ", "body < root", "neck < body", "head < neck"]
+    for p in ("front", "back"):
+        for s in "lr":
+            edges += [
+                f"{p}_upper_{s} < body",
+                f"{p}_lower_{s} < {p}_upper_{s}",
+                f"{p}_paw_{s} < {p}_lower_{s}",
+            ]
+    return edges
+
+
+def _one_hand():
+    """The studio rig with a left "paw" for a hand: only the right hand has a hand word."""
+    edges = [e for e in _STUDIO if "wrist" not in e and "index1" not in e]
+    return edges + ["L_paw_jnt < L_elbow_jnt", "L_index1_jnt < L_paw_jnt", "R_wrist_jnt < R_elbow_jnt",
+                    "R_index1_jnt < R_wrist_jnt"]  # fmt: skip
+
+
+@pytest.mark.parametrize("what", ["no hands", "one hand", "a quadruped"])
+def test_words_and_chains_place_nothing_they_cannot_see(what):
+    from pipeline.adapt import chains
+
+    edges = {
+        "no hands": [e.replace("wrist", "paw") for e in _STUDIO],
+        "one hand": _one_hand(),
+        "a quadruped": _quadruped(),
+    }[what]
+    joints, parents = _rig(edges)
+    assert chains.limbs(joints, parents) == {}
+    with pytest.raises(MappingError, match="joints do not map onto the model skeleton"):
+        map_joints(joints, parents)
