@@ -50,6 +50,11 @@ def _os_error_line(e: OSError) -> str | None:
     return f"{where}: {e.strerror or e}"
 
 
+def _shown(line: str) -> str:
+    """``line`` as stderr can always write it: a path that is not UTF-8 (surrogates) escaped."""
+    return line.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def _log_bug(e: BaseException, logs: Path | None, argv: list[str] | None = None) -> str:
     """Writes the traceback of an unexpected error to a log file in ``logs``; returns where."""
     if logs is None:
@@ -61,7 +66,7 @@ def _log_bug(e: BaseException, logs: Path | None, argv: list[str] | None = None)
     text = f"tween {' '.join(map(str, args))}\n\n" + "".join(traceback.format_exception(e))
     try:
         logs.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+        path.write_text(text, errors="backslashreplace")  # a path that is not UTF-8 (surrogates)
     except OSError:  # no log either: the traceback goes to stderr after all
         sys.stderr.write(text)
         return "above"
@@ -93,7 +98,7 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
             print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
         sys.exit(2)
     except TweenError as e:
-        print(f"tween: error: {e}", file=sys.stderr)
+        print(_shown(f"tween: error: {e}"), file=sys.stderr)
         sys.exit(2)
     except ClickException as e:
         print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
@@ -126,7 +131,7 @@ def run_main(main, argv: list[str] | None = None, log_dir: Path | None = None):
     try:
         rc = main(argv)
     except TweenError as e:
-        print(f"tween: error: {e}", file=sys.stderr)
+        print(_shown(f"tween: error: {e}"), file=sys.stderr)
         sys.exit(2)
     except KeyboardInterrupt:
         print("tween: interrupted", file=sys.stderr)

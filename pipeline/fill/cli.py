@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -40,6 +41,8 @@ def _convert_options(keys_every: str, start: str, fps: str | None, up: str, name
         raise TweenError(f"--keys-every {keys_every!r}: expected a whole number of frames, 1 or more")
     every = int(keys_every)
     t0 = _number("--start", start)
+    if abs(t0) >= 2.0**40:  # beyond it consecutive frames (or sub-frames) round onto each other
+        raise TweenError(f"--start {start!r}: out of range (a time code below 1e12)")
     rate = None
     if fps is not None:
         rate = _number("--fps", fps)
@@ -60,10 +63,17 @@ def _convert_options(keys_every: str, start: str, fps: str | None, up: str, name
     return every, t0, rate, span
 
 
-def _check_shot_path(out: Path, force: bool) -> None:
-    """One line if the shot cannot be written at ``out``."""
+def _check_shot_path(out: Path, force: bool, source: Path | None = None) -> None:
+    """One line if the shot cannot be written at ``out`` (never over ``source``, the input)."""
+    if source is not None and out.is_file() and not out.is_symlink() and source.is_file():
+        if os.path.samefile(out, source):
+            raise TweenError(f"{out}: is the BVH file being converted; give the shot another name")
     if out.is_dir():
         raise TweenError(f"{out}: is a folder; give the shot's file name (e.g. {out / 'shot.usda'})")
+    try:
+        str(out.absolute()).encode("utf-8")
+    except UnicodeEncodeError:  # usd-core writes UTF-8 paths only
+        raise TweenError(f"{out}: the path is not UTF-8 text, which USD cannot write; rename it") from None
     if out.suffix not in (".usda", ".usdc", ".usd"):
         raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
     if not out.parent.is_dir():
@@ -94,7 +104,7 @@ def convert(
     # option (typer's own message is a multi-line usage box). Nothing is read or written
     # before the options and the output path check out.
     every, t0, rate, span = _convert_options(keys_every, start, fps, up, name, frames)
-    _check_shot_path(out, force)
+    _check_shot_path(out, force, bvh)
     motion = read_bvh(bvh)
     n = len(motion)
     if span:

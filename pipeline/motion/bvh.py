@@ -50,17 +50,23 @@ class BvhJoint:
     end_site: np.ndarray | None = None
 
 
+#: The most text (bytes, after gzip) a BVH take may hold: 10 hours of a 100-joint rig at
+#: 30 fps is about 0.4 GiB.
+MAX_BYTES = 1 << 30
+
+
 def _open_text(path: Path) -> list[str]:
     """The file's lines. UTF-8 (with or without a BOM); a file that is not UTF-8 is read as
     Latin-1, so joint names written by older tools keep their accented letters."""
     try:
         if path.is_dir():
             raise MotionFormatError(path, None, "is a folder, not a BVH file")
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as f:
-                raw = f.read()
-        else:
-            raw = path.read_bytes()
+        if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
+            raise MotionFormatError(path, None, "is not a regular file")
+        with gzip.open(path, "rb") if path.suffix == ".gz" else open(path, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)  # bounded: a gzip bomb stops here
+        if len(raw) > MAX_BYTES:
+            raise MotionFormatError(path, None, f"more than {MAX_BYTES >> 30} GiB of text: not a BVH take")
     except FileNotFoundError:
         raise MotionFormatError(path, None, "file not found") from None
     except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as e:
@@ -184,8 +190,8 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
         raise MotionFormatError(path, i + 2, "Frame Time: is not a number") from None
     if n_frames <= 0:
         raise MotionFormatError(path, i + 1, f"zero frames (Frames: {n_frames})")
-    if not frame_time > 0:
-        raise MotionFormatError(path, i + 2, f"Frame Time must be positive, got {frame_time}")
+    if not 1e-5 <= frame_time <= 10.0:  # 100 kHz to one frame every 10 s: anything else is no take's
+        raise MotionFormatError(path, i + 2, f"Frame Time must be from 1e-05 to 10 seconds, got {frame_time}")
     start = i + 2
     body = [ln for ln in lines[start : start + n_frames]]
     try:

@@ -59,7 +59,10 @@ def error_text(exc, path: str | None = None) -> str:
     """The telling part of a ``Tf.ErrorException``: of the errors it carries, the first
     that is not the closing "Failed to open layer", preferring one that gives a line in
     ``path`` (``line 5:5: invalid value for field ...``), as one short clause."""
-    raw = str(exc).strip()
+    try:
+        raw = str(exc).strip()
+    except UnicodeDecodeError:  # usd-core's message quotes bytes of the file that are not UTF-8
+        return "it holds bytes that are not UTF-8 text"
     found = [_one_line(m) for m in _ERROR.findall(raw)] or [
         _one_line(ln) for ln in raw.splitlines() if ln.strip()
     ]

@@ -87,6 +87,10 @@ def open_stage(path: str | Path):
         raise ShotError(path, "file not found")
     if not Path(path).is_file():
         raise ShotError(path, "not a file")
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:  # usd-core takes UTF-8 paths only (raising deep inside it)
+        raise ShotError(path, "its path is not UTF-8 text, which USD cannot open; rename it") from None
     with usd_diagnostics(path):
         try:
             stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
@@ -243,7 +247,18 @@ def _key_override(shot_path: str, anim_prim, anim_path: str) -> np.ndarray | Non
     kt = anim_prim.GetAttribute(tokens.KEY_TIMES)
     if not (kt and kt.HasAuthoredValue()):
         return None
-    override = np.array(kt.Get(), np.float64)
+    if kt.GetNumTimeSamples():
+        raise ShotError(
+            shot_path, "tween:keyTimes is time-sampled; it is one list of time codes (double[])", anim_path
+        )
+    try:
+        override = np.array(kt.Get(), np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ShotError(
+            shot_path,
+            f"tween:keyTimes is {kt.GetTypeName()}; it is a list of time codes (double[])",
+            anim_path,
+        ) from None
     if not np.isfinite(override).all():
         raise ShotError(shot_path, "tween:keyTimes holds NaN or infinite time codes", anim_path)
     return override
@@ -405,10 +420,19 @@ def _read_shot(path: str) -> Shot:
     tcps = _check_rate(path, stage)
     if stage.HasAuthoredTimeCodeRange():
         _check_span(path, stage.GetStartTimeCode(), stage.GetEndTimeCode(), "the stage range")
-    chars = [
-        _character(path, stage, b.skeleton, b.query, b.query.GetAnimQuery())
-        for b in bound_skeletons(stage, path)
-    ]
+    bound = bound_skeletons(stage, path)
+    for b in bound:
+        anim = b.query.GetAnimQuery().GetPrim()
+        if anim.IsInPrototype():  # a fill's overs there would land on a prototype no layer may name
+            inst = b.skeleton.GetPrim()
+            while inst and not inst.IsInstance():
+                inst = inst.GetParent()
+            where = inst.GetPath() if inst else "its instance"
+            raise ShotError(
+                path, f"its animation is inside an instanced prim; set instanceable = false on {where} to fill it",
+                str(b.skeleton.GetPath()),
+            )  # fmt: skip
+    chars = [_character(path, stage, b.skeleton, b.query, b.query.GetAnimQuery()) for b in bound]
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
     up = str(UsdGeom.GetStageUpAxis(stage))

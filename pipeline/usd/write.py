@@ -361,14 +361,21 @@ def _rel(target: Path, base_dir: Path) -> str:
 
 def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
-    from pxr import Sdf, UsdUtils
+    from pxr import Sdf, Tf, UsdUtils
+
+    from pipeline.usd.diagnostics import error_text
 
     tmp = files.temp_path(review)
     if existing:
-        layer = Sdf.Layer.FindOrOpen(str(review))
-        if layer is None:
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(review))
+            text = Sdf.Layer.CreateAnonymous(review.suffix) if layer is not None else None
+        except Tf.ErrorException as e:  # not a USD layer, or a format that cannot be edited (.usdz)
+            raise TweenError(
+                f"--review-layer {review}: cannot open as a USD layer: {error_text(e)}"
+            ) from None
+        if layer is None or text is None:
             raise ShotError(shot, f"review layer {review} cannot be opened")
-        text = Sdf.Layer.CreateAnonymous(review.suffix)
         text.TransferContent(layer)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))

@@ -1,0 +1,177 @@
+"""Odd and hostile inputs found by generating them (a fuzzing session): each is one line on
+stderr naming the file or option, exit 2, nothing written, the input untouched."""
+
+from __future__ import annotations
+
+import gzip
+import os
+import sys
+from pathlib import Path
+
+import pytest
+from usd_fixtures import ANIM, BANDAI_CLIP
+
+from pipeline.cli import main
+from pipeline.errors import MotionFormatError
+from pipeline.motion import bvh
+
+SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
+
+
+def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
+    """The `tween` entry point in this process: (exit status, stderr)."""
+    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
+    with pytest.raises(SystemExit) as e:
+        main()
+    return e.value.code or 0, capsys.readouterr().err
+
+
+def _one_error(rc: int, err: str, *names: str) -> None:
+    """Exit 2, one error line (the last; progress lines before it are the fill's own), no traceback."""
+    assert rc == 2, err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert all(ln.startswith("tween: ") for ln in lines), err
+    errors = [ln for ln in lines if ln.startswith("tween: error: ")]
+    assert len(errors) == 1 and errors[0] == lines[-1], err
+    for n in names:
+        assert n in errors[0], (n, err)
+
+
+@pytest.fixture
+def shot(tmp_path):
+    out = tmp_path / "sh010.usda"
+    out.write_bytes(SHOT.read_bytes())
+    return out
+
+
+def _anim_path(shot: Path) -> str:
+    from pxr import Usd, UsdSkel
+
+    stage = Usd.Stage.Open(str(shot))
+    return next(str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdSkel.Animation))
+
+
+def test_a_shot_path_that_is_not_utf8_is_one_line(shot, monkeypatch, capsys):
+    if sys.platform == "darwin":  # APFS refuses such names itself
+        pytest.skip("the file system refuses non-UTF-8 names")
+    odd = Path(os.fsdecode(bytes(shot.parent) + b"/sh\xffot.usda"))
+    odd.write_bytes(shot.read_bytes())
+    rc, err = tween(monkeypatch, capsys, "fill-local", odd, "--out-dir", shot.parent / "out")
+    _one_error(rc, err, "not UTF-8")
+    assert not (shot.parent / "out").exists()
+    rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, shot.parent / "o\udcff.usda")
+    _one_error(rc, err, "not UTF-8")
+
+
+def test_bytes_that_are_not_utf8_inside_a_usda_are_one_line(shot, monkeypatch, capsys):
+    text = shot.read_bytes()
+    name = _anim_path(shot).rsplit("/", 1)[-1].encode()
+    shot.write_bytes(text.replace(b'"' + name + b'"', b'"' + name[:2] + b"\xff\xfe" + name[2:] + b'"', 1))
+    before = shot.read_bytes()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot)
+    _one_error(rc, err, str(shot), "not UTF-8")
+    assert shot.read_bytes() == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+
+
+@pytest.mark.parametrize("how", ["string[]", "time-sampled"])
+def test_key_times_of_the_wrong_kind_are_one_line_naming_them(shot, how, monkeypatch, capsys):
+    from pxr import Sdf, Usd, Vt
+
+    stage = Usd.Stage.Open(str(shot))
+    anim = stage.GetPrimAtPath(_anim_path(shot))
+    if how == "string[]":
+        anim.CreateAttribute("tween:keyTimes", Sdf.ValueTypeNames.StringArray).Set(Vt.StringArray(["a", "b"]))
+    else:
+        anim.CreateAttribute("tween:keyTimes", Sdf.ValueTypeNames.DoubleArray).Set(
+            Vt.DoubleArray([1001.0]), 1001
+        )
+    stage.Save()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot)
+    _one_error(rc, err, str(shot), "tween:keyTimes", how)
+
+
+@pytest.mark.parametrize("kind", ["text", "garbage.usda", "usdz"])
+def test_a_review_layer_that_is_no_usd_layer_is_one_line(shot, kind, monkeypatch, capsys):
+    review = shot.parent / {"text": "r.txt", "garbage.usda": "g.usda", "usdz": "r.usdz"}[kind]
+    review.write_bytes(os.urandom(512) if kind != "text" else b"hello\n")
+    before = sorted(p.name for p in shot.parent.iterdir())
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--review-layer", review)
+    _one_error(rc, err, str(review))
+    assert sorted(p.name for p in shot.parent.iterdir()) == before  # no fill layer left
+
+
+def test_convert_never_writes_over_its_input(tmp_path, monkeypatch, capsys):
+    clip = tmp_path / "clip.usda"  # a BVH named like a shot
+    clip.write_bytes(gzip.decompress(BANDAI_CLIP.read_bytes()))
+    before = clip.read_bytes()
+    rc, err = tween(monkeypatch, capsys, "convert", clip, clip, "--force")
+    _one_error(rc, err, "is the BVH file being converted")
+    assert clip.read_bytes() == before
+
+
+@pytest.mark.parametrize("frame_time", ["inf", "1e-12", "1e12"])
+def test_a_frame_time_no_take_has_is_refused(tmp_path, frame_time, monkeypatch, capsys):
+    text = gzip.decompress(BANDAI_CLIP.read_bytes()).decode()
+    lines = [f"Frame Time: {frame_time}" if ln.startswith("Frame Time:") else ln for ln in text.splitlines()]
+    src = tmp_path / "odd.bvh"
+    src.write_text("\n".join(lines) + "\n")
+    rc, err = tween(monkeypatch, capsys, "convert", src, tmp_path / "odd.usda")
+    _one_error(rc, err, str(src), "Frame Time")
+    assert not (tmp_path / "odd.usda").exists()
+
+
+def test_a_start_where_frames_would_collapse_is_refused(tmp_path, monkeypatch, capsys):
+    rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, tmp_path / "s.usda", "--start", "1e300")
+    _one_error(rc, err, "--start")
+    assert not (tmp_path / "s.usda").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_convert_refuses_a_fifo_instead_of_waiting_on_it(tmp_path, monkeypatch, capsys):
+    fifo = tmp_path / "f.bvh"
+    os.mkfifo(fifo)
+    rc, err = tween(monkeypatch, capsys, "convert", fifo, tmp_path / "f.usda")
+    _one_error(rc, err, str(fifo), "not a regular file")
+
+
+def test_a_gzip_bomb_stops_at_the_size_cap(tmp_path, monkeypatch):
+    bomb = tmp_path / "bomb.bvh.gz"
+    with gzip.open(bomb, "wb") as f:
+        f.write(b"HIERARCHY\n" + b"x" * 300_000)
+    monkeypatch.setattr(bvh, "MAX_BYTES", 100_000)
+    with pytest.raises(MotionFormatError, match="of text: not a BVH take"):
+        bvh.read_bvh(bomb)
+
+
+def test_an_instanced_character_is_one_line_naming_the_instance(tmp_path, monkeypatch, capsys):
+    from pxr import Usd, UsdGeom
+
+    char = tmp_path / "char.usda"
+    char.write_bytes(SHOT.read_bytes())
+    src = Usd.Stage.Open(str(char))
+    top = src.GetDefaultPrim() or next(iter(src.GetPseudoRoot().GetChildren()))
+    walker = next(c for c in top.GetChildren() if any(True for _ in Usd.PrimRange(c)))
+    shot = tmp_path / "shot.usda"
+    stage = Usd.Stage.CreateNew(str(shot))
+    for get, put in ((src.GetTimeCodesPerSecond, stage.SetTimeCodesPerSecond),
+                     (src.GetFramesPerSecond, stage.SetFramesPerSecond),
+                     (src.GetStartTimeCode, stage.SetStartTimeCode), (src.GetEndTimeCode, stage.SetEndTimeCode)):  # fmt: skip
+        put(get())
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.GetStageUpAxis(src))
+    UsdGeom.SetStageMetersPerUnit(stage, UsdGeom.GetStageMetersPerUnit(src))
+    stage.SetDefaultPrim(stage.DefinePrim(str(top.GetPath())))
+    inst = stage.DefinePrim(str(walker.GetPath()))
+    inst.GetReferences().AddReference("./char.usda", walker.GetPath())
+    inst.SetInstanceable(True)
+    stage.Save()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot)
+    _one_error(rc, err, str(shot), "instanceable = false", str(walker.GetPath()))
+    assert "__Prototype" not in err and sorted(p.name for p in tmp_path.iterdir()) == [
+        "char.usda",
+        "shot.usda",
+    ]
+
+
+def test_the_fixture_animation_is_where_the_tests_look():
+    assert ANIM.endswith("/Anim")  # the examples' shot names its animation Anim too
+    assert _anim_path(SHOT).endswith("/Anim")
