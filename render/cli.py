@@ -67,6 +67,8 @@ def _latest_fill(shot: str, fills: str | None) -> str:
     name = Path(shot).name
     if ".review.v" in name or ".tween.v" in name or not Path(shot).is_file():
         return shot
+    if fills is not None and not Path(fills).is_dir():  # a typo would render the unfilled shot
+        raise TweenError(f"--fills {fills}: no such folder")
     found = latest_review(shot, fills)
     if found is None:
         return shot

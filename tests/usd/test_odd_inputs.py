@@ -175,3 +175,11 @@ def test_an_instanced_character_is_one_line_naming_the_instance(tmp_path, monkey
 def test_the_fixture_animation_is_where_the_tests_look():
     assert ANIM.endswith("/Anim")  # the examples' shot names its animation Anim too
     assert _anim_path(SHOT).endswith("/Anim")
+
+
+def test_review_refuses_a_fills_folder_that_is_not_there(shot, monkeypatch, capsys):
+    rc, err = tween(
+        monkeypatch, capsys, "review", shot, "--fills", shot.parent / "no-such-folder", "--no-frames"
+    )
+    _one_error(rc, err, "--fills", "no such folder")
+    assert sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
