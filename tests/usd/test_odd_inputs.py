@@ -183,3 +183,17 @@ def test_review_refuses_a_fills_folder_that_is_not_there(shot, monkeypatch, caps
     )
     _one_error(rc, err, "--fills", "no such folder")
     assert sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+
+
+def test_an_animation_naming_a_joint_twice_is_one_line(shot, monkeypatch, capsys):
+    from pxr import Usd, UsdSkel, Vt
+
+    stage = Usd.Stage.Open(str(shot))
+    anim = UsdSkel.Animation(stage.GetPrimAtPath(_anim_path(shot)))
+    joints = list(anim.GetJointsAttr().Get())
+    joints[7] = joints[6]
+    anim.GetJointsAttr().Set(Vt.TokenArray(joints))
+    stage.Save()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot)
+    _one_error(rc, err, str(shot), "twice", joints[6].rsplit("/", 1)[-1])
+    assert sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
