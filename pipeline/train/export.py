@@ -157,19 +157,25 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
 def data_terms(config: dict) -> dict:
     """model.json's ``licence`` and ``sources`` (models/README.md) for a run on a corpus: each
     source's licence and hours, and the terms of the model it continued (``--init``), which a
-    fine-tune inherits. Empty for other runs (their card states the terms)."""
-    if not config.get("corpus"):
-        return {}
-    from pipeline.train.corpus import prepared
+    fine-tune inherits; for a run on a studio's takes (``--data``), those takes (their terms
+    are the studio's: not stated) and the inherited terms. Empty for other runs (their card
+    states the terms)."""
+    if config.get("corpus"):
+        from pipeline.train.corpus import prepared
 
-    try:
-        _, _, manifest = prepared(config["corpus"], progress=False)
-    except TweenError as e:  # a host without the corpus's data: the card must say it
-        print(f"tween: warning: no licence recorded in model.json ({e})", file=sys.stderr)
+        try:
+            _, _, manifest = prepared(config["corpus"], progress=False)
+        except TweenError as e:  # a host without the corpus's data: the card must say it
+            print(f"tween: warning: no licence recorded in model.json ({e})", file=sys.stderr)
+            return {}
+        sources = [{"name": f"{manifest['name']}/{s['name']} ({s['path']})", "licence": s["licence"],
+                    "frames": s["frames"], "fps": manifest["fps"], "hours": s["hours"], "weight": s["weight"],
+                    "use": "trained"} for s in manifest["sources"]]  # fmt: skip
+    elif config.get("data"):  # a fine-tune must not drop the terms of the model it continued
+        sources = [{"name": f"takes of {config['data']}", "licence": "not stated (the studio's own takes)",
+                    "use": "trained"}]  # fmt: skip
+    else:
         return {}
-    sources = [{"name": f"{manifest['name']}/{s['name']} ({s['path']})", "licence": s["licence"],
-                "frames": s["frames"], "fps": manifest["fps"], "hours": s["hours"], "weight": s["weight"],
-                "use": "trained"} for s in manifest["sources"]]  # fmt: skip
     init = Path(config["init"]) if config.get("init") else None
     folder = init if init is None or init.is_dir() else init.parent.parent  # <model>/torch/generator.pt
     if init is not None:

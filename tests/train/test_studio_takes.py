@@ -102,6 +102,9 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
     assert res.exit_code == 0, res.output
     meta = json.loads((tmp_path / "model" / "model.json").read_text())
     assert meta["familiar_credit"] is False
+    # It keeps the terms of the model it continued (CC BY-NC 4.0) beside the studio's takes.
+    assert "CC BY-NC 4.0" in meta["licence"] and "not stated" in meta["licence"]
+    assert [s["use"] for s in meta["sources"]] == ["trained", "inherited: initialised from models/default"]
     # A studio that measured its fine-tune ahead of the spline gives it the credit at export.
     res = CliRunner().invoke(app, ["export", str(out), "--out", str(tmp_path / "m2"), "--familiar-credit"],
                              catch_exceptions=False)  # fmt: skip
