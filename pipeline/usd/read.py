@@ -239,7 +239,8 @@ def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_
         raise ShotError(
             shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
         )
-    twice = next((t for i, t in enumerate(anim_joints) if t in anim_joints[:i]), None)
+    seen: set[str] = set()
+    twice = next((t for t in anim_joints if t in seen or seen.add(t)), None)  # the first repeat
     if twice is not None:  # UsdSkel would animate it from one entry and leave another joint still
         raise ShotError(shot_path, f"animation lists joint {twice!r} twice", anim_path)
     return anim_joints

@@ -369,13 +369,13 @@ def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) 
     if existing:
         try:
             layer = Sdf.Layer.FindOrOpen(str(review))
-            text = Sdf.Layer.CreateAnonymous(review.suffix) if layer is not None else None
+            if layer is None:
+                raise ShotError(shot, f"review layer {review} cannot be opened")
+            text = Sdf.Layer.CreateAnonymous(review.suffix)
         except Tf.ErrorException as e:  # not a USD layer, or a format that cannot be edited (.usdz)
             raise TweenError(
                 f"--review-layer {review}: cannot open as a USD layer: {error_text(e)}"
             ) from None
-        if layer is None or text is None:
-            raise ShotError(shot, f"review layer {review} cannot be opened")
         text.TransferContent(layer)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))
