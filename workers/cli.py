@@ -96,12 +96,16 @@ class _Interrupted(KeyboardInterrupt):
 class _Interrupts:
     """SIGINT and SIGTERM handlers for ``tween fill``: they raise :class:`_Interrupted` while
     ``armed`` (waiting), and are only counted while jobs are being sent (a job half sent is
-    never left running), or while the cancel settles (a second one stops the waiting)."""
+    never left running), or while the cancel settles (a second one stops the waiting).
+
+    An exception raised from a handler is lost when the signal lands inside a garbage
+    collector's callback (Python prints "Exception ignored" and goes on), so the handler also
+    leaves ``pending`` set, and :meth:`check` (called each poll) raises it again."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self):
-        self.count, self.armed, self.old = 0, True, {}
+        self.count, self.armed, self.pending, self.old = 0, True, False, {}
 
     def __enter__(self) -> _Interrupts:
         for sig in self.SIGNALS:
@@ -115,7 +119,12 @@ class _Interrupts:
     def _handler(self, signum, frame):
         self.count += 1
         if self.armed:
-            self.armed = False
+            self.armed, self.pending = False, True
+            raise _Interrupted()
+
+    def check(self) -> None:
+        """Raises the interrupt whose handler's exception was swallowed."""
+        if self.pending:
             raise _Interrupted()
 
 
@@ -168,17 +177,23 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> 
     have stopped and undone their work, and returns 130."""
     jobs = _jobs()
 
+    def poll() -> None:
+        intr.check()
+        if alive is not None:
+            alive()
+
     try:
         intr.armed = True
         if intr.count:  # interrupted while the jobs were being sent
             intr.armed = False
             raise _Interrupted()
-        states = jobs.wait(ids, progress=progress, alive=alive)
+        states = jobs.wait(ids, progress=progress, alive=poll)
         intr.armed = False
+        intr.check()  # it landed in the last poll, where nothing raised it
     except BaseException as e:
         if not _from_interrupt(e):
             raise
-        intr.armed = False
+        intr.armed = intr.pending = False
         print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
         jobs.cancel(ids, why="tween fill interrupted")
         states = _settle(ids, intr, alive)

@@ -314,3 +314,41 @@ def test_an_interrupt_a_library_turns_into_its_own_error_still_cancels(monkeypat
     with pytest.raises(AssertionError, match="a bug"):
         fill_cli._run_jobs(["j2"], fill_cli._Interrupts(), progress=False)
     assert len(calls) == 1
+
+
+def test_an_interrupt_a_garbage_collector_swallowed_still_cancels(monkeypatch, capsys):
+    """A signal landing inside a garbage collector's callback has its exception printed as
+    "Exception ignored" and dropped (CI saw this: the fill ran on to exit 0). The next poll
+    raises it again: the jobs are cancelled, 130."""
+    calls, polls = [], []
+
+    def wait(ids, progress, alive):
+        try:  # what the collector does with an exception from its callback
+            intr._handler(signal.SIGINT, None)
+        except KeyboardInterrupt:
+            pass
+        for _ in range(3):
+            polls.append(1)
+            alive()
+        return []
+
+    jobs = SimpleNamespace(wait=wait, cancel=lambda ids, why: calls.append(tuple(ids)))
+    monkeypatch.setattr(fill_cli, "_jobs", lambda: jobs)
+    monkeypatch.setattr(fill_cli, "_settle", lambda ids, intr, alive: [])
+    intr = fill_cli._Interrupts()
+    assert fill_cli._run_jobs(["j1"], intr, progress=False) == fill_cli.EXIT_CANCELLED
+    assert calls == [("j1",)] and len(polls) == 1 and not intr.pending
+    assert "interrupted: cancelling 1 job(s) (j1)" in capsys.readouterr().err
+
+    # Swallowed in the last poll, after which wait returned: still the interrupt.
+    def wait_then_return(ids, progress, alive):
+        try:
+            intr._handler(signal.SIGTERM, None)
+        except KeyboardInterrupt:
+            pass
+        return []
+
+    jobs.wait = wait_then_return
+    intr = fill_cli._Interrupts()
+    assert fill_cli._run_jobs(["j2"], intr, progress=False) == fill_cli.EXIT_CANCELLED
+    assert calls[-1] == ("j2",)
