@@ -59,12 +59,18 @@ _OPTIONAL = {
     "library": str,  # a motion library shipped beside the network (shipped_library)
     "beside": list,  # model folders inside it, probed beside the network after the library (beside_models)
     "familiar_credit": bool,  # false: the trusted fill's probes alone decide (Capabilities)
+    "format": int,
 }
+#: The model folder layout this release reads (model.json's "format"; one without is format 1).
+FORMAT = 1
 #: Settings with one value left: the one every shipped model has (the code for any other went
 #: with the experiments that tried it; models/default/HISTORY.md has what they gave). A model
 #: may leave them out (``pad``: models before v4's card held no pad layout, and ran with the
 #: last frame held: none of them ships); any other value is refused. ``generator``'s are the
 #: network's inputs and output (pipeline.networks.generator.GeneratorConfig drops them).
+#: The most frames ``pad_tail`` and ``min_window`` may ask for: a fill's window grows by them,
+#: and its memory with it (10^8 asked 31 GiB of every fill).
+PAD_MAX = 1024
 FIXED = {"pad": "hold-key", "root": "generator", "mirror_average": False}
 RETIRED = {"residual": True, "tta": True, "noise_schedule": False, "key_mask": False,
            "full_timing": False, "rotation": "6d"}  # fmt: skip
@@ -82,6 +88,7 @@ def without_retired(generator: dict, where) -> dict:
 
 
 _TYPE_NAMES = {
+    list: "an array",
     str: "a string",
     int: "an integer",
     bool: "true or false",
@@ -130,14 +137,18 @@ def read_model_json(folder: str | Path) -> dict:
         if key in meta and not meta[key] > 0:
             raise ModelFolderError(f"{path}: {key!r} must be positive, not {meta[key]!r}")
     for key in ("pad_tail", "min_window"):
-        if meta.get(key, 0) < 0:
-            raise ModelFolderError(f"{path}: {key!r} must be 0 or more, not {meta[key]!r}")
+        if not 0 <= meta.get(key, 0) <= PAD_MAX:
+            raise ModelFolderError(f"{path}: {key!r} must be 0 to {PAD_MAX} frames, not {meta[key]!r}")
     files = meta["files"]
     if not isinstance(files.get("generator"), str) or not files["generator"]:
         raise ModelFolderError(f"{path}: 'files' must name the generator's ONNX file ('generator': \"...\")")
     for role, name in files.items():
         if not isinstance(name, str) or not name:
             raise ModelFolderError(f"{path}: files.{role} must be a file name, not {_json_type(name)}")
+    if meta.get("format", FORMAT) != FORMAT:
+        raise ModelFolderError(
+            f"{path}: 'format' is {meta['format']}; this release reads format {FORMAT} model folders"
+        )
     for key, want in FIXED.items():
         if meta.get(key, want) != want:
             raise ModelFolderError(f"{path}: {key!r} is {meta[key]!r}; this release runs {want!r} only")

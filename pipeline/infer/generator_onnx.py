@@ -154,12 +154,27 @@ class OnnxInbetweener:
                 raise ModelFolderError(
                     f"{path}: not this model's {which} (inputs {names}, expected {want!r})"
                 )
+            if which == "generator":
+                self._check_channels(path, sess)
             graph = self.skip_adapter and which == "generator" and self._adapter_free_graph()
             if graph:  # fills without partial keys skip the adapter (features.adapter_free_graph)
                 width = n_input_channels(len(self.skeleton))
                 sess = AdapterFreeSession(sess, graph, width, ort_session)
             self._sessions[which] = sess
         return self._sessions[which]
+
+    def _check_channels(self, path, sess) -> None:
+        """ModelFolderError unless the generator takes the feature channels model.json's
+        ``generator`` config gives (a config left out or edited would fail inside onnxruntime
+        on the first fill)."""
+        gcfg = self.meta.get("generator", {})
+        want = n_input_channels(len(self.skeleton), **feature_options(gcfg))
+        shape = next(i.shape for i in sess.get_inputs() if i.name == "features")
+        if len(shape) == 3 and isinstance(shape[1], int) and shape[1] != want:
+            given = "no 'generator' config" if "generator" not in self.meta else "its 'generator' config"
+            raise ModelFolderError(
+                f"{path}: takes {shape[1]} feature channels, but model.json has {given}, which gives {want}"
+            )
 
     def raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """Network output for a batch: (rot, root, contact prob) in the input's frame,

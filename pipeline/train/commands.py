@@ -33,13 +33,16 @@ def export(
     ),
 ):
     """Export both networks to ONNX and check onnxruntime against torch."""
-    from pipeline.infer.folder import FIXED
+    from pipeline.infer.folder import FIXED, PAD_MAX
     from pipeline.train.export import export as do_export
     from pipeline.train.export import verify
 
     for flag, value in (("--root", root), ("--pad", pad)):
         if value != FIXED[flag[2:]]:
             raise TweenError(f"{flag} {value!r}: this release fills with {FIXED[flag[2:]]!r} only")
+    for flag, value in (("--pad-tail", pad_tail), ("--min-window", min_window)):
+        if not 0 <= value <= PAD_MAX:
+            raise TweenError(f"{flag} {value}: must be 0 to {PAD_MAX} frames (the fill's window grows by it)")
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written

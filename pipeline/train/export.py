@@ -16,6 +16,7 @@ from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
+from pipeline.infer.folder import FORMAT
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.train.generator_training import read_checkpoint
@@ -93,7 +94,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     meta = {
         "kind": "generator-onnx",  # the family pipeline.infer.api.load_model loads it with
         "name": name,
-        "format": 1,
+        "format": FORMAT,
         "fps": 30.0,
         "skeleton": "bandai_skeleton.json",
         "multiple": gcfg.multiple,

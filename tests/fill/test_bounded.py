@@ -321,8 +321,11 @@ BROKEN = {
     "multiple zero": (_json(multiple=0), "model.json", "'multiple' must be positive"),
     "generator file a number": (_json(files={"generator": 3}), "model.json", "'files' must name the generator"),
     "feet_anchor a string": (_json(feet_anchor="yes"), "model.json", "'feet_anchor' must be true or false"),
-    "min_window negative": (_json(min_window=-4), "model.json", "'min_window' must be 0 or more"),
+    "min_window negative": (_json(min_window=-4), "model.json", "'min_window' must be 0 to 1024 frames"),
+    "pad_tail huge": (_json(pad_tail=10**8), "model.json", "'pad_tail' must be 0 to 1024 frames, not 100000000"),
     "generator config a list": (_json(generator=[1]), "model.json", "'generator' must be an object"),
+    "beside a string": (_json(beside="delta"), "model.json", "'beside' must be an array, not a string"),
+    "format of a later release": (_json(format=9), "model.json", "'format' is 9; this release reads format 1"),
     "pose bank missing": (_remove("pose_bank.npz"), "pose_bank.npz", "the pose bank model.json names is missing"),
     "pose bank empty": (_bytes("pose_bank.npz", b""), "pose_bank.npz", "not a pose bank"),
     "pose bank truncated": (_bytes("pose_bank.npz", lambda p: p.read_bytes()[: p.stat().st_size // 2]), "pose_bank.npz", "not a pose bank"),
@@ -379,6 +382,24 @@ def test_the_cli_prints_a_broken_model_in_one_line_with_status_2(tmp_path):
         f"tween: error: {folder / 'generator.onnx'}: truncated or not an ONNX model ({size} bytes)"
     ]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "config, says",
+    [
+        (None, "no 'generator' config, which gives 300"),
+        ({"key_adapter": False}, "its 'generator' config, which gives 300"),
+    ],
+)
+def test_a_generator_config_that_does_not_fit_the_network_is_named(tmp_path, config, says):
+    """model.json's generator config left out, or edited so the features it gives do not fit
+    the ONNX file: one line naming the file at the session's start, not onnxruntime's error."""
+    folder = _broken_folder(tmp_path, _json(generator=config))
+    with pytest.raises(ModelFolderError) as ei:
+        OnnxInbetweener(folder).fill(tiled(40), np.array([0, 20, 39]))
+    assert (
+        str(ei.value) == f"{folder / 'generator.onnx'}: takes 453 feature channels, but model.json has {says}"
+    )
 
 
 def test_an_onnx_file_of_another_network_is_named_when_its_session_starts(tmp_path):

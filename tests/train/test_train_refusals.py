@@ -126,6 +126,12 @@ def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path
     assert "holds a finished model (model.json); give --force to replace it" in line
     line = refused(["export", tmp_path / "nowhere", "--out", tmp_path / "new"], capsys, tmp_path)
     assert "no generator.pt here" in line
+    # A padding no fill could afford (10^8 frames asked 31 GiB of each), or below zero.
+    for flag, value in (("--pad-tail", 100_000_000), ("--min-window", -1), ("--pad-tail", 1025)):
+        line = refused(["export", run, "--out", model_folder, "--force", flag, value], capsys, tmp_path)
+        assert (
+            line == f"tween: error: {flag} {value}: must be 0 to 1024 frames (the fill's window grows by it)"
+        )
     assert _digest(model_folder) == before
     _ok(["export", run, "--out", model_folder, "--force", "--name", "replaced"], capsys)
     assert '"name": "replaced"' in (model_folder / "model.json").read_text()
