@@ -155,6 +155,7 @@ def open_library(folder: str | Path) -> Library:
     frames = manifest.get("frames")
     if not isinstance(frames, int) or frames < 0 or not isinstance(manifest.get("takes"), list):
         raise LibraryError(f"{path}: manifest without a frame count or takes")
+    _check_manifest(path, manifest)
     for name, (dtype, shape) in ARRAYS.items():
         need = frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
         f = folder / f"{name}.bin"
@@ -165,6 +166,48 @@ def open_library(folder: str | Path) -> Library:
         if have < need:
             raise LibraryError(f"{f}: {have} bytes, the manifest's {frames} frames need {need}")
     return Library(folder, manifest)
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_manifest(path: Path, m: dict) -> None:
+    """LibraryError naming ``path`` unless the manifest's values are of the kinds the search
+    and the fill read (a hand-edited or damaged one would fail inside them, or fill at a
+    frame rate of NaN), and its takes tile its frames."""
+
+    def bad(what: str):
+        raise LibraryError(f"{path}: {what} (the manifest is damaged; build the library again)")
+
+    fps = m.get("fps")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e4:
+        bad(f"'fps' is {fps!r}, not a frame rate")
+    if not isinstance(m.get("hash"), str) or not m["hash"]:
+        bad(f"'hash' is {m.get('hash')!r}, not a string")
+    hours = m.get("hours")
+    if isinstance(hours, bool) or not isinstance(hours, (int, float)) or not hours >= 0:
+        bad(f"'hours' is {hours!r}, not a number of hours")
+    for key in ("name", "licence"):
+        if m.get(key) is not None and not isinstance(m[key], str):
+            bad(f"'{key}' is {m[key]!r}, not a string")
+    skeleton = m.get("skeleton", [])
+    if not isinstance(skeleton, list) or not all(isinstance(n, str) for n in skeleton):
+        bad("'skeleton' is not a list of joint names")
+    start = 0
+    for i, t in enumerate(m["takes"]):
+        if not isinstance(t, dict):
+            bad(f"take {i} is not an object")
+        for key in ("name", "file"):
+            if not isinstance(t.get(key), str) or not t[key]:
+                bad(f"take {i} has no {key!r}")
+        if not _is_int(t.get("start")) or not _is_int(t.get("frames")) or t["frames"] < 1:
+            bad(f"take {i} ({t['name']}) has no whole 'start' and 'frames'")
+        if t["start"] != start:
+            bad(f"take {i} ({t['name']}) starts at frame {t['start']}, after {start} frames of takes")
+        start += t["frames"]
+    if start != m["frames"]:
+        bad(f"its takes hold {start} frames, its 'frames' says {m['frames']}")
 
 
 def empty_manifest(name: str, licence: str | None, skeleton_names, fps: float) -> dict:

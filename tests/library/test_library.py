@@ -10,6 +10,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -96,6 +97,25 @@ def test_an_existing_library_is_not_overwritten_without_add(library, takes):
     assert (library / MANIFEST).read_bytes() == before
 
 
+def _edit(**change):
+    def damage(folder):
+        m = json.loads((folder / MANIFEST).read_text())
+        m.update(change)
+        (folder / MANIFEST).write_text(json.dumps(m))
+
+    return damage
+
+
+def _edit_take(**change):
+    def damage(folder):
+        m = json.loads((folder / MANIFEST).read_text())
+        m["takes"][0].update(change)
+        m["takes"][0] = {k: v for k, v in m["takes"][0].items() if v is not None}
+        (folder / MANIFEST).write_text(json.dumps(m))
+
+    return damage
+
+
 @pytest.mark.parametrize(
     "damage, message",
     [
@@ -104,6 +124,17 @@ def test_an_existing_library_is_not_overwritten_without_add(library, takes):
         (lambda d: (d / MANIFEST).write_text(json.dumps({"kind": "something"})), "not a usd-tween library"),
         (lambda d: (d / "features.bin").write_bytes(b"\0" * 8), "features.bin"),
         (lambda d: (d / "roots.bin").unlink(), "roots.bin: missing"),
+        # A damaged or hand-edited manifest: named before the search or the fill reads it.
+        (_edit(fps="thirty"), "'fps' is 'thirty', not a frame rate"),
+        (_edit(fps=0), "'fps' is 0, not a frame rate"),
+        (_edit(fps=float("nan")), "'fps' is nan, not a frame rate"),
+        (_edit(hash=5), "'hash' is 5, not a string"),
+        (_edit(licence=7), "'licence' is 7, not a string"),
+        (_edit(takes=[]), "its takes hold 0 frames, its 'frames' says"),
+        (_edit_take(name=None), "take 0 has no 'name'"),
+        (_edit_take(frames=10**9), "after 1000000000 frames of takes"),
+        (_edit_take(frames="many"), "has no whole 'start' and 'frames'"),
+        (_edit_take(start=3), "starts at frame 3, after 0 frames of takes"),
     ],
 )
 def test_a_broken_library_is_one_line_naming_it(library, tmp_path, damage, message):
@@ -332,3 +363,25 @@ def test_the_network_fills_a_library_character_only_when_its_probes_beat_the_lib
     t = trust.TrustedInbetweener(inb, alternatives=(net,))
     d = t.decide(None, np.array([0, 10, 20]))
     assert d.source == chosen and t.model.name == chosen
+
+
+def test_a_damaged_manifest_is_one_line_from_every_command(library, takes, tmp_path, capsys):
+    """`library info`, `library build --add` and `fill-local --library` on a manifest whose
+    frame rate is NaN (before: internal errors, and the fill went on at NaN fps)."""
+    from cli_contract import refused
+
+    copy = tmp_path / "lib"
+    shutil.copytree(library, copy)
+    _edit(fps=float("nan"))(copy)
+    shot = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
+    for argv in (
+        ["library", "info", copy],
+        ["library", "build", takes, "--out", copy, "--add"],
+        ["fill-local", shot, "--library", copy, "--out-dir", tmp_path / "out"],
+    ):
+        line = refused(argv, capsys, copy)
+        assert (
+            line
+            == f"tween: error: {copy / MANIFEST}: 'fps' is nan, not a frame rate (the manifest is damaged; build the library again)"
+        )
+    assert not (tmp_path / "out").exists()
