@@ -11,8 +11,11 @@ from __future__ import annotations
 import datetime
 import errno
 import os
+import signal
 import sys
+import threading
 import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -82,13 +85,33 @@ def _bug_line(e: BaseException, logs: Path | None, argv: list[str] | None = None
     )
 
 
+def _on_sigterm(signum, frame):
+    raise KeyboardInterrupt()
+
+
+@contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM (a farm's or a shell's kill) unwinds like Ctrl-C while a command runs, so that
+    what it half wrote is removed (a first library build, staged model folders) instead of the
+    process dying where it stands. Only from the main thread, where Python runs handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", log_dir: Path | None = None):
     """Runs ``app`` and exits: 0 or the command's own status, 2 for an error the user can act
     on, 1 for a bug of ours (its traceback written under ``log_dir``), 130 when interrupted."""
     try:
         # standalone_mode=False: click's usage errors come here instead of printing a usage
         # box, so that a bad option value is one line like every other bad input.
-        rc = app(args=argv, prog_name=prog, standalone_mode=False)
+        with _terminate_as_interrupt():
+            rc = app(args=argv, prog_name=prog, standalone_mode=False)
     except UsageError as e:
         if type(e).__name__ == "NoArgsIsHelpError":  # `tween` alone: its help, as before
             text = e.format_message()  # (typer's rich help is already printed, text is "")

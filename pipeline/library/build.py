@@ -22,7 +22,15 @@ from tqdm import tqdm
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.library.match_features import contacts, frame_features
-from pipeline.library.store import LibraryError, Writer, empty_manifest, is_library, open_library
+from pipeline.library.store import (
+    ARRAYS,
+    MANIFEST,
+    LibraryError,
+    Writer,
+    empty_manifest,
+    is_library,
+    open_library,
+)
 from pipeline.progress import interval
 
 FPS = 30.0
@@ -73,8 +81,26 @@ def _skipped(line: str) -> None:
     print(f"tween: skipped take: {line}", file=sys.stderr)
 
 
+def _leftovers(out: Path) -> list[Path]:
+    """What a first build killed before its manifest was written left in ``out`` (its array
+    files, a manifest being written), when ``out`` holds nothing else; else []."""
+    if not out.is_dir() or is_library(out):
+        return []
+    names = {f"{a}.bin" for a in ARRAYS}
+    found = list(out.iterdir())
+    ours = [p for p in found if p.is_file() and (p.name in names or p.name.startswith(f".{MANIFEST}."))]
+    return ours if ours and len(ours) == len(found) else []
+
+
 def _check_out(out: Path, add: bool) -> None:
-    """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it)."""
+    """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it).
+    What a killed first build left there (arrays without a manifest) is removed first."""
+    left = _leftovers(out)
+    if left:
+        print(f"tween: {out}: removing the {len(left)} file(s) a build that was stopped left (no library.json)",
+              file=sys.stderr)  # fmt: skip
+        for p in left:
+            p.unlink()
     if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
         what = "a library" if is_library(out) else "not empty"
         raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")

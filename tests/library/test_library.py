@@ -385,3 +385,51 @@ def test_a_damaged_manifest_is_one_line_from_every_command(library, takes, tmp_p
             == f"tween: error: {copy / MANIFEST}: 'fps' is nan, not a frame rate (the manifest is damaged; build the library again)"
         )
     assert not (tmp_path / "out").exists()
+
+
+def test_a_first_build_stopped_by_sigterm_leaves_nothing_and_can_be_run_again(takes, tmp_path):
+    """SIGTERM (a farm's kill) during a first build unwinds like Ctrl-C: exit 130, no folder.
+    Before, it left array files without library.json, which refused every retry."""
+    import signal
+    import time
+
+    out = tmp_path / "lib"
+    cmd = [sys.executable, "-m", "pipeline.cli", "library", "build", str(takes), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    while not (out / "rotations.bin").exists():
+        assert proc.poll() is None and time.monotonic() - t0 < 120, "the build ended before it wrote"
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert err.strip().splitlines()[-1] == "tween: interrupted"
+    assert not out.exists()
+
+
+def test_what_a_killed_first_build_left_is_removed_and_the_build_goes_on(takes, tmp_path):
+    """SIGKILL or a lost host leave array files with no manifest: the next build removes
+    them (and says so), and builds. A folder with anything else in it is still refused."""
+    out = tmp_path / "lib"
+    out.mkdir()
+    for name in ("rotations.bin", "roots.bin", ".library.json.x1.tmp"):
+        (out / name).write_bytes(b"\0" * 64)
+    res = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "library", "build", str(takes), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (
+        f"tween: {out}: removing the 3 file(s) a build that was stopped left (no library.json)" in res.stderr
+    )
+    assert open_library(out).manifest["takes"] and not (out / ".library.json.x1.tmp").exists()
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "rotations.bin").write_bytes(b"\0")
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(LibraryError, match="not empty"):
+        build(takes, other, progress=False)
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt", "rotations.bin"]
