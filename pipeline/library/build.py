@@ -61,10 +61,13 @@ def mirrored(motion):
 def _rig_of(path: Path) -> str:
     """What the take came from, for the manifest: a BVH's joint count, root and rate from its
     header (read up to MOTION, not the frames), or "USD"."""
-    if not path.name.endswith((".bvh", ".bvh.gz")):
+    from pipeline.usd.take import is_bvh
+
+    if not is_bvh(path):
         return "USD"
     joints, root, rate = 0, "", ""
-    opener = gzip.open if path.name.endswith(".gz") else open
+    with open(path, "rb") as f:
+        opener = gzip.open if f.read(2) == b"\x1f\x8b" else open
     with opener(path, "rt", encoding="utf-8", errors="replace") as f:
         for line in f:
             word = line.split()[:2]

@@ -20,6 +20,7 @@ that are not UTF-8 are read as Latin-1; joint names are kept as written
 from __future__ import annotations
 
 import gzip
+import re
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,7 +64,11 @@ def _open_text(path: Path) -> list[str]:
             raise MotionFormatError(path, None, "is a folder, not a BVH file")
         if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
             raise MotionFormatError(path, None, "is not a regular file")
-        with gzip.open(path, "rb") if path.suffix == ".gz" else open(path, "rb") as f:
+        with open(path, "rb") as f:  # gzip by its magic, not its name (.BVH.GZ, a gzipped .bvh)
+            zipped = f.read(2) == b"\x1f\x8b"
+        if path.name.lower().endswith(".gz") and not zipped:
+            raise MotionFormatError(path, None, "cannot read: named .gz, but not gzip data")
+        with gzip.open(path, "rb") if zipped else open(path, "rb") as f:
             raw = f.read(MAX_BYTES + 1)  # bounded: a gzip bomb stops here
         if len(raw) > MAX_BYTES:
             raise MotionFormatError(path, None, f"more than {MAX_BYTES >> 30} GiB of text: not a BVH take")
@@ -327,7 +332,7 @@ def read_bvh(
     offsets = _rest_offsets(path, joints, trans)
     end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
     skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
-    name = path.name.removesuffix(".gz").removesuffix(".bvh")
+    name = re.sub(r"(\.bvh)?(\.gz)?$", "", path.name, flags=re.IGNORECASE) or path.name
     return Motion(skel, rots.astype(np.float32), trans[:, 0].astype(np.float32), fps, name)
 
 

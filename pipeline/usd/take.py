@@ -9,6 +9,8 @@ source of a motion DNA (``tween fill --dna``), of a studio's own clips for fine-
 from __future__ import annotations
 
 import fnmatch
+import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -53,7 +55,7 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
     override = load_override(mapping)
     if not path.is_file():
         raise ShotError(path, "no such take file")
-    if path.name.endswith((".bvh", ".bvh.gz")):
+    if is_bvh(path):
         from pipeline.motion.bvh import read_bvh
         from pipeline.usd.convert import write_shot
 
@@ -71,6 +73,29 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
 TAKE_SUFFIXES = (".bvh", ".bvh.gz", ".usd", ".usda", ".usdc", ".usdz")
 
 
+def is_bvh(path: str | Path) -> bool:
+    """Whether a take file is a BVH by its name, in any case (``WALK.BVH``, ``.bvh.gz``)."""
+    return Path(path).name.lower().endswith((".bvh", ".bvh.gz"))
+
+
+def _walk(folder: Path):
+    """Every file path under ``folder``, through linked folders too (each real folder once,
+    so a link to a folder above is no loop); a link to nothing is reported on stderr."""
+    seen = set()
+    for top, dirs, names in os.walk(folder, followlinks=True):
+        real = os.path.realpath(top)
+        if real in seen:
+            dirs[:] = []
+            continue
+        seen.add(real)
+        for n in names:
+            p = Path(top) / n
+            if p.is_file():
+                yield p
+            elif p.is_symlink() and n.lower().endswith(TAKE_SUFFIXES):
+                print(f"tween: skipped take: {p}: a link to nothing ({os.readlink(p)})", file=sys.stderr)
+
+
 def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
     """The BVH and USD takes under ``folder`` (recursively), sorted; with ``include``
     (comma-separated file-name globs, e.g. ``"001_*,002_*"``) only the names that match one."""
@@ -81,9 +106,8 @@ def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
     pats = [p.strip() for p in (include or "").split(",") if p.strip()]
     files = sorted(
         p
-        for p in folder.rglob("*")
-        if p.is_file()
-        and p.name.lower().endswith(TAKE_SUFFIXES)
+        for p in _walk(folder)
+        if p.name.lower().endswith(TAKE_SUFFIXES)
         and (not pats or any(fnmatch.fnmatch(p.name, q) for q in pats))
     )
     if not files:
@@ -96,7 +120,7 @@ def studio_take(path: Path) -> Motion:
     """A take as the model trains on it: 30 fps on the model skeleton, quaternions continuous.
     BVH already on the model skeleton is read as the protocol reads it (exactly); any other
     rig goes through :func:`model_take`, the fill's own mapping and retargeting."""
-    if path.name.endswith((".bvh", ".bvh.gz")):
+    if is_bvh(path):
         from pipeline.motion.bvh import read_bvh
 
         try:

@@ -63,6 +63,32 @@ def test_include_picks_takes_by_name_and_bad_folders_are_named(takes, tmp_path):
         take_files(empty)
 
 
+def test_takes_are_found_whatever_their_case_and_through_linked_folders(
+    data_dir, bandai_clip, tmp_path, capsys
+):
+    """``WALK.BVH.GZ`` and a gzipped take named ``.bvh`` are BVH takes (before: the first was
+    read as USD, the second "expected HIERARCHY"); a linked folder of takes is searched (once,
+    even when linked twice or linked to a folder above); a link to nothing is said, not dropped."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shutil.copy(data_dir / "cmu_iclone" / CMU_TAKE, shared / "WALK.BVH.GZ")
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    (folder / "gz_named_plain.bvh").write_bytes(bandai_clip.read_bytes())  # gzipped, named .bvh
+    assert bandai_clip.read_bytes()[:2] == b"\x1f\x8b"
+    (folder / "linked").symlink_to(shared, target_is_directory=True)
+    (folder / "linked_again").symlink_to(shared, target_is_directory=True)
+    (shared / "up").symlink_to(folder, target_is_directory=True)
+    (folder / "gone.bvh").symlink_to(tmp_path / "nowhere.bvh")
+    files = take_files(folder)
+    assert sorted(f.name for f in files) == ["WALK.BVH.GZ", "gz_named_plain.bvh"], files
+    assert f"tween: skipped take: {folder / 'gone.bvh'}: a link to nothing" in capsys.readouterr().err
+    walk = model_take(next(f for f in files if f.name == "WALK.BVH.GZ"))
+    assert walk.name == "WALK" and abs(len(walk) - len(read_bvh(data_dir / "cmu_iclone" / CMU_TAKE)) / 2) <= 1
+    plain = read_bvh(folder / "gz_named_plain.bvh")
+    assert plain.name == "gz_named_plain" and np.array_equal(plain.rotations, read_bvh(bandai_clip).rotations)
+
+
 def test_a_take_that_is_no_motion_is_one_clear_error(tmp_path):
     bad = tmp_path / "bad.bvh"
     bad.write_text("HIERARCHY\nROOT Hips\n{\n")
