@@ -183,6 +183,8 @@ def configs(values: dict):
     except ValueError as e:
         raise typer.BadParameter(str(e)) from None
     common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include", "corpus")}
+    if not 0 <= values["path_steps"] <= 1e9:  # as --steps; 0: no path predictor in this run
+        raise typer.BadParameter(f"--path-steps {values['path_steps']}: must be from 0 to 1e+09")
     return cfg, PathTrainConfig(steps=values["path_steps"], **common)
 
 
@@ -200,11 +202,13 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
 def check_run(out: Path, cfg) -> None:
     """What `tween train` reads, checked before it writes anything: the run folder is not a
     model (a model is written by `tween export`), --init is a checkpoint that `tween train`
-    wrote, --partial has a key adapter to train, and the takes folder holds takes."""
-    from pipeline.train.generator_training import check_partial, load_init
+    wrote, --device is one torch has here, --partial has a key adapter to train, and the
+    takes folder holds takes."""
+    from pipeline.train.generator_training import check_device, check_partial, load_init
     from pipeline.usd.take import take_files
 
     refuse_model(out, "--out (a run folder)", force_hint=None)
+    check_device(cfg.device)
     # --init first: whether --partial has a key adapter may be its network's to say.
     saved = (load_init(cfg.init).get("config") or {}).get("model") if cfg.init else None
     check_partial(cfg, saved)

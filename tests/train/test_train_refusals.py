@@ -79,9 +79,13 @@ def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, mod
         "q.bvh: joints do not map onto the model skeleton": ["--data", tmp_path / "creature"],
         "generator.onnx: --init: an ONNX export": ["--init", ROOT / "models/default/generator.onnx"],
         "junk.pt: --init: not a checkpoint that `tween train` wrote": ["--init", tmp_path / "junk.pt"],
+        # Before the path predictor's minutes of training, not after them.
+        "--device 'foo': must be cpu or cuda (cuda:N)": ["--device", "foo"],
+        "--device cuda:99: torch sees ": ["--device", "cuda:99"],
+        "--path-steps -1: must be from 0 to 1e+09": ["--path-steps", "-1"],
     }
     for want, args in cases.items():
-        line = refused(["train", "--out", out, *args, *TINY], capsys, tmp_path)
+        line = refused(["train", "--out", out, *TINY, *args], capsys, tmp_path)
         assert want in line, line
     assert not out.exists()
     line = refused(["train", "--out", model_folder, *TINY], capsys, tmp_path)
