@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import typer
@@ -80,12 +81,34 @@ def rig_extract(
     out: Path = typer.Argument(..., help="The .npz to write (for hosts without usd-core or the data)."),
     skeleton: str = typer.Option(None, help="USD: the Skeleton prim path."),
     frames: str = typer.Option(None, help="START:STOP frame indices."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing OUT."),
 ):
     """Save a reference clip as a self-contained .npz that `train-rig` reads."""
     from pipeline.rig.source import load_rig_source, parse_frames, save_npz
 
+    if out.suffix.lower() != ".npz":
+        raise TweenError(f"{out}: OUT must name an .npz file")
+    if out.is_dir():
+        raise TweenError(f"{out}: is a folder; OUT names the .npz file to write")
+    if out.exists() and not force:
+        raise TweenError(f"{out}: exists; give --force to replace it")
+    if out.exists() and out.resolve() == source.resolve():
+        raise TweenError(f"{out}: is the source clip; write the .npz elsewhere")
+    if not out.parent.is_dir():
+        raise TweenError(f"{out.parent}: no such folder for OUT")
     motion = load_rig_source(source, skeleton, parse_frames(frames))
-    save_npz(motion, out)
+    # Written beside OUT and renamed into place: an interrupted write leaves OUT as it was.
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".npz")
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # as a file the user writes (mkstemp makes it private)
+    try:
+        save_npz(motion, tmp)
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
     typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
 
 

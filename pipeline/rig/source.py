@@ -9,6 +9,7 @@ axis expressed in skeleton space (through the skeleton's world transform).
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -153,7 +154,28 @@ def load_rig_source(
         motion = load_npz(path)
     else:
         raise RigSourceError(path, "not a USD shot (.usd/.usda/.usdc/.usdz) or a BVH (.bvh/.bvh.gz)")
+    _check_values(path, motion)
     return _slice(path, motion, frames)
+
+
+def _check_values(path: Path, m: Motion) -> None:
+    """RigSourceError unless the clip's shapes agree and its numbers are finite, its rate
+    positive (a damaged .npz gave a rig.json full of NaN)."""
+    s = m.skeleton
+    J = len(s.names)
+    rot, root = np.asarray(m.rotations), np.asarray(m.root_positions)
+    shapes = {"parents": (np.shape(s.parents), (J,)), "offsets": (np.shape(s.offsets), (J, 3)),
+              "rotations": (rot.shape, (len(rot), J, 4)), "root_positions": (root.shape, (len(rot), 3))}  # fmt: skip
+    for what, (have, want) in shapes.items():
+        if have != want:
+            raise RigSourceError(path, f"{what} of shape {have}, expected {want} for {J} joints")
+    if not (np.isfinite(m.fps) and m.fps > 0):
+        raise RigSourceError(path, f"frame rate {m.fps!r}: not a positive number")
+    if not (np.isfinite(s.meters_per_unit) and s.meters_per_unit > 0):
+        raise RigSourceError(path, f"meters per unit {s.meters_per_unit!r}: not a positive number")
+    for what, a in (("offsets", s.offsets), ("rotations", rot), ("root positions", root)):
+        if not np.isfinite(a).all():
+            raise RigSourceError(path, f"its {what} hold NaN or infinite values")
 
 
 def save_npz(motion: Motion, path: str | Path) -> None:
@@ -184,7 +206,8 @@ def load_npz(path: str | Path) -> Motion:
             float(z["meters_per_unit"]),
         )
         return Motion(skel, z["rotations"], z["root_positions"], float(z["fps"]), str(z["name"]))
-    except (OSError, KeyError, ValueError, EOFError, IndexError, TypeError) as e:
-        # np.load raises EOFError for an empty file and ValueError/OSError for most others.
+    except (OSError, KeyError, ValueError, EOFError, IndexError, TypeError, zipfile.BadZipFile) as e:
+        # np.load raises EOFError for an empty file, BadZipFile for a truncated one and
+        # ValueError/OSError for most others.
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None

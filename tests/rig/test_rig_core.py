@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -305,6 +306,44 @@ def test_bad_inputs_one_line_naming_the_file(tmp_path):
     assert not (tmp_path / "m").exists()
 
 
+def _damaged_npz(tmp_path, name, **change) -> Path:
+    from pipeline.rig.source import save_npz
+
+    path = tmp_path / f"{name}.npz"
+    save_npz(walk(), path)
+    z = dict(np.load(path))
+    z.update(change)
+    np.savez(path, **z)
+    return path
+
+
+def test_a_damaged_clip_npz_is_one_line_naming_it(tmp_path):
+    """Before: a truncated .npz was BadZipFile (exit 1); NaN offsets or a rate of 0 trained
+    and exported a rig.json full of NaN."""
+    from pipeline.rig.source import load_rig_source, save_npz
+
+    good = tmp_path / "good.npz"
+    save_npz(walk(), good)
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    offsets = np.asarray(walk().skeleton.offsets).copy()
+    offsets[1, 0] = np.nan
+    cases = {
+        cut: "not a clip .npz written by `tween rig-extract`",
+        _damaged_npz(tmp_path, "nan", offsets=offsets): "its offsets hold NaN or infinite values",
+        _damaged_npz(tmp_path, "still", fps=np.array(0.0)): "frame rate 0.0: not a positive number",
+        _damaged_npz(tmp_path, "inf", root_positions=np.full((96, 3), np.inf)): "root positions hold NaN",
+        _damaged_npz(
+            tmp_path, "short", parents=np.array([-1])
+        ): "names, parents and offsets differ in length",
+    }
+    for path, says in cases.items():
+        with pytest.raises(TweenError) as e:
+            load_rig_source(path)
+        assert str(e.value).startswith(f"{path}: ") and says in str(e.value), str(e.value)
+    assert len(load_rig_source(good)) == 96
+
+
 def test_rig_json_names_a_shared_clip_relative_to_the_shared_folder(data_dir, tmp_path):
     from pipeline.rig.source import portable_path, stored_path
 
@@ -321,3 +360,35 @@ def test_rig_json_names_a_shared_clip_relative_to_the_shared_folder(data_dir, tm
 
     meta = json.loads((Path(__file__).resolve().parents[2] / "models/elephant/rig.json").read_text())
     assert stored_path(meta["source"]["path"]).is_file()
+
+
+def test_rig_extract_writes_only_the_npz_it_names_and_replaces_only_with_force(tmp_path, capsys):
+    """Before: an existing OUT was replaced without a word, and an OUT without .npz (or a
+    folder) was reported as written while numpy wrote OUT.npz beside it."""
+    from cli_contract import refused
+
+    from pipeline.cli import main
+    from pipeline.rig.source import load_rig_source
+
+    shot = REPO / "examples" / "sh010_walk.usda"
+    out = tmp_path / "clip.npz"
+    out.write_bytes(b"the user's own file")
+    (tmp_path / "folder.npz").mkdir()
+    cases = {
+        (out,): f"{out}: exists; give --force to replace it",
+        (tmp_path / "clip",): f"{tmp_path / 'clip'}: OUT must name an .npz file",
+        (tmp_path / "folder.npz",): f"{tmp_path / 'folder.npz'}: is a folder",
+        (tmp_path / "no" / "c.npz",): f"{tmp_path / 'no'}: no such folder for OUT",
+    }
+    for (target,), says in cases.items():
+        line = refused(["rig-extract", shot, target], capsys, tmp_path)
+        assert line.startswith(f"tween: error: {says}"), line
+    assert out.read_bytes() == b"the user's own file"
+    with pytest.raises(SystemExit) as e:
+        main(["rig-extract", str(shot), str(out), "--force"])
+    assert e.value.code == 0
+    assert len(load_rig_source(out)) == len(load_rig_source(shot))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.npz", "folder.npz"]  # no temporary left
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~umask  # as a file the user writes, not private
