@@ -265,9 +265,9 @@ def export_case(draw, ws: Path, a: Assets):
 
 
 def farm_and_page_case(draw, ws: Path, a: Assets):
-    """``rig-extract``, ``status`` and ``cancel`` of unknown jobs, and ``dailies`` (never a
+    """``rig-extract``, ``cancel`` and ``status`` of unknown jobs, and ``dailies`` (never a
     value that would start its server)."""
-    cmd = draw(st.sampled_from(["rig-extract", "cancel", "dailies"]))
+    cmd = draw(st.sampled_from(["rig-extract", "cancel", "status", "dailies"]))
     if cmd == "rig-extract":
         if draw(st.booleans()):
             return [cmd, draw(bad_file(ws, draw(st.sampled_from([".bvh", ".usda"])), a.bvh)), ws / "clip.npz"]
@@ -278,7 +278,7 @@ def farm_and_page_case(draw, ws: Path, a: Assets):
             "--frames",
             draw(st.sampled_from(["abc", "10:5", "5:5", "1:2:3"])),
         ]
-    if cmd == "cancel":
+    if cmd in ("cancel", "status"):
         return [cmd, draw(st.from_regex(r"[a-z0-9][a-z0-9-]{0,19}", fullmatch=True))]  # (not an option)
     if draw(st.booleans()):  # no such folder, or a file: never a folder it would serve
         root = ws / "shots"
@@ -310,7 +310,7 @@ CASES = {
     "train-rig": train_rig_case,
     "library": library_case,
     "export": export_case,
-    "rig-extract/cancel/dailies": farm_and_page_case,
+    "rig-extract/cancel/status/dailies": farm_and_page_case,
     "bench": bench_case,
 }
 

@@ -434,8 +434,8 @@ def status(
         elif s.state == "SUCCESS":
             layer = (s.result or {}).get("layer")
             typer.echo(f"{s.id} {s.shot}: success, layer {layer}{_decision(layer)}")
-        elif s.state == "UNKNOWN":
-            typer.echo(f"{s.id}: unknown: {s.error}")
+        elif s.state == "UNKNOWN":  # a job id the farm does not know: bad input, said on stderr
+            print(f"tween: error: {s.error}", file=sys.stderr)
         elif s.state == "FAILURE":
             typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
         elif s.id.startswith(("rig-", "lib-")):
