@@ -1,4 +1,4 @@
-"""Speed of a review turntable: ``python -m render.bench`` (or ``tween bench-render``);
+"""Speed of a review turntable: ``python -m render.bench``;
 ``--png`` adds the numbered frames, ``--side-by-side`` the blocking panel, ``--fixed`` the
 original (not following) camera.
 
@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
+from pipeline.command import Parser
 from pipeline.data.split import shared_data_dir
 from pipeline.fill.api import FillOptions, fill_shot
 from render.gl import renderer_name
@@ -61,15 +61,19 @@ def bench(
     }
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
-    res = bench(
-        write_frames="--png" in argv,
-        side_by_side="--side-by-side" in argv,
-        framing="fixed" if "--fixed" in argv else "follow",
-    )
+def main(argv: list[str] | None = None) -> int:
+    ap = Parser(prog="python -m render.bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--png", action="store_true", help="also write the numbered frames")
+    ap.add_argument("--side-by-side", action="store_true", help="with the blocking panel")
+    ap.add_argument("--fixed", action="store_true", help="the original camera, not following")
+    a = ap.parse_args(argv)
+    res = bench(write_frames=a.png, side_by_side=a.side_by_side, framing="fixed" if a.fixed else "follow")
     print(json.dumps(res))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from pipeline.command import run_main
+    from pipeline.data.cache_paths import cache_root
+
+    run_main(main, log_dir=cache_root() / "logs")  # a bug's traceback goes there, as tween's

@@ -21,7 +21,6 @@ library's own takes (subjects 1-3): measure other actors with :mod:`pipeline.ben
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -29,8 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.retarget import typical_local
+from pipeline.bench import args as arg
 from pipeline.bench.heldout import posture_degrees
 from pipeline.bench.report import publish
+from pipeline.command import Parser
 from pipeline.data.protocol import windows_of
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError
@@ -188,20 +189,19 @@ def markdown(report: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m pipeline.bench.blocking", description=__doc__.splitlines()[0]
+    ap = Parser(prog="python -m pipeline.bench.blocking", description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--every", type=arg.spacings, default=(10, 30), help="key spacings, comma-separated frames"
     )
-    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames")
     ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
-    ap.add_argument("--limit", type=int, default=None, help="first N eval clips / CMU takes")
+    ap.add_argument("--limit", type=arg.count, default=None, help="first N eval clips / CMU takes")
     ap.add_argument("--model", default="default", help="the network: default, or a model folder")
     ap.add_argument("--no-library", action="store_true",
                     help="the network against the spline only (not the library the model ships beside it)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None, help="folder for blocking.json and blocking.md")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    every = tuple(int(e) for e in a.every.split(",") if e)
-    report = run(tuple(s for s in a.sources.split(",") if s), every, a.limit, a.model, not a.no_library)
+    report = run(tuple(s for s in a.sources.split(",") if s), a.every, a.limit, a.model, not a.no_library)
     report["seconds"] = time.perf_counter() - t0
     publish(report, a.out, "blocking")
     return 0

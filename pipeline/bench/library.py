@@ -34,7 +34,6 @@ takes), so there ``library-spline`` is the clean measure of the library.
 
 from __future__ import annotations
 
-import argparse
 import re
 import shutil
 import sys
@@ -44,9 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench import args as arg
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.report import publish
 from pipeline.bench.studio import evaluate_take
+from pipeline.command import Parser
 from pipeline.data.cache import cache_dir
 from pipeline.data.split import list_clips
 from pipeline.errors import TweenError
@@ -214,13 +215,20 @@ def markdown(rep: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.bench.library", description=__doc__.splitlines()[0])
+    ap = Parser(prog="python -m pipeline.bench.library", description=__doc__.splitlines()[0])
     ap.add_argument("--source", default=",".join(SOURCES), help="comma-separated: " + ", ".join(ALL_SOURCES))
-    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (of the shot)")
+    ap.add_argument(
+        "--every",
+        type=arg.spacings,
+        default=(10, 30),
+        help="key spacings, comma-separated frames (of the shot)",
+    )
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
-    ap.add_argument("--stride", type=int, default=5, help="bandai: every N-th held-out take is scored")
-    ap.add_argument("--limit", type=int, default=None, help="at most N held-out takes per source")
-    ap.add_argument("--max-frames", type=int, default=300, help="frames of each take at 30 fps (0: all)")
+    ap.add_argument("--stride", type=arg.stride, default=5, help="bandai: every N-th held-out take is scored")
+    ap.add_argument("--limit", type=arg.count, default=None, help="at most N held-out takes per source")
+    ap.add_argument(
+        "--max-frames", type=arg.frames_or_all, default=300, help="frames of each take at 30 fps (0: all)"
+    )
     ap.add_argument("--tuning", action="store_true",
                     help="the tuning split (where the constants are chosen), not the bench's")  # fmt: skip
     ap.add_argument("--model", default="default",
@@ -236,7 +244,7 @@ def main(argv=None) -> int:
         ap.error(f"--source: one or more of {', '.join(ALL_SOURCES)}")
     if a.tuning and "others" in sources:
         ap.error(f"--tuning: {NO_TUNING}")
-    every = tuple(int(e) for e in a.every.split(",") if e)
+    every = a.every
     try:  # a model that is not there (or is damaged) is one line naming it, before the library is built
         load_model(a.model)
     except FileNotFoundError as e:

@@ -17,7 +17,6 @@ Methods: ``default`` (the shipped fill: network, trust decided from the shot), `
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -26,8 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.mapping import map_joints
+from pipeline.bench import args as arg
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.report import publish
+from pipeline.command import Parser
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import resample
@@ -194,27 +195,35 @@ def markdown(rep: dict, methods) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.bench.studio", description=__doc__.splitlines()[0])
-    ap.add_argument("--every", default="10,30", help="key spacings, comma-separated frames (of the shot)")
-    ap.add_argument("--subjects", default=None, help="CMU subjects, e.g. 5,6,7 (default: all)")
-    ap.add_argument("--limit", type=int, default=None, help="first N takes")
+    ap = Parser(prog="python -m pipeline.bench.studio", description=__doc__.splitlines()[0])
     ap.add_argument(
-        "--max-frames", type=int, default=300, help="frames of each take at the shot rate (0: all)"
+        "--every",
+        type=arg.spacings,
+        default=(10, 30),
+        help="key spacings, comma-separated frames (of the shot)",
+    )
+    ap.add_argument(
+        "--subjects", type=arg.subjects, default=None, help="CMU subjects, e.g. 5,6,7 (default: all)"
+    )
+    ap.add_argument("--limit", type=arg.count, default=None, help="first N takes")
+    ap.add_argument(
+        "--max-frames",
+        type=arg.frames_or_all,
+        default=300,
+        help="frames of each take at the shot rate (0: all)",
     )
     ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
     ap.add_argument("--out", type=Path, default=None, help="folder for studio.json and studio.md")
     ap.add_argument("--keep-glitches", action="store_true", help="keep takes' leading glitch frames")
     ap.add_argument(
-        "--fps", type=float, default=FPS, help="the shots' rate (tween convert --fps; 0: the take's)"
+        "--fps", type=arg.rate, default=FPS, help="the shots' rate (tween convert --fps; 0: the take's)"
     )
     a = ap.parse_args(argv)
     methods = tuple(m for m in a.methods.split(",") if m)
     bad = [m for m in methods if m not in METHODS]
     if bad:
         ap.error(f"--methods: unknown {', '.join(bad)} (one of {', '.join(METHODS)})")
-    subjects = tuple(int(s) for s in a.subjects.split(",")) if a.subjects else None
-    every = tuple(int(e) for e in a.every.split(",") if e)
-    rep = run(every, subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches, a.fps)
+    rep = run(a.every, a.subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches, a.fps)
     publish(rep, a.out, "studio")
     return 0
 

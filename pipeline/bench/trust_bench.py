@@ -19,15 +19,16 @@ what the thresholds of the decision were tuned on).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench import args as arg
 from pipeline.bench.heldout import parse_source, posture_degrees
 from pipeline.bench.report import publish
+from pipeline.command import Parser
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
 from pipeline.errors import TweenError
 from pipeline.infer import novelty, trust
@@ -257,10 +258,10 @@ def markdown(report: dict, transitions=TRANSITIONS) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m pipeline.bench.trust_bench", description=__doc__.splitlines()[0]
+    ap = Parser(prog="python -m pipeline.bench.trust_bench", description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--limit", type=arg.count, default=None, help="first N eval clips (and at most 2N CMU windows)"
     )
-    ap.add_argument("--limit", type=int, default=None, help="first N eval clips (and at most 2N CMU windows)")
     ap.add_argument("--sources", default=",".join(SOURCES), help="comma-separated: " + ", ".join(SOURCES))
     ap.add_argument("--out", type=Path, default=None, help="folder for trust.json and trust.md")
     ap.add_argument("--dump", default=None, help="npz of per-window probe errors and blend L2P (tuning)")

@@ -10,6 +10,7 @@ import pytest
 
 from pipeline.bench import studio
 from pipeline.bench.heldout import cmu_files
+from pipeline.errors import TweenError
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import resample
@@ -47,7 +48,7 @@ def test_studio_bench_end_to_end(tmp_path, capsys):
     for part in ("mapped", "all"):
         assert table["default"][part] <= 1.10 * min(table["network"][part], table["spline"][part])
     assert "| 10 | mapped |" in capsys.readouterr().out
-    with pytest.raises(SystemExit):
+    with pytest.raises(TweenError, match="--methods: unknown linear"):
         studio.main(["--methods", "linear"])
 
 
