@@ -550,7 +550,9 @@ def submit_train_rig(
     prints the job id (`tween status ID` shows its progress)."""
     jobs = _jobs()
 
-    opts = opts.check().as_job()
+    checked = opts.check()
+    opts = checked.as_job()
+    from pipeline.staging import refuse_model
     from workers.app import check_farm, farm_errors, rig_app
 
     raise_settings_error()
@@ -560,6 +562,8 @@ def submit_train_rig(
     if not source.is_file():
         _err(f"{source}: no such file")
         raise typer.Exit(2)
+    if not checked.force:  # as `tween train-rig` refuses it, before a worker takes the job
+        refuse_model(out)
     check_farm(rig_app)
     with farm_errors(rig_app):
         job_id = jobs.submit_train_rig(str(source), str(out), opts)
@@ -592,9 +596,12 @@ def submit_library(
     if train_app.conf.tween.embedded:
         _err("no broker configured (set TWEEN_BROKER_URL); run `tween library build` on this host instead")
         raise typer.Exit(2)
-    if not folder.is_dir():
-        _err(f"{folder}: no such folder of takes")
-        raise typer.Exit(2)
+    from pipeline.library.build import check_out
+    from pipeline.usd.take import take_files
+
+    # What `tween library build` refuses is refused here, before a worker takes the job.
+    take_files(folder, opts.include)
+    check_out(out, opts.add)
     check_farm(train_app)
     with farm_errors(train_app):
         job_id = jobs.submit_library(str(folder), str(out), opts.as_job())

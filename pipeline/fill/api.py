@@ -235,10 +235,10 @@ def warn_experimental(model: str) -> str | None:
 
 def precheck(shot: str, opts: FillOptions) -> list[str]:
     """What a farm client checks before it starts a farm or contacts a broker: the options,
-    the shot's content (characters, keys, rigs: the plan, without loading a model) and its
-    composition (:func:`composition`, said here), and that the layers' folder can be
-    written. A ShotError/TweenError in one line, as the
-    worker would give it seconds later; returns the missing assets."""
+    a --library's manifest, the shot's content (characters, keys, rigs: the plan, without
+    loading a model) and its composition (:func:`composition`, said here), and that the
+    layers' folder can be written. A ShotError/TweenError in one line, as the worker would
+    give it seconds later; returns the missing assets."""
     from pipeline.infer.api import builtin_names, model_folder
 
     opts.check()
@@ -247,6 +247,10 @@ def precheck(shot: str, opts: FillOptions) -> list[str]:
             f"--model {opts.model}: no such model (a folder with model.json or rig.json, or the name "
             f"of one under {models_root()})"
         )
+    if opts.library:  # not a library, or a damaged one: as fill-local says it
+        from pipeline.library.store import open_library
+
+        open_library(opts.library)
     _plan(shot, opts, None)
     check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts
     warn_experimental(opts.model)

@@ -95,20 +95,28 @@ def _leftovers(out: Path) -> list[Path]:
     return ours if ours and len(ours) == len(found) else []
 
 
-def _check_out(out: Path, add: bool) -> None:
-    """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it).
-    What a killed first build left there (arrays without a manifest) is removed first."""
+def check_out(out: Path, add: bool) -> None:
+    """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it),
+    counting what a killed first build left there (:func:`_leftovers`) as nothing. Also what
+    `tween submit-library` checks before it sends the job."""
+    if _leftovers(out):
+        return
+    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
+        what = "a library" if is_library(out) else "not empty"
+        raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
+    if add and out.exists() and not is_library(out) and any(out.iterdir()):
+        raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
+    if add and is_library(out):
+        open_library(out)  # a damaged manifest is named before any take is read
+
+
+def _remove_leftovers(out: Path) -> None:
     left = _leftovers(out)
     if left:
         print(f"tween: {out}: removing the {len(left)} file(s) a build that was stopped left (no library.json)",
               file=sys.stderr)  # fmt: skip
         for p in left:
             p.unlink()
-    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
-        what = "a library" if is_library(out) else "not empty"
-        raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
-    if add and out.exists() and not is_library(out) and any(out.iterdir()):
-        raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
 
 
 def _start_manifest(out: Path, add: bool, licence: str | None, name: str | None) -> dict:
@@ -176,7 +184,8 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     from pipeline.usd.take import take_files
 
     out = Path(out)
-    _check_out(out, add)
+    check_out(out, add)
+    _remove_leftovers(out)
     paths = [Path(p) for p in files] if files is not None else take_files(folder, include)
     manifest = _start_manifest(out, add, licence, name)
     have = {t["file"] for t in manifest["takes"]}

@@ -67,6 +67,36 @@ CASES = [
         REDIS_DOWN,
         "--model interp is no network",
     ),
+    # What the local commands refuse, refused before the job is sent (before: the worker failed).
+    (
+        "submit-not-a-library",
+        ["submit", "s.usda", "--library", "nolib"],
+        REDIS_DOWN,
+        "nolib: no such library folder",
+    ),
+    (
+        "submit-library-out-not-empty",
+        ["submit-library", ".", "--out", "."],
+        REDIS_DOWN,
+        ".: not empty; use --add",
+    ),
+    (
+        "submit-library-no-takes",
+        ["submit-library", "nowhere", "--out", "lib"],
+        REDIS_DOWN,
+        "no such folder of takes",
+    ),
+    (
+        "train-rig-finished-model",
+        [
+            "submit-train-rig",
+            "s.usda",
+            "--out",
+            str(Path(__file__).resolve().parents[2] / "models" / "default"),
+        ],
+        REDIS_DOWN,
+        "holds a finished model (model.json); give --force",
+    ),  # fmt: skip
     ("status-redis-down", ["status", JOB], REDIS_DOWN, REDIS_SHOWN),
     ("worker-redis-down", ["worker", "-c", "1"], REDIS_DOWN, REDIS_SHOWN),
     ("fill-redis-down", ["fill", "s.usda", "--no-progress"], REDIS_DOWN, REDIS_SHOWN),
