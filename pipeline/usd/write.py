@@ -256,8 +256,11 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
     probe = out
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
+    if not probe.is_dir():
+        what = "is a file" if probe == out else f"is under {probe}, a file"
+        raise ShotError(shot, f"output folder {out} {what}, not a folder (give another with --out-dir DIR)")
     # The mode bits too: a published (read-only) shot folder stays untouched even for root.
-    if not probe.is_dir() or not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
+    if not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
         raise ShotError(shot, f"output folder {out} is read-only (give another with --out-dir DIR)")
     return out
 

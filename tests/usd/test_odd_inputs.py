@@ -197,3 +197,14 @@ def test_an_animation_naming_a_joint_twice_is_one_line(shot, monkeypatch, capsys
     rc, err = tween(monkeypatch, capsys, "fill-local", shot)
     _one_error(rc, err, str(shot), "twice", joints[6].rsplit("/", 1)[-1])
     assert sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+
+
+def test_an_out_dir_that_is_a_file_is_named_a_file(shot, tmp_path, monkeypatch, capsys):
+    """Before: "is read-only", which sent the TD to check permissions on a file."""
+    f = tmp_path / "layers"
+    f.write_text("not a folder")
+    for out, says in ((f, f"output folder {f} is a file, not a folder"),
+                      (f / "sub", f"output folder {f / 'sub'} is under {f}, a file, not a folder")):  # fmt: skip
+        rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", out)
+        _one_error(rc, err, says)
+    assert f.read_text() == "not a folder"
