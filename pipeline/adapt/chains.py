@@ -21,6 +21,8 @@ import re
 
 import numpy as np
 
+from pipeline.adapt.hierarchy import common_ancestor, depths, path_below
+
 _LEFT = frozenset({"l", "left", "lf", "lft"})
 _RIGHT = frozenset({"r", "right", "rt", "rgt"})
 #: Words of joints that are never a limb's own (twist and helper bones, end sites, rig controls).
@@ -76,28 +78,6 @@ def _has(ws: list[str], single: frozenset, pairs=()) -> bool:
     return any(w in single for w in ws) or any(p in zip(ws, ws[1:], strict=False) for p in pairs)
 
 
-def _path(parents: np.ndarray, top: int, end: int) -> list[int]:
-    """The joints below ``top`` down to ``end`` (both excluded: ``top``; included: ``end``), top first."""
-    out = []
-    j = end
-    while j >= 0 and j != top:
-        out.append(int(j))
-        j = int(parents[j])
-    return out[::-1] if j == top else []
-
-
-def _branch(parents: np.ndarray, a: int, b: int) -> int | None:
-    seen = set()
-    j = a
-    while j >= 0:
-        seen.add(j)
-        j = int(parents[j])
-    j = b
-    while j >= 0 and j not in seen:
-        j = int(parents[j])
-    return j if j >= 0 else None
-
-
 def _ends(ws_of: list[list[str]], depth: np.ndarray, kind: frozenset) -> dict[str, int]:
     """Per side, the shallowest joint with a ``kind`` word and no skip word."""
     out: dict[str, int] = {}
@@ -128,14 +108,12 @@ def limbs(names, parents: np.ndarray) -> dict[str, int]:
     the names do not show both hands and both feet with their sides."""
     parents = np.asarray(parents)
     ws_of = [words(n) for n in names]
-    depth = np.zeros(len(parents), np.int64)
-    for j, p in enumerate(parents):
-        depth[j] = depth[p] + 1 if p >= 0 else 0
+    depth = depths(parents)
     hands, feet = _ends(ws_of, depth, _HAND), _ends(ws_of, depth, _FOOT)
     if set(hands) != {"L", "R"} or set(feet) != {"L", "R"}:
         return {}
-    arms_top = _branch(parents, hands["L"], hands["R"])
-    legs_top = _branch(parents, feet["L"], feet["R"])
+    arms_top = common_ancestor(parents, [hands["L"], hands["R"]])
+    legs_top = common_ancestor(parents, [feet["L"], feet["R"]])
     if arms_top is None or legs_top is None:
         return {}
     out: dict[str, int] = {}
@@ -143,7 +121,7 @@ def limbs(names, parents: np.ndarray) -> dict[str, int]:
     for j, p in enumerate(parents):
         children.setdefault(int(p), []).append(j)
     for s in "LR":
-        arm = _path(parents, arms_top, hands[s])
+        arm = path_below(parents, arms_top, hands[s])
         upper, lower = _limb(ws_of, arm, "arm")
         if upper is None:
             return {}
@@ -151,7 +129,7 @@ def limbs(names, parents: np.ndarray) -> dict[str, int]:
         above = [j for j in arm[: arm.index(upper)] if not _has(ws_of[j], _SKIP)]
         if above:
             out[f"Shoulder_{s}"] = above[-1]
-        leg = _path(parents, legs_top, feet[s])
+        leg = path_below(parents, legs_top, feet[s])
         upper, lower = _limb(ws_of, leg, "leg")
         if upper is None:
             return {}

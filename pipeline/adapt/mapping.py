@@ -24,6 +24,7 @@ import numpy as np
 from pipeline import jsonfile
 from pipeline.adapt import chains
 from pipeline.adapt.conventions import CONVENTIONS
+from pipeline.adapt.hierarchy import ancestors, common_ancestor, depths
 from pipeline.errors import TweenError
 
 MODEL_JOINTS = (
@@ -120,21 +121,6 @@ def _read(conv: str, names: list[str]) -> tuple[dict[str, list[tuple[int, int]]]
     return found, explained
 
 
-def _depths(parents: np.ndarray) -> np.ndarray:
-    d = np.zeros(len(parents), np.int64)
-    for j, p in enumerate(parents):
-        d[j] = d[p] + 1 if p >= 0 else 0
-    return d
-
-
-def _ancestors(parents, j) -> list[int]:
-    out = []
-    while j >= 0:
-        out.append(int(j))
-        j = parents[j]
-    return out  # j, parent, …, root
-
-
 def load_override(path: str | Path | None) -> dict[str, str | None]:
     if not path:
         return {}
@@ -191,7 +177,7 @@ def map_joints_info(
     for a, b in _CHAINS:
         for s in "LR":
             ra, rb = a.format(s=s), b.format(s=s)
-            if ra in out and rb in out and out[ra] not in _ancestors(parents, out[rb])[1:]:
+            if ra in out and rb in out and out[ra] not in ancestors(parents, out[rb])[1:]:
                 raise MappingError(
                     f"joint {names[out[rb]]!r} ({rb}) does not descend from {names[out[ra]]!r} ({ra})"
                 )
@@ -211,7 +197,7 @@ def map_joints_info(
 def _named(names: list[str], parents: np.ndarray) -> tuple[str | None, dict[str, int], set[int]]:
     """(the convention that names the rig, model joint → rig joint as the names place them,
     the rig joints that convention knows): see :func:`map_joints_info`."""
-    depth = _depths(parents)
+    depth = depths(parents)
     best = None
     for order, conv in enumerate(CONVENTIONS):
         found, explained = _read(conv, names)
@@ -269,13 +255,6 @@ def _vocabulary(model_joint: str) -> tuple[str, ...]:
     return tuple(sorted(words))
 
 
-def _common_ancestor(parents: np.ndarray, joints) -> int | None:
-    """The lowest joint every one of ``joints`` is (or descends from); None in a forest."""
-    paths = [_ancestors(parents, j) for j in joints]
-    shared = set(paths[0]).intersection(*paths[1:])
-    return next((a for a in paths[0] if a in shared), None)
-
-
 def _hips(out: dict[str, int], parents: np.ndarray) -> None:
     """The hips from the topology where the names' hips is not one: the joint where both legs
     and the spine (up to the chest, the arms' common ancestor) branch. A named hips that both
@@ -284,14 +263,14 @@ def _hips(out: dict[str, int], parents: np.ndarray) -> None:
         return  # the missing limbs are the error
     arms = [out.get(f"Shoulder_{s}", out[f"UpperArm_{s}"]) for s in "LR"]
     legs = [out["UpperLeg_L"], out["UpperLeg_R"]]
-    chest = _common_ancestor(parents, arms)
-    branch = None if chest is None else _common_ancestor(parents, [*legs, chest])
+    chest = common_ancestor(parents, arms)
+    branch = None if chest is None else common_ancestor(parents, [*legs, chest])
     if branch is None:
         raise MappingError(
             "no hips: the legs and the arms are not in one hierarchy (no joint both legs and the spine descend from)"
         )
     named = out.get("Hips")
-    if named is not None and all(named in _ancestors(parents, j)[1:] for j in (*legs, chest)):
+    if named is not None and all(named in ancestors(parents, j)[1:] for j in (*legs, chest)):
         return
     out["Hips"] = branch
 
@@ -302,10 +281,10 @@ def _torso(out: dict[str, int], names: list[str], parents: np.ndarray, removed: 
         return
     arm_l = out.get("Shoulder_L", out["UpperArm_L"])
     arm_r = out.get("Shoulder_R", out["UpperArm_R"])
-    anc_r = set(_ancestors(parents, arm_r))
-    chest = next((a for a in _ancestors(parents, arm_l)[1:] if a in anc_r), None)
+    anc_r = set(ancestors(parents, arm_r))
+    chest = next((a for a in ancestors(parents, arm_l)[1:] if a in anc_r), None)
     hips = out["Hips"]
-    spine_path = _ancestors(parents, chest) if chest is not None else []  # chest … root
+    spine_path = ancestors(parents, chest) if chest is not None else []  # chest … root
     if hips not in spine_path or chest == hips:
         raise MappingError("the arms do not join the spine above the hips")
     if "Chest" not in removed:
@@ -319,7 +298,7 @@ def _torso(out: dict[str, int], names: list[str], parents: np.ndarray, removed: 
         out.setdefault("Spine", below[-1])
     if "Head" not in out:
         return
-    neck_path = _ancestors(parents, out["Head"])
+    neck_path = ancestors(parents, out["Head"])
     if chest in neck_path and "Neck" not in removed:
         above = neck_path[: neck_path.index(chest)]  # head … first joint above chest
         if len(above) > 1:
@@ -331,7 +310,7 @@ def _head_from_topology(names, parents: np.ndarray, chest: int, arms: tuple[int,
     children: dict[int, list[int]] = {}
     for j, p in enumerate(parents):
         children.setdefault(int(p), []).append(j)
-    on_arm = {a for arm in arms for a in _ancestors(parents, arm)}
+    on_arm = {a for arm in arms for a in ancestors(parents, arm)}
     size = np.ones(len(parents), np.int64)
     for j in range(len(parents) - 1, 0, -1):  # parents come before children
         if parents[j] >= 0:
