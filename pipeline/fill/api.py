@@ -233,6 +233,15 @@ def warn_experimental(model: str) -> str | None:
     return why
 
 
+def _decided_model(inb, decision: dict | None) -> tuple[str, str]:
+    """The name and hash of the in-betweener that filled a character: where the trusted fill
+    decided on one probed beside the network (a library, another network), that one's, not
+    the network's it was asked for (tween:model and tween:modelHash name what filled it)."""
+    source = (decision or {}).get("source")
+    row = next((r for r in (decision or {}).get("candidates") or [] if r.get("name") == source), None)
+    return (row["name"], row["hash"]) if row else (inb.name, inb.model_hash)
+
+
 def precheck(shot: str, opts: FillOptions) -> list[str]:
     """What a farm client checks before it starts a farm or contacts a broker: the options,
     a --library's manifest, the shot's content (characters, keys, rigs: the plan, without
@@ -384,8 +393,9 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
         for k, v in data.items():
             arrays[f"c{i}_{k}"] = v
         c = cp.char
+        name, model_hash = _decided_model(inb, decision)
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
-                      "keys": [float(x) for x in cp.keys], "model": inb.name, "model_hash": inb.model_hash,
+                      "keys": [float(x) for x in cp.keys], "model": name, "model_hash": model_hash,
                       "model_kind": "rig" if cp.model else "human",
                       "licence": _licences(opts, cp, inb, alternatives if cp.model is None else ()),
                       "retarget": cp.retarget_info(), "trust": decision, "jumps": cp.jumps})  # fmt: skip

@@ -50,7 +50,12 @@ def test_a_take_of_the_library_is_filled_from_it_and_recorded(tmp_path):
     assert scores[LIB] > scores["tween-bandai-v5.3"]
     assert d["library"]["gaps"] and any(g["weight"] > 0 for g in d["library"]["gaps"])
     stage = Usd.Stage.Open(res["layer"])
-    assert stage.GetPrimAtPath(FILLED).GetAttribute(tokens.LIBRARY_GAPS).Get() is not None
+    anim = stage.GetPrimAtPath(FILLED)
+    assert anim.GetAttribute(tokens.LIBRARY_GAPS).Get() is not None
+    # What filled it is named, not the network it was asked for (before: tween-bandai-v5.3).
+    lib_hash = next(c["hash"] for c in d["candidates"] if c["name"] == LIB)
+    assert anim.GetAttribute(tokens.MODEL).Get() == LIB
+    assert anim.GetAttribute(tokens.MODEL_HASH).Get() == lib_hash
     # The network alone probes nothing beside it.
     alone = fill_shot(str(shot), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "net")))
     assert not alone["trust"][ANIM].get("candidates") and LIB not in alone["licence"]
