@@ -285,13 +285,13 @@ def _rest_offsets(path: Path, joints: list[BvhJoint], trans: np.ndarray) -> np.n
         if j and any(c.endswith("position") for c in jt.channels):
             if np.abs(trans[0, j] - offsets[j]).max() > 1e-4:
                 offsets[j] = trans[0, j]
-    offsets = offsets.astype(np.float32)
     # The root's rest position: its first-frame height above the origin (its OFFSET may be
     # meaningless, as in Bandai); every other joint keeps its bone from above.
     offsets[0] = (0.0, trans[0, 0, 1], 0.0)
-    if not (np.isfinite(offsets).all() and (np.abs(trans[:, 0]) < np.finfo(np.float32).max).all()):
+    big = np.finfo(np.float32).max  # checked before the cast, which would warn on stderr
+    if not ((np.abs(offsets) < big).all() and (np.abs(trans[:, 0]) < big).all()):
         raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
-    return offsets
+    return offsets.astype(np.float32)
 
 
 def read_bvh(
