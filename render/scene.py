@@ -300,19 +300,13 @@ def _body(query, samples, metres: float, n: int = 64) -> int:
 
 
 def _open_stage(stage_path: str):
-    """The USD stage of ``stage_path``, every payload loaded, or a ShotError saying why not."""
-    from pxr import Usd
+    """The USD stage of ``stage_path``, every payload loaded, or a ShotError saying why not:
+    the fill's own opening (pipeline.usd.read.open_stage), so that a layer of it USD cannot
+    parse (a truncated fill layer under a review root) is that error, not a review of the
+    shot without it."""
+    from pipeline.usd.read import open_stage
 
-    if not Path(stage_path).exists():
-        raise ShotError(stage_path, "no such file")
-    try:
-        stage = Usd.Stage.Open(stage_path, load=Usd.Stage.LoadAll)
-    except Exception as e:  # Tf errors carry the C++ location first; keep the reason after it
-        reason = str(e).strip().splitlines()[-1].rsplit(" : ", 1)[-1].strip(" '")
-        raise ShotError(stage_path, f"cannot open as USD ({reason})") from None
-    if stage is None:
-        raise ShotError(stage_path, "cannot open as USD")
-    return stage
+    return open_stage(stage_path)
 
 
 def _characters_and_props(stage, stage_path: str, world) -> tuple[list[Character], list]:

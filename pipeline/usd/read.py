@@ -98,7 +98,31 @@ def open_stage(path: str | Path):
             raise ShotError(path, f"cannot open as USD: {error_text(e, path)}") from None
         if stage is None:
             raise ShotError(path, "cannot open as USD")
+    with usd_diagnostics(path, fold=False):  # its own reason, not USD's warning appended
+        _check_sublayers(stage, path)
     return stage
+
+
+def _check_sublayers(stage, path: str) -> None:
+    """ShotError where a sublayer of the stage is there but USD cannot read it (truncated,
+    damaged): USD composes the stage without it and only warns, so a review of a fill layer
+    cut short rendered the unfilled shot. A sublayer that is not there at all is a missing
+    asset (:func:`missing_assets`), said and not refused."""
+    from pxr import Sdf, Tf
+
+    for layer in stage.GetLayerStack(includeSessionLayers=False):
+        for sub in layer.subLayerPaths:
+            where = layer.ComputeAbsolutePath(sub) if not layer.anonymous else sub
+            if not where or not Path(where).is_file():
+                continue
+            try:
+                ok = Sdf.Layer.FindOrOpen(where) is not None
+            except Tf.ErrorException as e:
+                raise ShotError(
+                    path, f"its sublayer {where} cannot be read as USD: {error_text(e, where)}"
+                ) from None
+            if not ok:
+                raise ShotError(path, f"its sublayer {where} cannot be read as USD")
 
 
 def missing_assets(path: str | Path) -> list[str]:

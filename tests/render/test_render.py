@@ -194,7 +194,7 @@ def test_real_usd_assets(data_dir, tmp_path, asset, frames):
 
 
 def test_bad_input(tmp_path, review):
-    with pytest.raises(ShotError, match="no such file"):
+    with pytest.raises(ShotError, match="file not found"):
         render_review(str(tmp_path / "missing.usda"), str(tmp_path / "o1"))
     with pytest.raises(ShotError, match="no take 7"):
         render_review(review["stage"], str(tmp_path / "o2"), take=7)

@@ -208,3 +208,18 @@ def test_an_out_dir_that_is_a_file_is_named_a_file(shot, tmp_path, monkeypatch, 
         rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", out)
         _one_error(rc, err, says)
     assert f.read_text() == "not a folder"
+
+
+def test_a_review_of_a_fill_layer_cut_short_is_one_line_naming_it(shot, tmp_path, monkeypatch, capsys):
+    """Before: USD composed the review root without the fill layer it could not parse, and
+    `tween review` rendered the unfilled shot, exit 0."""
+    out = tmp_path / "layers"
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", out, "--model", "spline")
+    assert rc == 0, err
+    capsys.readouterr()
+    fill = next(out.glob("*.tween.v001.usda"))
+    fill.write_bytes(fill.read_bytes()[: fill.stat().st_size // 2])
+    review = next(out.glob("*.review.v001.usda"))
+    rc, err = tween(monkeypatch, capsys, "review", review, "--out", tmp_path / "media", "--size", "160x90")
+    _one_error(rc, err, f"{review}: its sublayer {fill} cannot be read as USD")
+    assert not (tmp_path / "media").exists()
