@@ -18,6 +18,7 @@ from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
+from pipeline.staging import refuse_model
 from workers import paths as jobpaths
 from workers.runtime import thread_env
 from workers.settings import load_settings, redact_url
@@ -552,7 +553,6 @@ def submit_train_rig(
 
     checked = opts.check()
     opts = checked.as_job()
-    from pipeline.staging import refuse_model
     from workers.app import check_farm, farm_errors, rig_app
 
     raise_settings_error()

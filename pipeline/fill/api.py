@@ -257,8 +257,6 @@ def precheck(shot: str, opts: FillOptions) -> list[str]:
             f"of one under {models_root()})"
         )
     if opts.library:  # not a library, or a damaged one: as fill-local says it
-        from pipeline.library.store import open_library
-
         open_library(opts.library)
     _plan(shot, opts, None)
     check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts

@@ -197,10 +197,11 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     # What this call makes goes again if it ends with nothing: the folder, or what it put in
     # an empty one the user gave.
     created, was_empty = not out.exists(), out.is_dir() and not any(out.iterdir())
-    writer = Writer(out, manifest)
-    bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
-               disable=not progress or None, mininterval=max(2.0, interval()), delay=1.0)  # fmt: skip
-    try:
+    writer = bar = None
+    try:  # from the first file made: an interrupt anywhere after it removes what was made
+        writer = Writer(out, manifest)
+        bar = tqdm(todo, desc=f"library {out.name}", unit="take", file=sys.stderr,
+                   disable=not progress or None, mininterval=max(2.0, interval()), delay=1.0)  # fmt: skip
         added, failed, held = _add_takes(writer, bar, len(todo), manifest, licence, mirror, on_progress)
         if not manifest["takes"] and failed:
             raise LibraryError(
@@ -211,7 +212,8 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
         if on_progress is not None:
             on_progress(len(todo), len(todo), "")
     except BaseException:
-        writer.close()
+        if writer is not None:
+            writer.close()
         if created:
             shutil.rmtree(out, ignore_errors=True)
         elif was_empty:
@@ -219,16 +221,11 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                 shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
         raise
     finally:
-        writer.close()
-        bar.close()
+        if writer is not None:
+            writer.close()
+        if bar is not None:
+            bar.close()
     lib = open_library(out)
-    return {
-        "library": str(out),
-        "added": added,
-        "skipped": len(paths) - len(todo),
-        "failed": failed,
-        "frames": lib.frames,
-        "hours": lib.manifest["hours"],
-        "hash": lib.hash,
-        "takes": len(lib.manifest["takes"]),
-    }
+    return {"library": str(out), "added": added, "skipped": len(paths) - len(todo), "failed": failed,
+            "frames": lib.frames, "hours": lib.manifest["hours"], "hash": lib.hash,
+            "takes": len(lib.manifest["takes"])}  # fmt: skip
