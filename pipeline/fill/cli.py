@@ -74,7 +74,7 @@ def _check_shot_path(out: Path, force: bool, source: Path | None = None) -> None
         str(out.absolute()).encode("utf-8")
     except UnicodeEncodeError:  # usd-core writes UTF-8 paths only
         raise TweenError(f"{out}: the path is not UTF-8 text, which USD cannot write; rename it") from None
-    if out.suffix not in (".usda", ".usdc", ".usd"):
+    if out.suffix.lower() not in (".usda", ".usdc", ".usd"):  # USD reads the extension in any case
         raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
     if not out.parent.is_dir():
         raise TweenError(f"{out}: the folder {out.parent} does not exist")

@@ -223,3 +223,13 @@ def test_a_review_of_a_fill_layer_cut_short_is_one_line_naming_it(shot, tmp_path
     rc, err = tween(monkeypatch, capsys, "review", review, "--out", tmp_path / "media", "--size", "160x90")
     _one_error(rc, err, f"{review}: its sublayer {fill} cannot be read as USD")
     assert not (tmp_path / "media").exists()
+
+
+def test_a_shot_named_in_upper_case_is_converted(tmp_path, monkeypatch, capsys):
+    """USD reads `.USDA` as `.usda`; convert refused it ("must end in .usda")."""
+    from pxr import Usd
+
+    out = tmp_path / "SH010.USDA"
+    rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, out)
+    assert rc == 0, err
+    assert out.read_bytes().startswith(b"#usda 1.0") and Usd.Stage.Open(str(out)).GetDefaultPrim()
