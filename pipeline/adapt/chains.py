@@ -69,9 +69,14 @@ def side(ws: list[str]) -> str | None:
     return found.pop() if len(found) == 1 else None
 
 
+#: An end site's name ending, glued or not (``headend``, ``HeadTop_End``, ``head_nub``, ``Tip2``).
+_END_TAIL = re.compile(r"(end|nub|top|tip)\d*$", re.I)
+
+
 def end_site(name: str) -> bool:
-    """Whether a joint's words say it is an end site (``HeadTop_End``, ``C_headEnd_jnt``, ``head_nub``)."""
-    return any(w in _END for w in words(name))
+    """Whether a joint's name says it is an end site: an end word (``C_headEnd_jnt``,
+    ``head_nub``) or an end glued to its last word (``headend``)."""
+    return bool(_END_TAIL.search(name)) or any(w in _END for w in words(name))
 
 
 def _has(ws: list[str], single: frozenset, pairs=()) -> bool:

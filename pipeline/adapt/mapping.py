@@ -45,7 +45,6 @@ _CHAINS = [("Hips", "UpperLeg_{s}"), ("UpperLeg_{s}", "LowerLeg_{s}"), ("LowerLe
            ("LowerArm_{s}", "Hand_{s}"), ("Hips", "Head")]  # fmt: skip
 _SIDES = {"L": {"{L}": "L", "{l}": "l", "{Left}": "Left", "{left}": "left"},
           "R": {"{L}": "R", "{l}": "r", "{Left}": "Right", "{left}": "right"}}  # fmt: skip
-_END = re.compile(r"(end|nub|top|tip)\d*$", re.I)  # an end site's name (HeadTop_End, head_nub)
 _NOT_PLACED_SHOWN = 8  # rig joints an error message lists
 
 
@@ -321,11 +320,6 @@ def _head_from_topology(names, parents: np.ndarray, chest: int, arms: tuple[int,
     first = j = max(kids, key=lambda c: (size[c], -c))
     while len(children.get(j, [])) == 1:
         j = children[j][0]
-    if (
-        not children.get(j)
-        and j != first
-        and parents[j] != first
-        and (_END.search(names[j]) or chains.end_site(names[j]))
-    ):
+    if not children.get(j) and j != first and parents[j] != first and chains.end_site(names[j]):
         j = int(parents[j])  # an end site (HeadTop_End, face_end) above the head
     return j
