@@ -37,7 +37,10 @@ LAYERS = {
 #: Modules allowed one import across their layer's rule, and why.
 EXCEPTIONS = {
     ("render.bench", "pipeline.fill"): "the render benchmark fills its own shot before timing the review",
-    ("render.bench", "pipeline.command"): "its python -m entry refuses bad arguments as tween does (run_main)",
+    (
+        "render.bench",
+        "pipeline.command",
+    ): "its python -m entry refuses bad arguments as tween does (run_main)",
 }
 HEAVY_FOR_INFER = ("torch", "roma")
 
