@@ -15,6 +15,7 @@ LAYERS = {
     "usd_schemas": 0,
     "pipeline.options": 0,
     "pipeline.jsonfile": 0,
+    "pipeline.atomic": 0,  # a file replaced whole or not at all
     "pipeline.progress": 0,  # how often a progress bar redraws (a terminal, a log file)
     "pipeline.staging": 1,
     "pipeline.command": 1,  # the one error handler every entry point runs its commands through  # model folders made beside their destination, moved in when complete  # JSON a person wrote: duplicate keys refused  # options declared on dataclasses, as CLI options

@@ -38,7 +38,6 @@ import json
 import os
 import re
 import sys
-import tempfile
 import time
 import tomllib
 from dataclasses import dataclass
@@ -48,6 +47,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline import jsonfile
+from pipeline.atomic import replacing
 from pipeline.data.cache import ClipSet
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.data.split import is_eval, shared_data_dir
@@ -175,14 +175,9 @@ def source_files(src: Source, listing) -> list[Path]:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    """``data`` to ``path`` atomically, readable as the arrays are (mkstemp makes it private)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=1)
-    os.replace(tmp, path)
+    """``data`` to ``path`` atomically, readable as the arrays are."""
+    with replacing(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
 
 
 def _bytes(name: str, frames: int) -> int:

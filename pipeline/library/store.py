@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -25,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import jsonfile
+from pipeline.atomic import replacing
 from pipeline.errors import TweenError
 
 MANIFEST = "library.json"
@@ -263,13 +263,8 @@ class Writer:
         for h in self.files.values():
             h.flush()
             os.fsync(h.fileno())
-        fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=f".{MANIFEST}.", suffix=".tmp")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # readable as the arrays are (mkstemp makes it private)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(self.manifest, f, indent=1)
-        os.replace(tmp, self.folder / MANIFEST)
+        with replacing(self.folder / MANIFEST) as tmp:  # readable as the arrays are
+            tmp.write_text(json.dumps(self.manifest, indent=1), encoding="utf-8")
 
     def close(self) -> None:
         for h in self.files.values():

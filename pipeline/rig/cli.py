@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import typer
 
 from pipeline import command
+from pipeline.atomic import replacing
 from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
@@ -97,18 +97,8 @@ def rig_extract(
     if not out.parent.is_dir():
         raise TweenError(f"{out.parent}: no such folder for OUT")
     motion = load_rig_source(source, skeleton, parse_frames(frames))
-    # Written beside OUT and renamed into place: an interrupted write leaves OUT as it was.
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".npz")
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # as a file the user writes (mkstemp makes it private)
-    try:
+    with replacing(out, suffix=".npz") as tmp:  # an interrupted write leaves OUT as it was
         save_npz(motion, tmp)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
 
 

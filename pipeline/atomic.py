@@ -1,0 +1,29 @@
+"""A file replaced whole or not at all: written beside its destination under a temporary
+name and renamed over it, so a reader (or an interrupted writer) never sees half of it."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
+    """A temporary file beside ``path`` (``.NAME.XXXX`` + ``suffix``) for the block to write,
+    with the mode a file the user writes gets (mkstemp makes it private); renamed over
+    ``path`` when the block ends, removed when it fails."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
