@@ -31,6 +31,7 @@ from pipeline.library.store import (
     is_library,
     open_library,
 )
+from pipeline.motion.bvh import gzipped, is_bvh
 from pipeline.progress import interval
 
 FPS = 30.0
@@ -61,14 +62,10 @@ def mirrored(motion):
 def _rig_of(path: Path) -> str:
     """What the take came from, for the manifest: a BVH's joint count, root and rate from its
     header (read up to MOTION, not the frames), or "USD"."""
-    from pipeline.usd.take import is_bvh
-
     if not is_bvh(path):
         return "USD"
     joints, root, rate = 0, "", ""
-    with open(path, "rb") as f:
-        opener = gzip.open if f.read(2) == b"\x1f\x8b" else open
-    with opener(path, "rt", encoding="utf-8", errors="replace") as f:
+    with (gzip.open if gzipped(path) else open)(path, "rt", encoding="utf-8", errors="replace") as f:
         for line in f:
             word = line.split()[:2]
             if word and word[0] in ("ROOT", "JOINT"):

@@ -56,6 +56,18 @@ class BvhJoint:
 MAX_BYTES = 1 << 30
 
 
+def is_bvh(path: str | Path) -> bool:
+    """Whether a file is a BVH take by its name, in any case (``WALK.BVH``, ``.bvh.gz``)."""
+    return Path(path).name.lower().endswith((".bvh", ".bvh.gz"))
+
+
+def gzipped(path: str | Path) -> bool:
+    """Whether a file is gzip data, by its first bytes (not its name: ``.BVH.GZ``, a gzipped
+    ``.bvh``)."""
+    with open(path, "rb") as f:
+        return f.read(2) == b"\x1f\x8b"
+
+
 def _open_text(path: Path) -> list[str]:
     """The file's lines. UTF-8 (with or without a BOM); a file that is not UTF-8 is read as
     Latin-1, so joint names written by older tools keep their accented letters."""
@@ -64,8 +76,7 @@ def _open_text(path: Path) -> list[str]:
             raise MotionFormatError(path, None, "is a folder, not a BVH file")
         if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
             raise MotionFormatError(path, None, "is not a regular file")
-        with open(path, "rb") as f:  # gzip by its magic, not its name (.BVH.GZ, a gzipped .bvh)
-            zipped = f.read(2) == b"\x1f\x8b"
+        zipped = gzipped(path)
         if path.name.lower().endswith(".gz") and not zipped:
             raise MotionFormatError(path, None, "cannot read: named .gz, but not gzip data")
         with gzip.open(path, "rb") if zipped else open(path, "rb") as f:

@@ -16,6 +16,7 @@ import numpy as np
 
 from pipeline.data.split import shared_data_dir
 from pipeline.errors import TweenError
+from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
@@ -141,16 +142,15 @@ def load_rig_source(
         raise RigSourceError(path, "file not found")
     if not path.is_file():
         raise RigSourceError(path, "not a file")
-    suffixes = "".join(path.suffixes[-2:]).lower()
     if path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
         motion = _from_usd(path, skeleton)
-    elif suffixes.endswith(".bvh") or suffixes.endswith(".bvh.gz"):
+    elif is_bvh(path):
         from pipeline.motion.bvh import read_bvh
 
         if skeleton:
             raise RigSourceError(path, "--skeleton applies to USD shots; a BVH holds one skeleton")
         motion = read_bvh(path)
-    elif suffixes.endswith(".npz"):
+    elif path.suffix.lower() == ".npz":
         motion = load_npz(path)
     else:
         raise RigSourceError(path, "not a USD shot (.usd/.usda/.usdc/.usdz) or a BVH (.bvh/.bvh.gz)")

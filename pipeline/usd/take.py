@@ -19,6 +19,7 @@ import numpy as np
 from pipeline.adapt.mapping import MappingError, load_override, map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import ShotError
+from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 
 
@@ -71,11 +72,6 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
 
 
 TAKE_SUFFIXES = (".bvh", ".bvh.gz", ".usd", ".usda", ".usdc", ".usdz")
-
-
-def is_bvh(path: str | Path) -> bool:
-    """Whether a take file is a BVH by its name, in any case (``WALK.BVH``, ``.bvh.gz``)."""
-    return Path(path).name.lower().endswith((".bvh", ".bvh.gz"))
 
 
 def _walk(folder: Path):
