@@ -32,20 +32,21 @@ def stride(text: str) -> int:
     return _int(text, 1, 10**6, "a stride")
 
 
-def spacings(text: str) -> tuple[int, ...]:
-    """Key spacings in frames, comma-separated: each from 2 (one frame between keys) to 10000."""
+def _ints(text: str, lo: int, hi: int, what: str, many: str) -> tuple[int, ...]:
     parts = [p.strip() for p in text.split(",") if p.strip()]
     if not parts:
-        raise argparse.ArgumentTypeError(f"{text!r}: key spacings, comma-separated frames like 10,30")
-    return tuple(_int(p, 2, 10_000, "a key spacing") for p in parts)
+        raise argparse.ArgumentTypeError(f"{text!r}: {many}")
+    return tuple(_int(p, lo, hi, what) for p in parts)
+
+
+def spacings(text: str) -> tuple[int, ...]:
+    """Key spacings in frames, comma-separated: each from 2 (one frame between keys) to 10000."""
+    return _ints(text, 2, 10_000, "a key spacing", "key spacings, comma-separated frames like 10,30")
 
 
 def subjects(text: str) -> tuple[int, ...]:
     """CMU subject numbers, comma-separated."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts:
-        raise argparse.ArgumentTypeError(f"{text!r}: subject numbers, comma-separated like 5,6,7")
-    return tuple(_int(p, 1, 999, "a subject number") for p in parts)
+    return _ints(text, 1, 999, "a subject number", "subject numbers, comma-separated like 5,6,7")
 
 
 def rate(text: str) -> float:

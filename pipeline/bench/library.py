@@ -244,12 +244,11 @@ def main(argv=None) -> int:
         ap.error(f"--source: one or more of {', '.join(ALL_SOURCES)}")
     if a.tuning and "others" in sources:
         ap.error(f"--tuning: {NO_TUNING}")
-    every = a.every
     try:  # a model that is not there (or is damaged) is one line naming it, before the library is built
         load_model(a.model)
     except FileNotFoundError as e:
         raise TweenError(f"--model {a.model}: {e}") from None
-    rep = run(sources, every, methods, a.stride, a.max_frames or None, a.limit, a.tuning, a.model)
+    rep = run(sources, a.every, methods, a.stride, a.max_frames or None, a.limit, a.tuning, a.model)
     publish(rep, a.out, "library")
     return 0
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.adapt.hierarchy import ancestors
 from pipeline.adapt.mapping import MODEL_JOINTS
 from pipeline.data.split import list_clips, shared_data_dir
 from pipeline.fill.api import FillOptions, fill_shot
@@ -188,7 +189,7 @@ def rest_replaced(rig: Rig, kind: str, frame: int = 7) -> Rig:
         g = _globals(rest_rot, rig.parents)
         for side, sign in (("L", -1), ("R", 1)):
             j = rig.model_index[f"UpperArm_{side}"]
-            g_sub = [j] + [i for i in range(len(rig.parents)) if j in _chain(rig.parents, i)[1:]]
+            g_sub = [j] + [i for i in range(len(rig.parents)) if j in ancestors(rig.parents, i)[1:]]
             turn = Rotation.from_rotvec([0, 0, sign * np.pi / 4]).as_quat()
             g[g_sub] = quat_mul(np.broadcast_to(turn, (len(g_sub), 4)), g[g_sub])
         rest_rot = _locals(g, rig.parents)
@@ -198,14 +199,6 @@ def rest_replaced(rig: Rig, kind: str, frame: int = 7) -> Rig:
         raise ValueError(kind)
     return Rig(rig.names, rig.parents, rest_rot, rest_trans, rig.rot, rig.trans, rig.up_axis, rig.mpu,
                dict(rig.model_index))  # fmt: skip
-
-
-def _chain(parents, i) -> list[int]:
-    out = []
-    while i >= 0:
-        out.append(int(i))
-        i = parents[i]
-    return out
 
 
 _Y_TO_Z = Rotation.from_euler("x", 90, degrees=True)
