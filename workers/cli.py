@@ -95,18 +95,23 @@ class _Interrupted(KeyboardInterrupt):
 
 
 class _Interrupts:
-    """SIGINT and SIGTERM handlers for ``tween fill``: they raise :class:`_Interrupted` while
-    ``armed`` (waiting), and are only counted while jobs are being sent (a job half sent is
-    never left running), or while the cancel settles (a second one stops the waiting).
+    """SIGINT and SIGTERM handlers for ``tween fill``. While ``armed`` (the embedded worker
+    starting, before anything is sent) the handler raises :class:`_Interrupted`. Otherwise it
+    only counts: while the jobs are being sent (a job half sent is never left running), while
+    the fill waits (:meth:`check`, called each poll, raises it there), and while the cancel
+    settles (a second one stops the waiting).
 
-    An exception raised from a handler is lost when the signal lands inside a garbage
-    collector's callback (Python prints "Exception ignored" and goes on), so the handler also
-    leaves ``pending`` set, and :meth:`check` (called each poll) raises it again."""
+    Why not raise where the signal lands while waiting: that is inside the farm client's
+    library code. Inside a garbage collector's callback the exception is printed and dropped
+    (the fill ran on to exit 0); inside a read of the SQLite result store the half-read
+    statement keeps its lock while the exception lives, so every write to that store (the
+    cancel record, the worker's results) waits out its busy timeout and retries (the fill hung
+    past 90 s after "cancelling")."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
     def __init__(self):
-        self.count, self.armed, self.pending, self.old = 0, True, False, {}
+        self.count, self.armed, self.old = 0, True, {}
 
     def __enter__(self) -> _Interrupts:
         for sig in self.SIGNALS:
@@ -120,12 +125,12 @@ class _Interrupts:
     def _handler(self, signum, frame):
         self.count += 1
         if self.armed:
-            self.armed, self.pending = False, True
+            self.armed = False
             raise _Interrupted()
 
     def check(self) -> None:
-        """Raises the interrupt whose handler's exception was swallowed."""
-        if self.pending:
+        """Raises the interrupt if a signal came (since the jobs were sent, or before)."""
+        if self.count:
             raise _Interrupted()
 
 
@@ -163,9 +168,9 @@ def _cancelled_line(s) -> str:
 
 
 def _from_interrupt(e: BaseException | None) -> bool:
-    """Whether ``e`` is the interrupt, or an error raised while a library cleaned up after it:
-    the handler raises where the signal lands, and SQLAlchemy closing a connection there turns
-    it into an AssertionError whose context is the interrupt (the SQLite farm's result store)."""
+    """Whether ``e`` is the interrupt, or an error raised while a library cleaned up after it
+    (its context is the interrupt): while the embedded worker starts the handler raises where
+    the signal lands, and code cleaning up there may fail in its turn."""
     while e is not None:
         if isinstance(e, _Interrupted):
             return True
@@ -183,31 +188,17 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> 
         if alive is not None:
             alive()
 
+    intr.armed = False  # from here the polls raise it, between the farm client's reads
     try:
-        intr.armed = True
-        if intr.count:  # interrupted while the jobs were being sent
-            intr.armed = False
-            raise _Interrupted()
+        intr.check()  # interrupted while the jobs were being sent
         states = jobs.wait(ids, progress=progress, alive=poll)
-        intr.armed = False
-        intr.check()  # it landed in the last poll, where nothing raised it
+        intr.check()  # it came during the last poll
     except BaseException as e:
         if not _from_interrupt(e):
             raise
-        intr.armed = intr.pending = False
-        print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
-        jobs.cancel(ids, why="tween fill interrupted")
-        states = _settle(ids, intr, alive)
-        for s in states:
-            if s.state == "SUCCESS":  # it finished before the cancel reached it
-                _report([s])
-            elif s.state == "CANCELLED":
-                print(_cancelled_line(s), file=sys.stderr)
-            else:
-                print(
-                    f"tween: {s.shot}: job {s.id} is still stopping (`tween status {s.id}`)", file=sys.stderr
-                )
-        return EXIT_CANCELLED
+        states = None  # cancelled below, once the interrupt (and what its frames hold) is let go
+    if states is None:
+        return _cancel(jobs, ids, intr, alive)
     code = _report([s for s in states if s.state != "CANCELLED"])
     for s in states:
         if s.state == "CANCELLED":  # cancelled elsewhere (`tween cancel`)
@@ -215,6 +206,21 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> 
             print(_cancelled_line(s), file=sys.stderr)
             code = EXIT_CANCELLED
     return code
+
+
+def _cancel(jobs, ids: list[str], intr: _Interrupts, alive) -> int:
+    """Cancels the interrupted fill's jobs, waits until they have stopped and undone their
+    work, says how each ended and returns 130."""
+    print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
+    jobs.cancel(ids, why="tween fill interrupted")
+    for s in _settle(ids, intr, alive):
+        if s.state == "SUCCESS":  # it finished before the cancel reached it
+            _report([s])
+        elif s.state == "CANCELLED":
+            print(_cancelled_line(s), file=sys.stderr)
+        else:
+            print(f"tween: {s.shot}: job {s.id} is still stopping (`tween status {s.id}`)", file=sys.stderr)
+    return EXIT_CANCELLED
 
 
 def _said(paths: list[str], ids: list[str], progress: bool) -> None:

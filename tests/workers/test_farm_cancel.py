@@ -316,17 +316,16 @@ def test_an_interrupt_a_library_turns_into_its_own_error_still_cancels(monkeypat
     assert len(calls) == 1
 
 
-def test_an_interrupt_a_garbage_collector_swallowed_still_cancels(monkeypatch, capsys):
-    """A signal landing inside a garbage collector's callback has its exception printed as
-    "Exception ignored" and dropped (CI saw this: the fill ran on to exit 0). The next poll
-    raises it again: the jobs are cancelled, 130."""
+def test_an_interrupt_while_waiting_is_raised_by_the_next_poll_not_where_it_lands(monkeypatch, capsys):
+    """While the fill waits, the signal lands inside the farm client's library code. Raised
+    there, it was lost inside a garbage collector's callback (CI: the fill ran on to exit 0),
+    and inside a read of the SQLite result store it left the statement holding its lock, so
+    the cancel record waited out the store's busy timeouts (CI: no exit within 90 s). So the
+    handler returns normally there, and the next poll raises it: the jobs are cancelled, 130."""
     calls, polls = [], []
 
     def wait(ids, progress, alive):
-        try:  # what the collector does with an exception from its callback
-            intr._handler(signal.SIGINT, None)
-        except KeyboardInterrupt:
-            pass
+        intr._handler(signal.SIGINT, None)  # returns: whatever it landed in goes on intact
         for _ in range(3):
             polls.append(1)
             alive()
@@ -337,15 +336,12 @@ def test_an_interrupt_a_garbage_collector_swallowed_still_cancels(monkeypatch, c
     monkeypatch.setattr(fill_cli, "_settle", lambda ids, intr, alive: [])
     intr = fill_cli._Interrupts()
     assert fill_cli._run_jobs(["j1"], intr, progress=False) == fill_cli.EXIT_CANCELLED
-    assert calls == [("j1",)] and len(polls) == 1 and not intr.pending
+    assert calls == [("j1",)] and len(polls) == 1
     assert "interrupted: cancelling 1 job(s) (j1)" in capsys.readouterr().err
 
-    # Swallowed in the last poll, after which wait returned: still the interrupt.
+    # In the last poll, after which wait returned: still the interrupt.
     def wait_then_return(ids, progress, alive):
-        try:
-            intr._handler(signal.SIGTERM, None)
-        except KeyboardInterrupt:
-            pass
+        intr._handler(signal.SIGTERM, None)
         return []
 
     jobs.wait = wait_then_return
