@@ -8,7 +8,6 @@ one line that says so and names the log file holding the traceback, exit status 
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import errno
 import os
@@ -146,14 +145,6 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
     if rc == 130:
         print("tween: interrupted", file=sys.stderr)
     sys.exit(rc if isinstance(rc, int) else 0)
-
-
-class Parser(argparse.ArgumentParser):
-    """argparse for the benches' ``python -m`` commands: a bad argument is a TweenError (one
-    ``tween: error:`` line and exit 2 under :func:`run_main`), not a usage box."""
-
-    def error(self, message: str):
-        raise TweenError(f"{self.prog}: {message}")
 
 
 def run_main(main, argv: list[str] | None = None, log_dir: Path | None = None):

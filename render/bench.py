@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline.command import Parser
+from pipeline.arguments import Parser
 from pipeline.data.split import shared_data_dir
 from pipeline.fill.api import FillOptions, fill_shot
 from render.gl import renderer_name

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.retarget import typical_local
+from pipeline.arguments import Parser
 from pipeline.bench import args as arg
 from pipeline.bench.heldout import posture_degrees
 from pipeline.bench.report import publish
-from pipeline.command import Parser
 from pipeline.data.protocol import windows_of
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import TweenError

@@ -43,11 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.arguments import Parser
 from pipeline.bench import args as arg
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.report import publish
 from pipeline.bench.studio import evaluate_take
-from pipeline.command import Parser
 from pipeline.data.cache import cache_dir
 from pipeline.data.split import list_clips
 from pipeline.errors import TweenError

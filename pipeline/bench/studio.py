@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.adapt.mapping import map_joints
+from pipeline.arguments import Parser
 from pipeline.bench import args as arg
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.report import publish
-from pipeline.command import Parser
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import resample

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.arguments import Parser
 from pipeline.bench import args as arg
 from pipeline.bench.heldout import parse_source, posture_degrees
 from pipeline.bench.report import publish
-from pipeline.command import Parser
 from pipeline.data.protocol import CONTEXT, TRANSITIONS, global_positions, position_stats
 from pipeline.errors import TweenError
 from pipeline.infer import novelty, trust

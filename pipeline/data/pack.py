@@ -9,7 +9,6 @@ with it, so it is written here. The result is an ordinary :class:`ClipSet`.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import lzma
@@ -18,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.arguments import Parser
 from pipeline.data.cache import ClipSet
 from pipeline.errors import TweenError
 from pipeline.motion.rotations import quat_normalize
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
     """``python -m pipeline.data.pack OUT`` packs the train split (with its checksum printed)."""
     from pipeline.data.cache import load_split
 
-    ap = argparse.ArgumentParser(prog="python -m pipeline.data.pack", description=__doc__.splitlines()[0])
+    ap = Parser(prog="python -m pipeline.data.pack", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="the packed file to write (.npz)")
     a = ap.parse_args(argv)
     if not a.out.parent.is_dir():  # before the split is read: a minute of parsing otherwise

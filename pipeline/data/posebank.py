@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.arguments import Parser
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import facing_turn
 from pipeline.data.skeletons import bandai_skeleton
@@ -84,7 +85,7 @@ def _at_least_one(text: str) -> int:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.data.posebank", description=__doc__.splitlines()[0])
+    ap = Parser(prog="python -m pipeline.data.posebank", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="the bank file to write (.npz)")
     ap.add_argument("--poses", type=_at_least_one, default=POSES)
     ap.add_argument("--seed", type=int, default=0)

@@ -11,15 +11,13 @@ where ``--out`` says::
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
-import sys
 from pathlib import Path
 
+from pipeline.arguments import Parser
 from pipeline.data.cache import cache_root
 from pipeline.data.corpus import Corpus, load_corpus, open_corpus, prepare
-from pipeline.errors import TweenError
 
 
 def read_clip(path: Path, source, fps: float):
@@ -69,19 +67,17 @@ def describe(manifest: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.train.corpus", description=__doc__.splitlines()[0])
+    ap = Parser(prog="python -m pipeline.train.corpus", description=__doc__.splitlines()[0])
     ap.add_argument("corpus", help="corpus description (TOML or JSON)")
     ap.add_argument("--out", help="cache folder (default: under $TWEEN_CACHE/corpora)")
     ap.add_argument("--json", action="store_true", help="print the manifest as JSON")
     args = ap.parse_args(argv)
-    try:
-        _, folder, manifest = prepared(args.corpus, args.out)
-    except TweenError as e:
-        print(f"tween: error: {e}", file=sys.stderr)
-        return 2
+    _, folder, manifest = prepared(args.corpus, args.out)
     print(json.dumps(manifest, indent=1) if args.json else f"{describe(manifest)}\n  cache: {folder}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from pipeline.command import run_main
+
+    run_main(main)
