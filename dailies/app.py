@@ -21,18 +21,18 @@ HERE = Path(__file__).parent
 
 
 class Approval(BaseModel):
-    take: int = Field(ge=0, description="The approved take.")
+    take: int = Field(ge=0, strict=True, description="The approved take.")
     note: str | None = Field(None, max_length=10000, description="The reviewer's note.")
     by: str | None = Field(
         None, max_length=200, description="The reviewer's name (default: the user the server runs as)."
     )
     version: int | None = Field(
-        None, description="The fill version the page showed; refused if no longer the latest."
+        None, strict=True, description="The fill version the page showed; refused if no longer the latest."
     )
 
 
 class Publication(BaseModel):
-    version: int | None = Field(None, description="The fill version the page showed.")
+    version: int | None = Field(None, strict=True, description="The fill version the page showed.")
 
 
 def _with_urls(roots: list[Path], d: dict) -> dict:

@@ -133,10 +133,10 @@ def dailies(
     from dailies.app import create_app
 
     tls = certfile is not None
+    sock = bind(host, port)  # a bad --host or a taken port is the only line
     if not _loopback(host) and not tls:
         print(f"tween: dailies: warning: listening on {host} without TLS: the login token and the pages "
               "cross the network in clear (use --certfile/--keyfile)", file=sys.stderr)  # fmt: skip
-    sock = bind(host, port)
     login = Login(token or new_token(), secure=tls)
     name = socket.gethostname() if host in ("0.0.0.0", "::") else host
     shown = f"[{name}]" if ":" in name else name

@@ -15,7 +15,7 @@ from pathlib import Path
 from dailies import tracker as trackers
 from dailies.shots import Shot, find, forget, shot_file
 from pipeline.errors import TweenError
-from pipeline.usd import dailies
+from pipeline.usd import dailies, write
 
 _lock = threading.Lock()
 #: Approval layers this server sent to a tracker (an upload is a comment: never twice).
@@ -45,6 +45,8 @@ def _current(roots: list[Path], key: str, version: int | None) -> tuple[Shot, st
         raise Refused(
             f"{shot.stem}: the animator's shot of {path.name} is not found (its review layer names none)"
         )
+    if write.shot_stem(str(shot_path)) != shot.stem:  # its layers were copied from another shot
+        raise Refused(f"{shot.stem}: {path.name} is a fill of {shot_path.name}, not of a shot {shot.stem}")
     return shot, str(shot_path)
 
 

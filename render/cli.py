@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.usd.write import latest_review
+from pipeline.usd.write import check_review, latest_review, made_layer, review_of
 from render.review import render_review
 from render.scene import list_takes
 
@@ -60,20 +60,28 @@ def _check_options(take: int | None, turns: float) -> None:
         raise TweenError(f"--turns {turns:g}: must be from -{MAX_TURNS:g} to {MAX_TURNS:g}")
 
 
-def _latest_fill(shot: str, fills: str | None) -> str:
-    """``shot`` itself when it is a fill's review or fill layer; for a plain shot, the review
-    layer of its latest fill (said on stderr), or the shot as it is when it has none yet
-    (said once it is rendered)."""
-    name = Path(shot).name
-    if ".review.v" in name or ".tween.v" in name or not Path(shot).is_file():
-        return shot
+def _latest_fill(shot: str, fills: str | None) -> tuple[str, str | None]:
+    """The stage to render for ``shot``, and the line to say once it rendered: a review layer
+    itself (every layer it stacks there); a fill layer's review layer; for a plain shot, the
+    review layer of its latest fill, or the shot as it is when it has none yet (said only when
+    nothing it rendered was filled)."""
+    if not Path(shot).is_file():
+        return shot, None  # opening it names the problem
+    made = made_layer(shot)
+    if made == "a review layer":
+        check_review(shot)
+        return shot, None
+    if made == "a fill layer":  # alone it holds no character: its review stacks it on the shot
+        found = review_of(shot)
+        return str(found), f"tween: review: {shot}: rendered through its review layer, {found}"
+    if made:
+        raise TweenError(f"{shot}: {made} holds no character alone; sublayer it over its shot to review it")
     if fills is not None and not Path(fills).is_dir():  # a typo would render the unfilled shot
         raise TweenError(f"--fills {fills}: no such folder")
     found = latest_review(shot, fills)
     if found is None:
-        return shot
-    print(f"tween: review: {shot}: its latest fill, {found}", file=sys.stderr)
-    return str(found)
+        return shot, f"tween: review: {shot}: no fill of it yet; rendered the shot as it is"
+    return str(found), f"tween: review: {shot}: its latest fill, {found}"
 
 
 def review(
@@ -123,7 +131,7 @@ def review(
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
 
-    given, shot = shot, _latest_fill(shot, fills)
+    given, (shot, said) = shot, _latest_fill(shot, fills)
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
     takes = [take]
     if all_takes:
@@ -138,9 +146,8 @@ def review(
         summary["frame_count"] = len(result["frame_numbers"])
         summary["frames_dir"] = out_dir if result["frames"] else None
         summaries.append(summary)
-    if not any(sm.get("model") for sm in summaries):
-        # Said once it rendered (a bad shot's error stays the only line): no fill in it.
-        print(f"tween: review: {given}: no fill of it yet; rendered the shot as it is", file=sys.stderr)
+    if said and (shot != given or not any(sm.get("model") for sm in summaries)):
+        print(said, file=sys.stderr)  # once it rendered: a refusal stays the only line
     typer.echo(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
 
 

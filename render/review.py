@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.errors import TweenError
 from pipeline.progress import interval
 from pipeline.usd.files import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
@@ -301,6 +302,8 @@ def _scratch(out: Path, job: str):
     """A scratch folder in ``out`` (made if missing) for a review's media, removed when done;
     on failure ``out`` too is removed if this made it."""
     created = not out.exists()
+    if not created and not out.is_dir():
+        raise TweenError(f"{out}: is a file, not a folder for the review's media")
     out.mkdir(parents=True, exist_ok=True)
     clean_dead_temps(out, quiet=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
@@ -336,9 +339,38 @@ def _write_sheet_and_timeline(
     with folder_lock(out):
         update_timeline(timeline, tmp / timeline.name, shot.name, track, shot.facts,
                         keep=lambda url: bool(url) and (out / url).exists())  # fmt: skip
-        for f in tmp.iterdir():
-            f.replace(out / f.name)
+        _move_in(tmp, out)
     return timeline
+
+
+def _move_in(tmp: Path, out: Path) -> None:
+    """Moves every medium of ``tmp`` into ``out``, all or none: a folder where a medium goes is
+    refused before anything moves, and a move that fails puts back what the others replaced
+    (the earlier render's media, kept aside in ``tmp``) so no timeline names a movie not there."""
+    files = sorted(f for f in tmp.iterdir() if f.is_file())
+    for f in files:
+        dest = out / f.name
+        if dest.is_dir() and not dest.is_symlink():
+            raise TweenError(f"{dest}: is a folder; the review's {f.name} goes there (move it away)")
+    aside = tmp / ".replaced"
+    aside.mkdir()
+    done: list[tuple[Path, Path | None]] = []
+    try:
+        for f in files:
+            dest = out / f.name
+            old = None
+            if dest.exists() or dest.is_symlink():
+                old = aside / f.name
+                dest.replace(old)
+            done.append((dest, old))
+            f.replace(dest)
+    except BaseException:
+        for dest, old in reversed(done):
+            if old is None:
+                dest.unlink(missing_ok=True)
+            elif old.exists() or old.is_symlink():
+                old.replace(dest)
+        raise
 
 
 def render_review(

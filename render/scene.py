@@ -218,6 +218,18 @@ def list_takes(stage_path: str) -> list[int]:
     return []
 
 
+def _single_takes(stage) -> set[int]:
+    """The take numbers a fill without takes variants recorded on its animations (``tween:take``)."""
+    from pxr import Usd
+
+    out = set()
+    for p in stage.Traverse(Usd.PrimAllPrimsPredicate):
+        a = p.GetAttribute(tokens.TAKE) if p.GetTypeName() == "SkelAnimation" else None
+        if a and a.HasAuthoredValue():
+            out.add(int(a.Get()))
+    return out
+
+
 def _select_take(stage, path: str, take: int | None) -> str | None:
     from pxr import Usd
 
@@ -231,7 +243,17 @@ def _select_take(stage, path: str, take: int | None) -> str | None:
             return holders[0].GetVariantSets().GetVariantSet(TAKE_VARIANT_SET).GetVariantSelection() or None
         return None
     if not holders:
-        raise ShotError(path, f"--take {take} given but no prim has a {TAKE_VARIANT_SET!r} variant set")
+        single = _single_takes(stage)
+        if take in single:  # a fill of one take has no variant set; it is that take
+            return None
+        held = (
+            f"its fill is take {', '.join(map(str, sorted(single)))} alone"
+            if single
+            else "it holds no fill's takes"
+        )
+        raise ShotError(
+            path, f"--take {take} given but {held} (no prim has a {TAKE_VARIANT_SET!r} variant set)"
+        )
     name = f"take{take}"
     # Select in the session layer: the user's files are never edited.
     stage.SetEditTarget(stage.GetSessionLayer())
@@ -351,6 +373,10 @@ def _time_range(stage, stage_path: str, chars: list[Character], frame_range) -> 
         start, end = max(start, frame_range[0]), min(end, frame_range[1])
         if end < start:
             raise ShotError(stage_path, f"frame range {frame_range} is outside the shot")
+    from pipeline.usd.read import check_span  # pxr
+
+    # The fill's own bound on a shot's span: the review holds every frame's pose in memory.
+    check_span(stage_path, start, end, "the range to render" + (" (--frames)" if frame_range else ""))
     return start, end
 
 

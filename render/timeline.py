@@ -91,11 +91,34 @@ def take_track(
     return track
 
 
+def _align(tracks: list) -> object:
+    """Lines the takes' tracks up on the shot's frame numbers: each track starts with a gap as
+    long as its first frame is after the earliest track's (takes rendered over different
+    ``--frames``); returns that earliest frame, the timeline's global start."""
+    import opentimelineio as otio
+
+    for t in tracks:  # the gaps an earlier alignment put there
+        while len(t) and isinstance(t[0], otio.schema.Gap):
+            del t[0]
+    starts = [t.find_clips()[0].source_range.start_time for t in tracks]
+    first = min(starts, key=lambda rt: rt.to_seconds())
+    for t, start in zip(tracks, starts, strict=True):
+        lead = start - first.rescaled_to(start.rate)
+        if lead.value > 0:
+            t.insert(
+                0,
+                otio.schema.Gap(
+                    source_range=otio.opentime.TimeRange(otio.opentime.RationalTime(0, start.rate), lead)
+                ),
+            )
+    return first
+
+
 def update_timeline(existing: str | Path | None, out_path: str | Path, shot: str, track, facts: dict,
                     keep=lambda url: True) -> str:  # fmt: skip
     """Writes ``out_path``: the timeline of ``existing`` (if it reads) with ``track`` replacing
     the track of the same take (the others kept while ``keep(their media URL)``), sorted by
-    take number."""
+    take number, and lined up on the shot's frame numbers (:func:`_align`)."""
     import opentimelineio as otio
 
     tracks = []
@@ -120,7 +143,7 @@ def update_timeline(existing: str | Path | None, out_path: str | Path, shot: str
     kept.append(track)
     kept.sort(key=lambda t: (t.metadata[TRACK_KEY].get("take_number") is None,
                              t.metadata[TRACK_KEY].get("take_number") or 0, t.name))  # fmt: skip
-    first = track.find_clips()[0].source_range.start_time
+    first = _align(kept)
     tl = otio.schema.Timeline(name=shot, global_start_time=first)
     tl.metadata[TRACK_KEY] = {
         "shot": shot,

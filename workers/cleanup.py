@@ -107,7 +107,7 @@ def undo(shot: str, opts: dict, job: dict) -> list[str]:
         return undo_render(job)
     removed: list[str] = []
     out_dir = Path(opts.get("out_dir") or write.default_out_dir(shot))
-    done = write.find_job(out_dir, write.shot_stem(shot), job["id"]) if out_dir.is_dir() else None
+    done = write.find_job(out_dir, write.shot_stem(shot), job["id"], shot) if out_dir.is_dir() else None
     if done:
         removed += _drop_media(review_dir(done), job["id"], done.get("review"))
         for key in ("review", "layer"):  # the layer last: it is how the job's files are found

@@ -38,7 +38,7 @@ from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
 from pipeline.usd.files import clean_dead_temps, owner_tag, write_error
-from pipeline.usd.write import check_out_dir
+from pipeline.usd.write import check_out_dir, check_shot_name
 
 _MODELS: dict[tuple[int, str], object] = {}
 #: A library fill also probes the human network (False: the library against the spline only;
@@ -135,15 +135,16 @@ def probed_beside(opts: FillOptions, human) -> tuple:
     return out + tuple(_model(str(f)) for f in getattr(human, "beside_folders", ()))
 
 
-def _plan(shot: str, opts: FillOptions, human):
+def _plan(shot: str, opts: FillOptions, human, say: bool = True):
     from pipeline.fill.plan import RIG_AUTO, RIG_OFF, make_plan
 
     opts.check()
+    check_shot_name(str(shot))
     rig = rig_folder(opts.model) or (RIG_AUTO if opts.model == "default" else RIG_OFF)
     fps = float(human.fps) if human is not None else 30.0
     # Interpolation and the spline work on any rig, mapped or not, in its own joint space.
     own = opts.model in ("interp", "interpolation", "spline")
-    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig, own_rig=own)
+    return make_plan(str(shot), opts.keys, opts.range, opts.mapping, fps, rig=rig, own_rig=own, say=say)
 
 
 def dna_motion(opts: FillOptions, fps: float):
@@ -258,8 +259,11 @@ def precheck(shot: str, opts: FillOptions) -> list[str]:
         )
     if opts.library:  # not a library, or a damaged one: as fill-local says it
         open_library(opts.library)
-    _plan(shot, opts, None)
-    check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts
+    plan = _plan(shot, opts, None, say=False)
+    write.check_review_layer(shot, plan.shot.stage, opts.review_layer)
+    out = check_out_dir(shot, opts.out_dir)  # a read-only output folder, before any farm starts
+    write.check_series(shot, out, write.shot_stem(shot))
+    plan.say()
     warn_experimental(opts.model)
     return composition(shot, opts)
 
@@ -271,10 +275,14 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
 
     opts.check()  # before any model is loaded
     human = _human(opts)
-    plan = _plan(shot, opts, human)
+    plan = _plan(shot, opts, human, say=False)
+    write.check_review_layer(shot, plan.shot.stage, opts.review_layer)
+    out_dir = check_out_dir(shot, opts.out_dir)
+    write.check_series(shot, out_dir, write.shot_stem(shot))
+    plan.say()  # every check of the shot passed: one line on a refusal
     summary = plan.summary()
     summary["missing_assets"] = composition(shot, opts)
-    summary["out_dir"] = str(check_out_dir(shot, opts.out_dir))
+    summary["out_dir"] = str(out_dir)
     models = {}
     inbs = [_char_model(cp, human) for cp in plan.chars]
     alternatives = probed_beside(opts, human)
@@ -366,7 +374,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
     from pipeline.fill.solve import fill_character
 
     human = _human(opts)
-    plan = _plan(shot, opts, human)
+    plan = _plan(shot, opts, human, say=False)  # validate_shot said its notes, once
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
     # A human character is also probed with what ships or is asked beside it (the better decides).
@@ -447,7 +455,7 @@ def write_layers(shot: str, opts: FillOptions, take_files: list[str], job_id: st
 
     out_dir = Path(opts.out_dir) if opts.out_dir else write.default_out_dir(shot)
     if job_id and out_dir.is_dir():  # a fast path; write.write checks again under the folder lock
-        done = write.find_job(out_dir, write.shot_stem(shot), job_id)
+        done = write.find_job(out_dir, write.shot_stem(shot), job_id, shot)
         if done:
             # A task delivered again after it wrote: the same layer, and what its takes say
             # (decisions, identical takes) as the first delivery returned them.

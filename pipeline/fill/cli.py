@@ -78,6 +78,9 @@ def _check_shot_path(out: Path, force: bool, source: Path | None = None) -> None
         raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
     if not out.parent.is_dir():
         raise TweenError(f"{out}: the folder {out.parent} does not exist")
+    # The mode bits too, as the fill's layers: a read-only (published) folder stays untouched even for root.
+    if not os.access(out.parent, os.W_OK) or not out.parent.stat().st_mode & 0o222:
+        raise TweenError(f"{out}: the folder {out.parent} is read-only")
     if (out.exists() or out.is_symlink()) and not force:  # fill layers may sublayer it
         raise TweenError(f"{out}: exists; pass --force to replace it (fills of it keep pointing at it)")
 

@@ -56,6 +56,14 @@ class Plan:
     chars: list[CharPlan]
     refused: list[tuple[str, str]]  # (prim, why)
     model_fps: float
+    notes: list[str] = field(default_factory=list)  # said once every check has passed
+
+    def say(self) -> None:
+        """Its notes and the characters it skipped, on stderr."""
+        for note in self.notes:
+            print(note, file=sys.stderr)
+        for prim, why in self.refused:
+            print(f"tween: warning: {self.shot.path} {prim}: skipped: {why}", file=sys.stderr)
 
     def summary(self) -> dict:
         return {
@@ -228,11 +236,12 @@ def make_plan(
     model_fps: float,
     rig: str = RIG_OFF,
     own_rig: bool = False,
+    say: bool = True,
 ) -> Plan:
     """``model_fps`` is the human model's rate; ``rig`` is RIG_AUTO (a stored rig model that
     fits a character wins over the human mapping), RIG_OFF (human model only) or a rig
     model folder (that model only); ``own_rig``: every character on its own rig, mapped or
-    not (interpolation needs no model skeleton)."""
+    not (interpolation needs no model skeleton). ``say``: its notes now (else :meth:`Plan.say`)."""
     shot = read_shot(path)
     try:
         override = load_override(mapping)
@@ -275,8 +284,7 @@ def make_plan(
     if not chars:
         prim, why = refused[0]
         raise ShotError(path, f"rig refused: {why}", prim)
-    for note in notes:
-        print(note, file=sys.stderr)
-    for prim, why in refused:
-        print(f"tween: warning: {path} {prim}: skipped: {why}", file=sys.stderr)
-    return Plan(shot, chars, refused, model_fps)
+    plan = Plan(shot, chars, refused, model_fps, notes)
+    if say:
+        plan.say()
+    return plan

@@ -4,7 +4,8 @@ Written here because no maintained PyPI package reads BVH with per-source root r
 line-numbered errors. Rotations are intrinsic in channel order (``Zrotation Xrotation
 Yrotation`` means R = Rz·Rx·Ry, scipy's ``from_euler("ZXY")``).
 
-The root's position channels need a per-source rule (``root_position``):
+The root's position channels need a per-source rule (``root_position``; by default told from
+the take itself, :func:`_root_rule`):
 
 - ``"replace"``: the channels are the joint's translation and its OFFSET is ignored
   (Bandai Namco; its Hips OFFSET differs per clip and is meaningless).
@@ -36,10 +37,29 @@ ROOT_POSITION_RULES = ("replace", "add")
 _VALID_CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
 
 
-def root_position_rule_for(path: str | Path) -> str:
-    """The documented rule for the data sets we ship support for ("add" for cmu_iclone)."""
-    parts = {p.lower() for p in Path(path).resolve().parts}
-    return "add" if "cmu_iclone" in parts else "replace"
+def _root_rule(joints: list[BvhJoint], trans: np.ndarray, rots: np.ndarray) -> str:
+    """The root rule a file's content asks for, given its transforms read as "replace": "add"
+    where adding the root's OFFSET to its position channels brings the take's lowest point
+    (every joint, a frame in up to 200) nearer the ground than reading them as replacements,
+    as for the CMU/iClone rig (about 96 cm below the ground otherwise, whatever the file is
+    called); else "replace". Told by content, so a copied or renamed take reads the same."""
+    root = joints[0]
+    lift = root.offset[1] if "Yposition" in root.channels else 0.0
+    if not lift:
+        return "replace"  # both rules read the same heights
+    frames = slice(None, None, max(1, len(trans) // 200))
+    t, r = trans[frames], rots[frames]
+    pos = np.empty(t.shape)
+    world = np.empty(r.shape)
+    with np.errstate(all="ignore"):  # values too large for the model are refused after, in one line
+        for j, jt in enumerate(joints):  # file order: a parent comes before its children
+            if jt.parent < 0:
+                pos[:, j], world[:, j] = t[:, j], r[:, j]
+            else:
+                pos[:, j] = pos[:, jt.parent] + quat_apply(world[:, jt.parent], t[:, j])
+                world[:, j] = quat_mul(world[:, jt.parent], r[:, j])
+        low = float(pos[..., 1].min())  # the root's translation moves every joint with it
+        return "add" if abs(low + lift) < abs(low) else "replace"
 
 
 @dataclass
@@ -312,20 +332,21 @@ def read_bvh(
 ) -> Motion:
     """Read a BVH file into a :class:`Motion`.
 
-    ``root_position`` is "replace" or "add" (see the module doc); ``None`` picks the rule
-    for the known data sets. With ``fold_root``, a root that has a single child (Bandai's
+    ``root_position`` is "replace" or "add" (see the module doc); ``None`` picks the one the
+    file's content asks for (:func:`_root_rule`). With ``fold_root``, a root that has a single child (Bandai's
     ``joint_Root``, iClone's ``RL_BoneRoot``) is composed into that child, which becomes
     the root, as PROTOCOL.md prescribes.
     """
     path = Path(path)
-    rule = root_position or root_position_rule_for(path)
-    if rule not in ROOT_POSITION_RULES:
-        raise ValueError(f"root_position must be one of {ROOT_POSITION_RULES}, not {rule!r}")
+    if root_position not in (None, *ROOT_POSITION_RULES):
+        raise ValueError(f"root_position must be one of {ROOT_POSITION_RULES}, not {root_position!r}")
     lines = _open_text(path)
     joints, i = _parse_hierarchy(path, lines)
     n_channels = sum(len(j.channels) for j in joints)
     data, fps, _ = _parse_motion(path, lines, i, n_channels)
-    trans, rots = _joint_transforms(joints, data, rule)
+    trans, rots = _joint_transforms(joints, data, root_position or "replace")
+    if root_position is None and _root_rule(joints, trans, rots) == "add":
+        trans, rots = _joint_transforms(joints, data, "add")
 
     names = [jt.name for jt in joints]
     parents = [jt.parent for jt in joints]

@@ -135,6 +135,7 @@ def _check_shot(shot: str) -> None:
         raise ShotError(shot, "file not found")
     if not Path(shot).is_file():
         raise ShotError(shot, "not a file")
+    write.check_shot_name(shot)
 
 
 def _who() -> str:

@@ -373,7 +373,8 @@ def _check_rate(path: str, stage) -> float:
     return tcps
 
 
-def _check_span(path: str, start: float, end: float, what: str) -> None:
+def check_span(path: str, start: float, end: float, what: str) -> None:
+    """ShotError unless ``start``-``end`` is a finite range of at most MAX_FRAMES frames."""
     if not (math.isfinite(start) and math.isfinite(end)):
         raise ShotError(path, f"{what} {start:g}-{end:g} is not finite")
     if end < start:
@@ -447,7 +448,7 @@ def _read_shot(path: str) -> Shot:
     stage = open_stage(path)
     tcps = _check_rate(path, stage)
     if stage.HasAuthoredTimeCodeRange():
-        _check_span(path, stage.GetStartTimeCode(), stage.GetEndTimeCode(), "the stage range")
+        check_span(path, stage.GetStartTimeCode(), stage.GetEndTimeCode(), "the stage range")
     bound = bound_skeletons(stage, path)
     for b in bound:
         anim = b.query.GetAnimQuery().GetPrim()
@@ -471,7 +472,7 @@ def _read_shot(path: str) -> Shot:
     if not stage.HasAuthoredTimeCodeRange():
         allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])
         start, end = float(allt.min()), float(allt.max())
-        _check_span(path, start, end, "the animation's time samples")
+        check_span(path, start, end, "the animation's time samples")
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
 
 

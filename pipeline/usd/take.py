@@ -97,7 +97,9 @@ def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
     (comma-separated file-name globs, e.g. ``"001_*,002_*"``) only the names that match one."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise ShotError(folder, "no such folder of takes")
+        raise ShotError(
+            folder, "is a file, not a folder of takes" if folder.exists() else "no such folder of takes"
+        )
     folder = folder.resolve()  # one cache for a folder, however it is named
     pats = [p.strip() for p in (include or "").split(",") if p.strip()]
     files = sorted(

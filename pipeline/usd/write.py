@@ -30,6 +30,27 @@ def shot_stem(shot: str) -> str:
     return Path(shot).name.split(".")[0]
 
 
+_MADE = re.compile(r"^[^.]+\.(?P<kind>tween|review|publish)\.v\d+\.usd[acz]?$", re.IGNORECASE)
+_MADE_KINDS = {"tween": "a fill layer", "review": "a review layer", "publish": "a published layer"}
+
+
+def made_layer(path: str | Path) -> str | None:
+    """What ``path`` is by its name when it is one of the layers a fill, an approval or a
+    publish writes (``<stem>.tween.vNNN.usda``: "a fill layer"), else None (a shot)."""
+    m = _MADE.match(Path(path).name)
+    return _MADE_KINDS[m.group("kind").lower()] if m else None
+
+
+def check_shot_name(shot: str) -> None:
+    """ShotError when ``shot`` is a layer usd-tween made rather than a shot: its versions
+    would be looked for under its own name, and its review would chain over it."""
+    made = made_layer(shot)
+    if made:
+        raise ShotError(
+            shot, f"is {made}, not a shot: give the shot it was made from ({shot_stem(shot)}.usd*)"
+        )
+
+
 def versions(out_dir: Path, stem: str) -> dict[int, Path]:
     """The shot's fill layers in ``out_dir`` by version number."""
     pat = re.compile(rf"^{re.escape(stem)}\.tween\.v(\d+)\.usd[ac]?$")
@@ -43,26 +64,74 @@ def versions(out_dir: Path, stem: str) -> dict[int, Path]:
 
 def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
     """The review layer of the shot's latest fill (``<stem>.review.vNNN``, beside its fill
-    layer in ``out_dir`` or the default folder), or None when the shot has no fill there."""
+    layer in ``out_dir`` or the default folder), or None when the shot has no fill there.
+    ShotError when that review layer is missing or one of its layers is (a review of the
+    older fill, or of the shot alone, would pass for this one)."""
     out = Path(out_dir) if out_dir else default_out_dir(shot)
     found_versions = versions(out, shot_stem(shot)) if out.is_dir() else {}
     if not found_versions:
         return None
-    n = max(found_versions)
-    found = sorted(out.glob(f"{shot_stem(shot)}.review.v{n:03d}.usd*"))
-    return found[0] if found else None
+    return review_of(found_versions[max(found_versions)])
 
 
-def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
-    """The result of a layer in ``out_dir`` already written by ``job_id``, if any."""
+def review_of(fill: str | Path) -> Path:
+    """The review layer written with the fill layer ``fill`` (same folder, stem and version),
+    checked by :func:`check_review`; ShotError naming it when it is not there."""
+    fill = Path(fill)
+    name = fill.name.replace(".tween.", ".review.", 1)
+    found = sorted(fill.parent.glob(f"{name.rsplit('.', 1)[0]}.usd*"))
+    if not found:
+        raise ShotError(
+            str(fill), f"its review layer {fill.parent / name.rsplit('.', 1)[0]}.usda is not there"
+        )
+    check_review(found[0])
+    return found[0]
+
+
+def check_review(review: str | Path) -> None:
+    """ShotError unless every layer a review layer stacks (its fill, the shot) is there: USD
+    composes without a missing sublayer, so the review would show the shot unfilled, or a
+    fill with no character under it."""
     from pxr import Sdf
 
+    layer = Sdf.Layer.OpenAsAnonymous(str(review))
+    if layer is None:
+        return  # not a layer USD reads: opening the stage names it
+    for sub in layer.subLayerPaths:
+        path = sub if os.path.isabs(sub) else os.path.join(os.path.dirname(str(review)), sub)
+        if not os.path.exists(path):
+            raise ShotError(
+                str(review), f"the layer it stacks, {sub}, is not there ({os.path.normpath(path)})"
+            )
+
+
+def _recorded(path: Path) -> dict:
+    """The ``tween`` record of a layer written here ({} for one USD cannot read)."""
+    from pxr import Sdf, Tf
+
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    except Tf.ErrorException:
+        return {}
+    return dict(layer.customLayerData.get("tween", {})) if layer else {}
+
+
+def _shot_name(path: str) -> str:
+    """A shot's file name without its USD extension: a fill records the shot it was made from."""
+    return re.sub(r"\.usd[acz]?$", "", Path(path).name, flags=re.IGNORECASE)
+
+
+def _same_shot(info: dict, shot: str) -> bool:
+    return not info.get("shot") or _shot_name(info["shot"]) == _shot_name(shot)
+
+
+def find_job(out_dir: Path, stem: str, job_id: str, shot: str) -> dict | None:
+    """The result of a layer in ``out_dir`` already written by ``job_id`` for ``shot``, if any."""
     if not job_id:
         return None
     for n, p in sorted(versions(out_dir, stem).items()):
-        layer = Sdf.Layer.OpenAsAnonymous(str(p))
-        info = dict(layer.customLayerData.get("tween", {})) if layer else {}
-        if info.get("jobId") == job_id:
+        info = _recorded(p)
+        if info.get("jobId") == job_id and _same_shot(info, shot):
             return {
                 "layer": str(p),
                 "review": str(out_dir / info.get("review", "")),
@@ -74,6 +143,21 @@ def find_job(out_dir: Path, stem: str, job_id: str) -> dict | None:
                 "licence": dict(info.get("licence", {})),
             }
     return None
+
+
+def check_series(shot: str, out_dir: Path, stem: str) -> None:
+    """ShotError when the ``<stem>.tween.vNNN`` layers in ``out_dir`` are another shot's: two
+    shots whose names share the part before the first dot (``shot.a.usda``, ``shot.b.usda``)
+    would share one version series, and each one's latest fill would be the other's."""
+    found = versions(out_dir, stem) if out_dir.is_dir() else {}
+    if not found:
+        return
+    info = _recorded(found[max(found)])
+    if not _same_shot(info, shot):
+        raise ShotError(
+            shot, f"its layers would be {stem}.tween.vNNN in {out_dir}, which hold the fills of "
+            f"{Path(info['shot']).name}; name it so that the part before its first dot is its own, or use --out-dir",
+        )  # fmt: skip
 
 
 def apply_api(spec, name: str) -> None:
@@ -287,9 +371,10 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
             files.clean_dead_temps(out)
             if review_layer:
                 files.clean_dead_temps(Path(os.path.abspath(review_layer)).parent)
-            done = find_job(out, stem, meta.get("job_id", ""))
+            done = find_job(out, stem, meta.get("job_id", ""), shot)
             if done:
                 return done
+            check_series(shot, out, stem)
             return _write_locked(shot, stage, takes, meta, out, stem, fmt, review_layer)
     except BaseException:
         files.remove_created(created)
@@ -362,23 +447,49 @@ def _rel(target: Path, base_dir: Path) -> str:
     return os.path.relpath(os.path.realpath(target), os.path.realpath(base_dir))
 
 
-def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
-    """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
-    from pxr import Sdf, Tf, UsdUtils
+def _open_review_layer(review: Path):
+    """A ``--review-layer`` opened, and an empty layer of its format to edit it in; TweenError
+    naming it when it is not a USD layer this can edit (.usdz cannot be)."""
+    from pxr import Sdf, Tf
 
     from pipeline.usd.diagnostics import error_text
 
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(review))
+        if layer is None:
+            raise TweenError(f"--review-layer {review}: cannot open as a USD layer")
+        return layer, Sdf.Layer.CreateAnonymous(review.suffix)
+    except Tf.ErrorException as e:
+        raise TweenError(f"--review-layer {review}: cannot open as a USD layer: {error_text(e)}") from None
+
+
+def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
+    """Before any model runs: a ``--review-layer`` must be a USD layer this can edit, in a
+    folder it can write, and not one of the shot's own layers (never modified)."""
+    if not review_layer:
+        return
+    review = Path(review_layer)
+    if not review.is_file():
+        raise TweenError(
+            f"--review-layer {review}: no such file (it adds the fill to an existing root layer)"
+        )
+    if os.path.realpath(review) in {os.path.realpath(p) for p in _layer_files(stage)}:
+        raise ShotError(
+            shot, f"{review} is one of the shot's own layers; the animator's layers are never modified"
+        )
+    _open_review_layer(review)
+    folder = review.absolute().parent
+    if not os.access(folder, os.W_OK) or not folder.stat().st_mode & 0o222:
+        raise TweenError(f"--review-layer {review}: its folder {folder} is read-only")
+
+
+def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
+    """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
+    from pxr import Sdf, UsdUtils
+
     tmp = files.temp_path(review)
     if existing:
-        try:
-            layer = Sdf.Layer.FindOrOpen(str(review))
-            if layer is None:
-                raise ShotError(shot, f"review layer {review} cannot be opened")
-            text = Sdf.Layer.CreateAnonymous(review.suffix)
-        except Tf.ErrorException as e:  # not a USD layer, or a format that cannot be edited (.usdz)
-            raise TweenError(
-                f"--review-layer {review}: cannot open as a USD layer: {error_text(e)}"
-            ) from None
+        layer, text = _open_review_layer(review)
         text.TransferContent(layer)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))

@@ -50,6 +50,9 @@ def test_refusals_are_one_message(client, roots):
     assert bad_take.status_code == 409 and "take 7 is not one of the layer's takes (0, 1)" in bad_take.text
     negative = _post(client, APPROVE, {"take": -1})  # refused by the API's schema
     assert negative.status_code == 422
+    for odd in ({"take": True}, {"take": "1"}, {"take": 1.0}, {"take": 0, "version": True}):  # not read as 1
+        assert _post(client, APPROVE, odd).status_code == 422, odd
+    assert _post(client, PUBLISH, {"version": "1"}).status_code == 422
     nameless = _post(client, APPROVE, {"take": 0, "version": 1, "by": "\t"})  # approve's own check
     assert nameless.status_code == 409 and "the reviewer's name" in nameless.json()["detail"]
     assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
@@ -155,3 +158,18 @@ def test_tween_approve_names_the_reviewer(tmp_path):
     assert ok.returncode == 0, ok.stderr
     assert json.loads(ok.stdout)["by"] == "Ana Ruiz"
     assert decision(tmp_path / "seq09" / "sh900.tween.v002.usda")["by"] == "Ana Ruiz"
+
+
+def test_a_fill_copied_from_another_shot_is_not_decided_for_it(client, roots):
+    """Fill layers copied beside another shot name the shot they were made from: approving
+    them under the copy's key approved that other shot's fill (a new version of it)."""
+    import shutil
+
+    folder = roots[0] / "seq01"
+    shutil.copy(folder / "sh010.usda", folder / "sh099.usda")
+    shutil.copy(folder / "sh010.tween.v001.usda", folder / "sh099.tween.v001.usda")
+    before = sorted(p.name for p in folder.iterdir())
+    r = _post(client, "/api/shots/0/seq01/sh099/approve", {"take": 1, "version": 1})
+    assert r.status_code == 409, r.text
+    assert "sh099: sh099.tween.v001.usda is a fill of sh010.usda, not of a shot sh099" in r.json()["detail"]
+    assert sorted(p.name for p in folder.iterdir()) == before

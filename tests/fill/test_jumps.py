@@ -42,6 +42,14 @@ def test_a_key_six_metres_off_is_flagged_and_the_fill_still_goes_through_it(tmp_
     assert np.array_equal(np.array(tr.Get(1031.0)), np.array(src.Get(1031.0)))
 
 
+def test_a_warning_is_said_once_whatever_the_takes(tmp_path, capfd):
+    """Each take plans the shot again; its notes were said again for every take."""
+    shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
+    _moved(shot, 1031.0, 600.0)
+    fill_shot(str(shot), FillOptions(model="interp", takes=3, out_dir=str(tmp_path / "o")))
+    assert capfd.readouterr().err.count("the body moves") == 1
+
+
 def test_a_plain_walk_has_no_jumps_and_no_attribute(tmp_path, capfd):
     shot = bandai_shot(tmp_path / "walk.usda", frames=61, keys_every=10)
     res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "o")))

@@ -39,11 +39,36 @@ def lowest_point(m):
 
 def test_cmu_root_rule_puts_feet_on_ground(data_dir):
     f = data_dir / "cmu_iclone" / "001_01.bvh.gz"
-    m = read_bvh(f)  # rule "add" picked for cmu_iclone
+    m = read_bvh(f)  # rule "add", told by the take's content
     low = lowest_point(m)
     assert 0 < np.median(low) < 15  # ankles/toes a few cm above the ground
     wrong = read_bvh(f, root_position="replace")
     assert np.median(lowest_point(wrong)) < -80  # the documented ~96 cm below the ground
+
+
+def test_the_root_rule_is_told_by_content_not_by_the_folder(data_dir, tmp_path):
+    """A CMU take copied out of cmu_iclone read as "replace" (its feet a metre below the
+    ground, exit 0): the rule came from the folder's name. A take whose root OFFSET is its
+    rest height and whose channels are absolute (most exporters) stays "replace"."""
+    import shutil
+
+    f = data_dir / "cmu_iclone" / "001_01.bvh.gz"
+    copy = tmp_path / "renamed_take.bvh.gz"
+    shutil.copy(f, copy)
+    a, b = read_bvh(f), read_bvh(copy)
+    np.testing.assert_array_equal(a.root_positions, b.root_positions)
+    np.testing.assert_array_equal(a.skeleton.offsets, b.skeleton.offsets)
+    assert 0 < np.median(lowest_point(b)) < 15
+    plain = tmp_path / "plain.bvh"  # hips 90 cm up in OFFSET and in the channels, feet on the ground
+    plain.write_text(
+        "HIERARCHY\nROOT Hips\n{\n OFFSET 0 90 0\n CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
+        " JOINT Foot\n {\n  OFFSET 0 -88 0\n  CHANNELS 3 Zrotation Xrotation Yrotation\n"
+        "  End Site\n  {\n   OFFSET 0 -2 0\n  }\n }\n}\nMOTION\nFrames: 3\nFrame Time: 0.0333333\n"
+        + "".join(f"{x} 90 0 0 0 0 0 0 0\n" for x in (0, 5, 10))
+    )
+    m = read_bvh(plain)
+    np.testing.assert_allclose(m.root_positions[:, 1], 90)  # not 180: the OFFSET is not added
+    np.testing.assert_allclose(lowest_point(m), 2, atol=1e-5)
 
 
 def test_cmu_z_up_wrapped_rig_is_y_up_after_fk(data_dir):

@@ -111,3 +111,33 @@ def test_cli_all_takes_writes_the_timeline(takes, tmp_path):
     assert [s["framing"] for s in summaries] == ["fixed", "fixed"]
     tl = otio.adapters.read_from_file(str(tmp_path / "sh010_v001.otio"))
     assert [t.name for t in tl.tracks] == ["take0", "take1"]
+
+
+def test_takes_over_different_frames_line_up_on_the_shots_frame_numbers(tmp_path):
+    """Takes rendered over different --frames: each track starts with a gap up to its first
+    frame, so one timeline frame is one shot frame on every track (before, both clips started
+    at track time 0 and the global start was the last take's first frame)."""
+    from render.timeline import take_track, update_timeline
+
+    tl_path = tmp_path / "sh.otio"
+    for take, frames in (
+        ("take0", range(1001, 1098)),
+        ("take2", range(1020, 1031)),
+        ("take1", range(1050, 1061)),
+    ):
+        track = take_track(f"{take}.mp4", 24, list(frames), [frames[0]], take, {})
+        update_timeline(tl_path, tl_path, "sh", track, {})
+    tl = otio.adapters.read_from_file(str(tl_path))
+    assert tl.global_start_time.to_frames() == 1001
+    for track in tl.tracks:
+        (clip,) = list(track.find_clips())
+        at = track.range_of_child(clip).start_time.to_frames()
+        assert tl.global_start_time.to_frames() + at == clip.source_range.start_time.to_frames(), track.name
+    # Re-rendering take0 over later frames moves the start; the others keep their frames.
+    track = take_track("take0.mp4", 24, list(range(1030, 1040)), [], "take0", {})
+    update_timeline(tl_path, tl_path, "sh", track, {})
+    tl = otio.adapters.read_from_file(str(tl_path))
+    assert tl.global_start_time.to_frames() == 1020
+    starts = {t.name: tl.global_start_time.to_frames() + t.range_of_child(t.find_clips()[0]).start_time.to_frames()
+              for t in tl.tracks}  # fmt: skip
+    assert starts == {"take0": 1030, "take1": 1050, "take2": 1020}

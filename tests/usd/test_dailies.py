@@ -166,6 +166,16 @@ REFUSALS = [
     ("publish-format", _approved, ["publish", "{shot}", "--format", "fbx"], "--format 'fbx'", "usda or usdc"),
     ("publish-unreadable", _garbage_latest, ["publish", "{shot}"], "{d}/walk.tween.v002.usda",
      "cannot read the fill layer"),
+    # A layer usd-tween made, given as the shot: its review layer would stack the next version
+    # over the fill (or over a review) without the shot, where nothing composes.
+    ("approve-fill-layer", None, ["approve", "{d}/walk.tween.v001.usda", "--take", "1"],
+     "{d}/walk.tween.v001.usda", "is a fill layer, not a shot: give the shot it was made from (walk.usd*)"),
+    ("approve-review-layer", None, ["approve", "{d}/walk.review.v001.usda", "--take", "1"],
+     "{d}/walk.review.v001.usda", "is a review layer, not a shot"),
+    ("publish-fill-layer", _approved, ["publish", "{d}/walk.tween.v002.usda"], "{d}/walk.tween.v002.usda",
+     "is a fill layer, not a shot"),
+    ("fill-review-layer", None, ["fill-local", "{d}/walk.review.v001.usda"], "{d}/walk.review.v001.usda",
+     "is a review layer, not a shot"),
 ]  # fmt: skip
 
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from usd_fixtures import ANIM, BANDAI_CLIP
+from usd_fixtures import ANIM, BANDAI_CLIP, tree_hashes
 
 from pipeline.cli import main
 from pipeline.errors import MotionFormatError
@@ -90,13 +90,19 @@ def test_key_times_of_the_wrong_kind_are_one_line_naming_them(shot, how, monkeyp
     _one_error(rc, err, str(shot), "tween:keyTimes", how)
 
 
-@pytest.mark.parametrize("kind", ["text", "garbage.usda", "usdz"])
+@pytest.mark.parametrize("kind", ["text", "garbage.usda", "usdz", "missing"])
 def test_a_review_layer_that_is_no_usd_layer_is_one_line(shot, kind, monkeypatch, capsys):
-    review = shot.parent / {"text": "r.txt", "garbage.usda": "g.usda", "usdz": "r.usdz"}[kind]
-    review.write_bytes(os.urandom(512) if kind != "text" else b"hello\n")
+    """Refused before the model runs: it was found only when the layers were written, after
+    the fill's own lines (the model, the trust decision) were said."""
+    review = (
+        shot.parent / {"text": "r.txt", "garbage.usda": "g.usda", "usdz": "r.usdz", "missing": "m.usda"}[kind]
+    )
+    if kind != "missing":
+        review.write_bytes(os.urandom(512) if kind != "text" else b"hello\n")
     before = sorted(p.name for p in shot.parent.iterdir())
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--review-layer", review)
     _one_error(rc, err, str(review))
+    assert len(err.strip().splitlines()) == 1, err  # nothing of the fill said before it
     assert sorted(p.name for p in shot.parent.iterdir()) == before  # no fill layer left
 
 
@@ -107,6 +113,25 @@ def test_convert_never_writes_over_its_input(tmp_path, monkeypatch, capsys):
     rc, err = tween(monkeypatch, capsys, "convert", clip, clip, "--force")
     _one_error(rc, err, "is the BVH file being converted")
     assert clip.read_bytes() == before
+
+
+def test_convert_leaves_a_read_only_folder_alone_even_for_root(tmp_path, monkeypatch, capsys):
+    """As the fill's layers: the mode bits say read-only (a published folder), whoever runs it."""
+    ro = tmp_path / "published"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, ro / "s.usda")
+        _one_error(rc, err, str(ro / "s.usda"), "is read-only")
+        assert list(ro.iterdir()) == []
+    finally:
+        ro.chmod(0o755)
+
+
+def test_library_build_of_a_file_says_so(tmp_path, monkeypatch, capsys):
+    rc, err = tween(monkeypatch, capsys, "library", "build", BANDAI_CLIP, "--out", tmp_path / "lib")
+    _one_error(rc, err, str(BANDAI_CLIP), "is a file, not a folder of takes")
+    assert not (tmp_path / "lib").exists()
 
 
 @pytest.mark.parametrize("frame_time", ["inf", "1e-12", "1e12"])
@@ -233,3 +258,25 @@ def test_a_shot_named_in_upper_case_is_converted(tmp_path, monkeypatch, capsys):
     rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, out)
     assert rc == 0, err
     assert out.read_bytes().startswith(b"#usda 1.0") and Usd.Stage.Open(str(out)).GetDefaultPrim()
+
+
+def test_shots_that_share_a_stem_do_not_share_versions(tmp_path, monkeypatch, capsys):
+    """shot.a.usda and shot.b.usda both name their layers shot.tween.vNNN: b's fill went on
+    a's series (and with a's --job-id came back as a's layer), so each one's latest fill was
+    the other's. b is refused in one line; a's series goes on, under another extension too."""
+    a, b = tmp_path / "shot.a.usda", tmp_path / "shot.b.usda"
+    a.write_bytes(SHOT.read_bytes())
+    b.write_bytes(SHOT.read_bytes())
+    rc, err = tween(monkeypatch, capsys, "fill-local", a, "--model", "spline", "--job-id", "J1")
+    assert rc == 0, err
+    before = tree_hashes(tmp_path)
+    for extra in ([], ["--job-id", "J1"]):
+        rc, err = tween(monkeypatch, capsys, "fill-local", b, "--model", "spline", *extra)
+        _one_error(rc, err, str(b), "which hold the fills of shot.a.usda")
+        assert tree_hashes(tmp_path) == before
+    rc, err = tween(monkeypatch, capsys, "fill-local", b, "--model", "spline", "--out-dir", tmp_path / "b")
+    assert rc == 0, err
+    (tmp_path / "shot.a.usd").write_bytes(a.read_bytes())  # the same shot under another format
+    a.unlink()
+    rc, err = tween(monkeypatch, capsys, "fill-local", tmp_path / "shot.a.usd", "--model", "spline")
+    assert rc == 0 and (tmp_path / "shot.tween.v002.usda").is_file(), err
