@@ -22,6 +22,20 @@ def _opt(default, flag: str, help: str):
     return option(default, flag, help=help)
 
 
+def check_device(device, here: bool = False) -> None:
+    """TweenError unless ``device`` names cpu or a CUDA device (cuda, cuda:N); with ``here``,
+    one that torch sees on this host too (the trainers, before their minutes of work; a farm
+    client checks the name alone, without torch)."""
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", str(device)):
+        raise TweenError(f"--device {device!r}: must be cpu or cuda (cuda:N)")
+    if here and device.startswith("cuda"):
+        import torch
+
+        n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if int(device.partition(":")[2] or 0) >= n:
+            raise TweenError(f"--device {device}: torch sees {n} CUDA device(s) on this host")
+
+
 @dataclass
 class TrainRigOptions:
     """How a rig model is trained from its clip (JSON-serialisable: it travels to the farm)."""
@@ -74,8 +88,7 @@ class TrainRigOptions:
         for opt, v, lo, hi in (("--fps", self.fps, 1.0, 1000.0), ("--ratio", self.ratio, 1e-3, 1.0)):
             if v is not None and not (isinstance(v, int | float) and lo <= v <= hi):  # NaN fails too
                 raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
-        if not re.fullmatch(r"cpu|cuda(:\d+)?", str(self.device)):
-            raise TweenError(f"--device {self.device!r}: must be cpu or cuda (cuda:N)")
+        check_device(self.device)
         parse_frames(self.frames)
         return self
 

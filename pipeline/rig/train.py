@@ -27,6 +27,7 @@ import numpy as np
 
 from pipeline.errors import TweenError
 from pipeline.motion.clip import Motion
+from pipeline.rig.options import check_device
 from pipeline.rig.progress import Progress, ProgressBar, ProgressCallback
 from pipeline.rig.represent import RigSpec, encode, make_spec, pyramid_lengths, resample_linear
 from pipeline.rig.topology import neighbourhoods
@@ -169,8 +170,7 @@ class Trainer:
         self.quiet = quiet
         self.sched = cfg.resolved_schedule()
         torch.set_num_threads(max(1, int(cfg.threads)))
-        if cfg.device.startswith("cuda") and not torch.cuda.is_available():
-            raise TrainError("--device cuda: torch sees no CUDA device on this host")
+        check_device(cfg.device, here=True)
         self.device = torch.device(cfg.device)
         self.motion = motion if motion is not None else prepare_motion(cfg)
         self.spec = spec_for(self.motion, cfg.contacts)

@@ -8,7 +8,6 @@ Checkpoints every few minutes; resumes from the last one; deterministic for a se
 from __future__ import annotations
 
 import json
-import re
 import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -480,18 +479,6 @@ def training_clips(cfg: TrainConfig):
             f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"
         )
     return clips
-
-
-def check_device(device: str) -> None:
-    """TweenError unless ``device`` is cpu, or a CUDA device torch sees on this host (checked
-    before training starts, not after the path predictor's minutes)."""
-    if not re.fullmatch(r"cpu|cuda(:\d+)?", device):
-        raise TweenError(f"--device {device!r}: must be cpu or cuda (cuda:N)")
-    if device.startswith("cuda"):
-        n = torch.cuda.device_count() if torch.cuda.is_available() else 0
-        index = int(device.partition(":")[2] or 0)
-        if index >= n:
-            raise TweenError(f"--device {device}: torch sees {n} CUDA device(s) on this host")
 
 
 def check_partial(cfg: TrainConfig, saved: dict | None = None) -> None:

@@ -53,6 +53,7 @@ from typing import Any
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.rig.options import check_device
 from pipeline.staging import refuse_model
 from pipeline.train.commands import export_command
 
@@ -204,11 +205,11 @@ def check_run(out: Path, cfg) -> None:
     model (a model is written by `tween export`), --init is a checkpoint that `tween train`
     wrote, --device is one torch has here, --partial has a key adapter to train, and the
     takes folder holds takes."""
-    from pipeline.train.generator_training import check_device, check_partial, load_init
+    from pipeline.train.generator_training import check_partial, load_init
     from pipeline.usd.take import take_files
 
     refuse_model(out, "--out (a run folder)", force_hint=None)
-    check_device(cfg.device)
+    check_device(cfg.device, here=True)
     # --init first: whether --partial has a key adapter may be its network's to say.
     saved = (load_init(cfg.init).get("config") or {}).get("model") if cfg.init else None
     check_partial(cfg, saved)

@@ -169,6 +169,15 @@ def test_train_rig_never_trains_over_a_finished_model(tmp_path, capsys, monkeypa
     assert "rig.json" in first and not list(out.parent.glob(".*"))
     line = refused(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys, tmp_path)
     assert f"{out}: --out holds a finished model (rig.json); give --force" in line
+    # The device rule `tween train` has (pipeline.rig.options.check_device): a CUDA index
+    # this host lacks, not only "no CUDA at all".
+    import torch
+
+    n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    line = refused(["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--device", f"cuda:{n}"],
+                   capsys, tmp_path)  # fmt: skip
+    assert f"--device cuda:{n}: torch sees {n} CUDA device(s) on this host" in line
+    assert _digest(out) == first
     # --force: a refusal (a clip too short) and a failure while exporting leave it as it was.
     short = creature_shot(tmp_path / "short.usda", T=13, keys_every=1)
     refused(["train-rig", short, "--out", out, "--force", "--schedule", "tiny"], capsys, tmp_path)
