@@ -175,6 +175,15 @@ class OnnxInbetweener:
             raise ModelFolderError(
                 f"{path}: takes {shape[1]} feature channels, but model.json has {given}, which gives {want}"
             )
+        # A motion DNA: the generator's dna inputs and model.json's generator.dna agree.
+        dna = gcfg.get("dna", 0)
+        takes = {"dna", "dna_weight"} <= {i.name for i in sess.get_inputs()}
+        if isinstance(dna, bool) or not isinstance(dna, int) or dna < 0 or bool(dna) != takes:
+            has = "takes a motion DNA" if takes else "takes no motion DNA"
+            raise ModelFolderError(
+                f"{path}: {has}, but model.json's generator.dna is {dna!r}"
+                + (" (a DNA size, a whole number above 0)" if takes else " (0 or absent)")
+            )
 
     def raw(self, rot, root, keys, noise=None, joint_keys=None, dna=None):
         """Network output for a batch: (rot, root, contact prob) in the input's frame,

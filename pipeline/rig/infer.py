@@ -24,6 +24,7 @@ import numpy as np
 
 from pipeline.errors import TweenError
 from pipeline.infer.api import Capabilities, refuse_extras
+from pipeline.infer.folder import check_onnx_file
 from pipeline.infer.interp import interpolate_keys
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.motion.clip import Motion
@@ -85,7 +86,23 @@ class RigInbetweener:
             raise RigModelError(path, f"unreadable: {e}") from None
         if self.meta.get("kind") not in KINDS:
             raise RigModelError(path, f"kind is {self.meta.get('kind')!r}, not {KINDS[0]!r}")
-        m = self.meta
+        try:
+            self._read_meta(self.meta)
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            said = str(e.args[0]) if e.args else str(e)
+            what = f"missing {e}" if isinstance(e, KeyError) and " " not in said else said
+            raise RigModelError(path, f"not a rig model: {what}") from None
+        for f in self.files:
+            if not (self.folder / f).is_file():
+                raise RigModelError(self.folder, f"missing {f} (listed in rig.json)")
+            check_onnx_file(self.folder / f)  # whole: not onnxruntime's error on the first fill
+        self.coarse = coarse
+        self.feet = feet
+        self._sessions: dict[int, object] = {}
+
+    def _read_meta(self, m: dict) -> None:
+        """The rig, its representation and its levels from rig.json; ValueError (or a
+        KeyError, TypeError) where a value is missing or not one a fill can use."""
         s = m["skeleton"]
         self.name = m["name"]
         self.model_hash = m["hash"]
@@ -109,19 +126,33 @@ class RigInbetweener:
         self.train_lengths = [int(lv["train_length"]) for lv in m["levels"]]
         self.amps = [float(lv["noise_amplitude"]) for lv in m["levels"]]
         self.files = [lv["file"] for lv in m["levels"]]
-        for f in self.files:
-            if not (self.folder / f).is_file():
-                raise RigModelError(self.folder, f"missing {f} (listed in rig.json)")
-        self.coarse = coarse
-        self.feet = feet
-        self._sessions: dict[int, object] = {}
+        if not (np.isfinite(self.spec.scale) and self.spec.scale > 0 and np.isfinite(float(rep["floor"]))):
+            raise ValueError("representation scale must be a positive number and floor finite")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"fps {self.fps} is not a positive number")
+        if not self.files:
+            raise ValueError("no levels")
+        if not all(n > 0 for n in self.train_lengths) or not all(np.isfinite(a) for a in self.amps):
+            raise ValueError("a level's train_length or noise_amplitude is not a usable number")
 
     # -- the networks ------------------------------------------------------------------
     def _session(self, i: int):
         if i not in self._sessions:
             from pipeline.infer.generator_onnx import ort_session
 
-            self._sessions[i] = ort_session(self.folder / self.files[i])
+            path = self.folder / self.files[i]
+            try:
+                sess = ort_session(path)
+            except Exception as e:  # onnxruntime's own errors: a file it cannot load
+                raise RigModelError(path, f"onnxruntime cannot load it: {str(e).splitlines()[0]}") from None
+            dims = {x.name: x.shape for x in sess.get_inputs()}
+            up = dims.get("up")
+            width = self.spec.channels
+            if "z" not in dims or up is None or (len(up) == 3 and isinstance(up[1], int) and up[1] != width):
+                raise RigModelError(
+                    path, f"not this rig's level {i} (inputs {dims}; up of {width} channels, and z)"
+                )
+            self._sessions[i] = sess
         return self._sessions[i]
 
     def level(self, i: int, up: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -155,12 +156,16 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     return meta
 
 
+#: The Bandai Namco dataset's terms (../shared/data/README.md: CC BY-NC 4.0, `*/LICENSE`).
+BANDAI_LICENCE = "CC BY-NC 4.0"
+
+
 def data_terms(config: dict) -> dict:
     """model.json's ``licence`` and ``sources`` (models/README.md) for a run on a corpus: each
     source's licence and hours, and the terms of the model it continued (``--init``), which a
     fine-tune inherits; for a run on a studio's takes (``--data``), those takes (their terms
-    are the studio's: not stated) and the inherited terms. Empty for other runs (their card
-    states the terms)."""
+    are the studio's: not stated) and the inherited terms; for a run on the train split, its
+    CC BY-NC 4.0. ``commercial`` only where every one of those terms is known to allow it."""
     if config.get("corpus"):
         from pipeline.train.corpus import prepared
 
@@ -175,8 +180,9 @@ def data_terms(config: dict) -> dict:
     elif config.get("data"):  # a fine-tune must not drop the terms of the model it continued
         sources = [{"name": f"takes of {config['data']}", "licence": "not stated (the studio's own takes)",
                     "use": "trained"}]  # fmt: skip
-    else:
-        return {}
+    else:  # the train split (read from ../shared, or packed: --data-pack)
+        sources = [{"name": "Bandai Namco Research Motion Dataset 1 and 2, train split", "licence": BANDAI_LICENCE,
+                    "use": "trained"}]  # fmt: skip
     init = Path(config["init"]) if config.get("init") else None
     folder = init if init is None or init.is_dir() else init.parent.parent  # <model>/torch/generator.pt
     if init is not None:
@@ -188,7 +194,12 @@ def data_terms(config: dict) -> dict:
             sources.append(
                 {"name": str(init), "licence": "not stated", "use": "inherited: initialised from it"}
             )
-    return {"licence": "; ".join(dict.fromkeys(s["licence"] for s in sources)), "sources": sources}
+    licences = list(dict.fromkeys(s["licence"] for s in sources))
+    # Commercial use only where every source's terms are known to allow it.
+    commercial = not any(
+        re.search(r"\bNC\b|not stated|non-?commercial|research only", t, re.I) for t in licences
+    )
+    return {"licence": "; ".join(licences), "commercial": commercial, "sources": sources}
 
 
 def _pose_bank(out_dir: Path, config: dict) -> str | None:

@@ -8,9 +8,10 @@ Checkpoints every few minutes; resumes from the last one; deterministic for a se
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
 from pathlib import Path
 
@@ -599,6 +600,58 @@ def _supervised_losses(
     return losses, ppos
 
 
+#: Options that say how a run goes, not what it trains: a resumed run may change them.
+HOW_IT_RUNS = frozenset({"threads", "checkpoint_minutes", "device", "workers"})
+
+
+def _absolute_paths(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with its path options absolute, as the checkpoint records them."""
+    paths = {f.name: os.path.abspath(getattr(cfg, f.name)) for f in fields(cfg)
+             if f.metadata.get("path") and isinstance(getattr(cfg, f.name), str)}  # fmt: skip
+    return replace(cfg, **paths)
+
+
+def _run_config(cfg: TrainConfig, dev, ckpt: Path) -> tuple[TrainConfig, dict | None]:
+    """The run's config and its --init weights: paths absolute (an export from another folder
+    reads the same --data and --init), the --init network's shape (and check_partial), and
+    checked against the checkpoint it resumes."""
+    cfg, init = _with_init(_absolute_paths(cfg), dev)
+    _check_same_run(cfg, ckpt)
+    return cfg, init
+
+
+def _check_same_run(cfg: TrainConfig, ckpt: Path) -> None:
+    """TweenError when the run folder's checkpoint was trained with other options than these
+    (``--steps``, ``--data``, ``--init``, the network...): resumed, the run would mix two
+    trainings under one config (and a longer ``--steps`` outruns its learning-rate schedule)."""
+    if not ckpt.exists():
+        return
+    saved = read_checkpoint(ckpt, "the run's checkpoint", "cpu", "; remove it to start this run afresh").get(
+        "config"
+    )
+    now = asdict(cfg)
+    for f in fields(cfg):  # a path recorded relative (older runs) is the same path from here
+        if f.metadata.get("path") and saved and isinstance(saved.get(f.name), str):
+            saved = {**saved, f.name: os.path.abspath(saved[f.name])}
+    differ = [
+        k for k in now if k not in HOW_IT_RUNS and k in (saved or {}) and _same(saved[k]) != _same(now[k])
+    ]
+    if differ:
+        shown = "; ".join(f"{k}: {saved[k]!r} there, {now[k]!r} now" for k in differ[:3])
+        more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+        raise TweenError(
+            f"{ckpt}: this run folder holds a training with other options ({shown}{more}); "
+            "resume it with its own options, or give another --out"
+        )
+
+
+def _same(v):
+    """A config value as compared across a resume (tuples and lists alike)."""
+    if isinstance(v, dict):
+        return {k: _same(x) for k, x in v.items()}
+    return [_same(x) for x in v] if isinstance(v, list | tuple) else v
+
+
 def _start(cfg: TrainConfig, model, opt, sched, init: dict | None, ckpt: Path, dev):
     """(step, seconds so far, discriminator and its optimiser or None) where the run starts:
     its checkpoint's, resumed into ``model``, ``opt`` and ``sched``; else step 0 from the
@@ -684,7 +737,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     dev = torch.device(cfg.device)
     skel = bandai_skeleton()
     feet = [skel.index(n) for n in FOOT_JOINTS]
-    cfg, init = _with_init(cfg, dev)  # and check_partial, before any data is read
+    cfg, init = _run_config(cfg, dev, out_dir / "generator.pt")  # before any data is read
     clips = training_clips(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)  # the data and --init read first: a refusal writes nothing
     model = Generator(cfg.model).to(dev)

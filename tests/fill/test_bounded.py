@@ -402,6 +402,20 @@ def test_a_generator_config_that_does_not_fit_the_network_is_named(tmp_path, con
     )
 
 
+@pytest.mark.parametrize("dna", [8, -1, "x", True])
+def test_a_dna_size_the_network_does_not_take_is_named(tmp_path, dna):
+    """generator.dna edited on a network without DNA inputs (or to no whole number): the
+    fill failed inside onnxruntime ("Invalid input name: dna_weight"), an internal error."""
+    gen = {**_meta()["generator"], "dna": dna}
+    folder = _broken_folder(tmp_path, _json(generator=gen))
+    with pytest.raises(ModelFolderError) as ei:
+        OnnxInbetweener(folder).fill(tiled(40), np.array([0, 20, 39]))
+    assert (
+        str(ei.value)
+        == f"{folder / 'generator.onnx'}: takes no motion DNA, but model.json's generator.dna is {dna!r} (0 or absent)"
+    )
+
+
 def test_an_onnx_file_of_another_network_is_named_when_its_session_starts(tmp_path):
     """A whole ONNX file that is not this network (the path predictor under the generator's
     name) passes the load-time check; its session names it instead of a shape error."""

@@ -39,7 +39,12 @@ def test_train_on_a_corpus_of_two_rigs_and_its_terms(data_dir, bandai_clip, tmp_
     terms = data_terms(run["config"])
     assert terms["licence"] == "CC BY-NC 4.0; CC0"
     assert [(s["licence"], s["weight"]) for s in terms["sources"]] == [("CC BY-NC 4.0", 1.0), ("CC0", 2.0)]
+    assert terms["commercial"] is False  # a non-commercial source among them
     assert data_terms({"corpus": str(tmp_path / "elsewhere.toml")}) == {}  # a host without it: a warning
+    # A run on the train split states its CC BY-NC terms too (it stated none: "not stated" in fills).
+    plain = data_terms({"steps": 4})
+    assert plain["licence"] == "CC BY-NC 4.0" and plain["commercial"] is False
+    assert plain["sources"][0]["name"].startswith("Bandai Namco Research Motion Dataset")
     # --corpus reads its own sources: with --data it is one line, nothing written.
     bad = CliRunner().invoke(app, ["train", "--corpus", str(desc), "--data", str(tmp_path), *opts, "--out",
                                    str(tmp_path / "r")])  # fmt: skip

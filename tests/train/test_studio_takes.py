@@ -4,6 +4,7 @@ the checkpoint it continues."""
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -130,7 +131,10 @@ def test_fine_tune_continues_a_model_folder_with_its_shape(takes, data_dir, tmp_
     assert meta["familiar_credit"] is False
     # It keeps the terms of the model it continued (CC BY-NC 4.0) beside the studio's takes.
     assert "CC BY-NC 4.0" in meta["licence"] and "not stated" in meta["licence"]
-    assert [s["use"] for s in meta["sources"]] == ["trained", "inherited: initialised from models/default"]
+    uses = [s["use"] for s in meta["sources"]]  # the run records its paths absolute
+    assert (
+        uses[0] == "trained" and uses[1] == f"inherited: initialised from {Path('models/default').absolute()}"
+    )
     # A studio that measured its fine-tune ahead of the spline gives it the credit at export.
     res = CliRunner().invoke(app, ["export", str(out), "--out", str(tmp_path / "m2"), "--familiar-credit"],
                              catch_exceptions=False)  # fmt: skip

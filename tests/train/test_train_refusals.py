@@ -199,3 +199,23 @@ def test_train_rig_never_trains_over_a_finished_model(tmp_path, capsys, monkeypa
     _ok(["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--seed", "3"], capsys)
     assert _digest(out) != first and (out / "rig.json").is_file()
     assert sorted(p.name for p in out.parent.iterdir()) == ["creature"]
+
+
+def test_a_run_folder_resumes_only_its_own_training(tmp_path, capsys, monkeypatch):
+    """Resumed with other options, a run mixed two trainings under the new config (the
+    export then named the wrong data); a longer --steps outran the learning-rate schedule and
+    --init into a run of another shape failed in load_state_dict, both internal errors."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "run"
+    _ok(["train", "--out", "run", *TINY], capsys)  # a relative --out: the paths recorded absolute
+    before = _digest(out)
+    cases = {
+        "steps: 4 there, 6 now": ["--steps", "6"],
+        "init: None there, ": ["--init", ROOT / "models/default"],
+        "lr: ": ["--lr", "0.01"],
+    }
+    for want, args in cases.items():
+        line = refused(["train", "--out", out, *TINY, *args], capsys, tmp_path)
+        assert "this run folder holds a training with other options" in line and want in line, line
+    assert _digest(out) == before
+    _ok(["train", "--out", out, *TINY, "--threads", "1"], capsys)  # how it runs may change
