@@ -3,6 +3,7 @@ files checked whole; one-line errors naming the file. No onnxruntime here."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -203,6 +204,41 @@ def check_onnx_file(path: Path) -> None:
                 raise ModelFolderError(bad)
     if not graph:
         raise ModelFolderError(f"{path}: not an ONNX model (no graph in its {size} bytes)")
+
+
+# Inference settings in model.json that change what a fill gives. ``root`` changes it too
+# but was never hashed; it stays out so that earlier models keep their hashes.
+HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_orient",
+                   "familiar_credit")  # fmt: skip
+
+
+def files_hash(folder: str | Path, names, settings: dict | None = None) -> str:
+    """A model's hash: its files' bytes (in the order of ``names``) plus the inference
+    settings given. Layers and take digests record it, so it is computed from the files
+    when a model loads (:func:`check_hash`), not taken on the word of its JSON."""
+    h = hashlib.sha256()
+    for name in names:
+        h.update(hashlib.sha256((Path(folder) / name).read_bytes()).hexdigest().encode())
+    if settings:  # models exported before these settings keep their hash
+        h.update(json.dumps(settings, sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def model_hash(folder: str | Path, meta: dict) -> str:
+    """The hash of a human model folder: its ``files`` (by name) and HASHED_SETTINGS."""
+    settings = {k: meta[k] for k in HASHED_SETTINGS if k in meta}
+    return files_hash(folder, sorted(meta["files"].values()), settings)
+
+
+def check_hash(path: Path, stated: str, computed: str) -> None:
+    """ModelFolderError where ``path`` (model.json, rig.json) states another hash than its
+    files give: a file or a hashed setting changed after the export, so every layer filled
+    with it would name a model it is not."""
+    if stated != computed:
+        raise ModelFolderError(
+            f"{path}: 'hash' is {stated!r} but its files and settings hash to {computed!r} "
+            "(changed after export: export the model again)"
+        )
 
 
 def shipped_library(folder: str | Path, meta: dict) -> Path | None:

@@ -29,8 +29,10 @@ from pipeline.infer.features import (
 from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, where callers find it)
     ModelFolderError,
     beside_models,
+    check_hash,
     check_onnx_file,
     find_model,
+    model_hash,
     models_root,
     read_model_json,
     shipped_library,
@@ -104,6 +106,7 @@ class OnnxInbetweener:
         )
         for name in self.meta["files"].values():
             check_onnx_file(self.folder / name)
+        check_hash(self.folder / "model.json", self.meta["hash"], model_hash(self.folder, self.meta))
         self.name = self.meta["name"]
         self.model_hash = self.meta["hash"]
         self.fps = float(self.meta["fps"])

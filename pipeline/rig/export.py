@@ -7,20 +7,16 @@ Each level's graph is ``out = g(up + z) + up`` with inputs ``up`` (1, F0, L) and
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.infer.folder import files_hash
 from pipeline.rig.source import portable_path
 from pipeline.rig.train import Trainer
 
 CARD = "MODEL_CARD.md"
-
-
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def choose_legs(parents, contacts: list[int]) -> list[int]:
@@ -90,9 +86,6 @@ def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
     representation the levels read and write, its training (metrics kept from a previous
     rig.json in ``out``)."""
     cfg, spec = tr.cfg, tr.spec
-    h = hashlib.sha256()
-    for f in files:
-        h.update(sha256(out / f).encode())
     sk = spec.skeleton
     names = list(sk.names)
     legs = choose_legs(sk.parents, spec.contacts)
@@ -103,7 +96,7 @@ def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
     return {
         "kind": "rig",
         "name": cfg.name or out.resolve().name,
-        "hash": h.hexdigest()[:16],
+        "hash": files_hash(out, files),
         "fps": float(spec.fps),
         "skeleton": {
             "names": names,

@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.errors import TweenError
 from pipeline.infer.api import Capabilities, refuse_extras
-from pipeline.infer.folder import check_onnx_file
+from pipeline.infer.folder import check_hash, check_onnx_file, files_hash
 from pipeline.infer.interp import interpolate_keys
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.motion.clip import Motion
@@ -96,6 +96,7 @@ class RigInbetweener:
             if not (self.folder / f).is_file():
                 raise RigModelError(self.folder, f"missing {f} (listed in rig.json)")
             check_onnx_file(self.folder / f)  # whole: not onnxruntime's error on the first fill
+        check_hash(path, self.model_hash, files_hash(self.folder, self.files))
         self.coarse = coarse
         self.feet = feet
         self._sessions: dict[int, object] = {}

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 import sys
@@ -17,7 +16,7 @@ from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
-from pipeline.infer.folder import FORMAT
+from pipeline.infer.folder import FORMAT, model_hash
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.train.generator_training import read_checkpoint
@@ -59,10 +58,6 @@ def macs_per_frame(net: torch.nn.Module, channels: int, frames: int = 256) -> fl
     for h in hooks:
         h.remove()
     return total / frames
-
-
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -> dict:
@@ -230,24 +225,6 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
     source = "; ".join(f"{name}: {min(each, len(c.rotations))} poses" for name, c in sets) + ", seed 0"
     posebank.save(out_dir / "pose_bank.npz", bank, source)
     return "pose_bank.npz"
-
-
-# Inference settings in model.json that change what a fill gives. ``root`` changes it too
-# but was never hashed; it stays out so that earlier models keep their hashes.
-HASHED_SETTINGS = ("pad", "mirror_average", "pad_tail", "min_window", "feet_anchor", "feet_orient",
-                   "familiar_credit")  # fmt: skip
-
-
-def model_hash(out_dir: Path, meta: dict) -> str:
-    """The networks' bytes plus the inference settings: a setting changed is a new model to
-    the farm's take digests."""
-    h = hashlib.sha256()
-    for f in sorted(meta["files"].values()):
-        h.update(sha256(out_dir / f).encode())
-    settings = {k: meta[k] for k in HASHED_SETTINGS if k in meta}
-    if settings:  # models exported before these settings keep their hash
-        h.update(json.dumps(settings, sort_keys=True).encode())
-    return h.hexdigest()[:16]
 
 
 def _gap(a: np.ndarray, b: np.ndarray, random: bool) -> float:

@@ -19,6 +19,7 @@ import pytest
 from usd_fixtures import BANDAI_CLIP
 
 from pipeline.errors import TweenError
+from pipeline.infer.folder import model_hash
 from pipeline.infer.generator_onnx import CHUNK_FRAMES, ModelFolderError, OnnxInbetweener
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.fk import fk
@@ -416,11 +417,46 @@ def test_a_dna_size_the_network_does_not_take_is_named(tmp_path, dna):
     )
 
 
+def _rehash(folder: Path) -> None:
+    """model.json's hash made to fit the folder's files, as an export would state it."""
+    meta = json.loads((folder / "model.json").read_text())
+    (folder / "model.json").write_text(json.dumps(meta | {"hash": model_hash(folder, meta)}))
+
+
+def test_a_file_changed_after_export_is_refused_at_load_naming_model_json(tmp_path):
+    """Every layer records the model's hash; a generator.onnx swapped after the export filled
+    under the exported model's hash (the hash was read from model.json, not computed)."""
+    folder = _broken_folder(tmp_path, _remove("generator.onnx"))
+    shutil.copyfile(DEFAULT / "generator.onnx", folder / "generator.onnx")
+    OnnxInbetweener(folder)  # the same bytes: the same model
+    with (folder / "generator.onnx").open("r+b") as f:  # one weight's byte changed
+        f.seek(-100, 2)
+        b = f.read(1)
+        f.seek(-100, 2)
+        f.write(bytes([b[0] ^ 1]))
+    with pytest.raises(ModelFolderError) as ei:
+        OnnxInbetweener(folder)
+    msg = str(ei.value)
+    assert msg.startswith(f"{folder / 'model.json'}: 'hash' is '{_meta()['hash']}' but its files")
+    assert "export the model again" in msg and "\n" not in msg
+    _rehash(folder)  # exported again: it loads, under its own hash
+    assert OnnxInbetweener(folder).model_hash != _meta()["hash"]
+
+
+def test_a_hashed_setting_changed_after_export_is_refused_at_load(tmp_path):
+    """familiar_credit (in the hash: it changes what a fill gives) edited by hand."""
+    folder = _broken_folder(tmp_path, _json(familiar_credit=False))
+    with pytest.raises(ModelFolderError, match=r"model.json: 'hash' is .* but its files and settings"):
+        OnnxInbetweener(folder)
+
+
 def test_an_onnx_file_of_another_network_is_named_when_its_session_starts(tmp_path):
     """A whole ONNX file that is not this network (the path predictor under the generator's
-    name) passes the load-time check; its session names it instead of a shape error."""
+    name, in a folder whose hash states it) passes the load-time checks; its session names it
+    instead of a shape error."""
     folder = _broken_folder(tmp_path, _remove("generator.onnx"))
     (folder / "generator.onnx").symlink_to(DEFAULT / "path.onnx")
+    _rehash(folder)
     inb = OnnxInbetweener(folder)
     m = tiled(40)
     with pytest.raises(ModelFolderError, match=r"generator.onnx: not this model's generator"):

@@ -196,8 +196,7 @@ def test_a_model_json_without_kind_is_the_onnx_generator(tmp_path):
 
 
 def test_kind_is_not_part_of_the_model_hash():
-    pytest.importorskip("torch")
-    from pipeline.train.export import HASHED_SETTINGS, model_hash
+    from pipeline.infer.folder import HASHED_SETTINGS, model_hash
 
     assert "kind" not in HASHED_SETTINGS
     for name in ("default", "dna"):

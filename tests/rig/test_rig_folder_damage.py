@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import TweenError
+from pipeline.infer.folder import files_hash
 from pipeline.rig.infer import RigInbetweener
 
 ELEPHANT = Path(__file__).resolve().parents[2] / "models" / "elephant"
@@ -58,8 +59,14 @@ def test_a_damaged_or_foreign_level_file_is_named(tmp_path):
     level.write_bytes(b"")
     with pytest.raises(TweenError, match=r"level_3\.onnx: empty file"):
         RigInbetweener(folder)
-    # A whole ONNX file of another network: named when its session starts.
+    # A whole ONNX file of another network: refused at load by the hash rig.json states; with
+    # a hash that fits (hand-made), named when its session starts.
     shutil.copyfile(ELEPHANT.parents[0] / "default" / "path.onnx", level)
+    with pytest.raises(TweenError, match=r"rig\.json: 'hash' is '477c17f1cd93d7c8' but its files"):
+        RigInbetweener(folder)
+    meta = json.loads((folder / "rig.json").read_text())
+    meta["hash"] = files_hash(folder, meta["files"]["levels"])
+    (folder / "rig.json").write_text(json.dumps(meta))
     rig = RigInbetweener(folder)
     with pytest.raises(TweenError, match=r"level_3\.onnx: not this rig's level 2"):
         rig.level(2, np.zeros((rig.spec.channels, 32), np.float32), np.zeros(32, np.float32))
