@@ -55,7 +55,7 @@ setup(
         ],
     },
     entry_points={
-        "console_scripts": ["tween=pipeline.cli:main"],
+        "console_scripts": ["tween=pipeline.entry:main"],
         # The CLI's commands: each package registers its own, so the core imports neither
         # the farm nor the renderer (pipeline/cli.py reads this group).
         "tween.commands": [

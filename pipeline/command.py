@@ -85,23 +85,46 @@ def _bug_line(e: BaseException, logs: Path | None, argv: list[str] | None = None
     )
 
 
-def _on_sigterm(signum, frame):
+#: How long an interrupt that lands inside an import waits before it is tried again (s).
+RETRY_S = 0.05
+
+
+def _importing(frame) -> bool:
+    """Whether ``frame`` runs inside a module's import."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _interrupt(signum, frame):
+    """SIGINT and SIGTERM while a command runs: KeyboardInterrupt, except inside an import.
+    USD's module loader (``Tf.PreparePythonModule``, run by ``from pxr import ...``) catches
+    what is raised there and prints it, so the interrupt was lost (a fill interrupted as it
+    loaded USD ran on to write its layer and exit 0) or left a module half made (a later
+    internal error). There the signal is sent again a moment later, until it lands outside."""
+    if _importing(frame):
+        threading.Timer(RETRY_S, os.kill, (os.getpid(), signum)).start()
+        return
     raise KeyboardInterrupt()
 
 
 @contextmanager
-def _terminate_as_interrupt():
+def _signals_as_interrupt():
     """SIGTERM (a farm's or a shell's kill) unwinds like Ctrl-C while a command runs, so that
     what it half wrote is removed (a first library build, staged model folders) instead of the
-    process dying where it stands. Only from the main thread, where Python runs handlers."""
+    process dying where it stands; neither is raised inside an import (:func:`_interrupt`).
+    Only from the main thread, where Python runs handlers."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGTERM, _on_sigterm)
+    old = {sig: signal.signal(sig, _interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", log_dir: Path | None = None):
@@ -110,7 +133,7 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
     try:
         # standalone_mode=False: click's usage errors come here instead of printing a usage
         # box, so that a bad option value is one line like every other bad input.
-        with _terminate_as_interrupt():
+        with _signals_as_interrupt():
             rc = app(args=argv, prog_name=prog, standalone_mode=False)
     except UsageError as e:
         if type(e).__name__ == "NoArgsIsHelpError":  # `tween` alone: its help, as before
@@ -142,7 +165,7 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
     except Exception as e:
         print(_bug_line(e, log_dir, argv), file=sys.stderr)
         sys.exit(1)
-    if rc == 130:
+    if rc == 130:  # typer's own status for an interrupt it caught
         print("tween: interrupted", file=sys.stderr)
     sys.exit(rc if isinstance(rc, int) else 0)
 

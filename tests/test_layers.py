@@ -13,13 +13,13 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {
     "pipeline.errors": 0,
     "usd_schemas": 0,
-    "pipeline.options": 0,
-    "pipeline.jsonfile": 0,
-    "pipeline.atomic": 0,
-    "pipeline.arguments": 1,  # argparse whose errors are one line (the python -m entry points)  # a file replaced whole or not at all
+    "pipeline.options": 0,  # options declared on dataclasses, as CLI options
+    "pipeline.jsonfile": 0,  # JSON a person wrote: duplicate keys refused
+    "pipeline.atomic": 0,  # a file replaced whole or not at all
+    "pipeline.arguments": 1,  # argparse whose errors are one line (the python -m entry points)
     "pipeline.progress": 0,  # how often a progress bar redraws (a terminal, a log file)
-    "pipeline.staging": 1,
-    "pipeline.command": 1,  # the one error handler every entry point runs its commands through  # model folders made beside their destination, moved in when complete  # JSON a person wrote: duplicate keys refused  # options declared on dataclasses, as CLI options
+    "pipeline.staging": 1,  # model folders made beside their destination, moved in when complete
+    "pipeline.command": 1,  # the one error handler every entry point runs its commands through
     "pipeline.motion": 1,  # skeletons, clips, rotations, FK, BVH
     "pipeline.data": 2,  # the split, clip caches, the model skeleton, the protocol's windows
     "pipeline.infer": 3,  # in-betweeners at fill time: numpy + onnxruntime, never torch
@@ -35,6 +35,7 @@ LAYERS = {
     "workers": 9,  # the farm: runs the fill API and the renderer
     "pipeline.cli": 10,  # the CLI on top; its commands come from entry points
     "dailies": 10,  # the review page in the browser: over the farm, the renderer and the dailies step
+    "pipeline.entry": 11,  # the executable's first module: signals while the CLI loads
 }
 #: Modules allowed one import across their layer's rule, and why.
 EXCEPTIONS = {

@@ -189,11 +189,40 @@ def check_farm(celery_app: Celery, *, broker: bool = True, backend: bool = True)
     if SETTINGS_ERROR is not None:
         raise SETTINGS_ERROR
     if celery_app.conf.tween.embedded:
+        check_embedded_stores(celery_app)
         return
     if broker:
         check_broker(celery_app)
     if backend:
         check_backend(celery_app)
+
+
+#: The first bytes of every SQLite database file.
+SQLITE_HEADER = b"SQLite format 3\x00"
+
+
+def check_embedded_stores(celery_app: Celery) -> None:
+    """The embedded farm's SQLite broker and result store, where they exist, are SQLite
+    databases: a damaged one (truncated, overwritten) was an internal DatabaseError."""
+    for what, url in (
+        ("broker", celery_app.conf.broker_url),
+        ("result store", celery_app.conf.result_backend),
+    ):
+        path = str(url).split(":///", 1)[-1]
+        try:
+            with open(path, "rb") as f:
+                head = f.read(len(SQLITE_HEADER))
+        except FileNotFoundError:
+            continue  # made on first use
+        except OSError as e:
+            raise FarmConfigError(
+                f"{path}: cannot read the embedded farm's {what}: {e.strerror or e}"
+            ) from None
+        if head and head != SQLITE_HEADER:
+            raise FarmConfigError(
+                f"{path}: the embedded farm's {what} is damaged (not an SQLite database); remove it "
+                "(it holds only earlier embedded runs' queues and records)"
+            )
 
 
 @contextmanager

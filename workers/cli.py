@@ -134,6 +134,40 @@ class _Interrupts:
             raise _Interrupted()
 
 
+def _exit(code: int) -> None:
+    """Ends a fill or submit with ``code``. A cancelled one (130) has said how each job ended,
+    so it leaves as SystemExit: the command handler adds "tween: interrupted" to a status 130
+    it is given, which would be a line too many (and untrue for a job cancelled elsewhere)."""
+    if code == EXIT_CANCELLED:
+        sys.exit(code)
+    raise typer.Exit(code)
+
+
+def _shot_files(shots: list[Path]) -> list[str]:
+    """The shots as given, each an existing file and each once (a shot named twice, by any
+    path, made two versions of it in one run); or one line naming the first that is not."""
+    seen: dict[str, str] = {}
+    for p in map(str, shots):
+        if not os.path.isfile(p):
+            what = "a folder, not a shot file" if os.path.isdir(p) else "no such shot file"
+            raise TweenError(f"{p}: {what}")
+        real = os.path.realpath(p)
+        if real in seen:
+            raise TweenError(f"{p}: the same shot as {seen[real]} (give each shot once)")
+        seen[real] = p
+    return list(seen.values())
+
+
+def _job_ids(job_ids: list[str]) -> list[str]:
+    """The job ids given, each once (``cancel J J`` said "already cancelled" of the cancel it
+    had just made), or one line naming one that cannot be an id (empty: an internal error on
+    Redis; a newline: a second line)."""
+    for j in job_ids:
+        if not j.strip() or not j.isprintable() or j != j.strip():
+            raise TweenError(f"job id {j!r}: not a job id (from `tween submit` or `tween fill`)")
+    return list(dict.fromkeys(job_ids))
+
+
 def _clock(t) -> str:
     return time.strftime("%H:%M:%S", time.localtime(float(t))) if t else "?"
 
@@ -239,7 +273,9 @@ def _status_line(s) -> str:
         return f"{s.id} {s.shot}: cancelled by {by} at {_clock((s.cancel or {}).get('time'))}"
     if s.state == "CANCELLING":
         return f"{s.id} {s.shot}: cancelling ({s.stage} still stopping)"
-    line = f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)"
+    line = (
+        f"{s.id} {s.shot}: {' '.join(filter(None, (s.state.lower(), s.stage)))} ({s.done}/{s.total} stages)"
+    )
     if s.lost:
         lost = s.lost
         line = (f"{s.id} {s.shot}: worker lost: {lost['worker']} (host {lost['host']}, pid {lost['pid']}) sent "
@@ -328,11 +364,7 @@ def fill(
     from workers.app import check_farm, farm_errors
 
     s = celery_app.conf.tween
-    paths = [str(p) for p in shots]
-    for p in paths:
-        if not os.path.isfile(p):
-            _err(f"{p}: no such shot file")
-            raise typer.Exit(2)
+    paths = _shot_files(shots)
     for p in paths:  # checked and said here, in seconds, by the client: the workers' stderr is their log
         precheck(p, FillOptions(**opts))
     if not s.embedded:
@@ -345,14 +377,17 @@ def fill(
             ids = jobs.submit(paths, opts, render=render)
             _said(paths, ids, progress)
             code = _run_jobs(ids, intr, progress)
-        raise typer.Exit(code)
-    from workers.embedded import EmbeddedWorker
+        _exit(code)
+    check_farm(celery_app)  # the embedded farm's stores
+    from workers.embedded import EmbeddedWorker, WorkerDied
 
-    roots = [os.path.dirname(os.path.abspath(p)) for p in paths]
+    # The shots' folders, as given and where their links lead (checked with symlinks followed).
+    roots = [os.path.dirname(f(p)) for p in paths for f in (os.path.abspath, os.path.realpath)]
     for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
         if opts.get(key):
             roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
     # Interrupted while the worker starts: it is stopped, nothing was sent.
+    ids: list[str] = []
     with _Interrupts() as intr:
         try:
             with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
@@ -361,11 +396,15 @@ def fill(
                 _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress, alive=w.alive)
                 w.cold = code == EXIT_CANCELLED
+        except WorkerDied as e:  # stopped now (the with block): nothing of its jobs runs
+            undone = jobs.undo_orphaned(ids, why="its embedded worker died")
+            raise TweenError(f"{e}; {undone} unfinished job(s) cancelled, nothing of them kept") from None
         except BaseException as e:  # the interrupt, or a library's error raised while it landed
             if not _from_interrupt(e):
                 raise
+            print("tween: interrupted", file=sys.stderr)  # before anything was sent
             code = EXIT_CANCELLED
-    raise typer.Exit(code)
+    _exit(code)
 
 
 @with_fill_options
@@ -385,14 +424,22 @@ def submit(
     if celery_app.conf.tween.embedded:
         _err("no broker configured (set TWEEN_BROKER_URL); `tween fill` runs an embedded farm")
         raise typer.Exit(2)
-    for p in shots:
-        if p.is_file():
-            precheck(str(p), FillOptions(**opts))
-            if celery_app.conf.tween.shot_roots:  # before the broker is contacted
-                jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
+    paths = _shot_files(shots)
+    for p in paths:
+        precheck(p, FillOptions(**opts))
+        if celery_app.conf.tween.shot_roots:  # before the broker is contacted
+            jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
     check_farm(celery_app)
-    with farm_errors(celery_app):
-        ids = jobs.submit([str(p) for p in shots], opts, render=render)
+    # A signal while the jobs are sent is counted, not raised (a job half sent, its record
+    # without its message, stayed "queued" forever): then every job sent is cancelled.
+    with farm_errors(celery_app), _Interrupts() as intr:
+        intr.armed = False
+        ids = jobs.submit(paths, opts, render=render)
+        if intr.count:
+            jobs.cancel(ids, why="tween submit interrupted")
+            print(f"tween: interrupted: cancelled the {len(ids)} job(s) it had sent ({', '.join(ids)})",
+                  file=sys.stderr)  # fmt: skip
+            _exit(EXIT_CANCELLED)
     for job_id in ids:
         typer.echo(job_id)
 
@@ -407,6 +454,7 @@ def status(
     from workers.app import app as celery_app
     from workers.app import check_farm, farm_errors
 
+    job_ids = _job_ids(job_ids)
     check_farm(celery_app, broker=False)  # the states are in the result backend
     fills = [j for j in job_ids if not j.startswith(("rig-", "lib-"))]
     with farm_errors(celery_app):
@@ -446,7 +494,9 @@ def status(
         elif s.state == "FAILURE":
             typer.echo(f"{s.id} {s.shot}: failure: {s.error}")
         elif s.id.startswith(("rig-", "lib-")):
-            typer.echo(f"{s.id} {s.shot}: {s.state.lower()} {s.stage} ({s.done}/{s.total} stages)")
+            typer.echo(
+                f"{s.id} {s.shot}: {' '.join(filter(None, (s.state.lower(), s.stage)))} ({s.done}/{s.total} stages)"
+            )
         else:
             typer.echo(_status_line(s))
         code = code or (2 if s.state in ("FAILURE", "UNKNOWN", "CANCELLED") else 0)
@@ -466,6 +516,7 @@ def cancel(
 
     if not 0 <= wait_s <= 24 * 3600:
         raise TweenError(f"--wait {wait_s:g}: must be from 0 to 86400 seconds")
+    job_ids = _job_ids(job_ids)
     check_farm(celery_app, broker=False)  # the records are in the result backend
     bad = [j for j in job_ids if j.startswith(("rig-", "lib-"))]
     if bad:
@@ -498,6 +549,28 @@ def cancel(
     raise typer.Exit(code)
 
 
+def _check_worker_args(queue: str | None, hostname: str | None, include) -> None:
+    """What Celery would take and fail on later (an internal error) or never run."""
+    import importlib.util
+
+    from celery.utils.nodenames import host_format
+
+    if queue is not None and not queue.strip():
+        raise TweenError(f"--queue {queue!r}: empty (no job is ever sent there)")
+    if hostname is not None:
+        try:
+            host_format(hostname)
+        except ValueError as e:
+            raise TweenError(f"--hostname {hostname!r}: {str(e).splitlines()[0].rstrip('.')}") from None
+    for mod in (m.strip() for arg in include or () for m in arg.split(",")):
+        try:
+            found = importlib.util.find_spec(mod) is not None
+        except (ImportError, ValueError):
+            found = False
+        if not found:
+            raise TweenError(f"--include {mod!r}: no such module on this host's Python path")
+
+
 def worker(
     concurrency: int = typer.Option(None, "-c", "--concurrency", help="Pool processes (default: CPU count)."),
     queue: str = typer.Option(None, "--queue", "-Q", help="Queue to consume (default: the fill queue)."),
@@ -522,6 +595,7 @@ def worker(
         os.environ.setdefault(k, v)
     if train and train_rig:
         raise TweenError("--train and --train-rig are two different workers; start one of each")
+    _check_worker_args(queue, hostname, include)
     if train_rig:
         from workers.app import rig_app as celery_app
     elif train:

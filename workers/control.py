@@ -77,9 +77,14 @@ def read_beat(app, task_id: str) -> dict | None:
     return record(_backend(app).get_task_meta(beat_id(task_id)), BEAT_STATE)
 
 
-def dead_after(settings) -> float:
-    """Seconds without a heartbeat after which a running stage's worker counts as dead."""
-    return max(3.0 * settings.heartbeat_interval, 3.0)
+def dead_after(settings, beat: dict | None = None) -> float:
+    """Seconds without a heartbeat after which a running stage's worker counts as dead: three
+    of the beat's own interval (its worker's setting, which the beat records: a client with a
+    shorter one called a healthy worker lost), or of ``settings``' for a beat without it."""
+    interval = (beat or {}).get("interval")
+    if not isinstance(interval, (int, float)) or isinstance(interval, bool) or not interval > 0:
+        interval = settings.heartbeat_interval
+    return max(3.0 * float(interval), 3.0)
 
 
 # --- in the pool process: the watch over a running stage --------------------------------
@@ -164,6 +169,7 @@ class StageWatch:
             "time": time.time(),
             "ended": ended,
             "requeued": self.requeued,
+            "interval": self.settings.heartbeat_interval,  # how soon the next one comes
         }
         _backend(self.app).store_result(beat_id(self.task_id), rec, BEAT_STATE)
 

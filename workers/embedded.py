@@ -13,11 +13,14 @@ import signal
 import subprocess
 import sys
 import uuid
-from pathlib import Path
 
 from pipeline.errors import TweenError
 from workers import runtime
 from workers.settings import cache_dir
+
+
+class WorkerDied(TweenError):
+    """The embedded worker exited while its jobs ran."""
 
 
 class EmbeddedWorker:
@@ -70,17 +73,12 @@ class EmbeddedWorker:
         return self
 
     def alive(self) -> None:
-        """Raises if the worker has exited (so a waiting client does not hang)."""
+        """Raises :class:`WorkerDied` if the worker has exited (so a waiting client does not
+        hang); one line, naming its log (its last lines were a page of Celery's output)."""
         if self.proc is not None and self.proc.poll() is not None:
-            raise TweenError(
-                f"embedded worker exited with code {self.proc.returncode}; log: {self.log}\n{self.log_tail()}"
-            )
-
-    def log_tail(self, n: int = 15) -> str:
-        try:
-            return "\n".join(Path(self.log).read_text(errors="replace").splitlines()[-n:])
-        except OSError:
-            return ""
+            rc = self.proc.returncode
+            how = f"was killed (signal {-rc})" if rc < 0 else f"exited with code {rc}"
+            raise WorkerDied(f"the embedded worker {how}; its log: {self.log}")
 
     def __exit__(self, *exc) -> None:
         try:

@@ -12,7 +12,7 @@ import os
 import sys
 import time
 import uuid
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from celery import chain, chord, group
 from celery import states as cstates
@@ -330,7 +330,7 @@ def _heartbeats(js: JobState, running: list[tuple[str, str]]) -> None:
             continue  # started a moment ago: no beat yet
         js.requeued = list(beat.get("requeued") or [])
         silent = now - float(beat.get("time") or now)
-        if not beat.get("ended") and silent > control.dead_after(s):
+        if not beat.get("ended") and silent > control.dead_after(s, beat):
             # Redis restores the message visibility_timeout after its last renewal, at the
             # next restore sweep; other brokers redeliver when the connection drops.
             by = float(beat["time"]) + s.visibility_timeout + s.restore_interval if s.is_redis else None
@@ -362,6 +362,21 @@ def undo_cancelled(js: JobState) -> list[str]:
     job = {"id": js.id, "work_dir": rec.get("work_dir"), "made_dirs": rec.get("made_dirs") or (),
            "kind": rec.get("kind") or "fill", "review": rec.get("review"), "existing": rec.get("existing")}  # fmt: skip
     return cleanup.undo(js.shot, {"out_dir": rec.get("out_dir") or None}, job)
+
+
+def undo_orphaned(job_ids: list[str], why: str) -> int:
+    """Cancels the unfinished jobs among ``job_ids`` and removes what they wrote, now: for a
+    farm that will never run them again (an embedded worker that died, its queue gone), so
+    no stage can still be running. Returns how many were undone."""
+    n = 0
+    for j in job_ids:
+        js = state(j)
+        if js.finished or not js.record:
+            continue
+        control.request_cancel(app, j, why)
+        undo_cancelled(replace(js, state="CANCELLED"))
+        n += 1
+    return n
 
 
 def wait(

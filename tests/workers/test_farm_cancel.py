@@ -100,6 +100,35 @@ def test_interrupted_embedded_fill_cancels_its_job(tmp_path, point, sig, marker)
     assert not _worker_pids(tmp_path)
 
 
+def test_an_embedded_worker_that_dies_is_one_line_and_its_job_is_undone(tmp_path):
+    """The embedded worker killed mid-take: the fill said so in 16 lines (Celery's log tail),
+    left its version layers and scratch beside the shot, and `tween status` promised a requeue
+    that never came (the private queue is gone). Now: one line, the job cancelled and undone."""
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    env = embedded_env(tmp_path, slow=("farm_slowfill",), TWEEN_TEST_MARKERS=markers, **SLOW)
+    shots = tmp_path / "shots"
+    shot = copy_shot(example_shot(), shots, "dies")
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--takes", "2", "--no-progress"]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        _wait_for("*.take0", markers, proc=proc)
+        for pid in _worker_pids(tmp_path):
+            if pid != proc.pid:
+                os.kill(pid, signal.SIGKILL)
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 2 and out == "", err[-3000:]
+    (line,) = err.splitlines()
+    assert line.startswith("tween: error: the embedded worker was killed (signal 9); its log: "), line
+    assert line.endswith("1 unfinished job(s) cancelled, nothing of them kept"), line
+    _only_the_shot(shots, "dies.usda")
+
+
 def _worker_pids(tmp_path) -> list[int]:
     """Pids of this run's processes still there (the embedded worker and its pool): any
     process whose environment names the run's cache folder."""
@@ -265,7 +294,32 @@ def test_a_fill_whose_job_is_cancelled_elsewhere_exits_130(farm, tmp_path):
             proc.kill()
     assert proc.returncode == 130, err[-3000:]
     assert f"tween: {shot}: job {work.name} cancelled by " in err and out == ""
+    assert "tween: interrupted" not in err  # it was not: its job was cancelled elsewhere
     _only_the_shot(folder, "elsewhere.usda")
+
+
+def test_an_interrupted_submit_cancels_the_jobs_it_sent(farm, monkeypatch):
+    """SIGINT while `tween submit` sends its jobs: it raised where it landed, so the jobs sent
+    stayed queued with no id printed (one record without its message, "queued" forever)."""
+    from workers import jobs
+
+    real = jobs.submit
+
+    def submit_then_interrupted(*a, **k):
+        ids = real(*a, **k)
+        os.kill(os.getpid(), signal.SIGINT)  # counted by the handler: the sending goes on
+        time.sleep(0.05)
+        return ids
+
+    monkeypatch.setattr(jobs, "submit", submit_then_interrupted)
+    folder = farm.root / "submitted"
+    shots = [copy_shot(example_shot(), folder, f"sub{i}") for i in range(2)]
+    res = _cli("submit", *map(str, shots))
+    assert res.exit_code == 130 and res.stdout == "", res.output
+    (line,) = res.stderr.splitlines()
+    assert line.startswith("tween: interrupted: cancelled the 2 job(s) it had sent ("), line
+    ids = line.rsplit("(", 1)[1].rstrip(")").split(", ")
+    assert len(ids) == 2 and all(jobs.control.cancel_record(farm.app, j) for j in ids)
 
 
 def test_cancel_of_a_finished_job_is_one_line(farm, monkeypatch):

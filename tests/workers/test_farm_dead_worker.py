@@ -173,3 +173,23 @@ def test_a_killed_embedded_fill_is_undone_by_the_next_run(tmp_path):
         "killed_v001.otio",
     ]
     assert leftovers(shots) == []
+
+
+def test_a_beat_is_judged_by_its_own_workers_interval(monkeypatch):
+    """A worker beating every 20 s was shown "lost" after 7 s by a client whose own setting
+    was 2 s (and `tween cancel` undid its files while it still ran): each beat records its
+    worker's interval, and silence counts against that."""
+    from workers import control, jobs
+
+    now = time.time()
+    beat = {"time": now - 30, "worker": "w@h", "host": "h", "pid": 1, "ended": False}
+    monkeypatch.setattr(control, "record", lambda meta, state: dict(beat))
+    monkeypatch.setattr(jobs, "_meta", lambda tid: {})
+    for interval, lost in ((20, False), (5, True), (None, True)):  # None: a beat before the key
+        beat.pop("interval", None)
+        if interval is not None:
+            beat["interval"] = interval
+        js = jobs.JobState(id="j")
+        jobs._heartbeats(js, [("take0", "j.take0")])
+        assert (js.lost is not None) == lost, (interval, js.lost)
+    assert control.dead_after(SimpleNamespace(heartbeat_interval=2), {"interval": True}) == 6.0

@@ -215,3 +215,18 @@ def test_what_needs_no_farm_is_checked_before_any_farm(tmp_path):
                          env=down, cwd=tmp_path, capture_output=True, text=True, timeout=60)  # fmt: skip
     assert res.returncode == 2 and res.stderr.count("\n") == 1
     assert "outside the shot roots" in res.stderr and "connect" not in res.stderr
+
+
+def test_a_shot_linked_from_another_folder_is_filled_where_it_is_given(tmp_path):
+    """The embedded farm's roots were the given shots' folders only, while the worker checks
+    paths with symlinks followed: a shot linked from another folder was refused as "outside
+    the shot roots" (roots the user never set), though `tween fill-local` filled it."""
+    real = copy_shot(example_shot(), tmp_path / "real", "linked")
+    links = tmp_path / "links"
+    links.mkdir()
+    (links / real.name).symlink_to(real)
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(links / real.name), "--no-progress"]
+    res = subprocess.run(cmd, env=_env(tmp_path), cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert res.stdout.startswith(f"{links / real.name}: layer {links / 'linked.tween.v001.usda'}")
+    assert sorted(p.name for p in (tmp_path / "real").iterdir()) == ["linked.usda"]
