@@ -105,7 +105,9 @@ def _interrupt(signum, frame):
     loaded USD ran on to write its layer and exit 0) or left a module half made (a later
     internal error). There the signal is sent again a moment later, until it lands outside."""
     if _importing(frame):
-        threading.Timer(RETRY_S, os.kill, (os.getpid(), signum)).start()
+        again = threading.Timer(RETRY_S, os.kill, (os.getpid(), signum))
+        again.daemon = True  # never keeps a finished command's process alive
+        again.start()
         return
     raise KeyboardInterrupt()
 
