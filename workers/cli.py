@@ -3,6 +3,7 @@ bench-farm."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import signal
@@ -341,6 +342,38 @@ def _report(states) -> int:
     return 2 if failed else 0
 
 
+def _fill_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, progress: bool) -> int:
+    """``tween fill`` on its own embedded farm: starts the worker, sends and waits; returns
+    the exit code. A worker that dies has its unfinished jobs undone."""
+    from workers.embedded import EmbeddedWorker, WorkerDied
+
+    jobs = _jobs()
+    # The shots' folders, as given and where their links lead (checked with symlinks followed).
+    roots = [os.path.dirname(f(p)) for p in paths for f in (os.path.abspath, os.path.realpath)]
+    for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
+        if opts.get(key):
+            roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
+    # Interrupted while the worker starts: it is stopped, nothing was sent.
+    ids: list[str] = []
+    with _Interrupts() as intr:
+        try:
+            with EmbeddedWorker(roots, concurrency=concurrency) as w:
+                intr.armed = False
+                ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
+                _said(paths, ids, progress)
+                code = _run_jobs(ids, intr, progress, alive=w.alive)
+                w.cold = code == EXIT_CANCELLED
+        except WorkerDied as e:  # stopped now (the with block): nothing of its jobs runs
+            undone = jobs.undo_orphaned(ids, why="its embedded worker died")
+            raise TweenError(f"{e}; {undone} unfinished job(s) cancelled, nothing of them kept") from None
+        except BaseException as e:  # the interrupt, or a library's error raised while it landed
+            if not _from_interrupt(e):
+                raise
+            print("tween: interrupted", file=sys.stderr)  # before anything was sent
+            code = EXIT_CANCELLED
+    return code
+
+
 @with_fill_options
 def fill(
     shots: list[Path] = typer.Argument(..., help="USD shot files (.usda/.usdc/.usd)."),
@@ -379,32 +412,7 @@ def fill(
             code = _run_jobs(ids, intr, progress)
         _exit(code)
     check_farm(celery_app)  # the embedded farm's stores
-    from workers.embedded import EmbeddedWorker, WorkerDied
-
-    # The shots' folders, as given and where their links lead (checked with symlinks followed).
-    roots = [os.path.dirname(f(p)) for p in paths for f in (os.path.abspath, os.path.realpath)]
-    for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
-        if opts.get(key):
-            roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
-    # Interrupted while the worker starts: it is stopped, nothing was sent.
-    ids: list[str] = []
-    with _Interrupts() as intr:
-        try:
-            with EmbeddedWorker(roots, concurrency=min(concurrency, max(1, takes * len(paths)))) as w:
-                intr.armed = False
-                ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
-                _said(paths, ids, progress)
-                code = _run_jobs(ids, intr, progress, alive=w.alive)
-                w.cold = code == EXIT_CANCELLED
-        except WorkerDied as e:  # stopped now (the with block): nothing of its jobs runs
-            undone = jobs.undo_orphaned(ids, why="its embedded worker died")
-            raise TweenError(f"{e}; {undone} unfinished job(s) cancelled, nothing of them kept") from None
-        except BaseException as e:  # the interrupt, or a library's error raised while it landed
-            if not _from_interrupt(e):
-                raise
-            print("tween: interrupted", file=sys.stderr)  # before anything was sent
-            code = EXIT_CANCELLED
-    _exit(code)
+    _exit(_fill_embedded(paths, opts, render, min(concurrency, max(1, takes * len(paths))), progress))
 
 
 @with_fill_options
@@ -551,8 +559,6 @@ def cancel(
 
 def _check_worker_args(queue: str | None, hostname: str | None, include) -> None:
     """What Celery would take and fail on later (an internal error) or never run."""
-    import importlib.util
-
     from celery.utils.nodenames import host_format
 
     if queue is not None and not queue.strip():

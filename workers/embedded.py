@@ -16,7 +16,7 @@ import uuid
 
 from pipeline.errors import TweenError
 from workers import runtime
-from workers.settings import cache_dir
+from workers.settings import EMBEDDED_QUEUE_PREFIX, cache_dir
 
 
 class WorkerDied(TweenError):
@@ -27,7 +27,7 @@ class EmbeddedWorker:
     """Context manager: a ``tween worker`` subprocess (own session) on a private queue."""
 
     def __init__(self, roots: list[str], concurrency: int = 2, extra_args: list[str] | None = None):
-        self.queue = f"tween.embedded.{uuid.uuid4().hex[:12]}"
+        self.queue = f"{EMBEDDED_QUEUE_PREFIX}{uuid.uuid4().hex[:12]}"
         self.roots = sorted({os.path.realpath(r) for r in roots})
         self.concurrency = concurrency
         self.extra_args = list(extra_args or [])

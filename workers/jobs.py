@@ -27,6 +27,7 @@ from workers import cleanup, control
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
 from workers.limits import failure_message, render_limits, train_limit_message
+from workers.settings import EMBEDDED_QUEUE_PREFIX
 
 
 @dataclass
@@ -68,10 +69,6 @@ def stage_ids(job_id: str, takes: int, kind: str = "fill") -> list[tuple[str, st
         + [(f"take {t + 1}/{takes}", f"{job_id}.take{t}") for t in range(takes)]
         + [("layer", f"{job_id}.layer"), ("review", f"{job_id}.review")]
     )
-
-
-#: Queues of the embedded farm (workers/embedded.py): private to one `tween fill` client.
-EMBEDDED_QUEUE_PREFIX = "tween.embedded."
 
 
 def work_dir_for(shot: str, opts: dict, job_id: str, owner: str | None = None) -> str:

@@ -50,7 +50,8 @@ def cache_dir(env=None) -> Path:
 
 def config_file(env=None) -> Path:
     env = os.environ if env is None else env
-    return Path(env.get("TWEEN_FARM_CONFIG", Path.home() / ".config" / "usd-tween" / "farm.toml"))
+    home = Path(env["HOME"]) if env.get("HOME") else Path.home()  # the HOME of ``env``
+    return Path(env.get("TWEEN_FARM_CONFIG") or home / ".config" / "usd-tween" / "farm.toml")
 
 
 @dataclass(frozen=True)
@@ -142,6 +143,24 @@ _STR_KEYS = (
     "security_cert_store",
     "security_digest",
 )
+_QUEUE_KEYS = ("queue", "train_queue", "train_rig_queue")
+#: String settings whose empty value means "none" (their default); every other one needs a value.
+_OPTIONAL_KEYS = ("library", *security.PATH_KEYS)
+#: Path settings: made absolute, relative to the config file's folder when they come from it.
+_PATH_KEYS = ("library", *security.PATH_KEYS)
+#: The most a seconds-valued setting may be (7 days): far beyond any real limit, and within
+#: what timers and waits can represent (a larger one overflows the worker's heartbeat wait).
+MAX_SECONDS = 7 * 24 * 3600
+#: The most of each integer setting (``max_retries`` has none).
+_MOST = {
+    **{k: MAX_SECONDS for k in _INT_KEYS if k not in ("render_frame_ms", "max_retries")},
+    "render_frame_ms": 3_600_000,  # an hour a frame
+}
+#: The queues of the embedded farm (workers/embedded.py) start with this: private to one
+#: `tween fill` client, whose jobs and files die with it.
+EMBEDDED_QUEUE_PREFIX = "tween.embedded."
+_URL_KEYS = ("broker_url", "result_backend")
+_DIGITS = re.compile(r"-?[0-9]+")
 
 
 def _nearest(key: str) -> str:
@@ -149,21 +168,41 @@ def _nearest(key: str) -> str:
     return f" (did you mean {near[0]}?)" if near else ""
 
 
+def _open_file(path: Path, named: bool) -> dict | None:
+    """The parsed TOML file ``path``; None when there is none to read (missing and not
+    ``named``, or ``/dev/null``). Anything else that is not a regular file is an error."""
+    where = f"TWEEN_FARM_CONFIG={path}" if named else str(path)
+    if str(path) == os.devnull:
+        return None
+    if not path.exists():
+        if named:
+            raise FarmConfigError(f"{where}: no such farm config file")
+        return None
+    if not path.is_file():
+        if os.path.exists(os.devnull) and path.samefile(os.devnull):
+            return None
+        what = "a folder" if path.is_dir() else "not a regular file"
+        raise FarmConfigError(
+            f"{where}: {what}, not a farm config file (TWEEN_FARM_CONFIG={os.devnull}: no settings)"
+        )
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except UnicodeDecodeError as e:
+        raise FarmConfigError(
+            f"{path}: cannot read farm config: not UTF-8 text (byte {e.object[e.start]:#04x} at offset {e.start})"
+        ) from None
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise FarmConfigError(f"{path}: cannot read farm config: {e}") from None
+
+
 def _read_file(path: Path, named: bool = False) -> dict:
     """The settings in the TOML file ``path``; none when it does not exist, unless the user
     ``named`` it (``TWEEN_FARM_CONFIG``): a file named and missing is an error, not silence.
-    ``/dev/null`` (no file) is no settings."""
-    if not path.exists():
-        if named:
-            raise FarmConfigError(f"TWEEN_FARM_CONFIG={path}: no such farm config file")
+    ``/dev/null`` (no file) is no settings; a folder or another non-file is an error."""
+    data = _open_file(path, named)
+    if data is None:
         return {}
-    if not path.is_file():
-        return {}
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise FarmConfigError(f"{path}: cannot read farm config: {e}") from None
     unknown = sorted(set(data) - set(_INT_KEYS) - set(_STR_KEYS) - {"shot_roots"})
     if unknown:
         raise FarmConfigError(
@@ -175,6 +214,8 @@ def _read_file(path: Path, named: bool = False) -> dict:
     roots = data.get("shot_roots")
     if roots is not None and not (isinstance(roots, list) and all(isinstance(r, str) for r in roots)):
         raise FarmConfigError(f"{path}: shot_roots must be a list of folder paths, not {roots!r}")
+    if roots and not all(r.strip() for r in roots):
+        raise FarmConfigError(f"{path}: shot_roots: an empty folder path in {roots!r}")
     return data
 
 
@@ -185,47 +226,95 @@ def embedded_urls(folder: Path) -> tuple[str, str]:
     return f"tweensqla+sqlite:///{folder / 'broker.sqlite'}", f"db+sqlite:///{folder / 'results.sqlite'}"
 
 
+def _named(key: str, value, where: str) -> str:
+    """The head of an error line about ``key``: ``TWEEN_<KEY>=value`` for a variable (URLs
+    without their passwords), the file and key (``farm.toml: key``) for the file."""
+    if not where.startswith("TWEEN_"):
+        return where
+    shown = redact_url(value) if key in _URL_KEYS else str(value)
+    return f"{where}={shown if shown.strip() else repr(shown)}"
+
+
+def _integer(key: str, raw, where: str):
+    """The integer setting ``key``: a TOML integer in the file, plain decimal digits in the
+    environment; within its bounds."""
+    if where.startswith("TWEEN_"):
+        ok, form = isinstance(raw, str) and _DIGITS.fullmatch(raw), "plain decimal digits"
+    else:
+        ok, form = type(raw) is int, "a TOML integer, without quotes"
+    try:
+        value = int(raw) if ok else None
+    except ValueError:  # more digits than Python converts
+        value = None
+    if value is None:
+        raise FarmConfigError(f"{where}: expected an integer, got {raw!r} ({form})")
+    least, most = (0 if key == "max_retries" else 1), _MOST.get(key)
+    if value < least:
+        raise FarmConfigError(f"{where}: must be {least} or more, got {value}")
+    if most is not None and value > most:
+        unit = " ms" if key == "render_frame_ms" else " s (7 days)"
+        raise FarmConfigError(f"{where}: must be at most {most}{unit}, got {value}")
+    return value
+
+
+def _string(key: str, raw: str, where: str) -> str:
+    """The string setting ``key``: not blank (an empty optional one is none, its default);
+    a queue not one of the embedded farm's."""
+    if not raw.strip():
+        if raw == "" and key in _OPTIONAL_KEYS:
+            return raw
+        raise FarmConfigError(f"{_named(key, raw, where)}: empty; give {key} a value, or leave it out")
+    if key in _QUEUE_KEYS and raw.startswith(EMBEDDED_QUEUE_PREFIX):
+        raise FarmConfigError(
+            f"{_named(key, raw, where)}: queue names starting with {EMBEDDED_QUEUE_PREFIX} are the embedded "
+            "farm's private queues (their jobs count as a dead client's once it exits); choose another name"
+        )
+    return raw
+
+
+def _given(env, data: dict, key: str, file: Path) -> tuple[object, str] | None:
+    """The value of ``key`` given in ``env`` (first; an empty variable is none) or in the file's
+    ``data``, and where it came from; None when neither gives it."""
+    name = f"TWEEN_{key.upper()}"
+    if env.get(name):
+        return env[name], name
+    if key in data:
+        return data[key], f"{file}: {key}"
+    return None
+
+
 def _values(env, data: dict) -> tuple[dict, dict[str, str]]:
     """Each setting given, from ``env`` (first) or the config file's ``data``, typed and
-    checked, and where each came from (for the error lines)."""
+    checked, and where each came from (for the error lines). Relative paths of the file are
+    relative to its folder, those of the environment to the working folder."""
+    file = config_file(env)
+    base = os.path.dirname(os.path.abspath(file))
     vals: dict = {}
-    origin: dict[str, str] = {}  # where each setting came from, for the error lines
+    origin: dict[str, str] = {}  # where each given setting came from, for the error lines
     for key in _STR_KEYS + _INT_KEYS:
-        raw = env.get(f"TWEEN_{key.upper()}")
-        origin[key] = f"TWEEN_{key.upper()}"
-        if raw is None or raw == "":
-            raw = data.get(key)
-            origin[key] = f"{config_file(env)}: {key}"
-        if raw is None:
+        got = _given(env, data, key, file)
+        if got is None:
             continue
-        if key in security.PATH_KEYS and raw:
-            from_file = not origin[key].startswith("TWEEN_")
-            raw = security.resolve_path(
-                raw, os.path.dirname(os.path.abspath(config_file(env))) if from_file else None
-            )
+        raw, where = got
+        origin[key] = where
+        from_file = not where.startswith("TWEEN_")
         if key in _INT_KEYS:
-            where = (
-                f"TWEEN_{key.upper()}" if env.get(f"TWEEN_{key.upper()}") else f"{config_file(env)}: {key}"
-            )
-            try:
-                if isinstance(raw, bool) or isinstance(raw, float):
-                    raise ValueError
-                raw = int(raw)
-            except (TypeError, ValueError):
-                raise FarmConfigError(f"{where}: expected an integer, got {raw!r}") from None
-            least = 0 if key == "max_retries" else 1
-            if raw < least:
-                raise FarmConfigError(f"{where}: must be {least} or more, got {raw}")
-        vals[key] = raw
+            vals[key] = _integer(key, raw, where)
+            continue
+        vals[key] = _string(key, raw, where)
+        if key in _PATH_KEYS and vals[key]:
+            vals[key] = security.resolve_path(vals[key], base if from_file else None)
     roots = env.get("TWEEN_SHOT_ROOTS")
     if roots:
         vals["shot_roots"] = tuple(r for r in roots.split(os.pathsep) if r)
+        origin["shot_roots"] = "TWEEN_SHOT_ROOTS"
     elif data.get("shot_roots"):
-        vals["shot_roots"] = tuple(data["shot_roots"])
+        vals["shot_roots"] = tuple(security.resolve_path(r, base) for r in data["shot_roots"])
+        origin["shot_roots"] = f"{file}: shot_roots"
     return vals, origin
 
 
-def _broker_and_backend(vals: dict, env) -> tuple[str, str, bool]:
+def _broker_and_backend(vals: dict, env, origin: dict[str, str]) -> tuple[str, str, bool]:
     """The broker and result backend URLs (taken out of ``vals``), and whether the farm is
     the embedded, server-less default (no broker given)."""
     broker = vals.pop("broker_url", None)
@@ -239,43 +328,57 @@ def _broker_and_backend(vals: dict, env) -> tuple[str, str, bool]:
             backend = broker
         else:
             raise FarmConfigError(
-                "TWEEN_RESULT_BACKEND is required with a non-Redis broker (chords need a real result "
-                "backend: redis://... or db+postgresql://...)"
+                f"{_named('broker_url', broker, origin['broker_url'])}: a non-Redis broker needs "
+                "result_backend (TWEEN_RESULT_BACKEND) too: chords need a real result backend "
+                "(redis://... or db+postgresql://...)"
             )
     if backend.startswith("rpc://"):
-        raise FarmConfigError("TWEEN_RESULT_BACKEND: rpc:// cannot run chords; use redis:// or db+...")
+        raise FarmConfigError(
+            f"{_named('result_backend', backend, origin.get('result_backend', 'TWEEN_RESULT_BACKEND'))}: "
+            "rpc:// cannot run chords; use redis:// or db+..."
+        )
     return broker, backend, embedded
 
 
-def _check_limits(s: FarmSettings) -> None:
+def _lead(s: FarmSettings, origin: dict[str, str], *keys: str) -> str:
+    """Where the given ones of ``keys`` came from (``TWEEN_<KEY>=value``, ``farm.toml: key``),
+    for the head of an error line about how they agree."""
+    given = [_named(k, getattr(s, k), origin[k]) for k in keys if k in origin]
+    return ", ".join(given) or "the default farm settings"
+
+
+def _below(s: FarmSettings, origin: dict[str, str], low: str, high: str, why: str = "") -> None:
+    a, b = getattr(s, low), getattr(s, high)
+    if a >= b:
+        raise FarmConfigError(
+            f"{_lead(s, origin, low, high)}: {low} ({a} s) must be below {high} ({b} s){why}"
+        )
+
+
+def _check_limits(s: FarmSettings, origin: dict[str, str] | None = None) -> None:
     """Time limits, heartbeat and queues that agree with each other (and with Redis's
-    visibility timeouts, on a Redis farm)."""
-    if s.fill_soft_time_limit >= s.fill_time_limit:
-        raise FarmConfigError("fill_soft_time_limit must be below fill_time_limit")
-    if s.is_redis and s.fill_time_limit >= s.visibility_timeout:
+    visibility timeouts, on a Redis farm); an error names where the values came from."""
+    origin = origin or {}
+    _below(s, origin, "fill_soft_time_limit", "fill_time_limit")
+    _below(s, origin, "render_soft_time_limit", "render_time_limit")
+    if s.is_redis:
+        _below(s, origin, "fill_time_limit", "visibility_timeout",
+               ", or Redis hands a running task to a second worker")  # fmt: skip
+        if 3 * s.heartbeat_interval > s.visibility_timeout:
+            raise FarmConfigError(
+                f"{_lead(s, origin, 'heartbeat_interval', 'visibility_timeout')}: heartbeat_interval "
+                f"({s.heartbeat_interval} s) must be at most a third of visibility_timeout "
+                f"({s.visibility_timeout} s): a running stage renews its Redis lease at each heartbeat"
+            )
+        _below(s, origin, "train_time_limit", "train_visibility_timeout")
+        _below(s, origin, "train_rig_time_limit", "train_rig_visibility_timeout",
+               ", or Redis hands a running training to a second worker")  # fmt: skip
+    names = [getattr(s, k) for k in _QUEUE_KEYS]
+    if len(set(names)) < 3:
+        same = [k for k in _QUEUE_KEYS if names.count(getattr(s, k)) > 1]
         raise FarmConfigError(
-            f"fill_time_limit ({s.fill_time_limit} s) must be below visibility_timeout "
-            f"({s.visibility_timeout} s), or Redis hands a running task to a second worker"
+            f"{_lead(s, origin, *same)}: queue, train_queue and train_rig_queue must be three different queues"
         )
-    if s.render_soft_time_limit >= s.render_time_limit:
-        raise FarmConfigError(
-            f"render_soft_time_limit ({s.render_soft_time_limit} s) must be below render_time_limit "
-            f"({s.render_time_limit} s)"
-        )
-    if s.is_redis and 3 * s.heartbeat_interval > s.visibility_timeout:
-        raise FarmConfigError(
-            f"heartbeat_interval ({s.heartbeat_interval} s) must be at most a third of visibility_timeout "
-            f"({s.visibility_timeout} s): a running stage renews its Redis lease at each heartbeat"
-        )
-    if s.is_redis and s.train_time_limit >= s.train_visibility_timeout:
-        raise FarmConfigError("train_time_limit must be below train_visibility_timeout")
-    if s.is_redis and s.train_rig_time_limit >= s.train_rig_visibility_timeout:
-        raise FarmConfigError(
-            f"train_rig_time_limit ({s.train_rig_time_limit} s) must be below train_rig_visibility_timeout "
-            f"({s.train_rig_visibility_timeout} s), or Redis hands a running training to a second worker"
-        )
-    if len({s.queue, s.train_queue, s.train_rig_queue}) < 3:
-        raise FarmConfigError("queue, train_queue and train_rig_queue must be three different queues")
 
 
 def load_settings(env: dict | None = None) -> FarmSettings:
@@ -283,9 +386,9 @@ def load_settings(env: dict | None = None) -> FarmSettings:
     env = os.environ if env is None else env
     data = _read_file(config_file(env), named=bool(env.get("TWEEN_FARM_CONFIG")))
     vals, origin = _values(env, data)
-    broker, backend, embedded = _broker_and_backend(vals, env)
+    broker, backend, embedded = _broker_and_backend(vals, env, origin)
     s = FarmSettings(broker_url=broker, result_backend=backend, embedded=embedded, **vals)
-    _check_limits(s)
+    _check_limits(s, origin)
     try:
         security.check(s, origin)
     except security.FarmConfigError as e:

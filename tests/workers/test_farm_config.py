@@ -278,3 +278,150 @@ def test_a_farm_config_named_but_missing_is_an_error_and_none_named_is_none(tmp_
         {"HOME": str(tmp_path), "TWEEN_CACHE": str(tmp_path / "c")}
     ).embedded  # the default path
     assert load_settings({**_env(tmp_path), "TWEEN_MAX_RETRIES": "0"}).max_retries == 0
+
+
+def _refused(env: dict) -> str:
+    """The one-line message of the farm configuration error ``env`` makes."""
+    with pytest.raises(FarmConfigError) as e:
+        load_settings(env)
+    msg = str(e.value)
+    assert "\n" not in msg, msg
+    return msg
+
+
+def test_a_queue_of_the_embedded_farm_is_refused(tmp_path):
+    """A farm queue named like the embedded farm's private ones would make a second submit
+    take its healthy jobs for a dead embedded client's and delete their files."""
+    from workers.jobs import EMBEDDED_QUEUE_PREFIX
+    from workers.settings import EMBEDDED_QUEUE_PREFIX as checked
+
+    assert checked == EMBEDDED_QUEUE_PREFIX == "tween.embedded."
+    msg = _refused(_env(tmp_path, TWEEN_QUEUE="tween.embedded.farm"))
+    assert msg.startswith("TWEEN_QUEUE=tween.embedded.farm: queue names starting with tween.embedded."), msg
+    cfg = tmp_path / "farm.toml"
+    for key in ("queue", "train_queue", "train_rig_queue"):
+        cfg.write_text(f'{key} = "tween.embedded.x"\n')
+        assert _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg))).startswith(f"{cfg}: {key}: queue names")
+    assert load_settings(_env(tmp_path, TWEEN_QUEUE="tween.embeddedfarm")).queue == "tween.embeddedfarm"
+
+
+@pytest.mark.parametrize(
+    "toml, env, says",
+    [
+        ('queue = ""\n', {}, "{cfg}: queue: empty"),
+        ('broker_url = ""\n', {}, "{cfg}: broker_url: empty"),
+        ('result_backend = ""\nbroker_url = "amqp://h"\n', {}, "{cfg}: result_backend: empty"),
+        ('key_prefix = "  "\n', {}, "{cfg}: key_prefix: empty"),
+        ('security_digest = ""\n', {}, "{cfg}: security_digest: empty"),
+        ('library = " "\n', {}, "{cfg}: library: empty"),
+        ("", {"TWEEN_TRAIN_QUEUE": "  "}, "TWEEN_TRAIN_QUEUE='  ': empty"),
+        ("", {"TWEEN_BROKER_URL": " "}, "TWEEN_BROKER_URL=' ': empty"),
+    ],
+)
+def test_an_empty_string_setting_is_refused_naming_its_key(tmp_path, toml, env, says):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(toml)
+    msg = _refused({**_env(tmp_path), "TWEEN_FARM_CONFIG": str(cfg), **env})
+    assert msg.startswith(says.format(cfg=cfg)) and "TWEEN_RESULT_BACKEND is required" not in msg, msg
+    # An empty optional path is none, its default; an empty variable is not set.
+    cfg.write_text('library = ""\ntls_ca_file = ""\n')
+    s = load_settings({**_env(tmp_path), "TWEEN_FARM_CONFIG": str(cfg), "TWEEN_QUEUE": ""})
+    assert s.library == "" and s.tls_ca_file == "" and s.queue == "tween.fill"
+
+
+def test_a_farm_config_that_is_not_utf8_is_one_line_naming_it(tmp_path):
+    cfg = tmp_path / "j.toml"
+    cfg.write_bytes(b"\xff\xfe")
+    msg = _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg)))
+    assert msg.startswith(f"{cfg}: cannot read farm config: not UTF-8 text"), msg
+
+
+def test_a_farm_config_that_is_not_a_file_is_refused(tmp_path):
+    folder = tmp_path / "conf"
+    folder.mkdir()
+    msg = _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(folder)))
+    assert msg.startswith(f"TWEEN_FARM_CONFIG={folder}: a folder, not a farm config file"), msg
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    assert _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(fifo))).startswith(
+        f"TWEEN_FARM_CONFIG={fifo}: not a regular"
+    )
+    # The default path: missing is no settings, a folder there is an error naming it.
+    home = {"HOME": str(tmp_path), "TWEEN_CACHE": str(tmp_path / "c")}
+    assert load_settings({**home, "TWEEN_FARM_CONFIG": ""}).embedded  # empty: the default path
+    default = tmp_path / ".config" / "usd-tween" / "farm.toml"
+    default.mkdir(parents=True)
+    assert _refused(home).startswith(f"{default}: a folder"), _refused(home)
+    assert load_settings({**home, "TWEEN_FARM_CONFIG": os.devnull}).embedded
+
+
+def test_relative_paths_in_the_config_file_are_relative_to_its_folder(tmp_path, monkeypatch):
+    conf = tmp_path / "conf"
+    conf.mkdir()
+    cfg = conf / "farm.toml"
+    cfg.write_text('shot_roots = ["shows", "/abs/shows"]\nlibrary = "libs/studio"\n')
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    s = load_settings(_env(tmp_path, TWEEN_FARM_CONFIG="../conf/farm.toml"))
+    assert s.shot_roots == (str(conf / "shows"), "/abs/shows"), s.shot_roots
+    assert s.library == str(conf / "libs" / "studio")
+    # The environment's stay relative to the working folder.
+    s = load_settings(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg), TWEEN_LIBRARY="lib", TWEEN_SHOT_ROOTS="rel"))
+    assert s.library == str(elsewhere / "lib") and s.shot_roots == ("rel",)
+
+
+def test_limits_that_disagree_name_where_they_came_from(tmp_path):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text('broker_url = "redis://h"\nvisibility_timeout = 30\n')
+    msg = _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg)))
+    assert msg.startswith(
+        f"{cfg}: visibility_timeout: fill_time_limit (50 s) must be below visibility_timeout"
+    ), msg
+    msg = _refused(_env(tmp_path, TWEEN_FILL_SOFT_TIME_LIMIT="60"))
+    assert msg.startswith("TWEEN_FILL_SOFT_TIME_LIMIT=60: fill_soft_time_limit (60 s) must be below"), msg
+    msg = _refused(_env(tmp_path, TWEEN_BROKER_URL="redis://:pw@h", TWEEN_HEARTBEAT_INTERVAL="30"))
+    assert msg.startswith("TWEEN_HEARTBEAT_INTERVAL=30: heartbeat_interval (30 s) must be at most a third"), (
+        msg
+    )
+    cfg.write_text('train_queue = "tween.fill"\n')
+    msg = _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg)))
+    assert msg.startswith(f"{cfg}: train_queue: queue, train_queue and train_rig_queue must be three"), msg
+    msg = _refused(_env(tmp_path, TWEEN_BROKER_URL="amqp://u:pw@h//"))
+    assert msg.startswith("TWEEN_BROKER_URL=amqp://u:***@h//: a non-Redis broker needs result_backend"), msg
+
+
+def test_seconds_settings_have_an_upper_bound(tmp_path):
+    msg = _refused(_env(tmp_path, TWEEN_HEARTBEAT_INTERVAL="10000000000"))
+    assert msg == "TWEEN_HEARTBEAT_INTERVAL: must be at most 604800 s (7 days), got 10000000000", msg
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text("train_rig_visibility_timeout = 604801\n")
+    assert _refused(_env(tmp_path, TWEEN_FARM_CONFIG=str(cfg))).startswith(
+        f"{cfg}: train_rig_visibility_timeout: must be at most 604800 s"
+    )
+    assert "TWEEN_RENDER_FRAME_MS: must be at most 3600000 ms" in _refused(
+        _env(tmp_path, TWEEN_RENDER_FRAME_MS="3600001")
+    )
+    assert (
+        load_settings(_env(tmp_path, TWEEN_TRAIN_VISIBILITY_TIMEOUT="604800")).train_visibility_timeout
+        == 604800
+    )
+
+
+@pytest.mark.parametrize(
+    "toml, env",
+    [
+        ("", {"TWEEN_VISIBILITY_TIMEOUT": "1_000"}),
+        ("", {"TWEEN_VISIBILITY_TIMEOUT": " 100 "}),
+        ("", {"TWEEN_VISIBILITY_TIMEOUT": "+100"}),
+        ("", {"TWEEN_VISIBILITY_TIMEOUT": "\u0661\u0660\u0660"}),  # Arabic-Indic digits
+        ('visibility_timeout = "60"\n', {}),
+        ("visibility_timeout = true\n", {}),
+    ],
+)
+def test_an_integer_setting_must_be_an_integer(tmp_path, toml, env):
+    cfg = tmp_path / "farm.toml"
+    cfg.write_text(toml)
+    msg = _refused({**_env(tmp_path), "TWEEN_FARM_CONFIG": str(cfg), **env})
+    assert "visibility_timeout" in msg.lower() and "expected an integer" in msg, msg
+    assert (str(cfg) in msg) == (not env), msg
