@@ -17,8 +17,9 @@ import time
 import uuid
 from pathlib import Path
 
+from pipeline.bench.outputs import check_out_file
 from pipeline.errors import TweenError
-from pipeline.fill.api import FillOptions, fill_shot
+from pipeline.fill.api import FillOptions, fill_shot, validate_shot
 from workers import jobs
 from workers.settings import cache_dir, load_settings
 
@@ -57,14 +58,31 @@ def _wait_ready(app, n: int, tag: str, timeout: float = 120) -> None:
             raise TweenError(f"bench-farm: {n} workers not ready after {timeout} s")
 
 
+#: The repository's example shots (beside this package, wherever the command runs from).
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+SHOT_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
 def _default_shot() -> Path:
     """The first example shot (not a fill or review layer)."""
-    shots = sorted(
-        p for p in Path("examples").glob("*.usd*") if ".tween." not in p.name and ".review." not in p.name
-    )
+    shots = sorted(p for p in EXAMPLES.glob("*.usd*") if ".tween." not in p.name and ".review." not in p.name)
     if not shots:
-        raise TweenError("bench-farm: no example shot in examples/ (pass --shot)")
+        raise TweenError(f"bench-farm: no example shot in {EXAMPLES} (pass --shot)")
     return shots[0]
+
+
+def _check_shot(shot: Path) -> None:
+    """Refuses a ``--shot`` that is no USD shot file, naming the user's file (not its copies)."""
+    if not shot.is_file():
+        what = "a folder" if shot.is_dir() else "no such file"
+        raise TweenError(f"--shot {shot}: {what}; give a USD shot ({', '.join(SHOT_SUFFIXES)})")
+    if shot.suffix.lower() not in SHOT_SUFFIXES:
+        raise TweenError(f"--shot {shot}: not a USD shot ({', '.join(SHOT_SUFFIXES)})")
+
+
+def _validate_shot(shot: Path, work: Path) -> None:
+    """The fill's own checks of the user's shot (ShotError naming it), before it is copied."""
+    validate_shot(str(shot), FillOptions(out_dir=str(work / "direct")))
 
 
 def _direct_s_per_shot(copies: list[Path], work: Path) -> float:
@@ -118,12 +136,14 @@ def _markdown(res: dict, overhead: float | None, broker_url: str) -> str:
 def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, out: Path) -> dict:
     from workers.app import app, configure
 
+    check_out_file(out)  # before the farm runs, not after
+    shot = _default_shot() if shot is None else shot
+    _check_shot(shot)
     base = app.conf.tween
     if base.embedded:
         raise TweenError("bench-farm needs a broker: set TWEEN_BROKER_URL (e.g. redis://127.0.0.1:6379/0)")
-    if shot is None:
-        shot = _default_shot()
     work = cache_dir() / "bench-farm" / uuid.uuid4().hex[:8]
+    _validate_shot(shot, work)
     prefix = f"tween-bench-{work.name}:"
     env = dict(os.environ, TWEEN_KEY_PREFIX=prefix, TWEEN_QUEUE=f"{prefix}fill", TWEEN_SHOT_ROOTS=str(work))
     configure(app, load_settings(env))

@@ -66,10 +66,12 @@ def cmu_files(subjects: tuple[int, ...] | None = None) -> list:
     return files
 
 
-def cmu_windows(subjects: tuple[int, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def cmu_windows(
+    subjects: tuple[int, ...] | None = None, limit: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(rotations (N, 65, J, 4), roots (N, 65, 3)), cached after the first call; ``subjects``:
-    those CMU subjects' takes only."""
-    files = cmu_files(subjects)
+    those CMU subjects' takes only; ``limit``: the first ``limit`` of those takes only."""
+    files = cmu_files(subjects)[: limit or None]
     tag = "" if subjects is None else "-s" + "".join(map(str, subjects))
     cache = cache_dir() / f"cmu-windows-v{VERSION}-{len(files)}{tag}.npz"
     if cache.exists():

@@ -68,20 +68,24 @@ BASELINES: dict[str, Method] = {"zero": zero_velocity, "interp": interpolation, 
 
 def check_methods(names: list[str]) -> None:
     """Raises TweenError (one line naming ``--methods``) unless every name can be resolved:
-    a baseline, ``model``, a folderless kind, or a model folder."""
-    from pipeline.infer.api import builtin_names, model_folder
+    a baseline, ``model``, a folderless kind, or a human model's folder (a per-rig model's
+    rig.json folder is refused: its network takes its own rig's joints, not the eval motion)."""
+    from pipeline.infer.api import RIG_FILE, builtin_names, model_folder
 
     if not names:
         raise TweenError("--methods: give at least one method")
     for name in names:
-        if (
-            name not in BASELINES
-            and name != "model"
-            and name not in builtin_names()
-            and not model_folder(name)
-        ):
+        if name in BASELINES or name == "model" or name in builtin_names():
+            continue
+        found = model_folder(name)
+        if not found:
             raise TweenError(
-                f"--methods {name!r}: not {', '.join(BASELINES)}, model, or a model folder (model.json/rig.json)"
+                f"--methods {name!r}: not {', '.join(BASELINES)}, model, or a model folder (model.json)"
+            )
+        if found[1] == RIG_FILE:
+            raise TweenError(
+                f"--methods {name!r}: {found[0]} is a per-rig model (rig.json), trained on its own rig; "
+                "the bench runs human models (a folder with model.json) on the human eval motion"
             )
 
 

@@ -33,7 +33,8 @@ METRICS = ("L2Q", "L2P", "NPSS", "MPJPE", "skate")
 def test_windows(
     limit: int | None = None, mirrored: bool = False, posture: float = 0.0, source: str = "eval"
 ):
-    """The normalised eval windows (``limit`` clips only, for quick checks).
+    """The normalised eval windows (``limit`` clips only, for quick checks; of the CMU
+    takes, the first ``limit`` takes).
 
     ``mirrored``: each window's left/right mirror image instead, a robustness check outside
     the protocol (the actors' handedness and gait asymmetries are reversed; the mirror keeps
@@ -47,7 +48,7 @@ def test_windows(
     if source.partition(":")[0] == "cmu":
         from pipeline.bench.heldout import cmu_windows, parse_source
 
-        rots, roots = cmu_windows(parse_source(source)[1])
+        rots, roots = cmu_windows(parse_source(source)[1], limit)
     elif source == "eval":
         clips = load_split("eval", limit=limit)
         if not any(len(window_starts(n, TEST_WINDOW, TEST_STRIDE)) for n in clips.lengths):
@@ -96,9 +97,20 @@ def evaluate(method: Method, rots, roots, mean, std, transitions=TRANSITIONS) ->
     return out
 
 
-def markdown(results: dict, n_windows: int, transitions=TRANSITIONS) -> str:
+def describe_windows(source: str = "eval", limit: int | None = None) -> str:
+    """Where the windows come from, as the table's first line says it."""
+    if source == "eval":
+        what = "eval split" + (f", first {limit} clip(s)" if limit else "")
+        return f"{what}, 65 frames every 40, PROTOCOL.md"
+    subjects = source.partition(":")[2]
+    what = "CMU takes" + (f" of subjects {subjects}" if subjects else "")
+    what += f", first {limit} take(s)" if limit else ""
+    return f"{what}, 65 frames every 40; not the protocol"
+
+
+def markdown(results: dict, n_windows: int, transitions=TRANSITIONS, windows: str | None = None) -> str:
     names = list(results)
-    lines = [f"Windows: {n_windows} (eval split, 65 frames every 40, PROTOCOL.md).", ""]
+    lines = [f"Windows: {n_windows} ({windows or describe_windows()}).", ""]
     head = "| method | " + " | ".join(str(t) for t in transitions) + " |"
     sep = "|---|" + "---|" * len(transitions)
     for m in METRICS:
@@ -127,7 +139,7 @@ def run_bench(
     posture: float = 0.0,
     source: str = "eval",
 ) -> dict:
-    print("loading train statistics and eval windows…", file=sys.stderr)
+    print("loading train statistics and the bench windows…", file=sys.stderr)
     mean, std = position_stats(load_split("train"))
     rots, roots = test_windows(limit, mirrored, posture, source)
     results = {}
@@ -138,16 +150,15 @@ def run_bench(
     payload = {
         "protocol": "PROTOCOL.md",
         "windows": int(len(rots)),
-        "eval_clips_limit": limit,
+        "eval_clips_limit": limit if source == "eval" else None,
+        "cmu_takes_limit": None if source == "eval" else limit,
         "mirrored": mirrored,
         "posture_offsets_deg": posture,
         "source": source,
         "results": {m: {str(t): v for t, v in r.items()} for m, r in results.items()},
     }
     (out_dir / "bench.json").write_text(json.dumps(payload, indent=1))
-    md = markdown(results, len(rots))
-    if source != "eval":
-        md = f"Source: {source} windows (not the protocol's eval split).\n" + md
+    md = markdown(results, len(rots), windows=describe_windows(source, limit))
     if posture:
         md = f"Posture offsets: up to {posture:g}° per joint (not the protocol).\n" + md
     if mirrored:

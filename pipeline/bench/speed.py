@@ -267,6 +267,32 @@ def network_levels(shipped, gen_path: Path, lean_graph: bytes | None, shot, repe
     return levels, int(n_pad)
 
 
+def check_speed_model(name: str) -> tuple[Path, dict]:
+    """(folder, its checked model.json) of the human network model ``name`` the speed bench
+    times; a one-line TweenError naming ``--methods`` or the file where it cannot."""
+    from pipeline.infer.api import DEFAULT_KIND, RIG_FILE, folder_kind, model_folder
+    from pipeline.infer.folder import read_model_json
+
+    found = model_folder(name)
+    if found is None:
+        raise TweenError(f"--methods {name}: no such model (a folder with model.json, or one under models/)")
+    folder, file = found
+    if file == RIG_FILE:
+        raise TweenError(
+            f"--methods {name}: {folder} is a per-rig model (rig.json); --speed times a human model"
+        )
+    kind = folder_kind(folder)
+    if kind != DEFAULT_KIND:
+        raise TweenError(
+            f"--methods {name}: {folder} is a {kind!r} model; --speed times a {DEFAULT_KIND!r} network's fill"
+        )
+    meta = read_model_json(folder)  # a damaged model.json is one line naming it
+    gen = folder / meta["files"]["generator"]
+    if not gen.is_file():
+        raise TweenError(f"{gen}: missing (the generator {folder / 'model.json'} names)")
+    return folder, meta
+
+
 def run_speed(
     model_name: str = "default",
     frames: int = 4096,
@@ -276,15 +302,13 @@ def run_speed(
 ) -> str:
     """The speed benchmark; returns its Markdown (and writes speed.json / speed.md to ``out``)."""
     from pipeline.infer.features import adapter_free_graph
-    from pipeline.infer.generator_onnx import OnnxInbetweener, find_model
+    from pipeline.infer.generator_onnx import OnnxInbetweener
 
-    folder = find_model(model_name)
-    if folder is None:
-        raise TweenError(f"model {model_name!r} not found")
-    peak = sgemm_peak(peak_n, repeats)
-    gen_path = folder / json.loads((folder / "model.json").read_text())["files"]["generator"]
-    counted = graph_flops(gen_path)
+    folder, meta = check_speed_model(model_name)
+    gen_path = folder / meta["files"]["generator"]
     shipped = OnnxInbetweener(folder)
+    peak = sgemm_peak(peak_n, repeats)
+    counted = graph_flops(gen_path)
     if counted is None:
         fpf = float(shipped.meta.get("flops_per_frame", {}).get("generator", 0.0))
         counted = {"total": fpf, "adapter": 0.0, "source": "model.json (onnx not installed)"}
