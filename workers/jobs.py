@@ -514,6 +514,7 @@ def submit_library(
     if roots:
         jobpaths.check_under_roots(folder, roots, "takes folder")
         jobpaths.check_under_roots(out, roots, "library")
+        jobpaths.check_takes_under_roots(folder, roots)
     job_id = f"lib-{uuid.uuid4().hex}"
     queue = queue or train_app.conf.tween.train_queue
     train_app.backend.store_result(job_id, {"kind": "library", "source": folder, "out": out, "queue": queue,

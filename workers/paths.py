@@ -36,6 +36,15 @@ def check_under_roots(path: str, roots: Iterable[str], what: str = "path") -> st
     )
 
 
+def check_takes_under_roots(folder: str, roots: Iterable[str]) -> None:
+    """Every take a library build would read under ``folder`` resolves inside ``roots``: the
+    folder may lie inside them and still link to takes elsewhere (a linked folder or file)."""
+    from pipeline.usd.take import take_files
+
+    for take in take_files(folder):
+        check_under_roots(str(take), roots, "take")
+
+
 def job_paths(shot: str, opts: dict, work_dir: str | None = None) -> dict[str, str]:
     """The paths a job reads or writes, by role."""
     paths = {"shot": shot}

@@ -37,11 +37,12 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
     take that crashes the reader fails this job only); its paths are checked against the
     worker's own shot roots first. Returns the build's summary (takes, frames, hours, hash)."""
     from workers.app import app as fill_app
-    from workers.paths import check_under_roots
+    from workers.paths import check_takes_under_roots, check_under_roots
 
     roots = fill_app.conf.tween.shot_roots
     folder = check_under_roots(folder, roots, "takes folder")
     out = check_under_roots(out, roots, "library")
+    check_takes_under_roots(folder, roots)
     cmd = [sys.executable, "-m", "pipeline.cli", "library", "build", folder, "--out", out, "--no-progress"]
     cmd += command_args(options)
     meta = {"stage": "library build", "source": folder, "out": out}

@@ -89,12 +89,34 @@ def test_paths_outside_the_shot_roots_are_refused_before_any_job(libfarm, tmp_pa
     assert not (tmp_path / "elsewhere").exists()
 
 
+def test_takes_linked_from_outside_the_shot_roots_are_refused(libfarm, tmp_path):
+    """Only the takes folder was checked: a folder linked inside it from elsewhere was read
+    (library.json recorded a take outside the roots)."""
+    root, takes, env = libfarm
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    shutil.copy(takes / TAKES[0], outside / TAKES[0])
+    linked = root / "linked"
+    linked.mkdir()
+    (linked / "more").symlink_to(outside)
+    r = _tween(env, "submit-library", linked, "--out", root / "linkedlib", "--wait")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"take resolves to {outside / TAKES[0]}, outside the shot roots" in r.stderr
+    assert not (root / "linkedlib").exists()
+
+
 def test_a_library_job_that_fails_says_why(libfarm):
     root, takes, env = libfarm
     empty = root / "empty"
     empty.mkdir()
     r = _tween(env, "submit-library", empty, "--out", root / "nolib", "--wait")
     assert r.returncode == 2 and "no BVH or USD takes" in r.stderr.splitlines()[-1]
+    bad = root / "bad"  # takes the worker reads and cannot use: its job fails, saying why
+    bad.mkdir()
+    (bad / "broken.bvh").write_text("HIERARCHY\n")
+    r = _tween(env, "submit-library", bad, "--out", root / "badlib", "--wait")
+    assert r.returncode == 2 and r.stderr.splitlines()[-1].startswith("tween: error: "), r.stderr
+    assert r.stderr.splitlines()[0].startswith("lib-") and not (root / "badlib").exists()
 
 
 def test_the_build_reports_its_progress_as_task_state(tmp_path, data_dir, monkeypatch):
