@@ -3,12 +3,16 @@
 Training and export write a new model into ``.<name>.partial`` next to ``--out`` and swap it
 in at the end, so a killed, failed or refused run leaves the model a studio already fills
 with exactly as it was; a killed training's hidden folder is where the same command resumes.
-A destination that holds a finished model is replaced only with ``--force``.
+A destination that holds a finished model is replaced only with ``--force``, and then only
+the model's own files are replaced: anything else a studio keeps there (notes, renders) stays.
+A destination that exists is used only when it is empty or holds a finished model.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -16,6 +20,10 @@ from pipeline.errors import TweenError
 
 #: The files that make a folder a finished model (generator ONNX models, per-rig models).
 MODEL_FILES = ("model.json", "rig.json")
+#: What else a model folder's writers put there: its card and its training checkpoints.
+MODEL_EXTRAS = ("MODEL_CARD.md", "checkpoints")
+#: A per-rig model's level files, whether or not its rig.json still lists them.
+LEVEL_FILE = re.compile(r"level_\d+\.onnx")
 
 
 def finished_model(folder: str | Path) -> str | None:
@@ -38,22 +46,72 @@ def refuse_model(dest: str | Path, option: str = "--out", force_hint: str | None
         )
 
 
+def model_entries(folder: Path, new: Path | None = None) -> set[str]:
+    """The names in ``folder`` that belong to its model: its manifest, card, checkpoints and
+    level files, the files its manifest lists, and every name the ``new`` model has."""
+    owned = set(MODEL_FILES) | set(MODEL_EXTRAS)
+    if new is not None and new.is_dir():
+        owned |= {p.name for p in new.iterdir()}
+    for manifest in MODEL_FILES:
+        try:
+            owned |= _listed(json.loads((folder / manifest).read_text()).get("files"))
+        except (OSError, ValueError, AttributeError, RecursionError):
+            pass  # no manifest, or not one we can read: its level files are still recognised
+    return owned | {p.name for p in folder.iterdir() if LEVEL_FILE.fullmatch(p.name)}
+
+
+def _listed(files) -> set[str]:
+    """The top-level names of the file paths a manifest's ``files`` entry lists."""
+    if isinstance(files, str):
+        return {Path(files).parts[0]} if files and not Path(files).is_absolute() else set()
+    values = files.values() if isinstance(files, dict) else files if isinstance(files, list) else ()
+    return {name for v in values for name in _listed(v)}
+
+
+def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path | None = None) -> None:
+    """Raises TweenError when ``path`` cannot be written in: ``folder`` if given, else the
+    folder ``path`` is (or, not made yet, the nearest one above it that exists; a file's
+    folder). Read-only by its mode bits counts even for root: a published folder stays
+    untouched, as ``tween convert`` and ``tween fill`` keep it."""
+    path = Path(path)
+    probe = Path(os.path.abspath(folder if folder is not None else path))
+    while not probe.is_dir() and probe != probe.parent:
+        probe = probe.parent
+    if not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
+        where = "is" if probe == Path(os.path.abspath(path)) else f"is in {probe}, which is"
+        raise TweenError(f"{path}: {option} {where} read-only; give a folder you can write")
+
+
+def partial_folder(dest: str | Path) -> Path:
+    """The hidden folder beside ``dest`` where its new model is made (``--out .`` too:
+    beside the folder, never in it); what a killed training resumes from."""
+    full = Path(os.path.abspath(dest))
+    return full.parent / f".{full.name}.partial"
+
+
 class StagedFolder:
     """Where a new model is written (``work``) and how it replaces ``dest`` (``commit``).
 
     Refuses at once (before anything is written) when ``dest`` holds a finished model and
-    ``force`` is not given. ``work`` is ``dest`` itself when ``dest`` exists without a
-    finished model (an earlier run's unfinished folder: nothing to protect, and resuming
-    continues there), else the hidden ``.<name>.partial`` beside it, made on first use."""
+    ``force`` is not given, and when ``dest`` is a folder that holds other things than a
+    model (the user's files are never mixed with a model's). ``work`` is the hidden
+    ``.<name>.partial`` beside ``dest``, made on first use; an empty ``dest`` is replaced by
+    it. ``what`` names the kind of model folder in refusals."""
 
-    def __init__(self, dest: str | Path, force: bool = False, option: str = "--out"):
+    def __init__(self, dest: str | Path, force: bool = False, option: str = "--out", what: str = "model"):
         self.dest = Path(dest)
         if not force:
             refuse_model(self.dest, option)
         elif self.dest.exists() and not self.dest.is_dir():
             raise TweenError(f"{self.dest}: {option} names a file, not a model folder")
-        unfinished = self.dest.is_dir() and finished_model(self.dest) is None
-        self.work = self.dest if unfinished else self.dest.parent / f".{self.dest.name}.partial"
+        if self.dest.is_dir() and finished_model(self.dest) is None and _has_entries(self.dest, option):
+            raise TweenError(
+                f"{self.dest}: {option} is not empty and not a {what} folder; "
+                "give a new or empty folder (nothing in it was changed)"
+            )
+        self.work = partial_folder(self.dest)
+        refuse_read_only(self.dest, option, self.work.parent)  # where the model is made and moved in
+        refuse_read_only(self.dest, option)  # and what it replaces (a published model stays)
 
     def make(self) -> Path:
         """``work``, created (with its parents)."""
@@ -61,12 +119,11 @@ class StagedFolder:
         return self.work
 
     def commit(self) -> Path:
-        """Moves ``work`` into place as ``dest``; the model it replaces is removed last."""
-        if self.work == self.dest:
-            return self.dest
+        """Moves ``work`` into place as ``dest``. The model it replaces is removed last; the
+        other files of its folder (:func:`model_entries` names the model's) move to the new one."""
         old = None
         if self.dest.exists():
-            old = self.dest.parent / f".{self.dest.name}.old-{os.getpid()}"
+            old = self.work.parent / f"{self.work.name[: -len('.partial')]}.old-{os.getpid()}"
             os.rename(self.dest, old)
         try:
             os.rename(self.work, self.dest)
@@ -75,10 +132,33 @@ class StagedFolder:
                 os.rename(old, self.dest)
             raise
         if old is not None:
+            self._keep_others(old)
             shutil.rmtree(old, ignore_errors=True)
         return self.dest
 
+    def _keep_others(self, old: Path) -> None:
+        """Moves what is not the old model's from ``old`` into the new ``dest``."""
+        owned = model_entries(old, self.dest)
+        for p in sorted(old.iterdir()):
+            if p.name in owned:
+                continue
+            try:
+                os.rename(p, self.dest / p.name)
+            except OSError as e:
+                raise TweenError(
+                    f"{self.dest}: the new model is in place, but {p} could not be moved back beside it "
+                    f"({e.strerror}); move it yourself"
+                ) from None
+
     def discard(self) -> None:
-        """Removes ``work`` unless it is ``dest`` (a failed export: nothing half-made stays)."""
+        """Removes ``work`` (a failed export: nothing half-made stays)."""
         if self.work != self.dest:
             shutil.rmtree(self.work, ignore_errors=True)
+
+
+def _has_entries(folder: Path, option: str) -> bool:
+    try:
+        with os.scandir(folder) as entries:
+            return next(entries, None) is not None
+    except OSError as e:
+        raise TweenError(f"{folder}: {option}: {e.strerror}") from None

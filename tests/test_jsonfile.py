@@ -39,3 +39,22 @@ def test_a_mapping_file_with_a_key_twice_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1
     assert f"mapping file {mapping}: key 'Hips' given twice (line 3)" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_json_nested_too_deeply_is_a_value_error_naming_the_file(tmp_path):
+    """Before: a RecursionError (an internal error) from json's reader."""
+    deep = "[" * 100_000 + "]" * 100_000
+    with pytest.raises(jsonfile.TooDeepError, match="not valid JSON: arrays or objects nested too deeply"):
+        jsonfile.loads(deep)
+    assert isinstance(jsonfile.TooDeepError(), ValueError)  # what every caller catches and names
+    from pipeline.library.store import open_library
+
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    (lib / "library.json").write_text(deep)
+    with pytest.raises(Exception) as e:
+        open_library(lib)
+    assert (
+        str(e.value)
+        == f"{lib / 'library.json'}: cannot read: not valid JSON: arrays or objects nested too deeply to read"
+    )

@@ -27,7 +27,7 @@ from celery.exceptions import SoftTimeLimitExceeded
 from pipeline.rig.options import FLAGS, command_args
 from pipeline.rig.progress import JsonLinesReader, Progress
 from pipeline.rig.store import read_rig_json
-from pipeline.staging import StagedFolder
+from pipeline.staging import partial_folder
 from workers import paths as jobpaths
 from workers.app import rig_app
 from workers.errors import JobError
@@ -147,7 +147,7 @@ def run_train_rig(task, source: str, out: str, options: dict) -> dict:
             _stop(proc)
             raise JobError(
                 f"{source}: training stopped at its time limit ({s.train_rig_time_limit} s); checkpoints "
-                f"are kept in {StagedFolder(out, force=True).work}/checkpoints: submit the same job "
+                f"are kept in {partial_folder(out)}/checkpoints: submit the same job "
                 "again to resume"
             ) from None
         except BaseException:

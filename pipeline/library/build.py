@@ -33,6 +33,7 @@ from pipeline.library.store import (
 )
 from pipeline.motion.bvh import gzipped, is_bvh
 from pipeline.progress import interval
+from pipeline.staging import refuse_read_only
 
 FPS = 30.0
 
@@ -95,7 +96,9 @@ def _leftovers(out: Path) -> list[Path]:
 def check_out(out: Path, add: bool) -> None:
     """Refuses an ``out`` that is not empty (without ``add``) or not a library (with it),
     counting what a killed first build left there (:func:`_leftovers`) as nothing. Also what
-    `tween submit-library` checks before it sends the job."""
+    `tween submit-library` checks before it sends the job. A read-only folder (by its mode
+    bits, even for root) is refused as other commands refuse it."""
+    refuse_read_only(out, "--out")
     if _leftovers(out):
         return
     if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):

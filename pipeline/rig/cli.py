@@ -14,7 +14,7 @@ from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.rig.progress import JsonLinesWriter, ProgressBar
-from pipeline.staging import StagedFolder
+from pipeline.staging import StagedFolder, refuse_read_only
 
 
 @with_train_rig_options
@@ -46,7 +46,7 @@ def train_rig(
     o = opts.check()
     # Refuses a finished model in --out before anything is read or written; the new
     # model is made beside it and moved into place when complete (pipeline.staging).
-    stage = StagedFolder(out, o.force)
+    stage = StagedFolder(out, o.force, what="rig model")
     cfg = TrainConfig(
         source=str(source),
         out=str(stage.work),
@@ -71,7 +71,7 @@ def train_rig(
         return
     from pipeline.rig.export import export
 
-    meta = export(tr, stage.work)
+    meta = export(tr, stage.work, dest=out)
     stage.commit()
     typer.echo(f"{out}  ({meta['name']}, hash {meta['hash']}, {len(meta['levels'])} levels)")
 
@@ -96,6 +96,7 @@ def rig_extract(
         raise TweenError(f"{out}: is the source clip; write the .npz elsewhere")
     if not out.parent.is_dir():
         raise TweenError(f"{out.parent}: no such folder for OUT")
+    refuse_read_only(out, "OUT")
     motion = load_rig_source(source, skeleton, parse_frames(frames))
     with replacing(out, suffix=".npz") as tmp:  # an interrupted write leaves OUT as it was
         save_npz(motion, tmp)

@@ -136,8 +136,10 @@ def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
     }
 
 
-def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
-    """Write the level ONNX files, rig.json and the model card into ``out``; returns rig.json."""
+def export(tr: Trainer, out: str | Path, verify: bool = True, dest: str | Path | None = None) -> dict:
+    """Write the level ONNX files, rig.json and the model card into ``out``; returns rig.json.
+    ``dest``: the folder the model is moved to once complete (``out`` is then its staging
+    folder), which its card names."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files = _export_levels(tr, out)
@@ -145,7 +147,7 @@ def export(tr: Trainer, out: str | Path, verify: bool = True) -> dict:
     if verify:
         meta["onnx_max_abs_diff"] = verify_onnx(tr, out, files)
     (out / "rig.json").write_text(json.dumps(meta, indent=1))
-    write_card(out, meta)
+    write_card(out, meta, dest)
     return meta
 
 
@@ -189,9 +191,10 @@ def _credit(meta: dict) -> str:
     return credit
 
 
-def write_card(out: str | Path, meta: dict) -> None:
-    """MODEL_CARD.md from rig.json (re-run after adding metrics)."""
+def write_card(out: str | Path, meta: dict, dest: str | Path | None = None) -> None:
+    """MODEL_CARD.md from rig.json into ``out``, naming ``dest`` (default ``out``) to load."""
     out = Path(out)
+    folder = Path(dest if dest is not None else out)
     t = meta["training"]
     s = meta["source"]
     sk = meta["skeleton"]
@@ -209,7 +212,7 @@ def write_card(out: str | Path, meta: dict) -> None:
     text = f"""# {meta["name"]}: a per-rig GANimator
 
 A motion model of one rig learned from one clip (GANimator, Li et al. 2022; see
-[docs/rig.md](../../docs/rig.md)). `RigInbetweener("{out.as_posix()}")` fills blocked shots of
+[docs/rig.md](../../docs/rig.md)). `RigInbetweener("{folder.as_posix()}")` fills blocked shots of
 this rig and synthesizes new motion; inference is onnxruntime + numpy.
 
 ## Source

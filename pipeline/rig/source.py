@@ -9,6 +9,7 @@ axis expressed in skeleton space (through the skeleton's world transform).
 
 from __future__ import annotations
 
+import os
 import zipfile
 from pathlib import Path
 
@@ -114,13 +115,14 @@ SHARED = "shared:"  # a source path under the shared data folder, stored relativ
 
 def portable_path(path: str | Path) -> str:
     """``path`` as rig.json stores it: ``shared:<relative>`` under the shared data folder
-    (which each checkout finds beside it), else as given, so that a model folder made on
-    one machine names its clip on another."""
+    (which each checkout finds beside it), so that a model folder made on one machine
+    names its clip on another; else its absolute path (a relative one would name the clip
+    only from the folder the training ran in)."""
     p = Path(path).resolve()
     try:
         return SHARED + p.relative_to(shared_data_dir().resolve()).as_posix()
     except (ValueError, OSError):
-        return str(path)
+        return os.path.abspath(path)
 
 
 def stored_path(path: str) -> Path:
@@ -163,6 +165,15 @@ def _check_values(path: Path, m: Motion) -> None:
     positive (a damaged .npz gave a rig.json full of NaN)."""
     s = m.skeleton
     J = len(s.names)
+    if J == 0:
+        raise RigSourceError(path, "names: the skeleton has no joints")
+    seen = set()
+    for n in s.names:
+        if n in seen:
+            raise RigSourceError(
+                path, f"names: joint name {n!r} is given twice (a rig's joint names are unique)"
+            )
+        seen.add(n)
     rot, root = np.asarray(m.rotations), np.asarray(m.root_positions)
     shapes = {"parents": (np.shape(s.parents), (J,)), "offsets": (np.shape(s.offsets), (J, 3)),
               "rotations": (rot.shape, (len(rot), J, 4)), "root_positions": (root.shape, (len(rot), 3))}  # fmt: skip
@@ -176,6 +187,27 @@ def _check_values(path: Path, m: Motion) -> None:
     for what, a in (("offsets", s.offsets), ("rotations", rot), ("root positions", root)):
         if not np.isfinite(a).all():
             raise RigSourceError(path, f"its {what} hold NaN or infinite values")
+    _check_quaternions(path, m.skeleton.names, rot)
+
+
+#: A rotation quaternion's length at or below which it is no rotation (the USD reader's rule:
+#: other lengths are normalised where the clip is read, as a DCC's keys are).
+ZERO_LENGTH = 1e-6  # pipeline.usd.read.QUAT_EPS
+
+
+def _check_quaternions(path: Path, names, rot: np.ndarray) -> None:
+    """RigSourceError naming the first frame and joint whose quaternion is not a rotation
+    (length 0, worded as the USD reader words it)."""
+    n = np.linalg.norm(rot.astype(np.float64), axis=-1)
+    bad = n <= ZERO_LENGTH
+    if bad.any():
+        t, j = (int(i[0]) for i in np.nonzero(bad))
+        q = ", ".join(f"{x:g}" for x in rot[t, j])
+        raise RigSourceError(
+            path,
+            f"rotations: joint {names[j]!r} at frame {t} is not a rotation "
+            f"(quaternion ({q}) has length {n[t, j]:.3g})",
+        )
 
 
 def save_npz(motion: Motion, path: str | Path) -> None:

@@ -31,6 +31,7 @@ from pipeline.rig.options import check_device
 from pipeline.rig.progress import Progress, ProgressBar, ProgressCallback
 from pipeline.rig.represent import RigSpec, encode, make_spec, pyramid_lengths, resample_linear
 from pipeline.rig.topology import neighbourhoods
+from pipeline.staging import refuse_read_only
 
 LAMBDA_GP = 1.0
 LAMBDA_REC = 50.0
@@ -63,6 +64,22 @@ SCHEDULES = {
     # Seconds, for tests.
     "tiny": Schedule("tiny", 30, (2, 2, 2), True, lr=1e-3, ckpt_every=10),
 }
+
+
+#: What :meth:`Trainer.save` writes into ``state.pt``.
+STATE_KEYS = (
+    "stamp",
+    "group_done",
+    "iteration",
+    "G",
+    "D",
+    "opt_g",
+    "opt_d",
+    "rng",
+    "cuda_rng",
+    "log",
+    "wall",
+)
 
 
 class TrainError(TweenError):
@@ -155,6 +172,8 @@ def _stamp(cfg: TrainConfig, sched: Schedule, feat: np.ndarray, spec: RigSpec) -
         "seed": cfg.seed,
         "contacts": [spec.skeleton.names[j] for j in spec.contacts],
         "device": cfg.device,
+        # On CPU the weights depend on the thread count (torch's reductions split by thread).
+        "threads": max(1, int(cfg.threads)),
     }
 
 
@@ -301,10 +320,17 @@ class Trainer:
         path = self.ckpt_dir / "state.pt"
         if not path.exists():
             return None
-        state = torch.load(path, map_location=self.device, weights_only=False)
+        state = self._read_state(path)
         state["stamp"]["schedule"].pop("ckpt_every", None)  # how often to save is not part of the run
+        state["stamp"].setdefault("threads", self.stamp["threads"])  # written before threads were kept
         if state["stamp"] != self.stamp:
             diff = [k for k in self.stamp if state["stamp"].get(k) != self.stamp[k]]
+            if diff == ["threads"]:
+                n = state["stamp"]["threads"]
+                raise TrainError(
+                    f"{path}: this training ran with --threads {n}; resume it with --threads {n} "
+                    "(its weights depend on the thread count), or use another --out"
+                )
             raise TrainError(
                 f"{path}: a run with other {', '.join(diff)} is in this folder; use another --out"
             )
@@ -320,13 +346,35 @@ class Trainer:
             torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda_rng"]])
         return state
 
-    # -- training ------------------------------------------------------------------------
-    def train(self, on_progress: ProgressCallback | None = None) -> None:
-        """Trains every group not done yet; ``on_progress`` gets a :class:`Progress` record at
-        the start of each group and after every iteration (one final one if nothing is left)."""
+    def _read_state(self, path: Path) -> dict:
+        """``state.pt`` as :meth:`save` wrote it; one line naming it when it is damaged."""
         import torch
 
-        state = self.load()
+        try:
+            state = torch.load(path, map_location=self.device, weights_only=False)
+        except OSError as e:
+            raise TrainError(f"{path}: cannot read the checkpoint: {e.strerror or e}") from None
+        except Exception:  # torch.load's errors for a cut, empty or foreign file are many kinds
+            state = None
+        if (
+            not isinstance(state, dict)
+            or any(k not in state for k in STATE_KEYS)
+            or not isinstance(state["stamp"], dict)
+            or not isinstance(state["stamp"].get("schedule"), dict)
+        ):
+            raise TrainError(
+                f"{path}: the training checkpoint is damaged (cut short, empty or not one `train-rig` wrote); "
+                f"remove {self.ckpt_dir} to start this training over"
+            )
+        return state
+
+    # -- training ------------------------------------------------------------------------
+    def train(self, on_progress: ProgressCallback | None = None, resumed: dict | None = None) -> None:
+        """Trains every group not done yet (``resumed``: :meth:`load`'s state, if read); ``on_progress``
+        gets a :class:`Progress` at each group's start and each iteration (one if nothing is left)."""
+        import torch
+
+        state = resumed if resumed is not None else self.load()
         iters, n = self.sched.iters, len(self.lengths)
         steps = len(self.groups) * iters
         t_session, step_session = time.perf_counter(), self.group_done * iters + self.iteration
@@ -469,14 +517,27 @@ def train(
 
     ``on_progress`` gets the run's :class:`~pipeline.rig.progress.Progress` records; without
     one, a bar on stderr shows them unless ``quiet``."""
+    _check_checkpoints(cfg)
     tr = Trainer(cfg, motion, quiet)  # reads and checks the clip before anything is written
+    resumed = tr.load()  # and the checkpoint it resumes (another run's, a damaged one: refused)
     tr.ckpt_dir.mkdir(parents=True, exist_ok=True)
     (tr.ckpt_dir / "train_config.json").write_text(
         json.dumps({k: v for k, v in asdict(cfg).items()}, indent=1, default=str)
     )
     if on_progress is not None or quiet:
-        tr.train(on_progress)
+        tr.train(on_progress, resumed)
     else:
         with ProgressBar(sys.stderr) as bar:
-            tr.train(bar)
+            tr.train(bar, resumed)
     return tr
+
+
+def _check_checkpoints(cfg: TrainConfig) -> None:
+    """A ``--checkpoints`` that names a file, or a folder that cannot be written, is refused
+    naming the option (before: the file's name and "File exists", as if it were the clip)."""
+    if cfg.checkpoints is None:
+        return
+    path = Path(cfg.checkpoints)
+    if path.exists() and not path.is_dir():
+        raise TrainError(f"{path}: --checkpoints names a file, not a folder")
+    refuse_read_only(path, "--checkpoints")

@@ -97,6 +97,25 @@ def test_an_existing_library_is_not_overwritten_without_add(library, takes):
     assert (library / MANIFEST).read_bytes() == before
 
 
+def test_a_read_only_out_folder_is_refused_even_for_root(takes, tmp_path, capsys):
+    """Before: root built a library into a folder of mode 555."""
+    from cli_contract import refused
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        line = refused(["library", "build", takes, "--out", ro / "lib"], capsys, tmp_path)
+        assert (
+            line
+            == f"tween: error: {ro / 'lib'}: --out is in {ro}, which is read-only; give a folder you can write"
+        )
+        line = refused(["library", "build", takes, "--out", ro], capsys, tmp_path)
+        assert line == f"tween: error: {ro}: --out is read-only; give a folder you can write"
+    finally:
+        ro.chmod(0o755)
+
+
 def _edit(**change):
     def damage(folder):
         m = json.loads((folder / MANIFEST).read_text())

@@ -337,11 +337,37 @@ def test_a_damaged_clip_npz_is_one_line_naming_it(tmp_path):
             tmp_path, "short", parents=np.array([-1])
         ): "names, parents and offsets differ in length",
     }
+    rot = walk().rotations.copy()
+    rot[5, 2] = 0
+    nan = walk().rotations.copy()
+    nan[0, 0, 0] = np.nan
+    # Before: all-zero quaternions, 0 joints or a joint name twice were accepted, then crashed
+    # ("Found zero norm quaternions", IndexError) or trained a rig.json no fill could match.
+    cases |= {
+        _damaged_npz(tmp_path, "zero", rotations=rot): (
+            "rotations: joint 'head' at frame 5 is not a rotation (quaternion (0, 0, 0, 0) has length 0)"
+        ),
+        _damaged_npz(tmp_path, "nanq", rotations=nan): "its rotations hold NaN",
+        _damaged_npz(
+            tmp_path,
+            "nojoints",
+            names=np.array([], str),
+            parents=np.zeros(0, int),
+            offsets=np.zeros((0, 3)),
+            rotations=np.zeros((96, 0, 4)),
+        ): "names: the skeleton has no joints",
+        _damaged_npz(
+            tmp_path, "twice", names=np.array(NAMES[:8] + ["hips"])
+        ): "joint name 'hips' is given twice",
+    }
     for path, says in cases.items():
         with pytest.raises(TweenError) as e:
             load_rig_source(path)
         assert str(e.value).startswith(f"{path}: ") and says in str(e.value), str(e.value)
     assert len(load_rig_source(good)) == 96
+    long = walk().rotations.copy()  # a key of another length is a rotation (the USD reader's rule)
+    long[7, 1] *= 2
+    assert len(load_rig_source(_damaged_npz(tmp_path, "long", rotations=long))) == 96
 
 
 def test_rig_json_names_a_shared_clip_relative_to_the_shared_folder(data_dir, tmp_path):
