@@ -188,7 +188,7 @@ def test_render_killed_at_its_hard_limit_is_undone(farm, tmp_path):
     from workers.settings import load_settings
 
     # The client's settings size the render's limits: soft 2 s + 97 ms, hard 4 s + 97 ms.
-    limits = dict(TWEEN_RENDER_SOFT_TIME_LIMIT=2, TWEEN_RENDER_TIME_LIMIT=4, TWEEN_RENDER_FRAME_MS=1)
+    limits = dict(TWEEN_RENDER_SOFT_TIME_LIMIT="2", TWEEN_RENDER_TIME_LIMIT="4", TWEEN_RENDER_FRAME_MS="1")
     configure_app(farm.app, load_settings({**os.environ, **farm.env, **limits}))
     markers = tmp_path / "markers"
     markers.mkdir()
