@@ -646,7 +646,7 @@ def submit_train_rig(
         _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
         raise typer.Exit(2)
     if not source.is_file():
-        _err(f"{source}: no such file")
+        _err(f"{source}: " + ("a folder, not a clip file" if source.is_dir() else "no such file"))
         raise typer.Exit(2)
     if not checked.force:  # as `tween train-rig` refuses it, before a worker takes the job
         refuse_model(out)

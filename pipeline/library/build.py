@@ -102,7 +102,7 @@ def check_out(out: Path, add: bool) -> None:
     if _leftovers(out):
         return
     if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
-        what = "a library" if is_library(out) else "not empty"
+        what = "a library" if is_library(out) else "not empty" if out.is_dir() else "a file, not a folder"
         raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
     if add and out.exists() and not is_library(out) and any(out.iterdir()):
         raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")

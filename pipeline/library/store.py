@@ -139,7 +139,8 @@ def open_library(folder: str | Path) -> Library:
     folder = Path(folder)
     path = folder / MANIFEST
     if not folder.is_dir():
-        raise LibraryError(f"{folder}: no such library folder (make one with `tween library build`)")
+        what = "a file, not a library folder" if folder.exists() else "no such library folder"
+        raise LibraryError(f"{folder}: {what} (make one with `tween library build`)")
     try:
         manifest = jsonfile.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:

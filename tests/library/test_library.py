@@ -452,3 +452,17 @@ def test_what_a_killed_first_build_left_is_removed_and_the_build_goes_on(takes, 
     with pytest.raises(LibraryError, match="not empty"):
         build(takes, other, progress=False)
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt", "rotations.bin"]
+
+
+def test_a_file_given_as_a_library_folder_says_so(tmp_path):
+    """`library info FILE` said "no such library folder", `library build --out FILE` "not
+    empty": the file is there, so the line says what it is."""
+    from pipeline.library.build import check_out
+
+    f = tmp_path / "notes.txt"
+    f.write_text("x")
+    with pytest.raises(LibraryError, match=r"notes\.txt: a file, not a library folder"):
+        open_library(f)
+    with pytest.raises(LibraryError, match=r"notes\.txt: a file, not a folder; use --add"):
+        check_out(f, add=False)
+    assert f.read_text() == "x"

@@ -87,3 +87,9 @@ def test_a_damaged_embedded_store_is_one_line_naming_it(tmp_path, shot, store, c
     _refused(res, f"{farm.resolve() / store}: the embedded farm's ")
     assert "is damaged (not an SQLite database)" in res.stderr
     assert sorted(p.name for p in tmp_path.iterdir() if p.name != "cache") == ["sh010.usda"]
+
+
+def test_submit_train_rig_of_a_folder_says_so(tmp_path):
+    """A folder given as the clip said "no such file"."""
+    (tmp_path / "clips").mkdir()
+    _refused(_tween(tmp_path, "submit-train-rig", "clips", "--out", "m"), "clips: a folder, not a clip file")
