@@ -1,5 +1,6 @@
 """A file replaced whole or not at all: written beside its destination under a temporary
-name and renamed over it, so a reader (or an interrupted writer) never sees half of it."""
+name and renamed over it, so a reader (or an interrupted writer) never sees half of it; and
+whether a folder may be written in at all."""
 
 from __future__ import annotations
 
@@ -8,6 +9,12 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+
+def writable_folder(folder: str | Path) -> bool:
+    """Whether this process may write in ``folder``, by its access and by its mode bits: a
+    read-only (published) folder stays untouched even for root, whom access lets write."""
+    return os.access(folder, os.W_OK) and bool(Path(folder).stat().st_mode & 0o222)
 
 
 @contextmanager

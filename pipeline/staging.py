@@ -16,6 +16,7 @@ import re
 import shutil
 from pathlib import Path
 
+from pipeline.atomic import writable_folder
 from pipeline.errors import TweenError
 
 #: The files that make a folder a finished model (generator ONNX models, per-rig models).
@@ -77,16 +78,22 @@ def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path
     probe = Path(os.path.abspath(folder if folder is not None else path))
     while not probe.is_dir() and probe != probe.parent:
         probe = probe.parent
-    if not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
+    if not writable_folder(probe):
         where = "is" if probe == Path(os.path.abspath(path)) else f"is in {probe}, which is"
         raise TweenError(f"{path}: {option} {where} read-only; give a folder you can write")
 
 
-def partial_folder(dest: str | Path) -> Path:
-    """The hidden folder beside ``dest`` where its new model is made (``--out .`` too:
-    beside the folder, never in it); what a killed training resumes from."""
+def _beside(dest: str | Path, suffix: str) -> Path:
+    """The hidden ``.<name><suffix>`` beside ``dest`` (``--out .`` too: beside the folder,
+    never in it)."""
     full = Path(os.path.abspath(dest))
-    return full.parent / f".{full.name}.partial"
+    return full.parent / f".{full.name}{suffix}"
+
+
+def partial_folder(dest: str | Path) -> Path:
+    """The hidden folder beside ``dest`` where its new model is made; what a killed training
+    resumes from."""
+    return _beside(dest, ".partial")
 
 
 class StagedFolder:
@@ -123,7 +130,7 @@ class StagedFolder:
         other files of its folder (:func:`model_entries` names the model's) move to the new one."""
         old = None
         if self.dest.exists():
-            old = self.work.parent / f"{self.work.name[: -len('.partial')]}.old-{os.getpid()}"
+            old = _beside(self.dest, f".old-{os.getpid()}")
             os.rename(self.dest, old)
         try:
             os.rename(self.work, self.dest)
@@ -152,8 +159,7 @@ class StagedFolder:
 
     def discard(self) -> None:
         """Removes ``work`` (a failed export: nothing half-made stays)."""
-        if self.work != self.dest:
-            shutil.rmtree(self.work, ignore_errors=True)
+        shutil.rmtree(self.work, ignore_errors=True)
 
 
 def _has_entries(folder: Path, option: str) -> bool:

@@ -121,3 +121,15 @@ def failed(argv: list[str], capsys, code: int = 2) -> str:
     assert last.startswith("tween: error: ") and err.count("tween: error:") == 1, err[-3000:]
     assert "Traceback" not in err, err[-3000:]
     return last
+
+
+def succeeded(argv: list[str], capsys) -> str:
+    """Runs ``tween ARGV`` in this process; asserts exit 0; returns its stdout."""
+    from pipeline.cli import main
+
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert e.value.code == 0, err[-3000:]
+    return out

@@ -164,7 +164,7 @@ def _job_ids(job_ids: list[str]) -> list[str]:
     had just made), or one line naming one that cannot be an id (empty: an internal error on
     Redis; a newline: a second line)."""
     for j in job_ids:
-        if not j.strip() or not j.isprintable() or j != j.strip():
+        if not j or not j.isprintable() or j != j.strip():
             raise TweenError(f"job id {j!r}: not a job id (from `tween submit` or `tween fill`)")
     return list(dict.fromkeys(job_ids))
 

@@ -144,9 +144,9 @@ _STR_KEYS = (
     "security_digest",
 )
 _QUEUE_KEYS = ("queue", "train_queue", "train_rig_queue")
-#: String settings whose empty value means "none" (their default); every other one needs a value.
-_OPTIONAL_KEYS = ("library", *security.PATH_KEYS)
 #: Path settings: made absolute, relative to the config file's folder when they come from it.
+#: The only string settings whose empty value means "none" (their default); every other one
+#: needs a value.
 _PATH_KEYS = ("library", *security.PATH_KEYS)
 #: The most a seconds-valued setting may be (7 days): far beyond any real limit, and within
 #: what timers and waits can represent (a larger one overflows the worker's heartbeat wait).
@@ -261,7 +261,7 @@ def _string(key: str, raw: str, where: str) -> str:
     """The string setting ``key``: not blank (an empty optional one is none, its default);
     a queue not one of the embedded farm's."""
     if not raw.strip():
-        if raw == "" and key in _OPTIONAL_KEYS:
+        if raw == "" and key in _PATH_KEYS:
             return raw
         raise FarmConfigError(f"{_named(key, raw, where)}: empty; give {key} a value, or leave it out")
     if key in _QUEUE_KEYS and raw.startswith(EMBEDDED_QUEUE_PREFIX):

@@ -23,6 +23,7 @@ import re
 from pathlib import Path
 
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
+from pipeline.atomic import writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files, write
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -453,7 +454,7 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     final, fmt = _publish_path(shot, out, stem, n, fmt, dest)
     if final.exists():
         raise TweenError(f"{final}: already exists; a published layer is never overwritten")
-    if not os.access(final.parent, os.W_OK) or not final.parent.stat().st_mode & 0o222:
+    if not writable_folder(final.parent):
         raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
     stage = open_stage(shot)
     take = int(d["take"])

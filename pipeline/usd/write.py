@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401
+from pipeline.atomic import writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from usd_schemas import tokens
@@ -344,7 +345,7 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
         what = "is a file" if probe == out else f"is under {probe}, a file"
         raise ShotError(shot, f"output folder {out} {what}, not a folder (give another with --out-dir DIR)")
     # The mode bits too: a published (read-only) shot folder stays untouched even for root.
-    if not os.access(probe, os.W_OK) or not probe.stat().st_mode & 0o222:
+    if not writable_folder(probe):
         raise ShotError(shot, f"output folder {out} is read-only (give another with --out-dir DIR)")
     return out
 
@@ -479,7 +480,7 @@ def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
         )
     _open_review_layer(review)
     folder = review.absolute().parent
-    if not os.access(folder, os.W_OK) or not folder.stat().st_mode & 0o222:
+    if not writable_folder(folder):
         raise TweenError(f"--review-layer {review}: its folder {folder} is read-only")
 
 

@@ -11,10 +11,9 @@ import pytest
 
 pytest.importorskip("torch")
 
-from cli_contract import refused  # noqa: E402
+from cli_contract import refused, succeeded  # noqa: E402
 from test_rig_core import walk  # noqa: E402
 
-from pipeline.cli import main  # noqa: E402
 from pipeline.staging import StagedFolder  # noqa: E402
 
 TINY = ["--schedule", "tiny", "--iters", "1"]
@@ -29,15 +28,6 @@ def clip(tmp_path, monkeypatch) -> Path:
     path = tmp_path / "c.npz"
     save_npz(walk(48), path)
     return path
-
-
-def _ok(argv, capsys) -> str:
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    assert e.value.code == 0, err[-3000:]
-    return out
 
 
 def _files(folder: Path) -> dict:
@@ -59,7 +49,7 @@ def test_a_folder_of_other_files_is_refused_and_an_empty_one_used(tmp_path, clip
     monkeypatch.chdir(tmp_path)
     empty = tmp_path / "empty"
     empty.mkdir()
-    _ok(["train-rig", "c.npz", "--out", "empty", *TINY], capsys)  # both relative
+    succeeded(["train-rig", "c.npz", "--out", "empty", *TINY], capsys)  # both relative
     assert (empty / "rig.json").is_file() and (empty / "level_1.onnx").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz", "empty", "shots"]  # no .partial left
     # The model card names the folder the model is in, not the one it was trained in.
@@ -72,13 +62,13 @@ def test_a_folder_of_other_files_is_refused_and_an_empty_one_used(tmp_path, clip
 def test_force_replaces_only_the_models_own_files(tmp_path, clip, capsys):
     """Before: --force removed everything in the old folder, the user's notes and renders too."""
     out = tmp_path / "m"
-    _ok(["train-rig", clip, "--out", out, *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", out, *TINY], capsys)
     (out / "notes.txt").write_text("shot notes")
     (out / "renders").mkdir()
     (out / "renders" / "a.png").write_bytes(b"png")
     (out / "level_9.onnx").write_bytes(b"a level of an older model")
     old = (out / "rig.json").read_text()
-    _ok(["train-rig", clip, "--out", out, "--force", "--seed", "1", *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--force", "--seed", "1", *TINY], capsys)
     assert (out / "rig.json").read_text() != old
     assert (out / "notes.txt").read_text() == "shot notes" and (
         out / "renders" / "a.png"
@@ -122,7 +112,7 @@ def test_staged_generator_model_keeps_other_files(tmp_path):
 def test_a_damaged_checkpoint_is_one_line_naming_it(tmp_path, clip, capsys, damage):
     """Before: torch.load's error (an internal error) for a cut, empty or junk state.pt."""
     out = tmp_path / "m"
-    _ok(["train-rig", clip, "--out", out, "--no-export", *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--no-export", *TINY], capsys)
     state = tmp_path / ".m.partial" / "checkpoints" / "state.pt"
     state.write_bytes(damage(state.read_bytes()))
     line = refused(["train-rig", clip, "--out", out, *TINY], capsys, tmp_path)
@@ -133,10 +123,10 @@ def test_a_damaged_checkpoint_is_one_line_naming_it(tmp_path, clip, capsys, dama
 def test_resuming_with_other_threads_is_refused(tmp_path, clip, capsys):
     """Before: accepted, and the card recorded the new count for weights made with the old."""
     out = tmp_path / "m"
-    _ok(["train-rig", clip, "--out", out, "--no-export", "--threads", "1", *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--no-export", "--threads", "1", *TINY], capsys)
     line = refused(["train-rig", clip, "--out", out, "--threads", "2", *TINY], capsys, tmp_path)
     assert "this training ran with --threads 1; resume it with --threads 1" in line, line
-    _ok(["train-rig", clip, "--out", out, "--threads", "1", *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--threads", "1", *TINY], capsys)
     assert json.loads((out / "rig.json").read_text())["training"]["threads"] == 1
 
 
@@ -165,7 +155,7 @@ def test_a_read_only_folder_is_refused_even_for_root(tmp_path, clip, capsys):
     finally:
         ro.chmod(0o755)
     published = tmp_path / "published"
-    _ok(["train-rig", clip, "--out", published, *TINY], capsys)
+    succeeded(["train-rig", clip, "--out", published, *TINY], capsys)
     published.chmod(0o555)
     try:
         line = refused(["train-rig", clip, "--out", published, "--force", *TINY], capsys, tmp_path)

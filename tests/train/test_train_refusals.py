@@ -13,10 +13,8 @@ import pytest
 
 pytest.importorskip("torch")
 
-from cli_contract import failed, refused  # noqa: E402
+from cli_contract import failed, refused, succeeded  # noqa: E402
 from test_rig_fill import creature_shot  # noqa: E402
-
-from pipeline.cli import main  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["--steps", "4", "--path-steps", "0", "--batch", "2", "--lengths", "64", "--limit-clips", "1"]
@@ -46,15 +44,6 @@ Frame Time: 0.033333
 def _digest(folder: Path) -> dict:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}  # fmt: skip
-
-
-def _ok(argv, capsys) -> str:
-    capsys.readouterr()
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    assert e.value.code == 0, err[-3000:]
-    return out
 
 
 @pytest.fixture
@@ -124,7 +113,7 @@ def test_partial_keys_need_a_key_adapter_before_any_data_is_read(tmp_path, capsy
 
 def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path, capsys, model_folder):
     run = tmp_path / "run"
-    _ok(["train", "--out", run, *TINY], capsys)
+    succeeded(["train", "--out", run, *TINY], capsys)
     before = _digest(model_folder)
     line = refused(["export", run, "--out", model_folder], capsys, tmp_path)
     assert "holds a finished model (model.json); give --force to replace it" in line
@@ -137,7 +126,7 @@ def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path
             line == f"tween: error: {flag} {value}: must be 0 to 1024 frames (the fill's window grows by it)"
         )
     assert _digest(model_folder) == before
-    _ok(["export", run, "--out", model_folder, "--force", "--name", "replaced"], capsys)
+    succeeded(["export", run, "--out", model_folder, "--force", "--name", "replaced"], capsys)
     assert '"name": "replaced"' in (model_folder / "model.json").read_text()
     assert (model_folder / "generator.onnx").is_file() and not (model_folder / "MODEL_CARD.md").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "studio_model"]  # no .partial, no .old
@@ -147,7 +136,7 @@ def test_a_failed_export_leaves_the_model_as_it_was(tmp_path, capsys, model_fold
     import pipeline.train.export as export
 
     run = tmp_path / "run"
-    _ok(["train", "--out", run, *TINY], capsys)
+    succeeded(["train", "--out", run, *TINY], capsys)
     before = _digest(model_folder)
 
     def full_disk(*a, **k):
@@ -164,7 +153,7 @@ def test_train_rig_never_trains_over_a_finished_model(tmp_path, capsys, monkeypa
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     clip = creature_shot(tmp_path / "clip.usda", T=61, keys_every=1)
     out = tmp_path / "models" / "creature"
-    _ok(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys)
     first = _digest(out)
     assert "rig.json" in first and not list(out.parent.glob(".*"))
     line = refused(["train-rig", clip, "--out", out, "--schedule", "tiny"], capsys, tmp_path)
@@ -196,7 +185,7 @@ def test_train_rig_never_trains_over_a_finished_model(tmp_path, capsys, monkeypa
     partial = out.parent / ".creature.partial"
     assert (partial / "checkpoints" / "state.pt").is_file()  # where the same command resumes
     # The same command again resumes there, exports, and swaps the new model in.
-    _ok(["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--seed", "3"], capsys)
+    succeeded(["train-rig", clip, "--out", out, "--force", "--schedule", "tiny", "--seed", "3"], capsys)
     assert _digest(out) != first and (out / "rig.json").is_file()
     assert sorted(p.name for p in out.parent.iterdir()) == ["creature"]
 
@@ -207,7 +196,7 @@ def test_a_run_folder_resumes_only_its_own_training(tmp_path, capsys, monkeypatc
     --init into a run of another shape failed in load_state_dict, both internal errors."""
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "run"
-    _ok(["train", "--out", "run", *TINY], capsys)  # a relative --out: the paths recorded absolute
+    succeeded(["train", "--out", "run", *TINY], capsys)  # a relative --out: the paths recorded absolute
     before = _digest(out)
     cases = {
         "steps: 4 there, 6 now": ["--steps", "6"],
@@ -218,4 +207,4 @@ def test_a_run_folder_resumes_only_its_own_training(tmp_path, capsys, monkeypatc
         line = refused(["train", "--out", out, *TINY, *args], capsys, tmp_path)
         assert "this run folder holds a training with other options" in line and want in line, line
     assert _digest(out) == before
-    _ok(["train", "--out", out, *TINY, "--threads", "1"], capsys)  # how it runs may change
+    succeeded(["train", "--out", out, *TINY, "--threads", "1"], capsys)  # how it runs may change
