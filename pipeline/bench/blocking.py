@@ -117,19 +117,20 @@ def fill_blocked(model, spline, rots, roots, every: int, alternatives=()):
 
 
 def evaluate(model, spline, rots, roots, every: int, alternatives=()) -> dict:
-    """Mean error (cm) of model, spline and decided fill on shots keyed every ``every`` frames,
+    """Mean error (cm) of model, spline (the animator's: ``spline``), the trusted fill's curve
+    and the decided fill on shots keyed every ``every`` frames,
     the model's mean weight between the keys, the share of shots an alternative decided, and
     the seconds it took."""
     skel = model.skeleton
     t0 = time.perf_counter()
-    _, free, f = fill_blocked(model, spline, rots, roots, every, alternatives)
-    err = {
-        name: float(errors_cm(skel, r, p, rots, roots, free).mean())
-        for name, (r, p) in {"model": f.model, "spline": f.spline, "decided": f.decided}.items()
-    }
+    keys, free, f = fill_blocked(model, trust.trusted_curve(skel), rots, roots, every, alternatives)
+    fills = {"model": f.model, "spline": spline.fill_batch(rots, roots, keys), "curve": f.spline}
+    fills["decided"] = f.decided
+    err = {name: float(errors_cm(skel, r, p, rots, roots, free).mean()) for name, (r, p) in fills.items()}
     return {
         **err,
         "decided_over_better": err["decided"] / min(err["model"], err["spline"]),
+        "decided_over_spline": err["decided"] / err["spline"],
         "decided_over_model": err["decided"] / err["model"],
         "mean_weight": float(f.weights[:, free].mean()),
         "probes": len(f.decisions[0].probes),
@@ -174,15 +175,16 @@ def markdown(report: dict) -> str:
         + f"; shots of {report['shot']} frames keyed every N frames; mean joint-position error (cm) "
         "between the keys" + (f"; {', '.join(heads)}: the share of shots each decided." if beside else "."),
         "",
-        "| source | keys every | shots | probes | model | spline | decided | ÷ better | ÷ model | w̄ |"
+        "| source | keys every | shots | probes | model | spline | curve | decided | ÷ better | ÷ spline | ÷ model | w̄ |"
         + "".join(f" {h} |" for h in heads),
-        "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(heads),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(heads),
     ]
     for src, s in report["sources"].items():
         for e, r in s["results"].items():
             lines.append(
                 f"| {src} | {e} | {s['shots']} | {r['probes']} | {r['model']:.3f} | {r['spline']:.3f} | "
-                f"{r['decided']:.3f} | {r['decided_over_better']:.3f} | {r['decided_over_model']:.3f} | "
+                f"{r.get('curve', float('nan')):.3f} | {r['decided']:.3f} | {r['decided_over_better']:.3f} | "
+                f"{r.get('decided_over_spline', float('nan')):.3f} | {r['decided_over_model']:.3f} | "
                 f"{r['mean_weight']:.2f} |" + "".join(f" {x:.2f} |" for x in r["alternative_shares"])
             )
     return "\n".join(lines) + "\n"

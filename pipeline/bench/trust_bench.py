@@ -8,7 +8,8 @@ the model skeleton, batched over windows that share their keys; the benches that
 fill, trusted_fill on the rig. On
 the protocol's eval windows and on every held-out source (``cmu``: other actors; ``posture30``:
 posture offsets up to 30°; ``mirrored``: left/right mirror images), L2P and L2Q per transition
-length of the four fills, the decided fill's ratio to the better of model and spline and to
+length of the five fills (``curve``: the spline through the same keys with the trusted fill's
+tangents, what it falls back on), the decided fill's ratio to the better of model and spline and to
 the model, how often each choice was made and the time it took.
 
 ``python -m pipeline.bench.trust_bench [--limit N] [--sources eval,cmu] [--out DIR] [--dump F.npz] [--model DIR]``
@@ -34,7 +35,9 @@ from pipeline.errors import TweenError
 from pipeline.infer import novelty, trust
 
 SOURCES = ("eval", "cmu", "posture30", "mirrored")
-METHODS = ("interp", "spline", "model", "decided")
+#: ``spline``: the DCC default's clamped tangents (the animator's curve); ``curve``: the trusted
+#: fill's own curve (pipeline.infer.trust.trusted_curve), which it blends the model with.
+METHODS = ("interp", "spline", "curve", "model", "decided")
 GRID = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
@@ -98,7 +101,8 @@ def _shots(rots, roots, T: int):
 
 def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIONS, dump=None,
                     alternatives=()) -> dict:  # fmt: skip
-    """Per transition length: L2P / L2Q of each method, choices (and the share of windows each
+    """Per transition length: L2P / L2Q of each method (``spline``: the animator's, filled by
+    ``spline``), choices (and the share of windows each
     of ``alternatives`` decided) and seconds."""
     from pipeline.infer.interp import interpolate_between
 
@@ -107,15 +111,18 @@ def evaluate_source(model, spline, rots, roots, mean, std, transitions=TRANSITIO
     for T in transitions:
         sl = slice(CONTEXT, CONTEXT + T)
         rr, pp, keys = _shots(rots, roots, T)
-        wf = trust.trusted_fill_windows(model, spline, rr, pp, keys, cache, alternatives)
+        wf = trust.trusted_fill_windows(model, trust.trusted_curve(model.skeleton), rr, pp, keys, cache,
+                                        alternatives)  # fmt: skip
         (m_r, m_p), (s_r, s_p), (d_r, d_p), decisions = wf.model, wf.spline, wf.decided, wf.decisions
+        a_r, a_p = spline.fill_batch(rr, pp, keys)
         w = np.array([d.weight for d in decisions])
         i_r, i_p = interpolate_between(
             rots[:, CONTEXT - 1], rots[:, CONTEXT + T], roots[:, CONTEXT - 1], roots[:, CONTEXT + T], T
         )
         i_r, i_p = np.moveaxis(i_r, 0, 1), np.moveaxis(i_p, 0, 1)
         gq_t, gp_t = global_positions(rots[:, sl], roots[:, sl])
-        fills = {"interp": (i_r, i_p), "spline": (s_r[:, sl], s_p[:, sl]), "model": (m_r[:, sl], m_p[:, sl])}
+        fills = {"interp": (i_r, i_p), "spline": (a_r[:, sl], a_p[:, sl]), "curve": (s_r[:, sl], s_p[:, sl])}
+        fills["model"] = (m_r[:, sl], m_p[:, sl])
         fills["decided"] = (d_r[:, sl], d_p[:, sl])
         res = {}
         for name, (r, p) in fills.items():

@@ -78,6 +78,8 @@ ALIAS = 0.3
 #: Probe holes shorter than this many frames (0.4 s at the models' 30 fps) count in full:
 #: no human gait cycle (two steps, a sprint's included) is shorter, so no key there repeats.
 CYCLE_FRAMES = 12
+#: The tangents of the trusted fill's curve (:func:`trusted_curve`).
+CURVE = "adaptive"
 #: Windows per model call when probing many shots at once.
 BATCH = 128
 
@@ -613,17 +615,29 @@ def apply(
     return replace(spline_fill, rotations=rot, root_positions=root)
 
 
-def spline_fill(spline, motion: Motion, keys, joint_keys=None) -> Motion:
+def trusted_curve(skeleton=None):
+    """The curve the trusted fill checks the model against and falls back on: the spline
+    through the keys with :data:`CURVE` tangents (``pipeline.infer.spline``), not the DCC
+    default's clamped ones the benches compare with (``--model spline``): on dense keys it
+    is 5-7 % closer to held-out motion, and on sparse ones it is that spline."""
+    from pipeline.infer.spline import SplineInbetweener
+
+    return SplineInbetweener(skeleton, method=CURVE)
+
+
+def spline_fill(spline, motion: Motion, keys, joint_keys=None, breaks=()) -> Motion:
     """The spline's fill of a shot; with partial keys (``joint_keys``, (K, J + 1)) through the
     full keys, then each partial key's keyed channels matched as the model matches them
-    (:func:`pipeline.infer.post.match_keys`), so both fills hold the same keys."""
+    (:func:`pipeline.infer.post.match_keys`), so both fills hold the same keys. ``breaks``:
+    the decision's cuts, (a, b) key frames, to a spline that takes them."""
     keys = np.asarray(keys, np.int64)
+    extra = {"breaks": [tuple(c) for c in breaks]} if len(breaks) else {}
     if joint_keys is None or np.asarray(joint_keys, bool).all():
-        return spline.fill(motion, np.unique(keys))
+        return spline.fill(motion, np.unique(keys), **extra)
     from pipeline.infer.post import match_keys
 
     mask = np.asarray(joint_keys, bool)
-    out = spline.fill(motion, keys[mask.all(axis=1)])
+    out = spline.fill(motion, keys[mask.all(axis=1)], **extra)
     q, r = match_keys(
         out.rotations[None],
         out.root_positions[None],
@@ -654,9 +668,7 @@ class TrustedInbetweener:
         if trust not in TRUST_MODES:
             raise ValueError(f"unknown trust {trust!r} (one of {', '.join(TRUST_MODES)})")
         if spline is None:
-            from pipeline.infer.spline import SplineInbetweener
-
-            spline = SplineInbetweener(model.skeleton)
+            spline = trusted_curve(model.skeleton)
         self.model, self.spline, self.trust = model, spline, trust
         self.primary = model
         self.alternatives = tuple(
@@ -735,8 +747,8 @@ class OnSkeleton:
     def model(self, fill: Motion) -> Motion:
         return fill
 
-    def spline(self, spline) -> Motion:
-        return spline_fill(spline, self.motion, self.keys, self.joint_keys)
+    def spline(self, spline, cuts=()) -> Motion:
+        return spline_fill(spline, self.motion, self.keys, self.joint_keys, cuts)
 
     def blend(self, decision: TrustDecision, m: Motion | None, s: Motion | None) -> Motion:
         full = (
@@ -755,8 +767,8 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
     gap), and the two are blended gap by gap at the decided weights.
 
     ``meet``: where the two fills meet, an object with ``model(fill)`` (the network's fill,
-    a Motion on the model skeleton, carried there), ``spline(spline)`` (the spline's fill
-    there) and ``blend(decision, model, spline)`` (either may be None: the other is the
+    a Motion on the model skeleton, carried there), ``spline(spline, cuts)`` (the spline's fill
+    there, ``cuts`` the decision's, in the motion's key frames) and ``blend(decision, model, spline)`` (either may be None: the other is the
     fill); :class:`OnSkeleton` by default. The fill layer meets them on the character's own
     rig (pipeline.fill.solve), where its spline is the animator's curves. The window benches
     run the same steps batched (:func:`trusted_fill_windows`: bit for bit this, shot for shot)."""
@@ -770,7 +782,7 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
         if d.weight > 0.0
         else None
     )
-    s = meet.spline(inb.spline) if d.weight < 1.0 else None
+    s = meet.spline(inb.spline, d.cuts) if d.weight < 1.0 else None
     return meet.blend(d, m, s)
 
 

@@ -31,6 +31,7 @@ from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.api import Capabilities
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.infer.spline import spline_keys
+from pipeline.infer.trust import CURVE
 from pipeline.library import match
 from pipeline.library.match_features import frame_features
 from pipeline.library.store import Library, LibraryError, open_library
@@ -150,7 +151,7 @@ class LibraryInbetweener:
         """(T, J, 4) / (T, 3) filled from the full ``keys``: the spline, then each gap the
         library spans blended over it at its weight; the keys bitwise the input's."""
         skel = self.skeleton
-        rot, root = spline_keys(rotations, roots, keys)
+        rot, root = spline_keys(rotations, roots, keys, CURVE, fps=self.fps)
         rot, root = rot.astype(np.float64), root.astype(np.float64)
         contacts = np.zeros((len(rot), 2))
         k_rot = np.asarray(rotations[keys], np.float64)

@@ -102,9 +102,11 @@ def test_the_default_fill_gives_the_gaps_across_a_teleport_to_the_rigs_spline(tm
     t = got["times"]
     assert np.array_equal(t, spl["times"])
     across = (t > 1021) & (t < 1041) & (t != 1031)
-    assert np.array_equal(got["rot"][across], spl["rot"][across])
-    assert np.array_equal(got["trans"][across], spl["trans"][across])
-    assert not np.array_equal(net["rot"][across], spl["rot"][across])
+    # The keys beside a cut keep the clamped slope, so across it the trusted fill's curve is
+    # the animator's spline (to rounding: one Hermite evaluation against scipy's PCHIP).
+    assert np.allclose(got["rot"][across], spl["rot"][across], atol=1e-6)
+    assert np.allclose(got["trans"][across], spl["trans"][across], atol=1e-4)
+    assert not np.allclose(net["rot"][across], spl["rot"][across], atol=1e-3)
     assert net["trust"]["cuts"] == []  # --trust model: the network, unchecked
 
 

@@ -193,11 +193,15 @@ def test_cc_rig_z_up_60fps_maps_and_keeps_unmapped_joints(tmp_path):
 
 
 def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, monkeypatch):
-    """Where the decision is the spline, the default fill is the animator's own curves on
-    the rig (``--model spline``) bit for bit, every one of its 100 joints; a blend lies
-    between the network's fill and that spline, keys exact. (The network against the spline:
-    the library shipped beside it holds this very take.)"""
-    from pipeline.fill import api
+    """Where the decision is the spline, the default fill is the trusted fill's curve filled
+    on the rig itself (the spline through the keys with adaptive tangents, as the animator's
+    ``--model spline`` fills it with clamped ones) bit for bit, every one of its 100 joints;
+    a blend lies between the network's fill and that curve, keys exact. (The network against
+    the spline: the library shipped beside it holds this very take.)"""
+    from pipeline.fill import api, solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.api import load_inbetweener
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener, trusted_curve
 
     monkeypatch.setattr(api, "SHIPPED_LIBRARY", False)
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
@@ -207,21 +211,24 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, mo
             ("auto", "default", "auto"),
             ("net", "default", "model"),
             ("forced", "default", "spline"),
-            ("rig", "spline", "auto"),
+            ("animator", "spline", "auto"),
         )
     }
     got = {name: samples(_open(r["review"]), FILLED) for name, r in runs.items()}
+    own = make_plan(str(shot), None, None, None, 30.0, own_rig=True)
+    curve = solve.fill_character(own, own.chars[0], trusted_curve(), seed=0)
+    got["rig"] = {
+        float(t): r for t, r in zip(curve["times"], curve["rot"], strict=True) if float(t) in got["auto"]
+    }
     d = runs["auto"]["trust"][ANIM]
     assert d["choice"] == "spline" and d["familiarity"] == 0.0  # a CMU take: unseen, spline better
     for name in ("auto", "forced"):
         assert got[name].keys() == got["rig"].keys()
         assert all(np.array_equal(got[name][t], got["rig"][t]) for t in got["rig"])
     assert any(not np.array_equal(got["net"][t], got["rig"][t]) for t in got["rig"])
+    # Keys every 12 frames at 30 fps are dense: the curve is not the clamped one.
+    assert any(not np.allclose(got["animator"][t], got["rig"][t], atol=1e-4) for t in got["rig"])
     # A blend: half way between the two fills, joint by joint (SLERP at w = 0.5).
-    from pipeline.fill import solve
-    from pipeline.fill.plan import make_plan
-    from pipeline.infer.api import load_inbetweener
-    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
 
     class Halfway(TrustedInbetweener):
         def decide(self, motion, keys, cuts=()):
@@ -265,12 +272,12 @@ def test_a_60fps_shot_keyed_on_consecutive_frames_fills(tmp_path, capfd, trust):
 
 
 def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
-    """Gap weights 0, 1 and 1/2: the first gap is the rig's spline bit for bit, the second
-    the network's fill on the rig, the third between them."""
+    """Gap weights 0, 1 and 1/2: the first gap is the trusted curve on the rig bit for bit,
+    the second the network's fill on the rig, the third between them."""
     from pipeline.fill import solve
     from pipeline.fill.plan import make_plan
     from pipeline.infer.api import load_inbetweener
-    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener, trusted_curve
 
     shot = str(cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12))
     keys = "1001,1013,1049,1121"  # 60 fps: gaps of 5, 17 and 35 model frames
@@ -286,7 +293,7 @@ def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
     mix = solve.fill_character(plan, plan.chars[0], Fixed(load_inbetweener("default")), seed=0)
     net = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0, trust="model")
     own = make_plan(shot, keys, None, None, 30.0, own_rig=True)
-    spl = solve.fill_character(own, own.chars[0], load_inbetweener("spline"), seed=0)
+    spl = solve.fill_character(own, own.chars[0], trusted_curve(), seed=0)
     t = mix["times"]
     assert np.array_equal(t, net["times"]) and np.array_equal(t, spl["times"])
     first, second, third = ((t > a) & (t < b) for a, b in ((1001, 1013), (1013, 1049), (1049, 1121)))

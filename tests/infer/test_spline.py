@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from scipy.interpolate import PchipInterpolator
+from scipy.interpolate import CubicHermiteSpline, PchipInterpolator
 
 from pipeline.bench.methods import BASELINES, interpolation, resolve
 from pipeline.data.skeletons import bandai_skeleton
@@ -171,3 +171,90 @@ def test_bench_method_shapes_and_context_keys():
     _, p_lin = interpolation(rot[:, :c], quad[:, :c], rot[:, -1], quad[:, -1], T)
     truth = quad[:, c : c + T]
     assert np.abs(p_sp - truth).mean() < 0.5 * np.abs(p_lin - truth).mean()
+
+
+def _root_only(T):
+    """Identity rotations of one joint over T frames (the root channel carries the test)."""
+    rot = np.zeros((T, 1, 4), np.float64)
+    rot[..., 3] = 1.0
+    return rot
+
+
+def test_adaptive_takes_catmull_rom_slopes_at_dense_keys_and_pchip_at_sparse():
+    from pipeline.infer.spline import DENSE_S, SPARSE_S
+
+    T = 121
+    t = np.arange(T, dtype=np.float64)
+    root = np.stack([np.sin(t / 7.0) * 50, np.cos(t / 11.0) * 20, t * 0.3], axis=1)
+    rot = _root_only(T)
+    for every, fps in ((10, 30.0), (30, 30.0), (10, 12.0)):
+        keys = np.arange(0, T, every)
+        _, adaptive = spline_keys(rot, root, keys, "adaptive", fps=fps)
+        _, pchip = spline_keys(rot, root, keys, "pchip", fps=fps)
+        assert np.array_equal(adaptive[keys], root[keys])  # keys bitwise
+        gap_s = every / fps
+        # The curve its definition gives: Catmull-Rom's slope at every interior key, PCHIP's
+        # one-sided slope at the two ends.
+        slopes = PchipInterpolator(keys, root[keys], axis=0).derivative()(keys)
+        slopes[1:-1] = (root[keys[2:]] - root[keys[:-2]]) / (2 * every)
+        catmull = CubicHermiteSpline(keys, root[keys], slopes, axis=0)(t[: keys[-1] + 1])
+        if gap_s <= DENSE_S:
+            assert np.allclose(adaptive[: keys[-1] + 1], catmull, atol=1e-9)
+            assert not np.allclose(adaptive, pchip, atol=1e-2)
+        elif gap_s >= SPARSE_S:  # every 30 at 30 fps, and every 10 frames at 12 fps
+            assert np.allclose(adaptive, pchip, atol=1e-9)
+
+
+def test_adaptive_is_closer_than_pchip_to_smooth_motion_keyed_densely_and_no_worse_sparsely():
+    # A smooth motion keyed every 10 frames: clamped tangents flatten every key where a
+    # channel turns; the adaptive curve follows it (what it is for).
+    T = 301
+    t = np.arange(T, dtype=np.float64)
+    root = np.stack([np.sin(t / 9.0) * 40 + np.sin(t / 23.0) * 25, np.cos(t / 13.0) * 15, t], axis=1)
+    rot = _root_only(T)
+    for every, better in ((10, True), (30, False)):
+        keys = np.r_[np.arange(0, T - 1, every), T - 1]
+        err = {
+            m: np.abs(spline_keys(rot, root, keys, m)[1] - root)[:, :2].mean() for m in ("pchip", "adaptive")
+        }
+        if better:
+            assert err["adaptive"] < 0.7 * err["pchip"]
+        else:
+            assert err["adaptive"] <= err["pchip"] * (1 + 1e-9)
+
+
+def test_adaptive_keeps_pchip_slopes_beside_a_cut():
+    # Keys every 10 frames, the body teleporting 6 m between frames 30 and 40: Catmull-Rom's
+    # slope at key 30 (half the teleport's pace) would swing the gap before it toward the cut.
+    T = 81
+    root = np.zeros((T, 3))
+    root[:, 0] = np.linspace(0, 40, T)
+    root[40:, 0] += 600.0
+    root[:, 1] = 20 * np.sin(np.arange(T) / 5.0)  # a sway, where the two rules differ
+    rot = _root_only(T)
+    keys = np.arange(0, T, 10)
+    _, free = spline_keys(rot, root, keys, "adaptive")
+    _, cut = spline_keys(rot, root, keys, "adaptive", breaks=[(30, 40)])
+    _, pchip = spline_keys(rot, root, keys, "pchip")
+    gap = slice(21, 30)  # the gap before the cut: between its keys' 10 and 15 cm
+    assert free[gap, 0].min() < root[20, 0] - 10  # swings back 40 cm without the break
+    assert (cut[gap, 0] >= root[20, 0] - 1e-6).all() and (cut[gap, 0] <= root[30, 0] + 1e-6).all()
+    assert np.allclose(cut[30:41], pchip[30:41], atol=1e-9)  # across the cut: both keys PCHIP's
+    assert not np.allclose(cut[:11], pchip[:11], atol=1e-3)  # elsewhere still adaptive
+    assert np.array_equal(cut[keys], root[keys])
+
+
+def test_the_trusted_fill_checks_and_falls_back_on_the_adaptive_curve():
+    from pipeline.infer import trust
+
+    rng = np.random.default_rng(3)
+    skel = bandai_skeleton()
+    inb = trust.TrustedInbetweener(load_inbetweener("default"), trust="spline")
+    assert inb.spline.method == trust.CURVE == "adaptive"
+    rot, root = random_motion(rng, 61, len(skel.names))
+    motion = Motion(skel, rot, root, 30.0, "shot")
+    keys = np.arange(0, 61, 10)
+    got = inb.fill(motion, keys)
+    want = SplineInbetweener(skel, method="adaptive").fill(motion, keys)
+    assert np.array_equal(got.rotations, want.rotations)
+    assert not np.allclose(got.rotations, SplineInbetweener(skel).fill(motion, keys).rotations, atol=1e-4)

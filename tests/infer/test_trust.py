@@ -429,9 +429,12 @@ def test_a_trusted_fill_gives_a_teleport_gap_to_the_spline_and_keeps_keys(walk):
     out = model.fill(walk, keys, cuts=[(10, 20)])
     d = model.last_decision
     assert d.cuts == [[10, 20]] and keys_equal(out, walk, keys)
-    spl = trust.spline_fill(model.spline, walk, keys)
+    spl = trust.spline_fill(model.spline, walk, keys, breaks=[(10, 20)])
     assert np.array_equal(out.rotations[11:20], spl.rotations[11:20])
     assert np.array_equal(out.root_positions[11:20], spl.root_positions[11:20])
+    # The curve keeps the clamped slopes beside the cut: across it, the animator's spline.
+    clamped = SplineInbetweener(walk.skeleton).fill(walk, keys)
+    assert np.allclose(out.root_positions[11:20], clamped.root_positions[11:20], atol=1e-4)
     # --trust model is the model, unchecked: no gap is taken from it.
     forced = trust.TrustedInbetweener(StandIn("oracle"), trust="model")
     forced.fill(walk, keys, cuts=[(10, 20)])

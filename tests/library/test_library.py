@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
 from pipeline.infer.spline import spline_keys
+from pipeline.infer.trust import CURVE
 from pipeline.library import match
 from pipeline.library.build import build
 from pipeline.library.infer import LibraryInbetweener, gap_weight, key_bend_cm
@@ -203,7 +204,7 @@ def test_keys_unlike_every_take_are_the_splines(library, takes):
     odd[:, 1:] = [0.7071068, 0.0, 0.0, 0.7071068]
     weird = type(still)(still.skeleton, odd, still.root_positions, still.fps)
     out = inb.fill(weird, keys)
-    s_rot, s_root = spline_keys(weird.rotations, weird.root_positions, keys)
+    s_rot, s_root = spline_keys(weird.rotations, weird.root_positions, keys, CURVE)
     assert np.array_equal(out.rotations, s_rot.astype(np.float32))
     assert [g["weight"] for g in inb.last_gaps] == [0.0, 0.0]
     assert all("no motion like the keys" in g["why"] for g in inb.last_gaps)
@@ -279,7 +280,7 @@ def test_a_slow_smooth_move_the_library_holds_is_the_splines(takes, tmp_path):
     gaps = inb.last_gaps
     assert all(gap_weight(g["miss_cm"], g["change_cm"]) == 1.0 for g in gaps)  # matched in full
     assert all(g["weight"] == 0.0 and "smooth curve" in g["why"] for g in gaps)
-    s_rot, s_root = spline_keys(slow.rotations[:91], slow.root_positions[:91], keys)
+    s_rot, s_root = spline_keys(slow.rotations[:91], slow.root_positions[:91], keys, CURVE)
     assert np.array_equal(out.rotations, s_rot.astype(np.float32))
     assert np.array_equal(out.root_positions, s_root.astype(np.float32))
 

@@ -1,0 +1,173 @@
+"""Which tangents the trusted fill's curve takes: PCHIP, Catmull-Rom, or each where it fits.
+
+The trusted fill falls back on a spline through the keys where its network is not trusted
+(pipeline.infer.trust). Per key spacing, the world joint-position error between the keys
+(cm) of the spline through the same keys with each kind of tangent, and its ratio to PCHIP
+(the DCC default's clamped tangents, ``--model spline``):
+
+- ``pchip``; ``catmull-rom`` (every interior key Catmull-Rom's slope, Maya's *Spline*);
+  ``adaptive`` (pipeline.infer.spline: Catmull-Rom's where keys are dense, PCHIP's where
+  sparse); ``cubic`` (not-a-knot C2).
+- shots: the blocking bench's Bandai eval shots (181 frames; ``--stride N`` takes every Nth),
+  keyed every N frames, and keyed pose to pose (``reducedN``: greedy key reduction against
+  linear interpolation of the world joint positions, one key per N frames on average, as an
+  animator keys extremes); the CMU takes of ``--subjects`` on their own 100-joint rig at
+  30 fps (first 300 frames, leading glitch frames dropped, as pipeline.bench.studio).
+
+``python experiments/curve_tangents.py [--stride 4] [--subjects 5,6,7] [--out FILE.json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from contextlib import contextmanager
+
+import numpy as np
+
+from pipeline.bench import blocking
+from pipeline.bench.heldout import cmu_files
+from pipeline.bench.studio import leading_glitch
+from pipeline.data.skeletons import bandai_skeleton
+from pipeline.infer import spline
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.clip import resample
+from pipeline.motion.fk import fk
+
+METHODS = ("pchip", "catmull-rom", "adaptive", "cubic")
+
+
+@contextmanager
+def _everywhere_dense():
+    """``adaptive`` with every key dense: Catmull-Rom's slope at every interior key."""
+    saved = spline.DENSE_S, spline.SPARSE_S
+    spline.DENSE_S, spline.SPARSE_S = 1e9, 2e9
+    try:
+        yield
+    finally:
+        spline.DENSE_S, spline.SPARSE_S = saved
+
+
+def curve(method, rot, root, keys, fps=30.0):
+    if method == "catmull-rom":
+        with _everywhere_dense():
+            return spline.spline_keys(rot, root, keys, "adaptive", fps=fps)
+    return spline.spline_keys(rot, root, keys, method, fps=fps)
+
+
+def reduced_keys(pos: np.ndarray, mean_gap: int) -> np.ndarray:
+    """Greedy key reduction: from the first and last frame, add the frame the linear
+    interpolation of world positions (T, J, 3) misses most, until one key per ``mean_gap``."""
+    n = len(pos)
+    keys = [0, n - 1]
+    while len(keys) < max(2, round((n - 1) / mean_gap) + 1):
+        ks = sorted(keys)
+        best, at = -1.0, None
+        for a, b in zip(ks[:-1], ks[1:], strict=True):
+            if b - a < 2:
+                continue
+            w = ((np.arange(a + 1, b) - a) / (b - a))[:, None, None]
+            miss = np.linalg.norm(pos[a + 1 : b] - ((1 - w) * pos[a] + w * pos[b]), axis=-1).mean(-1)
+            if miss.max() > best:
+                best, at = float(miss.max()), a + 1 + int(np.argmax(miss))
+        keys.append(at)
+    return np.array(sorted(keys))
+
+
+def bandai(stride: int) -> dict:
+    skel = bandai_skeleton()
+    rots, roots = blocking.shots("eval")
+    rots, roots = rots[::stride].astype(np.float64), roots[::stride].astype(np.float64)
+    n = rots.shape[1]
+    out = {}
+    for layout in (
+        "every5",
+        "every10",
+        "every15",
+        "every20",
+        "every30",
+        "reduced8",
+        "reduced10",
+        "reduced15",
+    ):
+        print(f"bandai eval: {layout}…", file=sys.stderr)
+        total = dict.fromkeys(METHODS, 0.0)
+        for i in range(len(rots)):
+            if layout.startswith("every"):
+                e = int(layout[5:])
+                keys = np.r_[np.arange(0, n - 1, e), n - 1]
+            else:
+                keys = reduced_keys(fk(rots[i], roots[i], skel.parents, skel.offsets)[1], int(layout[7:]))
+            free = np.setdiff1d(np.arange(n), keys)
+            for m in METHODS:
+                r, p = curve(m, rots[i], roots[i], keys)
+                total[m] += float(
+                    blocking.errors_cm(skel, r[None], p[None], rots[i : i + 1], roots[i : i + 1], free)[0]
+                )
+        out[layout] = {m: total[m] / len(rots) for m in METHODS}
+    return {"shots": int(len(rots)), "cm": out}
+
+
+def cmu(subjects) -> dict:
+    out: dict = {}
+    files = cmu_files(subjects)
+    for f in files:
+        print(f"cmu: {f.name}…", file=sys.stderr)
+        motion = read_bvh(f)
+        cut = leading_glitch(motion)
+        motion = motion.slice(cut, len(motion)) if cut else motion
+        at30 = resample(motion, 30.0)
+        at30 = at30.slice(0, min(len(at30), 300))
+        T, scale = len(at30), at30.skeleton.meters_per_unit * 100.0
+        truth = at30.positions()
+        for e in (10, 15, 20, 30):
+            keys = np.unique(np.r_[np.arange(0, T, e), T - 1])
+            free = np.setdiff1d(np.arange(T), keys)
+            row = out.setdefault(f"every{e}", {m: [0.0, 0] for m in METHODS})
+            for m in METHODS:
+                r, p = curve(m, at30.rotations, at30.root_positions, keys)
+                pos = type(at30)(at30.skeleton, r, p, at30.fps).positions()
+                err = np.linalg.norm(pos[free] - truth[free], axis=-1) * scale
+                row[m][0] += float(err.sum())
+                row[m][1] += int(err.size)
+    return {"takes": len(files), "cm": {k: {m: s / n for m, (s, n) in v.items()} for k, v in out.items()}}
+
+
+def table(name: str, cm: dict) -> str:
+    lines = [
+        f"**{name}** (cm; ÷ PCHIP)",
+        "",
+        "| keys | " + " | ".join(METHODS) + " |",
+        "|---|" + "---|" * len(METHODS),
+    ]
+    for layout, row in cm.items():
+        cells = [f"{row[m]:.3f} ({row[m] / row['pchip']:.3f})" for m in METHODS]
+        lines.append(f"| {layout} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stride", type=int, default=4, help="every Nth Bandai eval shot")
+    ap.add_argument("--subjects", default="5,6,7", help="CMU subjects, comma-separated")
+    ap.add_argument("--out", default=None, help="write the results as JSON here")
+    a = ap.parse_args(argv)
+    res = {
+        "thresholds_s": [spline.DENSE_S, spline.SPARSE_S],
+        "bandai_eval": bandai(a.stride),
+        "cmu": cmu(tuple(int(s) for s in a.subjects.split(","))),
+    }
+    res["markdown"] = table(f"Bandai eval, {res['bandai_eval']['shots']} shots", res["bandai_eval"]["cm"])
+    res["markdown"] += "\n" + table(
+        f"CMU subjects {a.subjects}, {res['cmu']['takes']} takes", res["cmu"]["cm"]
+    )
+    print(res["markdown"])
+    if a.out:
+        with open(a.out, "w") as fh:
+            json.dump(res, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
