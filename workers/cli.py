@@ -686,6 +686,7 @@ def submit_library(
     from pipeline.usd.take import take_files
 
     # What `tween library build` refuses is refused here, before a worker takes the job.
+    opts.check()
     take_files(folder, opts.include)
     check_out(out, opts.add)
     check_farm(train_app)

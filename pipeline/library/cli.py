@@ -34,6 +34,7 @@ def build_command(
     """Read a studio's takes into a motion library for `tween fill --library`."""
     from pipeline.library.build import build
 
+    opts.check()
     res = build(folder, out, include=opts.include, licence=opts.licence, name=opts.name, add=opts.add,
                 progress=progress, mirror=opts.mirror,
                 on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
@@ -60,8 +61,14 @@ def info_command(library: Path = typer.Argument(..., help="A library folder.")):
     """What a library holds: takes, frames, hours, licence and hash."""
     lib = open_library(library)
     typer.echo(lib.describe())
-    for t in lib.manifest["takes"]:
-        typer.echo(f"  {t['name']}: {t['frames']} frames ({t.get('rig', '')})")
+    for t in lib.manifest["takes"]:  # a file name may hold a newline: one take, one line
+        typer.echo(f"  {_line(t['name'])}: {t['frames']} frames ({_line(t.get('rig', ''))})")
+
+
+def _line(text) -> str:
+    """``text`` as one printable line (control characters escaped, as Python writes them)."""
+    text = str(text)
+    return text if text.isprintable() else repr(text)[1:-1]
 
 
 def register(app: typer.Typer) -> None:

@@ -7,7 +7,11 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from pipeline.errors import TweenError
 from pipeline.options import flags_of, job_args, option, with_options
+
+#: The longest --licence / --name recorded (characters).
+MAX_TEXT = 200
 
 
 @dataclass
@@ -23,6 +27,16 @@ class LibraryBuildOptions:
     )
     name: str | None = option(None, "--name", help="The library's name (default: the folder's).")
     mirror: bool = option(False, "--mirror", help="Also add each take's left/right mirror image.")
+
+    def check(self) -> LibraryBuildOptions:
+        """Raises TweenError (one line naming the option) unless the recorded texts are one
+        printable line: they go into library.json, every fill's record and ``library info``."""
+        for flag, v in (("--licence", self.licence), ("--name", self.name)):
+            if v is not None and (not v.strip() or not v.isprintable() or len(v) > MAX_TEXT):
+                raise TweenError(
+                    f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
+                )
+        return self
 
     def as_job(self) -> dict:
         """The options a farm job carries (the ones set)."""

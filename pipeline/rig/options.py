@@ -90,6 +90,11 @@ class TrainRigOptions:
                 raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
         check_device(self.device)
         parse_frames(self.frames)
+        if self.contacts is not None and not [c for c in self.contacts.split(",") if c.strip()]:
+            raise TweenError(
+                f"--contacts {self.contacts!r}: names no joint (comma-separated joint names; "
+                "leave it out for the joints that touch the floor)"
+            )
         return self
 
     def as_job(self) -> dict:

@@ -30,16 +30,20 @@ class RigSourceError(TweenError):
         super().__init__(f"{self.path}: {message}")
 
 
-def parse_frames(spec: str | None) -> tuple[int, int] | None:
-    """``"0:1511"`` → (0, 1511) (a half-open frame-index range); ``None``/"" → None."""
+def parse_frames(spec: str | None) -> tuple[int, int | None] | None:
+    """``"0:1511"`` → (0, 1511) (a half-open frame-index range; ``"100:"`` → (100, None): to
+    the clip's end); ``None``/"" → None. Indices count from the clip's first frame: a
+    negative one is refused (it read as "to the end", whatever its value)."""
     if not spec:
         return None
     try:
         a, b = spec.split(":")
         lo = int(a) if a.strip() else 0
-        hi = int(b) if b.strip() else -1
+        hi = int(b) if b.strip() else None
     except ValueError:
         raise TweenError(f"--frames {spec!r}: expected START:STOP, e.g. 0:1511") from None
+    if lo < 0 or (hi is not None and hi < 0):
+        raise TweenError(f"--frames {spec!r}: frame indices count from 0 (the clip's first frame)")
     return lo, hi
 
 
@@ -47,7 +51,7 @@ def _slice(path, motion: Motion, frames) -> Motion:
     if frames is None:
         return motion
     lo, hi = frames
-    hi = len(motion) if hi is None or hi < 0 else hi
+    hi = len(motion) if hi is None else hi
     if not (0 <= lo < hi <= len(motion)) or hi - lo < 2:
         raise RigSourceError(path, f"frames {lo}:{hi} are not inside the clip's {len(motion)} frames")
     return motion.slice(lo, hi)

@@ -467,3 +467,21 @@ def test_a_file_given_as_a_library_folder_says_so(tmp_path):
     with pytest.raises(LibraryError, match=r"notes\.txt: a file, not a folder; use --add"):
         check_out(f, add=False)
     assert f.read_text() == "x"
+
+
+def test_info_shows_one_line_a_take_and_build_refuses_texts_that_are_not_one_line(takes, tmp_path, capsys):
+    """Before: a take whose file name held a newline was two lines of `library info`, and
+    ``--licence``/``--name`` took any text into library.json and every fill's record."""
+    from cli_contract import refused, succeeded
+
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    shutil.copy(takes / BANDAI[0], odd / "walk\nrun.bvh")
+    out = tmp_path / "lib"
+    for flag, bad in (("--licence", "CC BY\n4.0"), ("--name", "   "), ("--licence", "x" * 201)):
+        line = refused(["library", "build", odd, "--out", out, flag, bad, "--no-progress"], capsys, tmp_path)
+        assert line.startswith(f"tween: error: {flag} ") and "one line of printable text" in line
+    assert not out.exists()
+    succeeded(["library", "build", odd, "--out", out, "--licence", "CC BY 4.0", "--no-progress"], capsys)
+    shown = succeeded(["library", "info", out], capsys).splitlines()
+    assert len(shown) == 2 and "walk\\nrun" in shown[1], shown
