@@ -96,6 +96,20 @@ def partial_folder(dest: str | Path) -> Path:
     return _beside(dest, ".partial")
 
 
+def _refuse_current_folder(dest: Path, option: str) -> None:
+    """TweenError when the current folder is ``dest`` or lies inside it: replacing ``dest``
+    renames it away, and the shell that ran the command would be left in the old folder."""
+    try:
+        here = Path.cwd().resolve()
+    except OSError:  # the current folder was removed: it is not dest
+        return
+    if here == dest.resolve() or dest.resolve() in here.parents:
+        raise TweenError(
+            f"{dest}: {option} is the folder you are in (or holds it); replacing it would move "
+            "it from under you: run from outside it"
+        )
+
+
 class StagedFolder:
     """Where a new model is written (``work``) and how it replaces ``dest`` (``commit``).
 
@@ -116,6 +130,8 @@ class StagedFolder:
                 f"{self.dest}: {option} is not empty and not a {what} folder; "
                 "give a new or empty folder (nothing in it was changed)"
             )
+        if self.dest.is_dir():  # commit renames it, empty or a model
+            _refuse_current_folder(self.dest, option)
         self.work = partial_folder(self.dest)
         refuse_read_only(self.dest, option, self.work.parent)  # where the model is made and moved in
         refuse_read_only(self.dest, option)  # and what it replaces (a published model stays)
