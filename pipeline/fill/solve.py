@@ -267,6 +267,7 @@ def _trust_record(inb, cp: CharPlan, tcps: float, fps: float) -> dict | None:
         return None
     decision = inb.last_decision
     record = decision.to_json()
+    record["curve"] = getattr(inb.spline, "method", None)  # the spline's tangents (infer.trust.CURVE)
     at, weights = gap_table(decision, cp, tcps, fps)
     record["gap_weights"] = gap_record(at, weights)
     if inb.model.capabilities.per_gap:

@@ -222,6 +222,7 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, mo
     }
     d = runs["auto"]["trust"][ANIM]
     assert d["choice"] == "spline" and d["familiarity"] == 0.0  # a CMU take: unseen, spline better
+    assert d["curve"] == "adaptive"  # recorded: which tangents the spline took
     for name in ("auto", "forced"):
         assert got[name].keys() == got["rig"].keys()
         assert all(np.array_equal(got[name][t], got["rig"][t]) for t in got["rig"])
