@@ -83,8 +83,9 @@ class FillOptions:
     trust: str = _opt(
         "auto",
         "--trust",
-        help="How far the human model is trusted against the spline through the keys: auto (decided "
-        "per character from the shot's own keys, recorded in the layer), model, or spline.",
+        help="How far the human model is trusted against the spline through the keys (Catmull-Rom "
+        "tangents where keys are dense, clamped where sparse): auto (decided per character from the "
+        "shot's own keys, recorded in the layer), model, or spline.",
     )
 
     def check(self) -> FillOptions:
