@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.interpolate import CubicHermiteSpline, PchipInterpolator
 
 from pipeline.bench.methods import BASELINES, interpolation, resolve
@@ -258,3 +260,25 @@ def test_the_trusted_fill_checks_and_falls_back_on_the_adaptive_curve():
     want = SplineInbetweener(skel, method="adaptive").fill(motion, keys)
     assert np.array_equal(got.rotations, want.rotations)
     assert not np.allclose(got.rotations, SplineInbetweener(skel).fill(motion, keys).rotations, atol=1e-4)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    data=st.data(),
+    T=st.integers(2, 80),
+    fps=st.sampled_from([12.0, 24.0, 30.0, 60.0, 120.0]),
+)
+def test_adaptive_keeps_keys_bitwise_and_unit_rotations_for_any_keys(data, T, fps):
+    """Generated: any key layout (two keys, dense runs, lone far keys), any rate, any cuts."""
+    keys = np.array(sorted(data.draw(st.sets(st.integers(0, T - 1), min_size=2, max_size=T))))
+    seed = data.draw(st.integers(0, 2**31 - 1))
+    rot, root = random_motion(np.random.default_rng(seed), T, 3)
+    root[keys[len(keys) // 2] :] += data.draw(st.floats(-1e4, 1e4))  # a jump, perhaps a cut
+    pairs = list(zip(keys[:-1].tolist(), keys[1:].tolist(), strict=True))
+    breaks = data.draw(st.lists(st.sampled_from(pairs), max_size=3))
+    r, p = spline_keys(rot, root, keys, "adaptive", fps=fps, breaks=breaks)
+    assert np.array_equal(r[keys], rot[keys]) and np.array_equal(p[keys], root[keys])
+    assert np.isfinite(r).all() and np.isfinite(p).all()
+    assert np.allclose(np.linalg.norm(r, axis=-1), 1.0, atol=1e-5)
+    # Outside the keys the first and last key are held, as every spline holds them.
+    assert (r[: keys[0]] == rot[keys[0]]).all() and (p[keys[-1] + 1 :] == root[keys[-1]]).all()
