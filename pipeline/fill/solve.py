@@ -1,7 +1,7 @@
 """Filling one character: keys → model skeleton at the model rate → in-betweener → back
 onto the shot's rig at every shot frame, keys carrying their authored values bitwise. The
 human model's trusted fill blends, gap by gap, its network's fill turned back onto the rig
-with the spline filled on the rig itself (the animator's own curves)."""
+with the spline filled on the rig itself (the trusted fill's curve, infer.trust.trusted_curve)."""
 
 from __future__ import annotations
 
@@ -170,9 +170,9 @@ def _onto_rig(plan: Plan, cp: CharPlan, retarget, fps: float, filled: Motion | N
 class OnRig:
     """Where the fill layer's trusted fill (infer.trust.trusted_fill) meets its two fills: the
     character's rig, at every frame of its fill range. The network's fill is turned back onto
-    the rig; the spline fills on the rig itself at the shot's own rate, exactly as ``--model
-    spline`` fills it (so a decision for the spline gives that fill bit for bit); the two are
-    blended gap by gap there."""
+    the rig; the spline fills on the rig itself at the shot's own rate, as ``--model spline``
+    fills it but with the trusted fill's tangents (infer.trust.trusted_curve: a decision for
+    the spline gives that curve bit for bit); the two are blended gap by gap there."""
 
     def __init__(self, plan: Plan, cp: CharPlan, keyed, fps: float, m: np.ndarray):
         self.plan, self.cp, self.keyed, self.fps, self.m = plan, cp, keyed, fps, m
@@ -284,9 +284,9 @@ def fill_character(
     character and returned under ``"trust"`` (None where nothing was decided: a rig model,
     or interpolation and the spline on the character's own rig).
 
-    The trusted fill's spline is the animator's own: filled on the character's rig, exactly
-    as ``--model spline`` fills it (so a decision for the spline gives that fill bit for bit),
-    and blended with the network's fill, turned back onto the rig, gap by gap at the decided
+    The trusted fill's spline is filled on the character's rig as ``--model spline`` fills
+    it, with the trusted fill's tangents (Catmull-Rom where keys are dense: a decision for the
+    spline gives that curve bit for bit), and blended with the network's fill, turned back onto the rig, gap by gap at the decided
     weights. Shots with partial keys or a motion DNA blend on the model skeleton instead.
     ``alternatives``: other in-betweeners the trusted fill probes against ``inb`` (a motion
     library's network), the better on the shot's own keys deciding."""
