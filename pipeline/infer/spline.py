@@ -74,6 +74,12 @@ def _curve(x: np.ndarray, y: np.ndarray, method: str, ends: str, fps: float, bre
             if i + 1 < len(x) and x[i] == a and x[i + 1] == b:
                 dense[[j - 1 for j in (i, i + 1) if 0 < j < len(x) - 1]] = 0.0
         catmull = (y[2:] - y[:-2]) / (x[2:] - x[:-2])[:, None]
+        # Fritsch-Carlson's bound: at most 3x the smaller secant beside the key, so a key next
+        # to a hold (a near-zero secant) does not carry the move into it and overshoot.
+        secant = np.abs(np.diff(y, axis=0) / np.diff(x)[:, None])
+        catmull = np.clip(
+            catmull, -3.0 * np.minimum(secant[:-1], secant[1:]), 3.0 * np.minimum(secant[:-1], secant[1:])
+        )
         slopes[1:-1] = dense * catmull + (1.0 - dense) * slopes[1:-1]
     if ends == "flat":
         slopes[[0, -1]] = 0.0

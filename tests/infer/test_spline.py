@@ -195,10 +195,12 @@ def test_adaptive_takes_catmull_rom_slopes_at_dense_keys_and_pchip_at_sparse():
         _, pchip = spline_keys(rot, root, keys, "pchip", fps=fps)
         assert np.array_equal(adaptive[keys], root[keys])  # keys bitwise
         gap_s = every / fps
-        # The curve its definition gives: Catmull-Rom's slope at every interior key, PCHIP's
-        # one-sided slope at the two ends.
+        # The curve its definition gives: Catmull-Rom's slope at every interior key (within
+        # Fritsch-Carlson's bound), PCHIP's one-sided slope at the two ends.
         slopes = PchipInterpolator(keys, root[keys], axis=0).derivative()(keys)
-        slopes[1:-1] = (root[keys[2:]] - root[keys[:-2]]) / (2 * every)
+        secant = np.abs(np.diff(root[keys], axis=0)) / every
+        bound = 3 * np.minimum(secant[:-1], secant[1:])
+        slopes[1:-1] = np.clip((root[keys[2:]] - root[keys[:-2]]) / (2 * every), -bound, bound)
         catmull = CubicHermiteSpline(keys, root[keys], slopes, axis=0)(t[: keys[-1] + 1])
         if gap_s <= DENSE_S:
             assert np.allclose(adaptive[: keys[-1] + 1], catmull, atol=1e-9)
@@ -225,9 +227,26 @@ def test_adaptive_is_closer_than_pchip_to_smooth_motion_keyed_densely_and_no_wor
             assert err["adaptive"] <= err["pchip"] * (1 + 1e-9)
 
 
+def test_adaptive_does_not_overshoot_into_a_hold():
+    """A fast rise keyed every 10 frames, then a hold (the arm raised and kept there, with
+    capture jitter): Catmull-Rom's slope at the hold's first key is half the rise's pace and
+    swings past the hold; within Fritsch-Carlson's bound it stays at the hold, as PCHIP does."""
+    T = 61
+    root = np.zeros((T, 3))
+    root[:31, 1] = np.linspace(0, 90, 31)
+    root[31:, 1] = 90 + 0.05 * np.sin(np.arange(30))  # the hold, jittering by a millimetre
+    rot = _root_only(T)
+    keys = np.arange(0, T, 10)
+    _, got = spline_keys(rot, root, keys, "adaptive")
+    with_hold = got[31:40, 1]
+    assert with_hold.max() < 90.5 and with_hold.min() > 89.5
+    unbounded = (root[40, 1] - root[20, 1]) / 20  # what Catmull-Rom's slope at frame 30 would be
+    assert unbounded > 1.0  # a swing of centimetres a frame past the hold, without the bound
+
+
 def test_adaptive_keeps_pchip_slopes_beside_a_cut():
-    # Keys every 10 frames, the body teleporting 6 m between frames 30 and 40: Catmull-Rom's
-    # slope at key 30 (half the teleport's pace) would swing the gap before it toward the cut.
+    # Keys every 10 frames, the body teleporting 6 m between frames 30 and 40: the keys beside
+    # the cut keep PCHIP's slope (across the cut the animator's spline, as before the curve).
     T = 81
     root = np.zeros((T, 3))
     root[:, 0] = np.linspace(0, 40, T)
@@ -239,7 +258,9 @@ def test_adaptive_keeps_pchip_slopes_beside_a_cut():
     _, cut = spline_keys(rot, root, keys, "adaptive", breaks=[(30, 40)])
     _, pchip = spline_keys(rot, root, keys, "pchip")
     gap = slice(21, 30)  # the gap before the cut: between its keys' 10 and 15 cm
-    assert free[gap, 0].min() < root[20, 0] - 10  # swings back 40 cm without the break
+    # Without the break the key's slope is Catmull-Rom's, held by Fritsch-Carlson's bound to 3x
+    # the small secant beside it; with it, PCHIP's.
+    assert not np.allclose(free[gap, 0], cut[gap, 0], atol=0.05)
     assert (cut[gap, 0] >= root[20, 0] - 1e-6).all() and (cut[gap, 0] <= root[30, 0] + 1e-6).all()
     assert np.allclose(cut[30:41], pchip[30:41], atol=1e-9)  # across the cut: both keys PCHIP's
     assert not np.allclose(cut[:11], pchip[:11], atol=1e-3)  # elsewhere still adaptive
