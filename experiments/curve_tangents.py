@@ -5,14 +5,17 @@ The trusted fill falls back on a spline through the keys where its network is no
 (cm) of the spline through the same keys with each kind of tangent, and its ratio to PCHIP
 (the DCC default's clamped tangents, ``--model spline``):
 
-- ``pchip``; ``catmull-rom`` (every interior key Catmull-Rom's slope, Maya's *Spline*);
-  ``adaptive`` (pipeline.infer.spline: Catmull-Rom's where keys are dense, PCHIP's where
+- ``pchip``; ``catmull-rom`` (every interior key Catmull-Rom's slope, Maya's *Spline*,
+  unbounded); ``unbounded`` (``adaptive`` without its Fritsch-Carlson bound); ``adaptive``
+  (pipeline.infer.spline: Catmull-Rom's where keys are dense, within the bound, PCHIP's where
   sparse); ``cubic`` (not-a-knot C2).
 - shots: the blocking bench's Bandai eval shots (181 frames; ``--stride N`` takes every Nth),
   keyed every N frames, and keyed pose to pose (``reducedN``: greedy key reduction against
   linear interpolation of the world joint positions, one key per N frames on average, as an
   animator keys extremes); the CMU takes of ``--subjects`` on their own 100-joint rig at
-  30 fps (first 300 frames, leading glitch frames dropped, as pipeline.bench.studio).
+  30 fps (first 300 frames, leading glitch frames dropped, as pipeline.bench.studio); and
+  motions that end in holds, the first 12 raise-up and 8 wave takes of Bandai dataset-2 by
+  name (train and eval split alike: nothing here is trained), first 300 frames at 30 fps.
 
 ``python experiments/curve_tangents.py [--stride 4] [--subjects 5,6,7] [--out FILE.json]``
 """
@@ -30,28 +33,36 @@ from pipeline.bench import blocking
 from pipeline.bench.heldout import cmu_files
 from pipeline.bench.studio import leading_glitch
 from pipeline.data.skeletons import bandai_skeleton
+from pipeline.data.split import shared_data_dir
 from pipeline.infer import spline
 from pipeline.motion.bvh import read_bvh
 from pipeline.motion.clip import resample
 from pipeline.motion.fk import fk
 
-METHODS = ("pchip", "catmull-rom", "adaptive", "cubic")
+METHODS = ("pchip", "catmull-rom", "unbounded", "adaptive", "cubic")
+#: Module settings of pipeline.infer.spline each variant of ``adaptive`` runs with.
+VARIANTS = {
+    "catmull-rom": {"DENSE_S": 1e9, "SPARSE_S": 2e9, "SLOPE_BOUND": np.inf},
+    "unbounded": {"SLOPE_BOUND": np.inf},
+}
 
 
 @contextmanager
-def _everywhere_dense():
-    """``adaptive`` with every key dense: Catmull-Rom's slope at every interior key."""
-    saved = spline.DENSE_S, spline.SPARSE_S
-    spline.DENSE_S, spline.SPARSE_S = 1e9, 2e9
+def _settings(values: dict):
+    """pipeline.infer.spline's module settings set to ``values`` for the block."""
+    saved = {k: getattr(spline, k) for k in values}
+    for k, v in values.items():
+        setattr(spline, k, v)
     try:
         yield
     finally:
-        spline.DENSE_S, spline.SPARSE_S = saved
+        for k, v in saved.items():
+            setattr(spline, k, v)
 
 
 def curve(method, rot, root, keys, fps=30.0):
-    if method == "catmull-rom":
-        with _everywhere_dense():
+    if method in VARIANTS:
+        with _settings(VARIANTS[method]):
             return spline.spline_keys(rot, root, keys, "adaptive", fps=fps)
     return spline.spline_keys(rot, root, keys, method, fps=fps)
 
@@ -109,11 +120,22 @@ def bandai(stride: int) -> dict:
     return {"shots": int(len(rots)), "cm": out}
 
 
+def holds() -> dict:
+    """The raise-up and wave takes: motions that end in holds."""
+    folder = shared_data_dir() / "bandai_namco" / "dataset-2"
+    files = sorted(folder.glob("dataset-2_raise-up-*"))[:12] + sorted(folder.glob("dataset-2_wave-*"))[:8]
+    return takes(files, (10, 15, 30))
+
+
 def cmu(subjects) -> dict:
+    return takes(cmu_files(subjects), (10, 15, 20, 30))
+
+
+def takes(files, spacings) -> dict:
+    """Per key spacing, each method's mean error (cm) over ``files`` on their own rig."""
     out: dict = {}
-    files = cmu_files(subjects)
     for f in files:
-        print(f"cmu: {f.name}…", file=sys.stderr)
+        print(f"take: {f.name}…", file=sys.stderr)
         motion = read_bvh(f)
         cut = leading_glitch(motion)
         motion = motion.slice(cut, len(motion)) if cut else motion
@@ -121,7 +143,7 @@ def cmu(subjects) -> dict:
         at30 = at30.slice(0, min(len(at30), 300))
         T, scale = len(at30), at30.skeleton.meters_per_unit * 100.0
         truth = at30.positions()
-        for e in (10, 15, 20, 30):
+        for e in spacings:
             keys = np.unique(np.r_[np.arange(0, T, e), T - 1])
             free = np.setdiff1d(np.arange(T), keys)
             row = out.setdefault(f"every{e}", {m: [0.0, 0] for m in METHODS})
@@ -155,12 +177,17 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     res = {
         "thresholds_s": [spline.DENSE_S, spline.SPARSE_S],
+        "slope_bound": spline.SLOPE_BOUND,
         "bandai_eval": bandai(a.stride),
         "cmu": cmu(tuple(int(s) for s in a.subjects.split(","))),
+        "holds": holds(),
     }
     res["markdown"] = table(f"Bandai eval, {res['bandai_eval']['shots']} shots", res["bandai_eval"]["cm"])
     res["markdown"] += "\n" + table(
         f"CMU subjects {a.subjects}, {res['cmu']['takes']} takes", res["cmu"]["cm"]
+    )
+    res["markdown"] += "\n" + table(
+        f"Bandai raise-up and wave takes, {res['holds']['takes']}", res["holds"]["cm"]
     )
     print(res["markdown"])
     if a.out:
