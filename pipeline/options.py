@@ -12,6 +12,15 @@ from dataclasses import field, fields
 
 import typer
 
+#: The longest text option recorded in a file and printed by a command (a name, a licence).
+MAX_TEXT = 200
+
+
+def one_line(text: str, limit: int = MAX_TEXT) -> bool:
+    """Whether ``text`` is one line of printable text, not blank, at most ``limit`` characters:
+    what a name or licence a command records (and later prints on one line) must be."""
+    return bool(text.strip()) and text.isprintable() and len(text) <= limit
+
 
 def option(default, *flags: str, help: str, **meta):
     """A dataclass field that is a command-line option: its default, flags, help, and any

@@ -9,7 +9,9 @@ positions** (cm, between the keys): every joint of the rig, and the joints that 
 model's. Nothing here goes through the model skeleton except what the fill itself does.
 
 Methods: ``default`` (the shipped fill: network, trust decided from the shot), ``network``
-(the same model with ``--trust model``), ``spline`` (the animator's own curves), ``interp``.
+(the same model with ``--trust model``), ``spline`` (the animator's own curves), ``interp``;
+and, asked for by name, ``curve`` (the same model with ``--trust spline``: the trusted fill's
+curve alone, pipeline.infer.trust.trusted_curve).
 
 ``python -m pipeline.bench.studio [--every 10,30] [--subjects 5,6,7] [--limit N]
 [--max-frames 300] [--fps 30] [--methods default,network,spline,interp] [--keep-glitches] [--out DIR]``
@@ -35,12 +37,13 @@ from pipeline.motion.clip import resample
 from pipeline.usd.convert import write_shot
 
 METHODS = ("default", "network", "spline", "interp")
-#: (model, trust) of each method's fill.
+#: (model, trust) of each method's fill; ``curve`` runs only when asked for.
 _FILL = {
     "default": ("default", "auto"),
     "network": ("default", "model"),
     "spline": ("spline", "auto"),
     "interp": ("interp", "auto"),
+    "curve": ("default", "spline"),
 }
 FPS = 30.0
 
@@ -212,7 +215,7 @@ def main(argv=None) -> int:
         default=300,
         help="frames of each take at the shot rate (0: all)",
     )
-    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(METHODS))
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated: " + ", ".join(_FILL))
     ap.add_argument("--out", type=Path, default=None, help="folder for studio.json and studio.md")
     ap.add_argument("--keep-glitches", action="store_true", help="keep takes' leading glitch frames")
     ap.add_argument(
@@ -220,9 +223,9 @@ def main(argv=None) -> int:
     )
     a = ap.parse_args(argv)
     methods = tuple(m for m in a.methods.split(",") if m)
-    bad = [m for m in methods if m not in METHODS]
+    bad = [m for m in methods if m not in _FILL]
     if bad:
-        ap.error(f"--methods: unknown {', '.join(bad)} (one of {', '.join(METHODS)})")
+        ap.error(f"--methods: unknown {', '.join(bad)} (one of {', '.join(_FILL)})")
     rep = run(a.every, a.subjects, a.limit, methods, a.max_frames or None, not a.keep_glitches, a.fps)
     publish(rep, a.out, "studio")
     return 0

@@ -8,10 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from pipeline.errors import TweenError
-from pipeline.options import flags_of, job_args, option, with_options
-
-#: The longest --licence / --name recorded (characters).
-MAX_TEXT = 200
+from pipeline.options import MAX_TEXT, flags_of, job_args, one_line, option, with_options
 
 
 @dataclass
@@ -32,7 +29,7 @@ class LibraryBuildOptions:
         """Raises TweenError (one line naming the option) unless the recorded texts are one
         printable line: they go into library.json, every fill's record and ``library info``."""
         for flag, v in (("--licence", self.licence), ("--name", self.name)):
-            if v is not None and (not v.strip() or not v.isprintable() or len(v) > MAX_TEXT):
+            if v is not None and not one_line(v):
                 raise TweenError(
                     f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
                 )

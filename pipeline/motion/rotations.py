@@ -14,6 +14,10 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+#: A rotation quaternion this short or shorter is no rotation (a zeroed key); other lengths
+#: are normalised where motion is read, as a DCC's keys are (the USD reader, rig clips).
+QUAT_EPS = 1e-6
+
 
 def _flat(a: np.ndarray, tail: int) -> tuple[np.ndarray, tuple[int, ...]]:
     a = np.asarray(a)

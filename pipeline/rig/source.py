@@ -19,6 +19,7 @@ from pipeline.data.split import shared_data_dir
 from pipeline.errors import TweenError
 from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
+from pipeline.motion.rotations import QUAT_EPS
 from pipeline.motion.skeleton import Skeleton
 
 
@@ -194,16 +195,11 @@ def _check_values(path: Path, m: Motion) -> None:
     _check_quaternions(path, m.skeleton.names, rot)
 
 
-#: A rotation quaternion's length at or below which it is no rotation (the USD reader's rule:
-#: other lengths are normalised where the clip is read, as a DCC's keys are).
-ZERO_LENGTH = 1e-6  # pipeline.usd.read.QUAT_EPS
-
-
 def _check_quaternions(path: Path, names, rot: np.ndarray) -> None:
     """RigSourceError naming the first frame and joint whose quaternion is not a rotation
     (length 0, worded as the USD reader words it)."""
     n = np.linalg.norm(rot.astype(np.float64), axis=-1)
-    bad = n <= ZERO_LENGTH
+    bad = n <= QUAT_EPS
     if bad.any():
         t, j = (int(i[0]) for i in np.nonzero(bad))
         q = ", ".join(f"{x:g}" for x in rot[t, j])

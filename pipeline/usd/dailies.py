@@ -25,6 +25,7 @@ from pathlib import Path
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
 from pipeline.atomic import writable_folder
 from pipeline.errors import ShotError, TweenError
+from pipeline.options import one_line
 from pipeline.usd import files, write
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
@@ -251,7 +252,7 @@ def _check_approval_options(take, note: str | None, by: str | None) -> None:
         raise TweenError(f"--take {take!r}: expected a take number, 0 or more")
     if note is not None and "\0" in note:
         raise TweenError("--note: contains a NUL character")
-    if by is not None and (not by.strip() or len(by) > 200 or not by.isprintable()):
+    if by is not None and not one_line(by):
         raise TweenError(f"--by {by[:40]!r}: expected the reviewer's name (printable, 1 to 200 characters)")
 
 

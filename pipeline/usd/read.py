@@ -22,13 +22,12 @@ import numpy as np
 import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
 from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
-from pipeline.motion.rotations import matrix_to_quat
+from pipeline.motion.rotations import QUAT_EPS, matrix_to_quat
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
 from usd_schemas import tokens
 
 TIME_EPS = 1e-4  # time codes closer than this are the same frame (real files carry 3023.000157…)
-QUAT_EPS = 1e-6  # a rotation quaternion shorter than this is no rotation (a zeroed key)
 
 
 @dataclass

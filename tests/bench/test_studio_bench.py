@@ -62,3 +62,14 @@ def test_a_leading_glitch_frame_is_found_and_only_that():
     assert studio.leading_glitch(m) == 0
     m.root_positions[:5] += 500.0  # five frames 5 m away at the start: all five dropped
     assert studio.leading_glitch(m) == 5
+
+
+def test_studio_bench_curve_is_the_trusted_fills_curve_alone(tmp_path):
+    """``--methods curve``: the default model with ``--trust spline``, every gap the trusted
+    fill's curve (not the clamped spline), asked for by name only."""
+    argv = ["--subjects", "7", "--limit", "1", "--every", "10", "--max-frames", "90"]
+    assert studio.main([*argv, "--methods", "curve,spline", "--out", str(tmp_path)]) == 0
+    rep = json.loads((tmp_path / "studio.json").read_text())
+    take = next(iter(rep["per_take"]["10"].values()))["methods"]
+    assert take["curve"]["trust"]["choice"] == "spline" and "curve" not in studio.METHODS
+    assert take["curve"]["mapped_sum"] != take["spline"]["mapped_sum"]  # keys every 10: dense
