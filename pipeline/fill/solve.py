@@ -181,12 +181,12 @@ class OnRig:
         return _onto_rig(self.plan, self.cp, self.cp.retarget, self.fps, fill, self.m)
 
     def spline(self, spline, cuts=()) -> dict:
-        """``cuts``: the decision's, in model frames; the rig's spline takes the character's
-        jumps (the same key pairs, jump_gaps) in its own frames."""
+        """``cuts`` name the character's jumps in model frames; the rig's spline takes the
+        same key pairs in its own frames (jump_gaps at its rate)."""
         own, rate = OwnRig(self.cp.char), own_rate(self.plan.shot.tcps, self.cp.keys)
         motion, m = _keyed_motion(self.plan, self.cp, self.keyed, own, own.skeleton, rate)
-        extra = {"breaks": jump_gaps(self.cp, self.plan.shot.tcps, rate)} if len(cuts) else {}
-        return _onto_rig(self.plan, self.cp, own, rate, spline.fill(motion, m, **extra), m)
+        breaks = jump_gaps(self.cp, self.plan.shot.tcps, rate)
+        return _onto_rig(self.plan, self.cp, own, rate, spline.fill(motion, m, breaks=breaks), m)
 
     def blend(self, decision, model: dict | None, spline: dict | None) -> dict:
         if model is None or spline is None:

@@ -769,7 +769,7 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
 
     ``meet``: where the two fills meet, an object with ``model(fill)`` (the network's fill,
     a Motion on the model skeleton, carried there), ``spline(spline, cuts)`` (the spline's fill
-    there, ``cuts`` the decision's, in the motion's key frames) and ``blend(decision, model, spline)`` (either may be None: the other is the
+    there, ``cuts`` the keys' own, in the motion's key frames, whatever the trust) and ``blend(decision, model, spline)`` (either may be None: the other is the
     fill); :class:`OnSkeleton` by default. The fill layer meets them on the character's own
     rig (pipeline.fill.solve), where its spline is the animator's curves. The window benches
     run the same steps batched (:func:`trusted_fill_windows`: bit for bit this, shot for shot)."""
@@ -783,7 +783,7 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
         if d.weight > 0.0
         else None
     )
-    s = meet.spline(inb.spline, d.cuts) if d.weight < 1.0 else None
+    s = meet.spline(inb.spline, cuts) if d.weight < 1.0 else None  # the keys' cuts, whatever the trust
     return meet.blend(d, m, s)
 
 

@@ -107,6 +107,10 @@ def test_the_default_fill_gives_the_gaps_across_a_teleport_to_the_rigs_spline(tm
     assert np.allclose(got["rot"][across], spl["rot"][across], atol=1e-6)
     assert np.allclose(got["trans"][across], spl["trans"][across], atol=1e-4)
     assert not np.allclose(net["rot"][across], spl["rot"][across], atol=1e-3)
+    # --trust spline is the same curve, cuts and all: the cuts are the keys', not the decision's.
+    forced = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0, trust="spline")
+    assert np.array_equal(forced["rot"][across], got["rot"][across])
+    assert np.array_equal(forced["trans"][across], got["trans"][across])
     assert net["trust"]["cuts"] == []  # --trust model: the network, unchecked
 
 
