@@ -630,7 +630,7 @@ def spline_fill(spline, motion: Motion, keys, joint_keys=None, breaks=()) -> Mot
     """The spline's fill of a shot; with partial keys (``joint_keys``, (K, J + 1)) through the
     full keys, then each partial key's keyed channels matched as the model matches them
     (:func:`pipeline.infer.post.match_keys`), so both fills hold the same keys. ``breaks``:
-    the decision's cuts, (a, b) key frames, to a spline that takes them."""
+    the keys' cuts, (a, b) key frames, to a spline that takes them."""
     keys = np.asarray(keys, np.int64)
     extra = {"breaks": [tuple(c) for c in breaks]} if len(breaks) else {}
     if joint_keys is None or np.asarray(joint_keys, bool).all():
@@ -771,7 +771,7 @@ def trusted_fill(inb: TrustedInbetweener, motion: Motion, keys, seed: int = 0, j
     a Motion on the model skeleton, carried there), ``spline(spline, cuts)`` (the spline's fill
     there, ``cuts`` the keys' own, in the motion's key frames, whatever the trust) and ``blend(decision, model, spline)`` (either may be None: the other is the
     fill); :class:`OnSkeleton` by default. The fill layer meets them on the character's own
-    rig (pipeline.fill.solve), where its spline is the animator's curves. The window benches
+    rig (pipeline.fill.solve), where its spline is filled on the rig's own joints. The window benches
     run the same steps batched (:func:`trusted_fill_windows`: bit for bit this, shot for shot)."""
     keys = np.asarray(keys, np.int64)
     full = keys if joint_keys is None else keys[np.asarray(joint_keys, bool).all(axis=1)]

@@ -56,7 +56,7 @@ def train_rig(
         schedule=o.schedule,
         iters=o.iters,
         ratio=o.ratio,
-        contacts=[c.strip() for c in o.contacts.split(",") if c.strip()] if o.contacts else None,
+        contacts=o.contact_joints(),
         seed=o.seed,
         threads=o.threads,
         device=o.device,

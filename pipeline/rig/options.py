@@ -90,12 +90,16 @@ class TrainRigOptions:
                 raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
         check_device(self.device)
         parse_frames(self.frames)
-        if self.contacts is not None and not [c for c in self.contacts.split(",") if c.strip()]:
+        if self.contacts is not None and not self.contact_joints():
             raise TweenError(
                 f"--contacts {self.contacts!r}: names no joint (comma-separated joint names; "
                 "leave it out for the joints that touch the floor)"
             )
         return self
+
+    def contact_joints(self) -> list[str] | None:
+        """The joint names ``--contacts`` lists (None: not given, the joints that touch the floor)."""
+        return None if self.contacts is None else [c.strip() for c in self.contacts.split(",") if c.strip()]
 
     def as_job(self) -> dict:
         """The options a farm job carries (the ones set)."""
