@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.data.terms import commercial
 from pipeline.infer.folder import files_hash
 from pipeline.rig.source import portable_path
 from pipeline.rig.train import Trainer
@@ -82,9 +83,9 @@ def _export_levels(tr: Trainer, out: Path) -> list[str]:
 
 
 def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
-    """rig.json: the model's name and hash, skeleton, source clip, licence, levels, the
-    representation the levels read and write, its training (metrics kept from a previous
-    rig.json in ``out``)."""
+    """rig.json: the model's name and hash, skeleton, source clip, licence (with ``commercial``
+    and ``sources``), levels, the representation the levels read and write, its training
+    (metrics kept from a previous rig.json in ``out``)."""
     cfg, spec = tr.cfg, tr.spec
     sk = spec.skeleton
     names = list(sk.names)
@@ -117,6 +118,18 @@ def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
         },
         "licence": cfg.licence,
         "credit": cfg.credit,
+        # models/README.md: every model folder says whether its weights may be used
+        # commercially and what they learned from (here: the one clip).
+        "commercial": commercial([cfg.licence]),
+        "sources": [
+            {
+                "name": f"{tr.motion.name} ({portable_path(cfg.source)})",
+                "licence": cfg.licence,
+                "frames": int(tr.lengths[-1]),
+                "fps": float(spec.fps),
+                "use": "trained",
+            }
+        ],
         "files": {"levels": files},
         "levels": [
             {"file": f, "train_length": int(n), "noise_amplitude": float(a)}

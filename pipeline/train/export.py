@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -13,6 +12,7 @@ import torch
 
 from pipeline.data import posebank
 from pipeline.data.cache import load_split
+from pipeline.data.terms import commercial
 from pipeline.data.split import list_clips
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
@@ -190,11 +190,7 @@ def data_terms(config: dict) -> dict:
                 {"name": str(init), "licence": "not stated", "use": "inherited: initialised from it"}
             )
     licences = list(dict.fromkeys(s["licence"] for s in sources))
-    # Commercial use only where every source's terms are known to allow it.
-    commercial = not any(
-        re.search(r"\bNC\b|not stated|non-?commercial|research only", t, re.I) for t in licences
-    )
-    return {"licence": "; ".join(licences), "commercial": commercial, "sources": sources}
+    return {"licence": "; ".join(licences), "commercial": commercial(licences), "sources": sources}
 
 
 def _pose_bank(out_dir: Path, config: dict) -> str | None:

@@ -189,6 +189,13 @@ def test_rig_json_contract(tiny_model):
     assert np.allclose(meta["skeleton"]["offsets"], OFFSETS)
     assert meta["contact_joints"] == ["l_ankle", "r_ankle"] and meta["ik_joints"] == ["l_ankle", "r_ankle"]
     assert (out / "MODEL_CARD.md").read_text().count("walk") >= 1
+    # Every model folder states its terms (models/README.md): the clip's licence as --licence
+    # stated it ("test" rules nothing out; the guess "unknown (set --licence)" would).
+    assert meta["sources"] == [
+        {"name": meta["sources"][0]["name"], "licence": "test", "frames": meta["source"]["train_frames"],
+         "fps": meta["fps"], "use": "trained"}
+    ]  # fmt: skip
+    assert meta["commercial"] is True and "walk" in meta["sources"][0]["name"]
 
 
 def test_fill_keys_exact_and_seeds(tiny_model):
