@@ -59,6 +59,10 @@ def export(
     try:
         meta = do_export(run, stage.make(), name or out.resolve().name, settings)
         err = verify(run, stage.work)
+        if not err < float("inf"):
+            raise TweenError(
+                f"{run}: onnxruntime's output is not a finite number where torch's is; nothing was exported"
+            )
     except BaseException:
         stage.discard()  # a failed export leaves --out as it was
         raise

@@ -12,8 +12,8 @@ import torch
 
 from pipeline.data import posebank
 from pipeline.data.cache import load_split
-from pipeline.data.terms import commercial
 from pipeline.data.split import list_clips
+from pipeline.data.terms import commercial
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
 from pipeline.infer.folder import FORMAT, model_hash
@@ -24,14 +24,35 @@ from pipeline.usd.take import load_takes
 
 
 def _load(cls, cfg_cls, ckpt: Path, key="model"):
+    """The network of a run's checkpoint; TweenError naming it when its config does not
+    describe the network its weights are of, or a weight is not a finite number (a run that
+    diverged: its export would fill every frame with NaN)."""
     state = read_checkpoint(ckpt, "the run's checkpoint")
-    mcfg = state["config"]["model"]
-    if cfg_cls is GeneratorConfig:  # (the switches of retired experiments dropped)
-        cfg = GeneratorConfig.saved(mcfg, ckpt)
-    else:
-        cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
-    net = cls(cfg)
-    net.load_state_dict(state[key])
+    config = state["config"]
+    mcfg = config.get("model") if isinstance(config, dict) else None
+    if not isinstance(mcfg, dict):
+        raise TweenError(f"{ckpt}: the run's checkpoint: its config describes no network (no 'model' table)")
+    try:
+        if cfg_cls is GeneratorConfig:  # (the switches of retired experiments dropped)
+            cfg = GeneratorConfig.saved(mcfg, ckpt)
+        else:
+            cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
+        net = cls(cfg)
+        net.load_state_dict(state[key])
+    except (TypeError, ValueError, KeyError, RuntimeError) as e:
+        lines = [t.strip() for t in str(e).splitlines() if t.strip() and not t.strip().endswith(":")]
+        why = lines[0][:160] if lines else type(e).__name__  # torch's first line is only a heading
+        raise TweenError(
+            f"{ckpt}: the run's checkpoint: its weights are not those of the network its config describes ({why})"
+        ) from None
+    bad = [
+        n
+        for n, t in state[key].items()
+        if torch.is_tensor(t) and t.is_floating_point() and not t.isfinite().all()
+    ]
+    if bad:
+        which = f"weights {bad[0]} and {len(bad) - 1} more are" if len(bad) > 1 else f"weight {bad[0]} is"
+        raise TweenError(f"{ckpt}: the run's checkpoint: {which} not finite numbers (the run diverged)")
     net.eval()
     return net, cfg, state
 
@@ -226,6 +247,8 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
 def _gap(a: np.ndarray, b: np.ndarray, random: bool) -> float:
     """|a − b| at its largest, over max(1, |b|) at its largest for random inputs."""
     d = float(np.abs(a - b).max())
+    if not np.isfinite(d):  # max() would drop a NaN and pass the export
+        return float("inf")
     return d / max(1.0, float(np.abs(b).max())) if random else d
 
 

@@ -132,6 +132,33 @@ def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "studio_model"]  # no .partial, no .old
 
 
+def test_export_refuses_a_checkpoint_whose_weights_are_damaged(tmp_path, capsys):
+    import torch
+
+    run = tmp_path / "run"
+    succeeded(["train", "--out", run, *TINY], capsys)
+    good = torch.load(run / "generator.pt", weights_only=False)
+    bad = {
+        # a run that diverged: its ONNX would agree with torch "within 0" (NaN drops out of max)
+        "are not finite numbers (the run diverged)": {
+            **good, "model": {k: v * float("nan") if v.is_floating_point() else v for k, v in good["model"].items()}
+        },
+        "size mismatch for inp.conv.weight": {**good, "model": {**good["model"], "inp.conv.weight": torch.zeros(3)}},
+        "Missing key(s) in state_dict": {**good, "model": {}},
+        "its config describes no network": {**good, "config": {"model": "abc"}},
+    }  # fmt: skip
+    for i, (why, state) in enumerate(bad.items()):
+        damaged = tmp_path / f"damaged{i}"
+        damaged.mkdir()
+        torch.save(state, damaged / "generator.pt")
+        line = refused(["export", damaged, "--out", tmp_path / "new"], capsys, tmp_path)
+        assert (
+            line.startswith(f"tween: error: {damaged / 'generator.pt'}: the run's checkpoint: ")
+            and why in line
+        )
+        assert not (tmp_path / "new").exists() and not list(tmp_path.glob(".new*"))
+
+
 def test_a_failed_export_leaves_the_model_as_it_was(tmp_path, capsys, model_folder, monkeypatch):
     import pipeline.train.export as export
 
