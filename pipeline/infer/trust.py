@@ -423,6 +423,8 @@ def _describe_weights(gaps: list[dict]) -> str:
     return "per gap length: " + ", ".join(parts) + (", …" if len(gaps) > 4 else "")
 
 
+#: A probe error (cm) standing for a fill that is not finite: far beyond any pose's miss.
+LOST_CM = 1e6
 #: A decision without probes.
 UNCHECKED = "no probe possible (fewer than three keys): the model, unchecked"
 #: What a decision's reason adds for a model without the familiar credit (keyed by the credit).
@@ -440,6 +442,8 @@ def _decision(
 ) -> TrustDecision:
     if not probes:
         return TrustDecision("model", 1.0, None, None, [], UNCHECKED, None)
+    # A model whose probe fill is not finite lost that probe (the spline fills, never NaN).
+    em = np.where(np.isfinite(em), em, LOST_CM)
     lr = np.log((es + EPS_CM) / (em + EPS_CM))
     holes = [p.gap for p in probes]
     counted = np.ones_like(lr) if travel is None else alias_weights(es, travel, holes)

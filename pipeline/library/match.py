@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.library.store import LibraryError
 from pipeline.motion.rotations import (
     batch_quat_apply,
     batch_quat_conj,
@@ -33,6 +34,9 @@ from pipeline.motion.rotations import (
     slerp_pairs,
 )
 
+#: What a library array that is not finite numbers says (checked where the search reads it,
+#: not on opening: that would read every frame of a 10-hour library for each fill).
+DAMAGED = "not finite numbers (the library is damaged; build it again)"
 #: Windows fitted and averaged per gap.
 BEST = 8
 #: Windows of least pose miss whose travel terms are computed.
@@ -91,6 +95,8 @@ def key_distances(lib, feats: np.ndarray) -> np.ndarray:
         np.maximum(d, 0.0, out=d)
         out[:, s : s + FRAME_BLOCK] = d.T
     out /= joints
+    if not np.isfinite(out).all():  # else those frames would drop out of every search unsaid
+        raise LibraryError(f"{lib.folder / 'features.bin'}: {DAMAGED}")
     return out
 
 
@@ -177,6 +183,8 @@ def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, tu
     cost = 2.0 * ctx_cm if context and CONTEXT_WEIGHT else 2.0 * pose_cm
     cost = cost + DISP_WEIGHT * np.linalg.norm(disp - travel, axis=1)
     cost += TURN_WEIGHT * np.abs(wrap_angle(lib_turn - turn))
+    if not np.isfinite(cost).all():
+        raise LibraryError(f"{lib.folder / 'roots.bin'} or facing.bin: {DAMAGED}")
     order = np.argsort(cost, kind="stable")[:best]
     if SOFTMIN_CM:
         w = np.exp(-(cost[order] - cost[order[0]]) / SOFTMIN_CM)
@@ -193,6 +201,8 @@ def fit_window(lib, s: int, n: int, key_rot: np.ndarray, key_root: np.ndarray,
     ends up to rounding. ``key_face``: key a's facing turn (4,)."""
     rot = np.array(lib.rotations[s : s + n + 1], np.float64)
     root = np.array(lib.roots[s : s + n + 1], np.float64)
+    if not (np.isfinite(rot).all() and np.isfinite(root).all()):
+        raise LibraryError(f"{lib.folder / 'rotations.bin'} or roots.bin, frames {s}-{s + n}: {DAMAGED}")
     # Turn the window to face as key a does and stand where it stands.
     align = batch_quat_mul(batch_quat_conj(key_face), np.asarray(lib.facing[s], np.float64))
     rot[:, 0] = batch_quat_mul(np.broadcast_to(align, rot[:, 0].shape), rot[:, 0])

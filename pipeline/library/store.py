@@ -102,7 +102,12 @@ class Library:
 
     @cached_property
     def take_end(self) -> np.ndarray:
-        return self.array("take_end")
+        """(F,) int32: index of the last frame of each frame's take, from the manifest's takes
+        (checked to tile the frames on opening), not take_end.bin: a damaged one would let
+        windows run across takes."""
+        takes = self.manifest["takes"]
+        ends = np.array([t["start"] + t["frames"] - 1 for t in takes], np.int32)
+        return np.repeat(ends, [int(t["frames"]) for t in takes])
 
     @cached_property
     def take_start(self) -> np.ndarray:

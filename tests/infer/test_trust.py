@@ -44,6 +44,8 @@ class StandIn:
         self.calls += 1
         self.frames.append(rot.shape[1])
         rot, root = np.array(rot), np.array(root)
+        if self.mode == "nan":  # a broken network (a damaged export): NaN between the keys
+            rot[:, np.setdiff1d(np.arange(rot.shape[1]), keys)] = np.nan
         if self.mode == "noise":
             free = np.setdiff1d(np.arange(rot.shape[1]), keys)
             n = rot.shape[0] * len(free) * rot.shape[2]
@@ -104,6 +106,16 @@ def test_picks_the_model_that_fills_well_and_the_spline_over_garbage(walk):
     assert bad.choice == "spline" and bad.weight == 0.0
     assert bad.model_error_cm > 10 * bad.spline_error_cm
     assert len(bad.probes) == len(trust.probe_plan(PROTOCOL_KEYS)) and bad.reason
+
+
+def test_a_model_that_fills_nan_loses_its_probes_to_the_spline(walk):
+    """Not a NaN weight, which blended neither fill (an internal error in the fill layer)."""
+    inb = trust.TrustedInbetweener(StandIn("nan"), SplineInbetweener())
+    out = inb.fill(walk, PROTOCOL_KEYS)
+    d = inb.last_decision
+    assert d.choice == "spline" and d.weight == 0.0 and np.isfinite(d.score)
+    assert np.isfinite(out.rotations).all() and keys_equal(out, walk, PROTOCOL_KEYS)
+    json.dumps(d.to_json(), allow_nan=False)  # the fill's JSON and layer record stay JSON
 
 
 def test_trusted_fill_follows_the_decision_and_keeps_keys_bitwise(walk):

@@ -166,6 +166,53 @@ def test_a_broken_library_is_one_line_naming_it(library, tmp_path, damage, messa
     assert "\n" not in str(e.value) and str(copy) in str(e.value)
 
 
+def _overwrite(name: str, value):
+    def damage(folder):
+        f = folder / f"{name}.bin"
+        dtype = np.dtype(ARRAYS[name][0])
+        f.write_bytes(np.full(f.stat().st_size // dtype.itemsize, value, dtype).tobytes())
+
+    return damage
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (_overwrite("rotations", np.nan), "rotations.bin or roots.bin, frames"),
+        (_overwrite("roots", np.inf), "roots.bin"),
+        (_overwrite("features", np.nan), "features.bin"),
+    ],
+)
+def test_library_arrays_that_are_not_numbers_are_one_line_naming_the_file(
+    library, takes, tmp_path, damage, message
+):
+    """Damage inside the arrays (their sizes right): named where the search reads them, never
+    a fill of NaN (which the trusted fill's probes turned into an internal error)."""
+    copy = tmp_path / "lib"
+    shutil.copytree(library, copy)
+    damage(copy)
+    m = read_bvh(takes / BANDAI[0]).continuous().slice(0, 61)
+    with pytest.raises(LibraryError, match=message) as e:
+        LibraryInbetweener(copy).fill(m, np.r_[0:61:10])
+    assert str(e.value).startswith(str(copy)) and str(e.value).endswith(
+        "not finite numbers (the library is damaged; build it again)"
+    )
+
+
+def test_a_damaged_take_end_file_changes_nothing(library, takes, tmp_path):
+    """Where each take ends comes from the manifest (checked to tile the frames), so windows
+    never run across takes whatever take_end.bin holds."""
+    copy = tmp_path / "lib"
+    shutil.copytree(library, copy)
+    _overwrite("take_end", 2**30)(copy)
+    m = read_bvh(takes / BANDAI[0]).continuous().slice(0, 151)
+    keys = np.r_[0:151:10]
+    a, b = LibraryInbetweener(library).fill(m, keys), LibraryInbetweener(copy).fill(m, keys)
+    assert np.array_equal(a.rotations, b.rotations) and np.array_equal(a.root_positions, b.root_positions)
+    ends = open_library(copy).take_end
+    assert ends.max() == open_library(copy).frames - 1 and np.all(np.diff(ends) >= 0)
+
+
 def test_a_take_of_the_library_comes_back_from_its_keys(library, takes):
     """The library holds the very take: every gap finds its own stretch, fitted to the keys."""
     inb = LibraryInbetweener(library)
