@@ -11,6 +11,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.staging import refuse_read_only
 from pipeline.usd.write import check_review, latest_review, made_layer, review_of
 from render.review import render_review
 from render.scene import list_takes
@@ -130,9 +131,12 @@ def review(
         raise TweenError(f"--framing {framing!r}: must be follow or fixed (and agree with --camera {camera})")
     if all_takes and take is not None:
         raise TweenError("--all-takes: give --take N or --all-takes, not both")
+    if out is not None and not out.strip():
+        raise TweenError("--out '': give a folder (without --out: ./review/<shot>)")
 
     given, (shot, said) = shot, _latest_fill(shot, fills)
     out_dir = out or str(Path("review") / Path(shot).name.split(".")[0])
+    refuse_read_only(out_dir, "--out")  # a published folder stays untouched, even for root
     takes = [take]
     if all_takes:
         takes = (list_takes(shot) if Path(shot).exists() else []) or [None]

@@ -47,6 +47,12 @@ class _Fixed:
         self.inv = np.round((1.0 - np.clip(src[..., 3:4], 0, 1)) * 256).astype(np.uint16)
         self._rgba = None
 
+    def crop(self, h: int, w: int) -> _Fixed:
+        """The top-left ``h`` × ``w`` of the layer (what fits where the frame ends)."""
+        out = object.__new__(_Fixed)
+        out.rgb, out.inv, out._rgba = self.rgb[:h, :w], self.inv[:h, :w], None
+        return out
+
     def rgba(self) -> tuple[np.ndarray, np.ndarray]:
         if self._rgba is None:
             h, w = self.rgb.shape[:2]
@@ -67,6 +73,8 @@ def _over(dst: np.ndarray, src) -> None:
     view, with the same result on the colour: (dst * inv + rgb + 128) >> 8.
     """
     layer = _Fixed(src) if isinstance(src, np.ndarray) else src
+    if layer.rgb.shape[:2] != dst.shape[:2]:  # a frame smaller than the burn-in (--size 32x16)
+        layer = layer.crop(*dst.shape[:2])
     if dst.shape[-1] == 4:
         add4, inv4 = layer.rgba()
         acc = np.multiply(dst, inv4, dtype=np.uint16)

@@ -22,6 +22,7 @@ import pipeline.usd  # noqa: F401
 from pipeline.atomic import writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
+from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
 
 VARIANT_SET = tokens.TAKE_VARIANT_SET
@@ -93,9 +94,13 @@ def check_review(review: str | Path) -> None:
     """ShotError unless every layer a review layer stacks (its fill, the shot) is there: USD
     composes without a missing sublayer, so the review would show the shot unfilled, or a
     fill with no character under it."""
-    from pxr import Sdf
+    from pxr import Sdf, Tf
 
-    layer = Sdf.Layer.OpenAsAnonymous(str(review))
+    try:
+        with usd_diagnostics(fold=False):
+            layer = Sdf.Layer.OpenAsAnonymous(str(review))
+    except Tf.ErrorException as e:
+        raise ShotError(str(review), f"cannot read the review layer: {error_text(e, str(review))}") from None
     if layer is None:
         return  # not a layer USD reads: opening the stage names it
     for sub in layer.subLayerPaths:

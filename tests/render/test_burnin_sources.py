@@ -85,3 +85,17 @@ def test_a_network_shipped_beside_is_named_where_the_probes_chose_it():
         )
         == "model"
     )
+
+
+def test_burn_ins_fit_the_smallest_frames_the_cli_accepts():
+    """--size takes even sides from 16: the KEY badge (four font widths) and the panels' labels
+    were wider or taller than such frames (a broadcast error, exit 1). What fits is drawn."""
+    facts = {"model": "m", "trust_gaps": [[0, 10]], "trust_gap_weights": [0.5]}
+    for w, h in ((16, 16), (32, 16), (16, 540), (40, 16)):
+        for labels in (None, ["fill", "spline"]):
+            burn = BurnIn((w, h), "sh010", facts, 30.0, panel_labels=labels)
+            for frame, key in ((0, True), (5, False)):
+                for channels in (3, 4):
+                    img = np.full((h, w, channels), 77, np.uint8)
+                    burn.apply(img, frame, key)
+                    assert img.shape == (h, w, channels) and (img[..., :3] != 77).any()

@@ -66,6 +66,36 @@ def test_a_latest_fill_without_its_review_layer_is_refused(tmp_path):
     assert "sh070.tween.v002.usda: its review layer" in err and "sh070.review.v002.usda is not there" in err
 
 
+def test_a_review_layer_usd_cannot_read_is_one_line_naming_it(tmp_path):
+    shot, _, review = _filled(tmp_path)
+    review.write_text("garbage\n")
+    for given in (shot, review):  # found as the latest fill's, or named
+        err = _refused(tmp_path, given)
+        assert (
+            err.startswith(f"tween: error: {review}: cannot read the review layer: ") and "not a valid" in err
+        )
+
+
+def test_a_read_only_or_empty_out_is_refused_before_anything_renders(tmp_path):
+    """Read-only by its mode bits counts even for root (the media went in): as every command."""
+    shot, _, _ = _filled(tmp_path)
+    ro = tmp_path / "published"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        for out, says in (
+            (ro, f"{ro}: --out is read-only"),
+            (ro / "sub", f"--out is in {ro}, which is read-only"),
+        ):
+            r = _review(tmp_path, shot, "--out", out)
+            assert r.returncode == 2 and r.stderr.count("\n") == 1 and says in r.stderr, r.stderr
+        assert not list(ro.iterdir())
+    finally:
+        ro.chmod(0o755)
+    r = _review(tmp_path, shot, "--out", "")
+    assert r.returncode == 2 and r.stderr.startswith("tween: error: --out '': give a folder"), r.stderr
+
+
 def test_a_fill_layer_is_reviewed_through_its_review_layer(tmp_path):
     shot, layer, review = _filled(tmp_path)
     r = _review(tmp_path, layer, "--take", 1, "--out", tmp_path / "media")
