@@ -25,7 +25,7 @@ try:  # typer 0.2x carries its own copy of click
 except ImportError:  # older typer uses click itself
     from click.exceptions import BadParameter, ClickException, UsageError
 
-from pipeline.errors import TweenError
+from pipeline.errors import TweenError, printable
 
 
 def _usage_line(e: ClickException) -> str:
@@ -54,8 +54,9 @@ def _os_error_line(e: OSError) -> str | None:
 
 
 def _shown(line: str) -> str:
-    """``line`` as stderr can always write it: a path that is not UTF-8 (surrogates) escaped."""
-    return line.encode("utf-8", "backslashreplace").decode("utf-8")
+    """``line`` as stderr can always write it, on one line: a path that is not UTF-8
+    (surrogates) escaped, and control characters (a file name holding a newline)."""
+    return printable(line.encode("utf-8", "backslashreplace").decode("utf-8"))
 
 
 def _log_bug(e: BaseException, logs: Path | None, argv: list[str] | None = None) -> str:
@@ -143,13 +144,13 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
             if text.strip():
                 typer.echo(text)
         else:
-            print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
+            print(_shown(f"tween: error: {_usage_line(e)}"), file=sys.stderr)
         sys.exit(2)
     except TweenError as e:
         print(_shown(f"tween: error: {e}"), file=sys.stderr)
         sys.exit(2)
     except ClickException as e:
-        print(f"tween: error: {_usage_line(e)}", file=sys.stderr)
+        print(_shown(f"tween: error: {_usage_line(e)}"), file=sys.stderr)
         sys.exit(2)
     except (KeyboardInterrupt, typer.Abort) as e:
         if isinstance(e.__context__, EOFError):  # click turns an EOFError into Abort
@@ -162,7 +163,7 @@ def run(app: typer.Typer, argv: list[str] | None = None, prog: str = "tween", lo
         if line is None:
             print(_bug_line(e, log_dir, argv), file=sys.stderr)
             sys.exit(1)
-        print(f"tween: error: {line}", file=sys.stderr)
+        print(_shown(f"tween: error: {line}"), file=sys.stderr)
         sys.exit(2)
     except Exception as e:
         print(_bug_line(e, log_dir, argv), file=sys.stderr)
@@ -186,7 +187,7 @@ def run_main(main, argv: list[str] | None = None, log_dir: Path | None = None):
         sys.exit(130)
     except OSError as e:
         line = _os_error_line(e)
-        print(f"tween: error: {line}" if line else _bug_line(e, log_dir, argv), file=sys.stderr)
+        print(_shown(f"tween: error: {line}") if line else _bug_line(e, log_dir, argv), file=sys.stderr)
         sys.exit(2 if line else 1)
     except Exception as e:
         print(_bug_line(e, log_dir, argv), file=sys.stderr)

@@ -1,6 +1,13 @@
 """Errors the user can act on: one line naming the file (and line or prim) and the problem."""
 
 
+def printable(text) -> str:
+    """``text`` as one printable line: control characters (a newline or an escape code in a
+    file name) written as Python writes them (``\\n``, ``\\x1b``), the rest as it is."""
+    text = str(text)
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class TweenError(Exception):
     """Base of every error the CLI reports as a one-line message with a non-zero exit."""
 

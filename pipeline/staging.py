@@ -73,8 +73,11 @@ def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path
     """Raises TweenError when ``path`` cannot be written in: ``folder`` if given, else the
     folder ``path`` is (or, not made yet, the nearest one above it that exists; a file's
     folder). Read-only by its mode bits counts even for root: a published folder stays
-    untouched, as ``tween convert`` and ``tween fill`` keep it."""
+    untouched, as ``tween convert`` and ``tween fill`` keep it. A symbolic link that leads
+    nowhere is refused too (making the folder would fail with "File exists")."""
     path = Path(path)
+    if os.path.islink(path) and not os.path.exists(path):  # else "File exists" when made
+        raise TweenError(f"{path}: {option} is a symbolic link that leads nowhere (to nothing, or in a loop)")
     probe = Path(os.path.abspath(folder if folder is not None else path))
     while not probe.is_dir() and probe != probe.parent:
         probe = probe.parent

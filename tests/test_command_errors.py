@@ -45,6 +45,14 @@ def test_an_error_the_user_can_act_on_is_one_line_exit_2(tmp_path, capsys):
     assert code == 2 and err == "tween: error: shot.usda /World/Skel: no SkelAnimation\n"
 
 
+def test_an_error_naming_a_file_with_a_newline_or_escape_code_stays_one_line(tmp_path, capsys):
+    def fail(path):
+        raise ShotError("takes/bad\nname\x1b[31m.bvh", "expected HIERARCHY")
+
+    code, err = _run(_app(fail), ["go"], tmp_path, capsys)
+    assert code == 2 and err == "tween: error: takes/bad\\nname\\x1b[31m.bvh: expected HIERARCHY\n"
+
+
 @pytest.mark.parametrize(
     "exc, line",
     [

@@ -20,10 +20,15 @@ def _writable_folder(option: str, out: Path, probe: Path) -> None:
         raise TweenError(f"{option} {out}: cannot write there{where}")
 
 
-def _existing(path: Path) -> Path:
-    """``path``, or the nearest folder above it that exists."""
+def _existing(path: Path, option: str = "--out") -> Path:
+    """``path``, or the nearest folder above it that exists; a symbolic link on the way that
+    leads nowhere is refused (making the folder would fail with "File exists")."""
     probe = path
     while not probe.exists() and probe != probe.parent:
+        if os.path.islink(probe):
+            raise TweenError(
+                f"{option} {path}: {probe} is a symbolic link that leads nowhere (to nothing, or in a loop)"
+            )
         probe = probe.parent
     return probe
 
@@ -32,7 +37,7 @@ def check_out_folder(out: Path, option: str = "--out") -> None:
     """A folder the bench may create (with its parents) and write files in; else a one-line
     TweenError naming ``option`` and the path. Creates nothing."""
     out = Path(out)
-    _writable_folder(option, out, _existing(out))
+    _writable_folder(option, out, _existing(out, option))
 
 
 def check_out_file(out: Path, option: str = "--out") -> None:
@@ -43,4 +48,4 @@ def check_out_file(out: Path, option: str = "--out") -> None:
         raise TweenError(f"{option} {out}: is a folder; give a file name (e.g. {out / 'farm.json'})")
     if out.exists() and not os.access(out, os.W_OK):
         raise TweenError(f"{option} {out}: the file is read-only")
-    _writable_folder(option, out, _existing(out.parent))
+    _writable_folder(option, out, _existing(out.parent, option))

@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
-from pipeline.errors import TweenError
+from pipeline.errors import TweenError, printable
 from pipeline.library.match_features import contacts, frame_features
 from pipeline.library.store import (
     ARRAYS,
@@ -153,8 +153,8 @@ def _add_takes(writer: Writer, bar, n: int, manifest: dict, licence, mirror: boo
         try:
             motion, rig, arrays = _read_take(path)
         except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
-            msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-            line = msg if str(path) in msg else f"{path}: {msg}"
+            msg = printable(str(e).strip() or type(e).__name__)  # a name with a newline: one line
+            line = msg if printable(path) in msg else f"{printable(path)}: {msg}"
             failed.append({"file": str(path), "why": msg})
             # Said once a take has been read: until then a folder of nothing readable is
             # refused in one line that names its first bad take.

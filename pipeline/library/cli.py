@@ -9,6 +9,7 @@ from pathlib import Path
 
 import typer
 
+from pipeline.errors import printable
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.library.store import open_library
 
@@ -62,13 +63,7 @@ def info_command(library: Path = typer.Argument(..., help="A library folder.")):
     lib = open_library(library)
     typer.echo(lib.describe())
     for t in lib.manifest["takes"]:  # a file name may hold a newline: one take, one line
-        typer.echo(f"  {_line(t['name'])}: {t['frames']} frames ({_line(t.get('rig', ''))})")
-
-
-def _line(text) -> str:
-    """``text`` as one printable line (control characters escaped, as Python writes them)."""
-    text = str(text)
-    return text if text.isprintable() else repr(text)[1:-1]
+        typer.echo(f"  {printable(t['name'])}: {t['frames']} frames ({printable(t.get('rig', ''))})")
 
 
 def register(app: typer.Typer) -> None:

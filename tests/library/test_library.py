@@ -532,3 +532,9 @@ def test_info_shows_one_line_a_take_and_build_refuses_texts_that_are_not_one_lin
     succeeded(["library", "build", odd, "--out", out, "--licence", "CC BY 4.0", "--no-progress"], capsys)
     shown = succeeded(["library", "info", out], capsys).splitlines()
     assert len(shown) == 2 and "walk\\nrun" in shown[1], shown
+    # A take that cannot be read, named with a newline: the error is one line, and says why.
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "bad\nname.bvh").write_text("junk\n")
+    line = refused(["library", "build", bad, "--out", tmp_path / "lib2", "--no-progress"], capsys, tmp_path)
+    assert line.endswith("bad\\nname.bvh:1: expected HIERARCHY at the start of the file)"), line
