@@ -186,30 +186,44 @@ def publish(
     tracker_map: Path = typer.Option(None, "--tracker-map", help=TRACKER_MAP_HELP),
 ):
     """Dailies: write the approved take as a plain animation layer over the shot (no variants)."""
+    from pipeline.usd.dailies import AlreadyPublished
     from pipeline.usd.dailies import publish as publish_take
 
-    # The tracker's settings and the mapping are checked before anything is written.
+    # The tracker's settings, the mapping and what it is sent (the approved take's MP4) are
+    # checked before anything is written: a layer published for a take that cannot be sent
+    # was refused by the next try ("already exists").
     sink, mapping = _tracker(tracker, tracker_map)
-    r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
-    print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
-    typer.echo(r["layer"])
+    approved = None if sink is None else _approved(shot, out_dir, mapping)
+    try:
+        r = publish_take(str(shot), fmt=fmt, dest=out, out_dir=str(out_dir) if out_dir else None)
+    except AlreadyPublished as e:
+        if sink is None:
+            raise
+        # Published by an earlier try whose send failed (the tracker was down): send it now.
+        print(f"tween: {e.path}: published already; sending its take", file=sys.stderr)
+    else:
+        print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
+        typer.echo(r["layer"])
     if sink is not None:
-        sent = _send(shot, out_dir, sink, mapping)
+        sent = {"tracker": sink.name, "sequence": approved.sequence, "shot": approved.shot,
+                "take": approved.take, **sink.send(approved)}  # fmt: skip
         print(f"tween: sent take {sent['take']} to {sent['tracker']}: {sent['sequence']}/{sent['shot']}"
               f", status {sent.get('status')}", file=sys.stderr)  # fmt: skip
 
 
-def _send(shot: Path, out_dir: Path | None, sink, mapping: dict | None) -> dict:
-    """Sends the approved take of ``shot``'s latest fill (its MP4 in ``review/`` beside the
-    fills, where the farm renders it) to the tracker ``sink``."""
-    from dailies.tracker import send
+def _approved(shot: Path, out_dir: Path | None, mapping: dict | None):
+    """The approved take of ``shot``'s latest fill with its MP4 (in ``review/`` beside the
+    fills, where the farm renders it), as a tracker is sent it; one line saying what is
+    missing."""
+    from dailies.shots import find
+    from dailies.tracker import approved_take
     from pipeline.usd.write import default_out_dir, shot_stem
 
     folder = Path(out_dir) if out_dir else default_out_dir(str(shot))
-    try:
-        return send([folder.resolve()], f"0/{shot_stem(str(shot))}", sink, mapping)
-    except LookupError:
-        raise TweenError(f"{shot}: no fill of it in {folder}") from None
+    found = find([folder.resolve()], f"0/{shot_stem(str(shot))}") if folder.is_dir() else None
+    if found is None:
+        raise TweenError(f"{shot}: no fill of it in {folder}")
+    return approved_take(found, mapping)
 
 
 def register(app: typer.Typer) -> None:

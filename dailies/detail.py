@@ -125,7 +125,8 @@ def _timeline(path: Path) -> dict:
 def media(shot: Shot, n: int, takes: list[int]) -> dict[int, dict]:
     """Per take: its MP4 and contact sheet (paths, None when not rendered), frame range, rate.
 
-    The farm renders into ``<fills>/review/<stem>_vNNN[_takeN].mp4`` beside its ``.otio``."""
+    The farm renders into ``<fills>/review/<stem>_vNNN[_takeN].mp4`` beside its ``.otio``; an
+    approval's version shows its fill's renders, or its own where it was rendered itself."""
     src = rendered_version(shot, n)
     folder = shot.folder / "review"
     base = f"{shot.stem}_v{src:03d}"
@@ -135,6 +136,10 @@ def media(shot: Shot, n: int, takes: list[int]) -> dict[int, dict]:
         tr = tracks.get(t, {})
         names = [tr.get("mp4")] if tr.get("mp4") else []
         names += [f"{base}_take{t}.mp4"] + ([f"{base}.mp4"] if len(takes) == 1 else [])
+        if src != n:  # the approved version rendered itself (`tween review` after `tween approve`)
+            names += [f"{shot.stem}_v{n:03d}_take{t}.mp4"] + (
+                [f"{shot.stem}_v{n:03d}.mp4"] if len(takes) == 1 else []
+            )
         mp4 = next((folder / m for m in names if m and (folder / m).is_file()), None)
         sheet = mp4.with_name(mp4.stem + "_contact.png") if mp4 else None
         rate = tr.get("rate") or [0, 1]

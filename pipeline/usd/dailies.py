@@ -437,6 +437,14 @@ def _author_published(layer, src, path: Path, final: Path, anims: list[tuple], t
                 raise TweenError(f"{final}: cannot copy {a.path}")
 
 
+class AlreadyPublished(TweenError):
+    """The approved take's published layer is there already (it is never overwritten)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        super().__init__(f"{path}: already exists; a published layer is never overwritten")
+
+
 def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = None) -> dict:
     """Writes the approved take of the shot's latest fill layer as a plain animation layer
     (see the module doc); returns {"layer", "of", "take", "format", "animations"}. Never
@@ -454,7 +462,7 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     n, path, src, d = _approved_latest(shot, out, stem)
     final, fmt = _publish_path(shot, out, stem, n, fmt, dest)
     if final.exists():
-        raise TweenError(f"{final}: already exists; a published layer is never overwritten")
+        raise AlreadyPublished(final)
     if not writable_folder(final.parent):
         raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
     stage = open_stage(shot)
@@ -479,6 +487,6 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
         del layer
     with files.saving(final, tmp):
         if not files.link_new(tmp, final):
-            raise TweenError(f"{final}: already exists; a published layer is never overwritten")
+            raise AlreadyPublished(final)
     return {"layer": str(final), "of": str(path), "take": take, "format": fmt,
             "animations": [str(o) for _, _, o in anims]}  # fmt: skip

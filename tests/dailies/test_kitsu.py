@@ -130,10 +130,20 @@ def test_publish_from_the_shell_sends_the_take(kitsu, task, tmp_path):
     r = subprocess.run([*run, "approve", str(made["shot"]), "--take", "0", "--note", "contact fixed"],
                        env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stderr
+    # The tracker down: the layer is published, the take not sent; the next try sends it (it
+    # was refused: "already exists; never overwritten").
+    down = {**env, "TWEEN_KITSU_URL": "http://127.0.0.1:1/api"}
+    r = subprocess.run([*run, "publish", str(made["shot"]), "--tracker", "kitsu"], env=down, capture_output=True,
+                       text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.splitlines()[-1].startswith("tween: error: "), r.stderr
+    layer = r.stdout.strip()
+    assert layer.endswith("sq01_sh030.publish.v002.usda") and os.path.isfile(layer)
+    written = os.stat(layer).st_mtime_ns
     r = subprocess.run([*run, "publish", str(made["shot"]), "--tracker", "kitsu"], env=env, capture_output=True,
                        text=True, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr
-    assert r.stdout.strip().endswith("sq01_sh030.publish.v002.usda") and os.path.isfile(r.stdout.strip())
+    assert f"{layer}: published already; sending its take" in r.stderr and r.stdout == "", r.stderr
+    assert os.stat(layer).st_mtime_ns == written  # never overwritten
     assert "sent take 0 to kitsu: sq01/sh030" in r.stderr, r.stderr
     previews = gazu.files.get_all_preview_files_for_task(sh, client=k)
     assert len(previews) == 1
@@ -174,3 +184,10 @@ def test_names_and_settings(tmp_path, monkeypatch):
                        text=True, timeout=120, env=clean)  # fmt: skip
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "kitsu: not configured" in r.stderr, r.stderr
     assert sorted(p.name for p in (tmp_path / "sq01").iterdir()) == before  # nothing published
+    # ... and that the approved take has an MP4 to send (this shot was never rendered).
+    configured = {**clean, "TWEEN_KITSU_URL": "http://127.0.0.1:1/api", "TWEEN_KITSU_USER": "a",
+                  "TWEEN_KITSU_PASSWORD": "b", "TWEEN_KITSU_PROJECT": "p"}  # fmt: skip
+    r = subprocess.run([*run, "publish", str(made["shot"]), "--tracker", "kitsu"], capture_output=True,
+                       text=True, timeout=120, env=configured)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "has no review MP4" in r.stderr, r.stderr
+    assert sorted(p.name for p in (tmp_path / "sq01").iterdir()) == before
