@@ -130,7 +130,7 @@ def bench(
 ):
     """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
     # Long because of its option declarations; each kind of bench runs in a function of its own.
-    from pipeline.bench.heldout import parse_source
+    from pipeline.bench.heldout import cmu_files, parse_source
     from pipeline.bench.methods import check_methods
 
     # Everything is checked before any data is read (a cold cache reads the train split for minutes).
@@ -141,7 +141,9 @@ def bench(
         raise TweenError(f"--limit {limit}: must be 1 or more")
     if not 0.0 <= posture <= 180.0:  # NaN fails too
         raise TweenError(f"--posture {posture}: must be from 0 to 180 degrees")
-    parse_source(source)
+    name, subjects = parse_source(source)
+    if name == "cmu" and subjects:  # cmu:99: said now, not once the train statistics are read
+        cmu_files(subjects)
     given = {"--limit": limit is not None, "--mirrored": mirrored, "--posture": posture > 0}
     given |= {"--source": source != "eval", "--keys-every": keys_every != 10}
     modes = {"--partial-keys": partial_keys, "--long-gaps": long_gaps, "--rig-variants": rig_variants}

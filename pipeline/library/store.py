@@ -187,12 +187,12 @@ def _check_manifest(path: Path, m: dict) -> None:
         raise LibraryError(f"{path}: {what} (the manifest is damaged; build the library again)")
 
     fps = m.get("fps")
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e4:
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 1 <= fps < 1e4:
         bad(f"'fps' is {fps!r}, not a frame rate")
     if not isinstance(m.get("hash"), str) or not m["hash"]:
         bad(f"'hash' is {m.get('hash')!r}, not a string")
     hours = m.get("hours")
-    if isinstance(hours, bool) or not isinstance(hours, (int, float)) or not hours >= 0:
+    if isinstance(hours, bool) or not isinstance(hours, (int, float)) or not 0 <= hours < 1e6:
         bad(f"'hours' is {hours!r}, not a number of hours")
     for key in ("name", "licence"):
         if m.get(key) is not None and not isinstance(m[key], str):

@@ -57,6 +57,14 @@ def test_bench_with_too_few_clips_for_a_window_is_a_one_line_error(tmp_path):
         assert "Traceback" not in res.stderr and not out.exists()
 
 
+def test_a_source_naming_no_takes_is_refused_before_any_data_is_read(tmp_path):
+    """cmu:99 was said after the train statistics were read, below a progress line."""
+    res = subprocess.run([sys.executable, "-m", "pipeline.cli", "bench", "--methods", "interp", "--source", "cmu:99",
+                          "--out", str(tmp_path / "b")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith("tween: error: ") and "no CMU takes of subjects 99" in res.stderr
+
+
 def test_spline_bench_method_is_the_product_spline_through_context_and_target():
     rng = np.random.default_rng(0)
     n, c, J, T = 3, 10, 21, 30

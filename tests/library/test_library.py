@@ -148,6 +148,8 @@ def _edit_take(**change):
         (_edit(fps="thirty"), "'fps' is 'thirty', not a frame rate"),
         (_edit(fps=0), "'fps' is 0, not a frame rate"),
         (_edit(fps=float("nan")), "'fps' is nan, not a frame rate"),
+        (_edit(fps=1e-300), "'fps' is 1e-300, not a frame rate"),
+        (_edit(hours=float("inf")), "'hours' is inf, not a number of hours"),
         (_edit(hash=5), "'hash' is 5, not a string"),
         (_edit(licence=7), "'licence' is 7, not a string"),
         (_edit(takes=[]), "its takes hold 0 frames, its 'frames' says"),
