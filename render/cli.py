@@ -11,7 +11,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.staging import refuse_read_only
+from pipeline.outputs import refuse_read_only
 from pipeline.usd.write import check_review, latest_review, made_layer, review_of
 from render.review import render_review
 from render.scene import list_takes

@@ -18,7 +18,8 @@ LAYERS = {
     "pipeline.atomic": 0,  # a file replaced whole or not at all
     "pipeline.arguments": 1,  # argparse whose errors are one line (the python -m entry points)
     "pipeline.progress": 0,  # how often a progress bar redraws (a terminal, a log file)
-    "pipeline.staging": 1,  # model folders made beside their destination, moved in when complete
+    "pipeline.outputs": 1,  # where a command writes, checked before it writes (read-only, links)
+    "pipeline.staging": 2,  # model folders made beside their destination, moved in when complete
     "pipeline.command": 1,  # the one error handler every entry point runs its commands through
     "pipeline.motion": 1,  # skeletons, clips, rotations, FK, BVH
     "pipeline.data": 2,  # the split, clip caches, the model skeleton, the protocol's windows
@@ -132,7 +133,7 @@ def test_rig_adaptation_has_no_usd_in_it():
 def test_render_reads_composed_usd_only():
     """The renderer reads USD (and the shared character reader), never the fill or a model."""
     allowed = {"pipeline.errors", "pipeline.motion", "pipeline.data", "pipeline.usd", "render", "usd_schemas",
-               "pipeline.progress", "pipeline.arguments"}  # fmt: skip
+               "pipeline.progress", "pipeline.arguments", "pipeline.outputs"}  # fmt: skip
     hits = [where for mod, src, dst, where in _project_edges()
             if src == "render" and dst not in allowed and (mod, dst) not in EXCEPTIONS]  # fmt: skip
     assert not hits, hits

@@ -32,8 +32,8 @@ from pipeline.library.store import (
     open_library,
 )
 from pipeline.motion.bvh import gzipped, is_bvh
+from pipeline.outputs import refuse_read_only
 from pipeline.progress import interval
-from pipeline.staging import refuse_read_only
 
 FPS = 30.0
 

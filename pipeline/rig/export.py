@@ -82,6 +82,16 @@ def _export_levels(tr: Trainer, out: Path) -> list[str]:
     return files
 
 
+def _terms(tr: Trainer) -> dict:
+    """The clip's licence and credit, whether the weights may be used commercially, and what
+    they learned from (the one clip): what every model folder states (models/README.md)."""
+    cfg = tr.cfg
+    source = {"name": f"{tr.motion.name} ({portable_path(cfg.source)})", "licence": cfg.licence,
+              "frames": int(tr.lengths[-1]), "fps": float(tr.spec.fps), "use": "trained"}  # fmt: skip
+    return {"licence": cfg.licence, "credit": cfg.credit, "commercial": commercial([cfg.licence]),
+            "sources": [source]}  # fmt: skip
+
+
 def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
     """rig.json: the model's name and hash, skeleton, source clip, licence (with ``commercial``
     and ``sources``), levels, the representation the levels read and write, its training
@@ -116,20 +126,7 @@ def _rig_meta(tr: Trainer, out: Path, files: list[str]) -> dict:
             "train_frames": int(tr.lengths[-1]),
             "train_fps": float(spec.fps),
         },
-        "licence": cfg.licence,
-        "credit": cfg.credit,
-        # models/README.md: every model folder says whether its weights may be used
-        # commercially and what they learned from (here: the one clip).
-        "commercial": commercial([cfg.licence]),
-        "sources": [
-            {
-                "name": f"{tr.motion.name} ({portable_path(cfg.source)})",
-                "licence": cfg.licence,
-                "frames": int(tr.lengths[-1]),
-                "fps": float(spec.fps),
-                "use": "trained",
-            }
-        ],
+        **_terms(tr),
         "files": {"levels": files},
         "levels": [
             {"file": f, "train_length": int(n), "noise_amplitude": float(a)}

@@ -1,0 +1,31 @@
+"""Where a command writes, checked before it writes: a folder it may write in, by name.
+
+Every --out of a command that makes files goes through :func:`refuse_read_only` first (model
+folders, libraries, review media), so that a published folder stays untouched and a link
+that leads nowhere is named, not met as "File exists" halfway through.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pipeline.atomic import writable_folder
+from pipeline.errors import TweenError
+
+
+def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path | None = None) -> None:
+    """Raises TweenError when ``path`` cannot be written in: ``folder`` if given, else the
+    folder ``path`` is (or, not made yet, the nearest one above it that exists; a file's
+    folder). Read-only by its mode bits counts even for root: a published folder stays
+    untouched, as ``tween convert`` and ``tween fill`` keep it. A symbolic link that leads
+    nowhere is refused too (making the folder would fail with "File exists")."""
+    path = Path(path)
+    if os.path.islink(path) and not os.path.exists(path):  # else "File exists" when made
+        raise TweenError(f"{path}: {option} is a symbolic link that leads nowhere (to nothing, or in a loop)")
+    probe = Path(os.path.abspath(folder if folder is not None else path))
+    while not probe.is_dir() and probe != probe.parent:
+        probe = probe.parent
+    if not writable_folder(probe):
+        where = "is" if probe == Path(os.path.abspath(path)) else f"is in {probe}, which is"
+        raise TweenError(f"{path}: {option} {where} read-only; give a folder you can write")
