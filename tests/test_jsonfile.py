@@ -41,6 +41,22 @@ def test_a_mapping_file_with_a_key_twice_is_one_line(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_mapping_that_is_a_pipe_or_a_folder_is_refused_not_waited_on(tmp_path):
+    """A named pipe with no writer: reading it blocked the fill forever."""
+    import os
+
+    from usd_fixtures import bandai_shot
+
+    shot = bandai_shot(tmp_path / "sh.usda", frames=21)
+    os.mkfifo(tmp_path / "map.json")
+    (tmp_path / "folder.json").mkdir()
+    for odd in (tmp_path / "map.json", tmp_path / "folder.json"):
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--mapping", str(odd),
+                            "--out-dir", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert f"mapping file {odd}: not a regular file" in r.stderr and not (tmp_path / "o").exists()
+
+
 def test_json_nested_too_deeply_is_a_value_error_naming_the_file(tmp_path):
     """Before: a RecursionError (an internal error) from json's reader."""
     deep = "[" * 100_000 + "]" * 100_000

@@ -123,6 +123,8 @@ def _read(conv: str, names: list[str]) -> tuple[dict[str, list[tuple[int, int]]]
 def load_override(path: str | Path | None) -> dict[str, str | None]:
     if not path:
         return {}
+    if Path(path).exists() and not Path(path).is_file():  # a pipe would wait for a writer forever
+        raise MappingError(f"mapping file {path}: not a regular file (a folder, a pipe or a device)")
     try:
         d = jsonfile.loads(Path(path).read_text())
     except (OSError, ValueError) as e:  # a key twice (DuplicateKeyError) names it and its line

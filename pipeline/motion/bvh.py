@@ -74,6 +74,10 @@ class BvhJoint:
 #: The most text (bytes, after gzip) a BVH take may hold: 10 hours of a 100-joint rig at
 #: 30 fps is about 0.4 GiB.
 MAX_BYTES = 1 << 30
+#: The largest magnitude of any number in a take (an OFFSET, a position or an angle): 10 km in
+#: centimetres, and 2,700 turns in degrees. Beyond it nothing is motion capture, and squares
+#: and products of such values overflow into NaN in every step after reading (the mesh, FK).
+MAX_VALUE = 1e6
 
 
 def is_bvh(path: str | Path) -> bool:
@@ -166,6 +170,8 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]
                 off = np.array([float(v) for v in tok[1:]])
             except ValueError:
                 raise MotionFormatError(path, lineno, f"non-numeric OFFSET {' '.join(tok[1:])!r}") from None
+            if not (np.abs(off) <= MAX_VALUE).all():  # NaN fails too
+                raise MotionFormatError(path, lineno, f"OFFSET {' '.join(tok[1:])} is beyond ±{MAX_VALUE:g}")
             if not stack:
                 raise MotionFormatError(path, lineno, "OFFSET outside a joint")
             top = stack[-1]
@@ -211,7 +217,7 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
     def header(idx: int, key: str) -> str:
         if idx >= len(lines):
             raise MotionFormatError(path, idx, f"file ends before '{key}' (truncated?)")
-        line = lines[idx].strip()
+        line = " ".join(lines[idx].split())  # "Frame\tTime:" as exporters that use tabs write it
         if not line.startswith(key):
             raise MotionFormatError(path, idx + 1, f"expected '{key}', found {line[:40]!r}")
         return line[len(key) :].strip()
@@ -232,7 +238,7 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
     body = [ln for ln in lines[start : start + n_frames]]
     try:
         data = np.array(" ".join(body).split(), dtype=np.float64)
-        ok = data.size == n_frames * n_channels and np.isfinite(data).all()
+        ok = data.size == n_frames * n_channels and (np.abs(data) <= MAX_VALUE).all()
     except ValueError:
         ok = False
     if not ok:
@@ -252,6 +258,8 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
                 ) from None
             if not np.isfinite(arr).all():
                 raise MotionFormatError(path, start + k + 1, f"non-finite value in frame {k}")
+            if not (np.abs(arr) <= MAX_VALUE).all():
+                raise MotionFormatError(path, start + k + 1, f"a value beyond ±{MAX_VALUE:g} in frame {k}")
         raise MotionFormatError(
             path, start + len(body), f"file has {len(body)} of {n_frames} frames (truncated?)"
         )
@@ -319,10 +327,7 @@ def _rest_offsets(path: Path, joints: list[BvhJoint], trans: np.ndarray) -> np.n
     # The root's rest position: its first-frame height above the origin (its OFFSET may be
     # meaningless, as in Bandai); every other joint keeps its bone from above.
     offsets[0] = (0.0, trans[0, 0, 1], 0.0)
-    big = np.finfo(np.float32).max  # checked before the cast, which would warn on stderr
-    if not ((np.abs(offsets) < big).all() and (np.abs(trans[:, 0]) < big).all()):
-        raise MotionFormatError(path, None, "an OFFSET or position is too large for 32-bit floats")
-    return offsets.astype(np.float32)
+    return offsets.astype(np.float32)  # every value within MAX_VALUE: the cast cannot overflow
 
 
 def read_bvh(

@@ -182,6 +182,34 @@ def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray
         raise ShotError(shot_path, f"{name}: NaN or infinite values (joint {joints[j]!r})", skel_path)
 
 
+#: The largest magnitude of a joint's translation or scale (stage units): 10 km in millimetres.
+#: Beyond it nothing is a character's motion, and what is computed from it overflows to NaN.
+MAX_VALUE = 1e7
+#: The value types UsdSkel's animation attributes may hold (a ``float4[]`` rotation reads its
+#: components in another order: x y z w against a quaternion's w x y z).
+TYPES = {
+    "rotations": ("quatf[]", "quath[]", "quatd[]"),
+    "translations": ("float3[]", "double3[]", "half3[]", "vector3f[]", "vector3d[]", "vector3h[]"),
+    "scales": ("half3[]", "float3[]", "double3[]"),
+}
+
+
+def _check_type(shot_path: str, attr, anim_path: str) -> None:
+    """ShotError naming the attribute when it is authored with a value type UsdSkel does not
+    give it."""
+    # The authored specs' types: the attribute itself takes its schema's, whatever was authored.
+    given = next(
+        (str(s.typeName) for s in attr.GetPropertyStack() if str(s.typeName) not in TYPES[attr.GetName()]),
+        None,
+    )
+    if given is not None:
+        raise ShotError(
+            shot_path,
+            f"{attr.GetName()} is {given}, not {TYPES[attr.GetName()][0]} (as UsdSkel declares it)",
+            anim_path,
+        )
+
+
 def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
     """Every authored sample (or the default, when there are none) of the animation's
     rotations, translations and scales: one value per joint, finite, rotations of length
@@ -189,6 +217,7 @@ def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
     Ja = len(anim_joints)
     for attr in (anim.GetRotationsAttr(), anim.GetTranslationsAttr(), anim.GetScalesAttr()):
         name = attr.GetName()
+        _check_type(shot_path, attr, anim_path)
         times = attr.GetTimeSamples()
         for t in times or [None]:
             v = attr.Get(t) if t is not None else attr.Get()
@@ -203,6 +232,14 @@ def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
                 j = int(np.flatnonzero(~finite)[0])
                 raise ShotError(
                     shot_path, f"{name}: NaN or infinite values {at} (joint {anim_joints[j]!r})", anim_path
+                )
+            far = (np.abs(a) > MAX_VALUE).any(1)
+            if far.any():
+                j = int(np.flatnonzero(far)[0])
+                raise ShotError(
+                    shot_path,
+                    f"{name}: a value beyond ±{MAX_VALUE:g} {at} (joint {anim_joints[j]!r})",
+                    anim_path,
                 )
             if name == "rotations":
                 n = np.linalg.norm(a, axis=1)
@@ -346,8 +383,19 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
 def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
     """{time: animation joints keyed there} from tween:keyedJoints, or None when not authored."""
     attr = anim_prim.GetAttribute(tokens.KEYED_JOINTS)
-    if not attr or not attr.GetNumTimeSamples():
+    if not attr or not attr.HasAuthoredValue():
         return None
+    kind = str(attr.GetTypeName())
+    if kind not in ("token[]", "string[]"):
+        raise ShotError(
+            shot_path, f"tween:keyedJoints is {kind}, not token[] (joint names per key)", anim_path
+        )
+    if not attr.GetNumTimeSamples():  # a default value names no key: it was silently ignored
+        raise ShotError(
+            shot_path,
+            "tween:keyedJoints has no time samples: author the joints each key keys at its time",
+            anim_path,
+        )
     known, out = set(anim_joints), {}
     for t in attr.GetTimeSamples():
         names = tuple(str(x) for x in (attr.Get(t) or []))
@@ -464,9 +512,13 @@ def _read_shot(path: str) -> Shot:
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
     up = str(UsdGeom.GetStageUpAxis(stage))
+    if up not in ("Y", "Z"):  # UsdGeom allows these two; anything else was read as Z
+        raise ShotError(path, f"upAxis {up!r} is not an up axis USD knows (Y or Z)")
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    if not (mpu > 0 and math.isfinite(mpu)):
-        raise ShotError(path, f"metersPerUnit {mpu} is not a positive number")
+    if not 1e-6 <= mpu <= 1e6:  # a micrometre to 1,000 km: beyond, lengths overflow (NaN fails too)
+        raise ShotError(
+            path, f"metersPerUnit {mpu:g} is not a unit a character is measured in (1e-06 to 1e+06 m)"
+        )
     start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     if not stage.HasAuthoredTimeCodeRange():
         allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])

@@ -284,10 +284,35 @@ def test_bad_channel_lists_name_the_line(tmp_path, edit, line, message):
 def test_folder_and_overflowing_values_are_refused(tmp_path):
     with pytest.raises(MotionFormatError, match="is a folder"):
         read_bvh(tmp_path)
-    for big in (GOOD.replace("1 90 0 0 0 0 20 0 0", "1 1e39 0 0 0 0 20 0 0"),
-                GOOD.replace("OFFSET 0 10 0", "OFFSET 0 1e308 0")):  # fmt: skip
+    # Beyond float32 (a numpy overflow warning on stderr before the line), and finite ones
+    # whose products overflow later (the mesh of `tween convert` was NaN): 10 km, 2,700 turns.
+    for big, where in (
+        (
+            GOOD.replace("1 90 0 0 0 0 20 0 0", "1 1e39 0 0 0 0 20 0 0"),
+            "20: a value beyond ±1e+06 in frame 1",
+        ),
+        (GOOD.replace("1 90 0 0 0 0 20 0 0", "1 90 0 0 0 0 2e6 0 0"), "20: a value beyond ±1e+06 in frame 1"),
+        (
+            GOOD.replace("0 90 0 0 0 0 10 0 0", "3e38 90 0 0 0 0 10 0 0"),
+            "19: a value beyond ±1e+06 in frame 0",
+        ),
+        (GOOD.replace("OFFSET 0 10 0", "OFFSET 0 1e308 0"), "8: OFFSET 0 1e308 0 is beyond ±1e+06"),
+        (
+            GOOD.replace("OFFSET 0 5 0", "OFFSET 1e300 5 0"),
+            "12: OFFSET 1e300 5 0 is beyond ±1e+06",
+        ),  # End Site
+    ):
         p = write(tmp_path, big)
         with warnings.catch_warnings():
-            warnings.simplefilter("error")  # no numpy overflow warning on stderr before the line
-            with pytest.raises(MotionFormatError, match="too large for 32-bit floats"):
+            warnings.simplefilter("error")
+            with pytest.raises(MotionFormatError) as e:
                 read_bvh(p)
+        assert str(e.value) == f"{p}:{where}"
+
+
+def test_tabs_between_the_words_of_frame_time(tmp_path):
+    """Exporters that separate with tabs write "Frame\tTime:" (the hierarchy read already)."""
+    m = read_bvh(
+        write(tmp_path, GOOD.replace("Frame Time:", "Frame\tTime:").replace("Frames: 2", "Frames:\t2"))
+    )
+    assert len(m) == 2 and m.fps == 30

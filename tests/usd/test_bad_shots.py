@@ -149,6 +149,38 @@ def _fps_only(v):
     return edit
 
 
+def _metadata(key, value):
+    return lambda stage: stage.SetMetadata(key, value)
+
+
+def _float4_rotations(stage):
+    """rotations authored as float4[] (x y z w read where a quaternion holds w x y z)."""
+    from pxr import Gf, Sdf, Vt
+
+    attr = stage.GetPrimAtPath(ANIM).GetAttribute("rotations")
+    samples = {t: [Gf.Vec4f(*q.GetImaginary(), q.GetReal()) for q in attr.Get(t)]
+               for t in attr.GetTimeSamples()}  # fmt: skip
+    layer = stage.GetRootLayer()  # the stage refuses the type the schema does not give it
+    prim_spec = layer.GetPrimAtPath(ANIM)
+    prim_spec.RemoveProperty(prim_spec.properties["rotations"])
+    spec = Sdf.AttributeSpec(prim_spec, "rotations", Sdf.ValueTypeNames.Float4Array)
+    for t, a in samples.items():
+        layer.SetTimeSample(spec.path, t, Vt.Vec4fArray(a))
+
+
+def _keyed_joints_default(kind):
+    def edit(stage):
+        from pxr import Sdf
+
+        prim = stage.GetPrimAtPath(ANIM)
+        if kind == "int":
+            prim.CreateAttribute("tween:keyedJoints", Sdf.ValueTypeNames.IntArray).Set([0, 1], 1011)
+        else:  # a default names no key time
+            prim.CreateAttribute("tween:keyedJoints", Sdf.ValueTypeNames.TokenArray).Set(["Hips"])
+
+    return edit
+
+
 def _time_range(start, end):
     def edit(stage):
         stage.SetStartTimeCode(start)
@@ -275,6 +307,18 @@ CONTENT = [
         ANIM,
     ),
     ("zero-quat-default", _rot_default_only((0, 0, 0, 0)), "in its default value is not a rotation", ANIM),
+    # Finite but beyond any character (was an internal error: zero-norm quaternions downstream).
+    (
+        "far-translation",
+        _set_trans(1011, 0, (1e20, 0, 0)),
+        "translations: a value beyond ±1e+07 at time 1011",
+        ANIM,
+    ),
+    ("float4-rotations", _float4_rotations, "rotations is float4[], not quatf[]", ANIM),
+    ("keyed-joints-default", _keyed_joints_default("token"), "tween:keyedJoints has no time samples", ANIM),
+    ("keyed-joints-int", _keyed_joints_default("int"), "tween:keyedJoints is int[], not token[]", ANIM),
+    ("up-axis-x", _metadata("upAxis", "X"), "upAxis 'X' is not an up axis USD knows (Y or Z)", None),
+    ("mpu-huge", _metadata("metersPerUnit", 1e300), "metersPerUnit 1e+300 is not a unit", None),
     ("tcps-zero", _tcps(0), "timeCodesPerSecond 0 is not a positive number", None),
     ("tcps-negative", _tcps(-24), "timeCodesPerSecond -24 is not a positive number", None),
     ("tcps-nan", _tcps(NAN), "timeCodesPerSecond nan is not a positive number", None),
