@@ -10,10 +10,12 @@ A destination that exists is used only when it is empty or holds a finished mode
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import re
 import shutil
+import sys
 from pathlib import Path
 
 from pipeline.errors import TweenError
@@ -96,6 +98,68 @@ def _refuse_current_folder(dest: Path, option: str) -> None:
         )
 
 
+def _keep_others(old: Path, dest: Path, fresh: bool = True) -> list[str]:
+    """Moves what is not the old model's from ``old`` into the new model's folder ``dest``
+    (what the studio kept beside the model: notes, renders); returns the names that ``dest``
+    holds already, left in ``old``. ``fresh``: ``dest`` holds the new model alone, so every
+    name in it is the model's (not so once kept files have joined it)."""
+    owned, taken = model_entries(old, dest if fresh else None), []
+    for p in sorted(old.iterdir()):
+        if p.name in owned:
+            continue
+        if os.path.lexists(dest / p.name):
+            taken.append(p.name)
+            continue
+        try:
+            os.rename(p, dest / p.name)
+        except OSError as e:
+            raise TweenError(
+                f"{dest}: the new model is in place, but {p} could not be moved back beside it "
+                f"({e.strerror}); move it yourself"
+            ) from None
+    return taken
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def recover(dest: str | Path) -> None:
+    """Puts back what a run killed inside :meth:`StagedFolder.commit` left in a hidden
+    ``.<name>.old-PID`` beside ``dest`` (its process gone): killed between moving the old
+    model aside and the new one in, ``dest`` is missing and the old model goes back; killed
+    after, the files the studio kept beside the old model join the new one and the rest goes.
+    Says so on stderr; a swap whose process still runs is left to it."""
+    full = Path(os.path.abspath(dest))
+    olds = []
+    for p in full.parent.glob(f".{glob.escape(full.name)}.old-*"):
+        pid = p.name.rsplit("-", 1)[1]
+        if pid.isdigit() and p.is_dir() and not p.is_symlink() and not _alive(int(pid)):
+            olds.append(p)
+    for old in sorted(olds, key=lambda p: p.stat().st_mtime, reverse=True):
+        if not os.path.lexists(full):
+            os.rename(old, full)
+            print(
+                f"tween: {dest}: put back the model a killed run had moved aside ({old.name})",
+                file=sys.stderr,
+            )
+            continue
+        taken = _keep_others(old, full, fresh=False)
+        if taken:  # never removes a file of the studio's: it says where it is
+            print(f"tween: {dest}: a killed run left {', '.join(taken)} in {old}, and {dest} has its own: "
+                  "compare them and move what you keep", file=sys.stderr)  # fmt: skip
+            continue
+        shutil.rmtree(old, ignore_errors=True)
+        print(f"tween: {dest}: finished what a killed run left aside ({old.name}): kept files moved back",
+              file=sys.stderr)  # fmt: skip
+
+
 class StagedFolder:
     """Where a new model is written (``work``) and how it replaces ``dest`` (``commit``).
 
@@ -107,6 +171,7 @@ class StagedFolder:
 
     def __init__(self, dest: str | Path, force: bool = False, option: str = "--out", what: str = "model"):
         self.dest = Path(dest)
+        recover(self.dest)  # what a run killed while it replaced this model left aside
         if not force:
             refuse_model(self.dest, option)
         elif self.dest.exists() and not self.dest.is_dir():
@@ -141,23 +206,9 @@ class StagedFolder:
                 os.rename(old, self.dest)
             raise
         if old is not None:
-            self._keep_others(old)
+            _keep_others(old, self.dest)
             shutil.rmtree(old, ignore_errors=True)
         return self.dest
-
-    def _keep_others(self, old: Path) -> None:
-        """Moves what is not the old model's from ``old`` into the new ``dest``."""
-        owned = model_entries(old, self.dest)
-        for p in sorted(old.iterdir()):
-            if p.name in owned:
-                continue
-            try:
-                os.rename(p, self.dest / p.name)
-            except OSError as e:
-                raise TweenError(
-                    f"{self.dest}: the new model is in place, but {p} could not be moved back beside it "
-                    f"({e.strerror}); move it yourself"
-                ) from None
 
     def discard(self) -> None:
         """Removes ``work`` (a failed export: nothing half-made stays)."""
