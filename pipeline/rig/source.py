@@ -16,11 +16,21 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.data.split import shared_data_dir
-from pipeline.errors import TweenError
+from pipeline.errors import ShotError, TweenError
 from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import QUAT_EPS
 from pipeline.motion.skeleton import Skeleton
+
+#: A clip's frame rate: the range ``train-rig --fps`` takes (pipeline.rig.options).
+FPS_RANGE = (1.0, 1000.0)
+#: Its metersPerUnit: the range the USD reader takes (a micrometre to 1,000 km); beyond it no
+#: character is measured, and lengths in metres overflow or vanish in float32.
+MPU_RANGE = (1e-6, 1e6)
+#: The largest rest offset or root position (the clip's units): the USD reader's bound on a
+#: translation (10 km in millimetres; BVH's is 1e6). Beyond it nothing is a character, and
+#: the rig size and contact tests computed from it overflow float32 to NaN in rig.json.
+MAX_LENGTH = 1e7
 
 
 class RigSourceError(TweenError):
@@ -85,14 +95,7 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
         char = match[0]
     else:
         char = max(chars, key=lambda c: len(c.joints))
-    times = char.sample_times
-    if len(times) < 2:
-        raise RigSourceError(path, f"{char.anim_path} has {len(times)} time samples; a clip needs at least 2")
-    step = np.diff(times)
-    if np.abs(step - step.mean()).max() > 1e-3 * step.mean():
-        # Uneven samples: read the animation at every frame of its range instead.
-        times = np.arange(np.round(times[0]), np.round(times[-1]) + 1.0)
-        step = np.ones(1)
+    times, step = _clip_times(path, shot, char)
     rot, tr, _ = anim_values(shot.stage, char, times)
     # Skeleton order; joints the animation does not list keep their rest pose.
     from pipeline.usd.read import to_skeleton_order
@@ -101,6 +104,9 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
     up = _up_in_skeleton(shot.up_axis, char.skel_to_world)
     if not up:
         raise RigSourceError(path, f"{char.skel_path}: the stage's up axis is X or down in skeleton space")
+    why = tree_problem(char.joints, char.parents)
+    if why:
+        raise ShotError(path, f"skeleton topology: {why}", char.skel_path)
     skel = Skeleton(
         char.names, char.parents, char.rest_trans.astype(np.float32), up, shot.meters_per_unit * _scale(char)
     )
@@ -108,6 +114,50 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
     fps = float(np.round(fps)) if abs(fps - np.round(fps)) < 1e-3 else fps  # 3023.000157… time codes
     name = f"{path.name.split('.')[0]}:{char.skel_path.rstrip('/').rsplit('/', 2)[-2]}"
     return Motion(skel, rot, tr[:, 0], fps, name)
+
+
+def _clip_times(path: Path, shot, char) -> tuple[np.ndarray, np.ndarray]:
+    """The times the clip is read at (the animation's samples, or every frame between its
+    first and last where they are uneven) and the step between them. Uneven samples outside
+    the stage range are refused before a frame is read (a stray sample at 1e9 made the reader
+    allocate hundreds of GiB); read_shot refuses a range over MAX_FRAMES frames."""
+    from pipeline.usd.read import TIME_EPS
+
+    times = char.sample_times
+    if len(times) < 2:
+        raise RigSourceError(path, f"{char.anim_path} has {len(times)} time samples; a clip needs at least 2")
+    step = np.diff(times)
+    if np.abs(step - step.mean()).max() <= 1e-3 * step.mean():
+        return times, step
+    # Uneven samples: read the animation at every frame of its range instead.
+    out = times[(times < shot.start - TIME_EPS) | (times > shot.end + TIME_EPS)]
+    if len(out):
+        raise ShotError(
+            path,
+            f"time sample {out[0]:g} is outside the stage range {shot.start:g}-{shot.end:g}",
+            char.anim_path,
+        )
+    lo, hi = np.round(times[0]), np.round(times[-1])
+    return np.arange(lo, hi + 1.0), np.ones(1)
+
+
+def tree_problem(names, parents) -> str | None:
+    """Why ``parents`` is not one hierarchy under one root, each joint after its parent
+    (None: it is). ``Skeleton`` refuses such a list with a ValueError; UsdSkel allows
+    several roots (a joint path whose parent is not listed)."""
+    parents = [int(p) for p in parents]
+    J = len(parents)
+    for j, p in enumerate(parents):
+        if not -1 <= p < J:
+            return f"joint {names[j]!r} has parent index {p}, not a joint of the {J}"
+    roots = [names[j] for j, p in enumerate(parents) if p < 0]
+    if len(roots) > 1:
+        listed = ", ".join(repr(r) for r in roots[:3]) + (", ..." if len(roots) > 3 else "")
+        return f"{len(roots)} root joints ({listed}); a rig is one hierarchy under one root joint"
+    for j, p in enumerate(parents):
+        if p >= j or (p < 0 and j != 0):
+            return f"joint {names[j]!r} comes before its parent (a parent is listed before its children)"
+    return None
 
 
 def _scale(char) -> float:
@@ -158,6 +208,8 @@ def load_rig_source(
             raise RigSourceError(path, "--skeleton applies to USD shots; a BVH holds one skeleton")
         motion = read_bvh(path)
     elif path.suffix.lower() == ".npz":
+        if skeleton:
+            raise RigSourceError(path, "--skeleton applies to USD shots; an .npz holds one skeleton")
         motion = load_npz(path)
     else:
         raise RigSourceError(path, "not a USD shot (.usd/.usda/.usdc/.usdz) or a BVH (.bvh/.bvh.gz)")
@@ -185,13 +237,29 @@ def _check_values(path: Path, m: Motion) -> None:
     for what, (have, want) in shapes.items():
         if have != want:
             raise RigSourceError(path, f"{what} of shape {have}, expected {want} for {J} joints")
+    if len(rot) < 2:
+        raise RigSourceError(path, f"{len(rot)} frame(s): a clip to learn from needs at least 2")
     if not (np.isfinite(m.fps) and m.fps > 0):
         raise RigSourceError(path, f"frame rate {m.fps!r}: not a positive number")
+    lo, hi = FPS_RANGE
+    if not lo <= m.fps <= hi:  # an .npz at 1e-300 or 1e300 fps trained
+        raise RigSourceError(
+            path, f"frame rate {m.fps:g}: must be from {lo:g} to {hi:g} fps (as train-rig trains)"
+        )
     if not (np.isfinite(s.meters_per_unit) and s.meters_per_unit > 0):
         raise RigSourceError(path, f"meters per unit {s.meters_per_unit!r}: not a positive number")
+    lo, hi = MPU_RANGE
+    if not lo <= s.meters_per_unit <= hi:
+        raise RigSourceError(
+            path,
+            f"meters per unit {s.meters_per_unit:g} is not a unit a character is measured in ({lo:g} to {hi:g} m)",
+        )
     for what, a in (("offsets", s.offsets), ("rotations", rot), ("root positions", root)):
         if not np.isfinite(a).all():
             raise RigSourceError(path, f"its {what} hold NaN or infinite values")
+    for what, a in (("offsets", s.offsets), ("root positions", root)):
+        if a.size and np.abs(a).max() > MAX_LENGTH:
+            raise RigSourceError(path, f"its {what} hold a value beyond ±{MAX_LENGTH:g} units")
     _check_quaternions(path, m.skeleton.names, rot)
 
 
@@ -227,19 +295,53 @@ def save_npz(motion: Motion, path: str | Path) -> None:
     )
 
 
+NPZ_KEYS = (
+    "names",
+    "parents",
+    "offsets",
+    "up_axis",
+    "meters_per_unit",
+    "rotations",
+    "root_positions",
+    "fps",
+    "name",
+)
+NUMBERS = ("parents", "offsets", "meters_per_unit", "rotations", "root_positions", "fps")
+
+
 def load_npz(path: str | Path) -> Motion:
     try:
-        z = np.load(path, allow_pickle=False)
-        skel = Skeleton(
-            tuple(str(n) for n in z["names"]),
-            z["parents"],
-            z["offsets"],
-            str(z["up_axis"]),
-            float(z["meters_per_unit"]),
-        )
-        return Motion(skel, z["rotations"], z["root_positions"], float(z["fps"]), str(z["name"]))
-    except (OSError, KeyError, ValueError, EOFError, IndexError, TypeError, zipfile.BadZipFile) as e:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in NPZ_KEYS}
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
         # np.load raises EOFError for an empty file, BadZipFile for a truncated one and
         # ValueError/OSError for most others.
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None
+    _check_npz(path, a)
+    try:
+        with np.errstate(over="ignore"):  # float64 beyond float32 is inf here, refused by _check_values
+            names = tuple(str(n) for n in a["names"])
+            skel = Skeleton(names, a["parents"], a["offsets"], str(a["up_axis"]), float(a["meters_per_unit"]))
+            return Motion(skel, a["rotations"], a["root_positions"], float(a["fps"]), str(a["name"]))
+    except (ValueError, IndexError, TypeError) as e:
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None
+
+
+def _check_npz(path, a: dict) -> None:
+    """RigSourceError unless the .npz's numbers are real numbers (a complex array lost its
+    imaginary part with a warning), its scalars scalars and its parents one hierarchy (the
+    bounds on its values hold for every source: _check_values)."""
+    for k in NUMBERS:
+        if a[k].dtype.kind not in "iuf" or (k == "parents" and a[k].dtype.kind == "f"):
+            want = "integers" if k == "parents" else "real numbers"
+            raise RigSourceError(path, f"{k}: {a[k].dtype} values, expected {want}")
+    for k in ("up_axis", "meters_per_unit", "fps", "name"):
+        if a[k].ndim:
+            raise RigSourceError(path, f"{k}: an array of shape {a[k].shape}, expected one value")
+    names, parents = a["names"], a["parents"]
+    fits = names.ndim == parents.ndim == 1 and len(names) == len(parents)  # else Skeleton says so
+    why = fits and len(names) and tree_problem([str(n) for n in names], parents)
+    if why:
+        raise RigSourceError(path, f"parents: {why}")
