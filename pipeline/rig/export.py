@@ -8,6 +8,7 @@ Each level's graph is ``out = g(up + z) + up`` with inputs ``up`` (1, F0, L) and
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -66,16 +67,18 @@ def _export_levels(tr: Trainer, out: Path) -> list[str]:
         up = torch.zeros(1, tr.F, L)
         z = torch.zeros(1, 1, L)
         name = f"level_{i + 1}.onnx"
-        torch.onnx.export(
-            G,
-            (up, z),
-            str(out / name),
-            input_names=["up", "z"],
-            output_names=["out"],
-            dynamic_axes={"up": {2: "frames"}, "z": {2: "frames"}, "out": {2: "frames"}},
-            opset_version=17,
-            dynamo=False,
-        )
+        with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+            warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
+            torch.onnx.export(
+                G,
+                (up, z),
+                str(out / name),
+                input_names=["up", "z"],
+                output_names=["out"],
+                dynamic_axes={"up": {2: "frames"}, "z": {2: "frames"}, "out": {2: "frames"}},
+                opset_version=17,
+                dynamo=False,
+            )
         for m in convs:
             m.baked = False
         files.append(name)

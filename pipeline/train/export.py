@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 
@@ -97,16 +98,18 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         args = (x, torch.randn(1, n_dna_channels(gcfg.n_joints), 3), torch.ones(1, 1))
         names += ["dna", "dna_weight"]
         axes.update(dna={0: "batch", 2: "poses"}, dna_weight={0: "batch"})
-    torch.onnx.export(
-        gen,
-        args,
-        str(out_dir / "generator.onnx"),
-        input_names=names,
-        output_names=["residual"],
-        dynamic_axes=axes,
-        opset_version=17,
-        dynamo=False,
-    )
+    with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+        warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
+        torch.onnx.export(
+            gen,
+            args,
+            str(out_dir / "generator.onnx"),
+            input_names=names,
+            output_names=["residual"],
+            dynamic_axes=axes,
+            opset_version=17,
+            dynamo=False,
+        )
     files["generator"] = "generator.onnx"
     meta = {
         "kind": "generator-onnx",  # the family pipeline.infer.api.load_model loads it with
@@ -126,19 +129,21 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     if (run_dir / "path.pt").exists():
         path, pcfg, pstate = _load(PathPredictor, PathConfig, run_dir / "path.pt")
         xp = torch.randn(1, (pcfg.n_joints - 1) * 3, 64)
-        torch.onnx.export(
-            path,
-            (xp,),
-            str(out_dir / "path.onnx"),
-            input_names=["local_positions"],
-            output_names=["root_velocity"],
-            dynamic_axes={
-                "local_positions": {0: "batch", 2: "frames"},
-                "root_velocity": {0: "batch", 2: "frames"},
-            },
-            opset_version=17,
-            dynamo=False,
-        )
+        with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+            warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
+            torch.onnx.export(
+                path,
+                (xp,),
+                str(out_dir / "path.onnx"),
+                input_names=["local_positions"],
+                output_names=["root_velocity"],
+                dynamic_axes={
+                    "local_positions": {0: "batch", 2: "frames"},
+                    "root_velocity": {0: "batch", 2: "frames"},
+                },
+                opset_version=17,
+                dynamo=False,
+            )
         files["path"] = "path.onnx"
         meta["path"] = asdict(pcfg)
         meta["parameters"]["path"] = sum(p.numel() for p in path.parameters())
