@@ -6,7 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from fastapi import Body, FastAPI, HTTPException, Query, Request
-from fastapi.responses import FileResponse, HTMLResponse
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from pydantic import BaseModel, Field
@@ -51,6 +52,15 @@ def create_app(roots: list[Path], login: Login, tracker=None, mapping: dict | No
     roots = [Path(r) for r in roots]
     app = FastAPI(title="usd-tween dailies", openapi_url="/api/openapi.json", docs_url=None, redoc_url=None)
     templates = Jinja2Templates(directory=str(HERE / "templates"))
+
+    @app.exception_handler(RequestValidationError)
+    def invalid(request: Request, exc: RequestValidationError):
+        # FastAPI's own answer echoes the input, and a NaN or Infinity in it (Python's json
+        # reads them) cannot be written back as JSON: the reply was a 500.
+        detail = [{"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
+                  for e in exc.errors()]  # fmt: skip
+        return JSONResponse({"detail": detail}, status_code=422)
+
     app.mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")
 
     def _shot(key: str) -> dict:

@@ -29,6 +29,9 @@ def resolve(roots: list[Path], index: int, rel: str) -> Path | None:
     followed, not a media type, missing, or not a regular file."""
     if not 0 <= index < len(roots) or "\0" in rel or Path(rel).suffix.lower() not in TYPES:
         return None
-    real = Path(os.path.realpath(roots[index] / rel))
-    inside = any(real == r or real.is_relative_to(r) for r in (Path(os.path.realpath(x)) for x in roots))
-    return real if inside and real.is_file() else None
+    try:  # a name too long for a path (ENAMETOOLONG) is no media either
+        real = Path(os.path.realpath(roots[index] / rel))
+        inside = any(real == r or real.is_relative_to(r) for r in (Path(os.path.realpath(x)) for x in roots))
+        return real if inside and real.is_file() else None
+    except OSError:
+        return None

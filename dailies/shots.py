@@ -4,6 +4,7 @@ stamp, so listing many shots stays cheap."""
 
 from __future__ import annotations
 
+import glob
 import os
 import re
 import threading
@@ -125,15 +126,18 @@ def find(roots: list[Path], key: str) -> Shot | None:
     if not stem or ".." in rest.split("/") or stem.startswith("."):
         return None
     path = root / folder if folder else root
-    real = Path(os.path.realpath(path))
-    # A linked folder leading out of the roots is not a shot of theirs (the scan never follows one).
-    if not path.is_dir() or not any(real.is_relative_to(os.path.realpath(r)) for r in roots):
+    try:  # a key too long for a path (ENAMETOOLONG) names no shot either
+        real = Path(os.path.realpath(path))
+        # A linked folder leading out of the roots is not a shot of theirs (the scan never follows one).
+        if not path.is_dir() or not any(real.is_relative_to(os.path.realpath(r)) for r in roots):
+            return None
+        versions = {}
+        for p in path.glob(f"{glob.escape(stem)}.tween.v*.usd*"):
+            m = FILL.match(p.name)
+            if m and m["stem"] == stem:
+                versions[int(m["n"])] = p
+    except OSError:
         return None
-    versions = {}
-    for p in path.glob(f"{stem}.tween.v*.usd*"):
-        m = FILL.match(p.name)
-        if m and m["stem"] == stem:
-            versions[int(m["n"])] = p
     return Shot(key, root, path, stem, tuple(sorted(versions.items()))) if versions else None
 
 

@@ -53,6 +53,19 @@ def test_refusals_are_one_message(client, roots):
     for odd in ({"take": True}, {"take": "1"}, {"take": 1.0}, {"take": 0, "version": True}):  # not read as 1
         assert _post(client, APPROVE, odd).status_code == 422, odd
     assert _post(client, PUBLISH, {"version": "1"}).status_code == 422
+    # NaN and Infinity (Python's json reads them): the schema's answer echoed them and could
+    # not be written as JSON (a 500).
+    bodies = {APPROVE: (b'{"take": NaN, "version": 1}', b'{"take": Infinity}', b'{"take": 1e400}'),
+              PUBLISH: (b'{"version": NaN}', b'{"version": -Infinity}', b'{"version": 1e999}')}  # fmt: skip
+    for url, raws in bodies.items():
+        for raw in raws:
+            r = client.post(url, content=raw, headers={"X-CSRF-Token": client.login.csrf,
+                                                       "Content-Type": "application/json"})  # fmt: skip
+            assert r.status_code == 422 and r.json()["detail"], (url, raw, r.text)
+    # Keys and media names too long for a path (ENAMETOOLONG) name nothing: 404, not a 500.
+    for url in (f"/api/shots/0/{'b/' * 2100}x", f"/media/0/{'a' * 5000}.mp4", f"/media/0/{'a/' * 3000}x.mp4"):
+        assert client.get(url).status_code == 404, url
+    assert _post(client, f"/api/shots/0/{'b/' * 2100}x/approve", {"take": 0}).status_code == 404
     nameless = _post(client, APPROVE, {"take": 0, "version": 1, "by": "\t"})  # approve's own check
     assert nameless.status_code == 409 and "the reviewer's name" in nameless.json()["detail"]
     assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
