@@ -255,9 +255,11 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", c
 def load_init(init: str, map_location="cpu") -> dict:
     """The ``--init`` checkpoint's state (``init_checkpoint``, ``read_checkpoint``)."""
     hint = "; give a run folder's generator.pt or a model folder with torch/generator.pt"
-    return read_checkpoint(
-        init_checkpoint(init), "--init", map_location, hint, config=False
-    )  # weights suffice
+    path = init_checkpoint(init)
+    state = read_checkpoint(path, "--init", map_location, hint, config=False)  # weights suffice
+    if not isinstance(state.get("config", {}), dict):
+        raise TweenError(f"{path}: --init: its config is {type(state['config']).__name__}, not a table{hint}")
+    return state
 
 
 # Add-on modules a run may give a network it continues (each starts from zero beside the
@@ -503,11 +505,31 @@ def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
         return cfg, None
     state = load_init(cfg.init, dev)
     init = state["model"]
-    saved = state.get("config", {}).get("model") or {}
-    cfg = replace(cfg, model=inherit_model(cfg.model, saved))
+    where = f"{init_checkpoint(cfg.init)}: --init"
+    config = state.get("config", {})
+    saved = (config.get("model") if isinstance(config, dict) else None) or {}
+    if not isinstance(saved, dict):
+        raise TweenError(f"{where}: its config describes no network (no 'model' table)")
+    bad = [
+        n for n, t in init.items() if torch.is_tensor(t) and t.is_floating_point() and not t.isfinite().all()
+    ]
+    if bad:  # a diverged run: every step from it is NaN
+        raise TweenError(
+            f"{where}: weight {bad[0]} holds values that are not finite (the run it comes from diverged)"
+        )
+    try:  # the weights must be the network's: refused before the run's folder is made
+        cfg = replace(cfg, model=inherit_model(cfg.model, saved))
+        if cfg.model.delta and not saved.get("delta", False):
+            init = to_delta_inputs(init, cfg.model.n_joints)
+        net = Generator(cfg.model)
+        net.load_state_dict({**net.state_dict(), **init})
+    except (TypeError, ValueError, KeyError, RuntimeError, AttributeError) as e:
+        lines = [t.strip() for t in str(e).splitlines() if t.strip() and not t.strip().endswith(":")]
+        why = lines[0][:160] if lines else type(e).__name__
+        raise TweenError(
+            f"{where}: its weights are not those of the network its config describes ({why})"
+        ) from None
     check_partial(cfg)
-    if cfg.model.delta and not saved.get("delta", False):
-        init = to_delta_inputs(init, cfg.model.n_joints)
     return cfg, init
 
 

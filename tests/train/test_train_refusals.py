@@ -81,6 +81,30 @@ def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, mod
     assert f"{model_folder}: --out (a run folder) holds a finished model (model.json)" in line
 
 
+def test_an_init_whose_weights_are_damaged_is_refused_before_the_run_folder_is_made(tmp_path, capsys):
+    """Was an internal error with an empty run folder left (a state_dict mismatch, a negative
+    width), or a run of NaN losses with exit 0 (NaN weights)."""
+    import torch
+
+    good = torch.load(ROOT / "models/default/torch/generator.pt", map_location="cpu", weights_only=False)
+    model = good["config"]["model"]
+    bad = {
+        "holds values that are not finite (the run it comes from diverged)": {
+            **good, "model": {k: v * float("nan") if v.is_floating_point() else v for k, v in good["model"].items()}
+        },
+        "size mismatch for inp.conv.weight": {**good, "model": {**good["model"], "inp.conv.weight": torch.zeros(3)}},
+        "Trying to create tensor with negative dimension": {**good, "config": {**good["config"],
+                                                                              "model": {**model, "width": -12}}},
+        "its config is str, not a table": {**good, "config": "hello"},
+    }  # fmt: skip
+    out = tmp_path / "run"
+    for i, (why, state) in enumerate(bad.items()):
+        torch.save(state, tmp_path / f"init{i}.pt")
+        line = refused(["train", "--out", out, *TINY, "--init", tmp_path / f"init{i}.pt"], capsys, tmp_path)
+        assert line.startswith(f"tween: error: {tmp_path / f'init{i}.pt'}: --init: ") and why in line, line
+        assert not out.exists()
+
+
 def test_partial_keys_need_a_key_adapter_before_any_data_is_read(tmp_path, capsys):
     """--partial trains the key adapter: refused without --key-adapter unless the --init
     network has one, before the takes are looked at (--data names no folder here)."""
