@@ -37,6 +37,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import sys
 import time
 import tomllib
@@ -51,6 +52,7 @@ from pipeline.atomic import replacing
 from pipeline.data.cache import ClipSet
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.data.split import is_eval, shared_data_dir
+from pipeline.data.terms import forbids_training
 from pipeline.errors import TweenError
 from pipeline.motion.rotations import quat_normalize
 from pipeline.progress import interval
@@ -61,6 +63,9 @@ ROT_SCALE = 32767.0
 #: name → (dtype, shape of one frame's entry) of each source's arrays.
 ARRAYS = {"rotations": ("<i2", (21, 4)), "roots": ("<f4", (3,))}
 _SOURCE_KEYS = {"name", "path", "licence", "weight", "include", "exclude", "split", "mapping"}
+#: A source's weight: a share, from one in a million to a million times another's (a smaller
+#: one, 1e-320, is no normal number, and weights summing to nothing draw nothing).
+WEIGHTS = (1e-6, 1e6)
 
 
 class CorpusError(TweenError):
@@ -112,9 +117,18 @@ def _source(d, i: int, path: Path, base: Path) -> Source:
             raise CorpusError(f"{where}: {key!r} must be a non-empty string")
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", d["name"]):
         raise CorpusError(f"{where}: name {d['name']!r}: letters, digits, '_', '.', '-' only")
+    banned = forbids_training(d["licence"])
+    if banned:
+        raise CorpusError(
+            f"{where} ({d['name']}): licence {d['licence']!r} does not allow training a model that "
+            f"ships ({banned!r}: no derivatives, research only or no training; issue 30's data rule)"
+        )
     w = d.get("weight", 1.0)
-    if isinstance(w, bool) or not isinstance(w, int | float) or not 0 < w < 1e6:
-        raise CorpusError(f"{where} ({d['name']}): 'weight' must be a positive number, not {w!r}")
+    if isinstance(w, bool) or not isinstance(w, int | float) or not WEIGHTS[0] <= w <= WEIGHTS[1]:
+        raise CorpusError(
+            f"{where} ({d['name']}): 'weight' must be a positive number from {WEIGHTS[0]:g} "
+            f"to {WEIGHTS[1]:g}, not {w!r}"
+        )
     for key in ("include", "exclude", "mapping"):
         if key in d and not isinstance(d[key], str):
             raise CorpusError(f"{where} ({d['name']}): {key!r} must be a string")
@@ -145,6 +159,9 @@ def load_corpus(path: str | Path) -> Corpus:
     unknown = sorted(set(d) - {"name", "fps", "source"})
     if unknown:
         raise CorpusError(f"{path}: unknown key(s) {unknown}; known: fps, name, source")
+    name = d.get("name", path.stem)
+    if not isinstance(name, str) or not name.strip() or not name.isprintable():
+        raise CorpusError(f"{path}: 'name' must be a non-empty string on one line, not {name!r}")
     fps = d.get("fps", 30.0)
     if isinstance(fps, bool) or not isinstance(fps, int | float) or not 1 <= fps <= 1000:
         raise CorpusError(f"{path}: 'fps' must be a number from 1 to 1000, not {fps!r}")
@@ -153,10 +170,25 @@ def load_corpus(path: str | Path) -> Corpus:
         raise CorpusError(f"{path}: no [[source]] tables")
     base = path.resolve().parent
     sources = tuple(_source(s, i, path, base) for i, s in enumerate(raw))
+    _distinct(path, sources)
+    return Corpus(name, float(fps), sources, path.resolve())
+
+
+def _distinct(path: Path, sources: tuple[Source, ...]) -> None:
+    """CorpusError where two sources share a name, or read the same files (the same folder,
+    include, exclude and split): their clips would count twice."""
     names = [s.name for s in sources]
     if len(set(names)) < len(names):
         raise CorpusError(f"{path}: source names repeat: {names}")
-    return Corpus(str(d.get("name") or path.stem), float(fps), sources, path.resolve())
+    seen = {}
+    for s in sources:
+        files = (str(s.path.resolve()), s.include, s.exclude, s.split)
+        if files in seen:
+            raise CorpusError(
+                f"{path}: sources {seen[files]!r} and {s.name!r} read the same files ({s.path}, "
+                f"include {s.include!r}): their clips would count twice"
+            )
+        seen[files] = s.name
 
 
 def source_files(src: Source, listing) -> list[Path]:
@@ -224,11 +256,11 @@ class _SourceWriter:
             h.close()
 
 
-def _skipped(file: Path, e: Exception) -> str:
+def _why(file: Path, e: Exception) -> tuple[str, str]:
+    """Why ``file`` could not be read, and its one ``tween: skipped clip:`` line."""
     msg = str(e).splitlines()[0] if str(e) else type(e).__name__
     line = msg if str(file) in msg else f"{file}: {msg}"
-    print(f"tween: skipped clip: {line}", file=sys.stderr)
-    return msg
+    return msg, f"tween: skipped clip: {line}"
 
 
 def _summary(corpus: Corpus, out: Path, complete: bool) -> dict:
@@ -252,25 +284,67 @@ def prepare(
 ) -> dict:
     """Reads every source of ``corpus`` into ``out`` (resuming what an earlier call left) and
     returns the manifest (also ``out/corpus.json``). ``read(path, source, fps)`` gives a clip
-    on the model skeleton at ``fps`` (a Motion); ``listing(folder, include)`` a source's files."""
+    on the model skeleton at ``fps`` (a Motion); ``listing(folder, include)`` a source's files.
+
+    CorpusError, one line naming the corpus file and the source, where a source lists no file,
+    two sources hold the same file (both before anything is written), or a source yields no
+    frame at all (its weight could not be honoured; a folder this call made is removed)."""
     out = Path(out)
+    files = _listed(corpus, listing)
+    made = [d for d in (out, *out.parents) if not d.exists()]  # out, then the folders it is in
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / ".lock", "w") as lock:
-        # Two prepares appending to the same arrays would interleave their clips, so one waits
-        # for the other; it then finds the clips committed and reads only what is left (two
-        # trainings started on the same corpus both go on).
+    try:
+        with open(out / ".lock", "w") as lock:
+            # Two prepares appending to the same arrays would interleave their clips, so one
+            # waits for the other; it then finds the clips committed and reads only what is
+            # left (two trainings started on the same corpus both go on).
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                print(f"tween: {out}: being prepared by another process; waiting for it", file=sys.stderr)
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            return _prepare(corpus, out, files, read, progress, commit_s)
+    except CorpusError:
+        _unmake(made)  # bad input leaves no half-made cache entry behind
+        raise
+
+
+def _unmake(made: list[Path]) -> None:
+    """Removes ``made[0]`` (a cache folder this call made) and then those of the folders it is
+    in that this call made and that are empty: another prepare may have put its own there."""
+    if made:
+        shutil.rmtree(made[0], ignore_errors=True)
+    for d in made[1:]:
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            d.rmdir()
         except OSError:
-            print(f"tween: {out}: being prepared by another process; waiting for it", file=sys.stderr)
-            fcntl.flock(lock, fcntl.LOCK_EX)
-        return _prepare(corpus, out, read, listing, progress, commit_s)
+            return
 
 
-def _prepare(corpus: Corpus, out: Path, read, listing, progress: bool, commit_s: float) -> dict:
-    todo = []
+def _listed(corpus: Corpus, listing) -> list[list[Path]]:
+    """Each source's files; CorpusError naming the corpus and the source where a source lists
+    none, or where two sources hold the same file (its clip would count twice)."""
+    out, owner = [], {}
     for src in corpus.sources:
-        files = source_files(src, listing)
+        try:
+            files = source_files(src, listing)
+        except TweenError as e:
+            raise CorpusError(f"{corpus.file}: source {src.name!r}: {str(e).splitlines()[0]}") from None
+        if not files:
+            raise CorpusError(f"{corpus.file}: source {src.name!r}: no file left in {src.path} (include, "
+                              "exclude and split leave none)")  # fmt: skip
+        for f in files:
+            other = owner.setdefault(str(Path(f).resolve()), src.name)
+            if other != src.name:
+                raise CorpusError(f"{corpus.file}: sources {other!r} and {src.name!r} both hold {f}: "
+                                  "its clip would count twice")  # fmt: skip
+        out.append(files)
+    return out
+
+
+def _prepare(corpus: Corpus, out: Path, listed, read, progress: bool, commit_s: float) -> dict:
+    todo = []
+    for src, files in zip(corpus.sources, listed, strict=True):
         writer = _SourceWriter(out / src.name, src.key(corpus.fps))
         done = {c["file"] for c in writer.manifest["clips"]}
         writer.manifest["failed"] = []  # tried again: a file fixed since is read
@@ -282,22 +356,7 @@ def _prepare(corpus: Corpus, out: Path, read, listing, progress: bool, commit_s:
     try:
         for src, writer, files in todo:
             bar.set_postfix_str(src.name, refresh=False)
-            last = time.monotonic()
-            for f in files:
-                try:
-                    m = read(f, src, corpus.fps)
-                    if len(m) < 2:
-                        raise ValueError("fewer than two frames")
-                except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
-                    writer.manifest["failed"].append({"file": str(f), "why": _skipped(f, e)})
-                else:  # a full disk while writing is no bad clip: it stops the prepare
-                    writer.add(f, m.rotations, m.root_positions)
-                bar.update()
-                if time.monotonic() - last > commit_s:
-                    writer.commit()
-                    _write_json(out / MANIFEST, _summary(corpus, out, False))
-                    last = time.monotonic()
-            writer.commit()
+            _read_source(corpus, out, src, writer, files, read, bar, commit_s)
     finally:
         for _, writer, _ in todo:
             writer.close()
@@ -305,6 +364,40 @@ def _prepare(corpus: Corpus, out: Path, read, listing, progress: bool, commit_s:
     manifest = _summary(corpus, out, True)
     _write_json(out / MANIFEST, manifest)
     return manifest
+
+
+def _read_source(corpus: Corpus, out: Path, src: Source, writer, files, read, bar, commit_s) -> None:
+    """Appends the clips of ``files`` to ``writer``. A file that cannot be read is one line; while
+    the source has no frame those lines wait, and a source that ends with none is one
+    CorpusError instead (its share of the windows cannot be honoured)."""
+    last, waiting = time.monotonic(), []
+    for f in files:
+        try:
+            m = read(f, src, corpus.fps)
+            if len(m) < 2:
+                raise ValueError("fewer than two frames")
+        except (TweenError, ValueError, IndexError, OSError, KeyError) as e:
+            why, line = _why(f, e)
+            writer.manifest["failed"].append({"file": str(f), "why": why})
+            waiting.append(line)
+        else:  # a full disk while writing is no bad clip: it stops the prepare
+            writer.add(f, m.rotations, m.root_positions)
+        if writer.manifest["frames"]:
+            for line in waiting:
+                print(line, file=sys.stderr)
+            waiting = []
+        bar.update()
+        if time.monotonic() - last > commit_s:
+            writer.commit()
+            _write_json(out / MANIFEST, _summary(corpus, out, False))
+            last = time.monotonic()
+    writer.commit()
+    if not writer.manifest["frames"]:
+        first = writer.manifest["failed"][0]["why"] if writer.manifest["failed"] else "no file"
+        raise CorpusError(
+            f"{corpus.file}: source {src.name!r}: none of its {len(files)} file(s) could be read "
+            f"(first: {first}), so its weight {src.weight:g} cannot be honoured"
+        )
 
 
 class Frames:

@@ -15,9 +15,10 @@ import hashlib
 import json
 from pathlib import Path
 
+from pipeline.adapt.mapping import MappingError, load_override
 from pipeline.arguments import Parser
 from pipeline.data.cache import cache_root
-from pipeline.data.corpus import Corpus, load_corpus, open_corpus, prepare
+from pipeline.data.corpus import Corpus, CorpusError, load_corpus, open_corpus, prepare
 
 
 def read_clip(path: Path, source, fps: float):
@@ -27,6 +28,16 @@ def read_clip(path: Path, source, fps: float):
     if source.mapping is None and abs(fps - 30.0) < 1e-6:
         return studio_take(path)  # the protocol's exact reading for Bandai's own skeleton
     return model_take(path, fps, source.mapping).continuous()
+
+
+def check_mappings(corpus: Corpus) -> None:
+    """Each source's mapping file read once, before any clip: CorpusError naming the corpus,
+    the source and the file where one cannot be used (not one skipped clip per file)."""
+    for src in corpus.sources:
+        try:
+            load_override(src.mapping)
+        except MappingError as e:
+            raise CorpusError(f"{corpus.file}: source {src.name!r}: {str(e).splitlines()[0]}") from None
 
 
 def cache_folder(corpus: Corpus) -> Path:
@@ -43,6 +54,7 @@ def prepared(
     from pipeline.usd.take import take_files
 
     corpus = load_corpus(file)
+    check_mappings(corpus)
     folder = Path(out) if out else cache_folder(corpus)
     manifest = prepare(corpus, folder, read_clip, take_files, progress=progress)
     return corpus, folder, manifest
