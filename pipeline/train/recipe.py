@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import math
 import shlex
 import shutil
 import sys
@@ -379,7 +380,7 @@ class Recipe:
         for s in self.stages:
             if s.name == name:
                 return s
-        raise RecipeError(f"{self.name}: no stage {name!r} (stages: {', '.join(self.names)})")
+        raise RecipeError(f"{self.source}: no stage {name!r} (stages: {', '.join(self.names)})")
 
     @property
     def names(self) -> list[str]:
@@ -398,77 +399,183 @@ class Recipe:
         return f"# measured wall time, summed over the stages: {' + '.join(parts)}"
 
 
-def _split(args) -> list[str]:
-    return shlex.split(args) if isinstance(args, str) else [str(a) for a in args]
-
-
 def recipe_path(name: str | Path) -> Path:
-    p = Path(name)
-    if p.suffix == ".toml" or p.exists():
-        return p
-    return RECIPES / f"{name}.toml"
+    """A bare NAME (no "/", no ".toml") is the project's recipes/NAME.toml, even where the
+    current folder holds a file or folder called NAME; anything else is a path."""
+    text = str(name)
+    if "/" not in text and not text.endswith(".toml"):
+        shipped = RECIPES / f"{text}.toml"
+        if shipped.is_file() or not Path(text).is_file():
+            return shipped
+    return Path(name)
+
+
+# The types of the keys a recipe may hold, as TOML writes them (float: any number).
+TOP_KEYS = {"name": str, "model": str, "notes": str, "base": dict, "stage": list, "export": dict}
+STAGE_KEYS = {"name": str, "args": "args", "init": str, "packed": bool, "wall_s": float,
+              "measured_device": str, "measured": str, "note": str}  # fmt: skip
+BASE_KEYS = {"recipe": str, "through": str}
+EXPORT_KEYS = {"stage": str, "args": "args", "path_from": str}
+KIND_NAMES = {str: "a string", bool: "true or false", float: "a number", int: "an integer",
+              dict: "a table", list: "an array", "args": "a string of arguments (or an array of strings)"}  # fmt: skip
+KEY_KINDS = {"stage": "[[stage]] tables", "export": "an [export] table (stage = STAGE, args = ...)",
+             "base": "a table {recipe = NAME, through = STAGE}", "wall_s": "a number (seconds)"}  # fmt: skip
+RUNNER_FOLDERS = ("model", "train.pack")  # what the runner itself writes into OUT/
+
+
+def _kind_of(value) -> str:
+    kind = next((k for k in (bool, str, int, float, dict, list) if isinstance(value, k)), None)
+    return KIND_NAMES.get(kind, f"a {type(value).__name__}")
+
+
+def _typed(raw: dict, known: dict, where: str) -> dict:
+    """``raw`` (a TOML table) checked against ``known`` (key -> kind): every key known, every
+    value of its kind. Returns the values, args split into a list."""
+    unknown = set(raw) - set(known)
+    if unknown:
+        raise RecipeError(f"{where}: unknown keys {sorted(unknown)} (known: {', '.join(known)})")
+    out = {}
+    for key, value in raw.items():
+        kind = known[key]
+        if kind == "args":
+            out[key] = _args(value, f"{where}: {key}")
+            continue
+        number = kind is float and isinstance(value, int | float) and not isinstance(value, bool)
+        if not (number or (isinstance(value, kind) and (kind is bool or not isinstance(value, bool)))):
+            want = KEY_KINDS.get(key, KIND_NAMES[kind])
+            raise RecipeError(f"{where}: {key} must be {want}, not {_kind_of(value)}")
+        if kind is float and (not math.isfinite(value) or value < 0):
+            raise RecipeError(f"{where}: {key} = {value}: must be a number of seconds, 0 or more")
+        out[key] = float(value) if kind is float else value
+    return out
+
+
+def _args(value, where: str) -> list[str]:
+    if isinstance(value, str):
+        try:
+            return shlex.split(value)
+        except ValueError as e:  # an unclosed quote
+            raise RecipeError(f"{where}: {str(e).lower()} (quote as a shell does)") from None
+    if isinstance(value, list) and all(isinstance(a, str) for a in value):
+        return list(value)
+    raise RecipeError(f"{where} must be {KIND_NAMES['args']}, not {_kind_of(value)}")
+
+
+def _folder_name(name: str, where: str, what: str) -> None:
+    """``name`` as one plain folder name: no path of its own, nothing the runner writes."""
+    plain = name not in ("", ".", "..") and not any(c in name for c in "/\\") and name.isprintable()
+    if not plain or name != name.strip() or name in RUNNER_FOLDERS:
+        raise RecipeError(
+            f"{where}: name = {name!r}: {what}, so it must be a plain folder name "
+            f"(no '/', not '.' or '..', not {' or '.join(RUNNER_FOLDERS)})"
+        )
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise RecipeError(f"{path}: not UTF-8 text (byte {e.start}); a recipe is a TOML file") from None
+    except OSError as e:
+        raise RecipeError(f"{path}: cannot read it: {e.strerror or e}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise RecipeError(f"{path}: {e}") from None
+
+
+def _missing(name, path: Path) -> str:
+    known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
+    return f"no recipe {str(name)!r} ({path} does not exist; recipes: {known})"
 
 
 def load_recipe(name: str | Path) -> Recipe:
-    """recipes/NAME.toml (or a path to a .toml file) -> Recipe, its base's stages first."""
+    """recipes/NAME.toml (or a path to a .toml file) -> Recipe, its base's stages first. The
+    whole file is checked here (every key's type, the stages' names and references, the
+    bases' chain), so a recipe that cannot be replayed fails before anything runs."""
     path = recipe_path(name)
     if not path.exists():
-        known = ", ".join(sorted(p.stem for p in RECIPES.glob("*.toml")))
-        raise RecipeError(f"no recipe {name!r} ({path} does not exist; recipes: {known})")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise RecipeError(f"{path}: {e}") from None
-    unknown = set(raw) - {"name", "model", "base", "notes", "stage", "export"}
-    if unknown:
-        raise RecipeError(f"{path}: unknown keys {sorted(unknown)}")
-    stages = []
-    if "base" in raw:
-        base = load_recipe(raw["base"]["recipe"])
-        through = raw["base"].get("through", base.names[-1])
-        stages = base.stages[: base.names.index(base.stage(through).name) + 1]
-    keys = {f.name for f in fields(Stage)}
-    for s in raw.get("stage", []):
-        bad = set(s) - keys
-        if bad:
-            raise RecipeError(f"{path}: stage {s.get('name')!r}: unknown keys {sorted(bad)}")
-        stages.append(Stage(**{**s, "args": _split(s.get("args", []))}))
+        raise RecipeError(_missing(name, path))
+    return _load(path, ())
+
+
+def _load(path: Path, chain: tuple[Path, ...]) -> Recipe:
+    raw = _typed(_read_toml(path), TOP_KEYS, str(path))
+    rec_name = raw.get("name", path.stem)
+    _folder_name(rec_name, str(path), "it names the default run folder runs/NAME/")
+    stages = _base_stages(raw["base"], path, (*chain, path.resolve())) if "base" in raw else []
+    for i, s in enumerate(raw.get("stage", []), start=1):
+        stages.append(_stage(s, i, path))
+    if not stages:
+        raise RecipeError(f"{path}: no [[stage]] (nor a base with stages): nothing to run")
     export = None
     if "export" in raw:
-        e = raw["export"]
-        export = Export(stage=e["stage"], args=_split(e.get("args", [])), path_from=e.get("path_from"))
-    rec = Recipe(
-        name=raw.get("name", path.stem),
-        source=path,
-        stages=stages,
-        export=export,
-        model=raw.get("model"),
-        notes=raw.get("notes", ""),
-    )
+        e = _typed(raw["export"], EXPORT_KEYS, f"{path}: [export]")
+        if "stage" not in e:
+            raise RecipeError(f"{path}: [export]: no stage = STAGE (the stage it exports)")
+        if any(a.split("=")[0] == "--out" for a in e.get("args", [])):
+            raise RecipeError(f"{path}: [export]: args: --out is set by the recipe runner (OUT/model)")
+        export = Export(stage=e["stage"], args=e.get("args", []), path_from=e.get("path_from"))
+    rec = Recipe(rec_name, path, stages, export, model=raw.get("model"), notes=raw.get("notes", ""))
     _check_structure(rec)
     return rec
+
+
+def _stage(raw, i: int, path: Path) -> Stage:
+    """The i-th [[stage]] table of ``path``, checked."""
+    where = f"{path}: stage {i}"
+    if not isinstance(raw, dict):
+        raise RecipeError(f"{where}: must be a [[stage]] table, not {_kind_of(raw)}")
+    if isinstance(raw.get("name"), str):
+        where = f"{path}: stage {raw['name']!r}"
+    s = _typed(raw, STAGE_KEYS, where)
+    if "name" not in s:
+        raise RecipeError(f"{where}: no name = NAME (the folder OUT/NAME/ it runs into)")
+    _folder_name(s["name"], where, "the stage runs into OUT/NAME/")
+    return Stage(**{"args": [], **s})
+
+
+def _base_stages(raw: dict, path: Path, chain: tuple[Path, ...]) -> list[Stage]:
+    """The stages ``base = {recipe = NAME, through = STAGE}`` puts first."""
+    b = _typed(raw, BASE_KEYS, f"{path}: base")
+    if "recipe" not in b:
+        raise RecipeError(f"{path}: base: no recipe = NAME (the recipe whose stages come first)")
+    bpath = recipe_path(b["recipe"])
+    if not bpath.exists():
+        raise RecipeError(f"{path}: base: {_missing(b['recipe'], bpath)}")
+    if bpath.resolve() in chain:
+        loop = " -> ".join(str(p) for p in (*chain, bpath.resolve()))
+        raise RecipeError(f"{path}: base: recipe = {b['recipe']!r} leads back to itself ({loop})")
+    try:
+        base = _load(bpath, chain)
+    except RecipeError as e:  # named from this file: the base it reads cannot be replayed
+        raise RecipeError(f"{path}: base: {e}") from None
+    through = b.get("through", base.names[-1])
+    if through not in base.names:
+        raise RecipeError(
+            f"{path}: base: through = {through!r} is no stage of {bpath} (stages: {', '.join(base.names)})"
+        )
+    return base.stages[: base.names.index(through) + 1]
 
 
 def _check_structure(rec: Recipe) -> None:
     seen: set[str] = set()
     for s in rec.stages:
         if s.name in seen:
-            raise RecipeError(f"{rec.name}: stage {s.name!r} twice")
-        if "/" in s.name or not s.name:
-            raise RecipeError(f"{rec.name}: stage name {s.name!r}: a folder name, please")
+            raise RecipeError(f"{rec.source}: stage {s.name!r} twice (each runs into OUT/{s.name}/)")
         for a in s.args:
             if a.split("=")[0] in RESERVED:
                 raise RecipeError(
-                    f"{rec.name}: stage {s.name}: {a} is set by the recipe runner "
+                    f"{rec.source}: stage {s.name!r}: {a} is set by the recipe runner "
                     "(use init = STAGE, packed = true)"
                 )
         if s.init is not None and s.init not in seen and not _is_path(s.init):
-            raise RecipeError(f"{rec.name}: stage {s.name}: init {s.init!r} is no earlier stage")
+            raise RecipeError(f"{rec.source}: stage {s.name!r}: init {s.init!r} is no earlier stage")
         seen.add(s.name)
     if rec.export is not None:
-        for ref in (rec.export.stage, rec.export.path_from):
+        for key, ref in (("stage", rec.export.stage), ("path_from", rec.export.path_from)):
             if ref is not None and ref not in seen:
-                raise RecipeError(f"{rec.name}: export: {ref!r} is no stage")
+                raise RecipeError(f"{rec.source}: [export]: {key} = {ref!r} is no stage")
 
 
 def _is_path(ref: str) -> bool:
@@ -500,7 +607,7 @@ def check_recipe(rec: Recipe, overrides: list[str] = (), out: Path | None = None
             parsed.append(configs(parse_train_args(stage_args(rec, s, out, overrides)[2:])))
         except Exception as e:  # click's usage errors, BadParameter
             msg = e.format_message() if hasattr(e, "format_message") else str(e)
-            raise RecipeError(f"{rec.source}: stage {s.name}: {msg}") from None
+            raise RecipeError(f"{rec.source}: stage {s.name!r}: {msg}") from None
     if rec.export is not None:
         try:
             export_command().make_context("export", export_args(rec, out))
@@ -511,14 +618,40 @@ def check_recipe(rec: Recipe, overrides: list[str] = (), out: Path | None = None
 
 
 def finished(run: Path, steps: int) -> bool:
-    """The stage folder holds its generator checkpoint at its last step."""
+    """The stage folder holds its generator checkpoint at its last step. A file there that is
+    no checkpoint of `tween train` (or whose step is not a number) is refused in one line."""
     ckpt = run / "generator.pt"
     if not ckpt.exists():
         return False
-    import torch
+    from pipeline.train.generator_training import read_checkpoint
 
-    state = torch.load(ckpt, weights_only=False, map_location="cpu")
-    return int(state.get("step", 0)) >= steps
+    hint = "; it is no finished stage to skip: remove it, or give another --out"
+    state = read_checkpoint(ckpt, f"recipe stage {run.name}", hint=hint)
+    step = state.get("step", 0)
+    if isinstance(step, bool) or not isinstance(step, int):
+        raise TweenError(f"{ckpt}: recipe stage {run.name}: its step is {step!r}, not a number{hint}")
+    return step >= steps
+
+
+def _finished_stages(rec: Recipe, configs_: list, out: Path, start: int) -> set[str]:
+    """The stages from ``start`` on whose folders hold their finished checkpoints; every other
+    stage's folder and --init checked first, so a replay that cannot go on stops before it
+    writes anything."""
+    if out.exists() and not out.is_dir():
+        raise RecipeError(f"{out}: --out of recipe {rec.source} is a file, not a folder")
+    done, runs = set(), set()
+    for s, (cfg, _) in list(zip(rec.stages, configs_, strict=True))[start:]:
+        run = out / s.name
+        if run.exists() and not run.is_dir():
+            raise RecipeError(f"{run}: stage {s.name} of {rec.source} runs into it, but it is a file; "
+                              "remove it, or give another --out")  # fmt: skip
+        if finished(run, cfg.steps):
+            done.add(s.name)
+            continue
+        runs.add(s.name)
+        if cfg.init is not None and s.init not in runs and not Path(cfg.init).exists():
+            raise RecipeError(f"{rec.source}: stage {s.name!r}: its --init {cfg.init} does not exist")
+    return done
 
 
 def _fmt_s(s: float) -> str:
@@ -538,8 +671,9 @@ def run_recipe(
     configs_ = check_recipe(rec, overrides, out)
     start = rec.names.index(rec.stage(from_stage).name) if from_stage else 0
     say = echo if dry_run else (lambda m: print(m, file=sys.stderr))
+    done = set() if dry_run else _finished_stages(rec, configs_, out, start)
     say(f"# recipe {rec.name} ({rec.source}): {len(rec.stages)} stages into {out}/")
-    last = _run_stages(rec, configs_, out, start, from_stage, dry_run, overrides, echo, say)
+    last = _run_stages(rec, configs_, out, (start, from_stage, done), dry_run, overrides, echo, say)
     if rec.export is None:
         if dry_run:
             echo(rec.wall_line())
@@ -547,10 +681,10 @@ def run_recipe(
     return _run_export(rec, out, dry_run, echo, say)
 
 
-def _run_stages(rec, configs_, out, start, from_stage, dry_run, overrides, echo, say) -> Path | None:
-    """The recipe's stages from ``start`` on (each printed, with ``dry_run``, not run); returns
-    the last stage's generator checkpoint."""
-    last, packed_said = None, False
+def _run_stages(rec, configs_, out, where, dry_run, overrides, echo, say) -> Path | None:
+    """The recipe's stages from ``start`` on (each printed, with ``dry_run``, not run; skipped
+    when in ``done``, the finished ones); returns the last stage's generator checkpoint."""
+    (start, from_stage, done), last, packed_said = where, None, False
     for i, (s, (cfg, path_cfg)) in enumerate(zip(rec.stages, configs_, strict=True)):
         run = out / s.name
         cmd = "tween train " + shlex.join(stage_args(rec, s, out, overrides))
@@ -565,12 +699,12 @@ def _run_stages(rec, configs_, out, start, from_stage, dry_run, overrides, echo,
                 packed_said = True
             echo(f"{cmd}   # {s.name}: {wall}")
             continue
-        if finished(run, cfg.steps):
+        if s.name in done:
             say(f"# {s.name}: {run / 'generator.pt'} finished ({cfg.steps} steps), skipped")
             last = run / "generator.pt"
             continue
         if cfg.init is not None and not Path(cfg.init).exists():
-            raise RecipeError(f"{rec.name}: stage {s.name}: its --init {cfg.init} does not exist")
+            raise RecipeError(f"{rec.source}: stage {s.name!r}: its --init {cfg.init} does not exist")
         if s.packed and not (out / "train.pack").exists():
             from pipeline.data.cache import load_split
             from pipeline.data.pack import pack
