@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from celery import Celery
 
 import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
-from workers import security
+from workers import backends, security
 from workers.errors import FarmConnectionError
 from workers.settings import FarmConfigError, FarmSettings, load_settings, redact_url, url_passwords
 
@@ -163,10 +163,15 @@ def check_broker(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
 
 
 def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
-    """Pings a Redis result backend (with a short bounded retry); other backends connect on
-    first use (a database one would create its tables)."""
+    """Pings a Redis result backend (with a short bounded retry); of another backend, checks
+    that its database can be reached (workers/backends.py: an SQLite file's folder, a
+    server's port) without connecting to it (a database backend would create its tables)."""
     url = celery_app.conf.result_backend
     if not str(url).startswith(("redis://", "rediss://")):
+        try:
+            backends.reach(str(url), timeout)
+        except OSError as e:
+            raise connection_error("result backend", url, e) from None
         return
 
     deadline = time.monotonic() + timeout / 2  # redis-py retries each ping a few times itself

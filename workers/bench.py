@@ -134,14 +134,17 @@ def _markdown(res: dict, overhead: float | None, broker_url: str) -> str:
 
 
 def run_bench_farm(n_shots: int, worker_counts: list[int], shot: Path | None, out: Path) -> dict:
-    from workers.app import app, configure
+    from workers.app import SETTINGS_ERROR, app, check_farm, configure
 
     check_out_file(out)  # before the farm runs, not after
     shot = _default_shot() if shot is None else shot
     _check_shot(shot)
     base = app.conf.tween
+    if SETTINGS_ERROR is not None:  # the broker setting may be the one that is wrong
+        raise SETTINGS_ERROR
     if base.embedded:
         raise TweenError("bench-farm needs a broker: set TWEEN_BROKER_URL (e.g. redis://127.0.0.1:6379/0)")
+    check_farm(app)  # an unreachable broker or backend: one line, before any fill runs
     work = cache_dir() / "bench-farm" / uuid.uuid4().hex[:8]
     _validate_shot(shot, work)
     prefix = f"tween-bench-{work.name}:"

@@ -18,6 +18,7 @@ from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
+from pipeline.options import MAX_TEXT, one_line
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
@@ -157,6 +158,14 @@ def _shot_files(shots: list[Path]) -> list[str]:
             raise TweenError(f"{p}: the same shot as {seen[real]} (give each shot once)")
         seen[real] = p
     return list(seen.values())
+
+
+def _given_path(value: str, what: str) -> Path:
+    """A path argument or option as given, or one line naming it when it is empty or blank
+    (``Path("")`` is the working folder: a job for it was sent)."""
+    if not value.strip():
+        raise TweenError(f"{what} {value!r}: empty; give a path")
+    return Path(value)
 
 
 def _job_ids(job_ids: list[str]) -> list[str]:
@@ -626,10 +635,38 @@ def worker(
     celery_app.worker_main(argv)
 
 
+def _check_rig_job(source: Path, o: TrainRigOptions) -> None:
+    """What the worker's `tween train-rig` would refuse, refused before the job is sent: the
+    clip read as the training reads it (a USD shot, BVH or .npz; ``--skeleton``, ``--frames``
+    inside it; ``--contacts`` joints of it: pipeline.rig.train's own functions, no model
+    trained), and option texts that are empty (a job carries none of them: it ran with the
+    default instead) or not one printable line (they go into the model card and rig.json)."""
+    from pipeline.rig.source import parse_frames
+    from pipeline.rig.train import TrainConfig, prepare_motion, spec_for
+
+    for flag, v in (("--frames", o.frames), ("--skeleton", o.skeleton), ("--contacts", o.contacts),
+                    ("--name", o.name), ("--licence", o.licence), ("--credit", o.credit)):  # fmt: skip
+        if v is not None and not v.strip():
+            raise TweenError(f"{flag} {v!r}: empty; leave it out for the default")
+    for flag, v in (("--name", o.name), ("--licence", o.licence), ("--credit", o.credit)):
+        if v is not None and not one_line(v):
+            raise TweenError(
+                f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
+            )
+    if o.name is not None and ("/" in o.name or "\\" in o.name or o.name.strip() in (".", "..")):
+        raise TweenError(f"--name {o.name!r}: a model name, not a path")
+    cfg = TrainConfig(
+        source=str(source), out="", skeleton=o.skeleton, frames=parse_frames(o.frames), fps=o.fps
+    )
+    spec_for(prepare_motion(cfg), o.contact_joints())
+
+
 @with_train_rig_options
 def submit_train_rig(
     source: Path = typer.Argument(..., help="The reference clip: a USD shot or a BVH, on shared storage."),
-    out: Path = typer.Option(..., "--out", help="Model folder (e.g. models/<rig>); resubmitting resumes."),
+    out: str = typer.Option(
+        ..., "--out", metavar="PATH", help="Model folder (e.g. models/<rig>); resubmitting resumes."
+    ),
     wait: bool = typer.Option(False, "--wait", help="Wait with a progress bar; print the model folder."),
     opts: TrainRigOptions = None,
 ):
@@ -645,9 +682,11 @@ def submit_train_rig(
     if rig_app.conf.tween.embedded:
         _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
         raise typer.Exit(2)
+    out = _given_path(out, "--out")
     if not source.is_file():
         _err(f"{source}: " + ("a folder, not a clip file" if source.is_dir() else "no such file"))
         raise typer.Exit(2)
+    _check_rig_job(source, checked)
     if not checked.force:  # as `tween train-rig` refuses it, before a worker takes the job
         refuse_model(out)
     check_farm(rig_app)
@@ -668,8 +707,12 @@ def submit_train_rig(
 
 @with_library_options
 def submit_library(
-    folder: Path = typer.Argument(..., help="Folder of takes (BVH and USD), on storage every worker sees."),
-    out: Path = typer.Option(..., "--out", help="The library folder to write (or to add to, with --add)."),
+    folder: str = typer.Argument(
+        ..., metavar="FOLDER", help="Folder of takes (BVH and USD), on storage every worker sees."
+    ),
+    out: str = typer.Option(
+        ..., "--out", metavar="PATH", help="The library folder to write (or to add to, with --add)."
+    ),
     wait: bool = typer.Option(False, "--wait", help="Wait, then print the library's summary."),
     opts: LibraryBuildOptions = None,
 ):
@@ -686,7 +729,12 @@ def submit_library(
     from pipeline.usd.take import take_files
 
     # What `tween library build` refuses is refused here, before a worker takes the job.
+    # (A Path made of "" is the working folder: an empty argument is refused as given.)
+    folder, out = _given_path(folder, "takes folder"), _given_path(out, "--out")
     opts.check()
+    if opts.include is not None and not any(p.strip() for p in opts.include.split(",")):
+        raise TweenError(f"--include {opts.include!r}: names no file-name glob (e.g. '001_*,002_*'); "
+                         "leave it out for every take")  # fmt: skip
     take_files(folder, opts.include)
     check_out(out, opts.add)
     check_farm(train_app)

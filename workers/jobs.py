@@ -466,7 +466,16 @@ def _long_job_state(celery_app, job_id: str, stage: str, what: str) -> JobState:
             js.error = train_limit_message(f"{stage} {job_id}", setting, celery_app.conf.tween)
     else:
         js.error = f"{job_id}: no such {what} (unknown id, or its record expired)"
+    if not js.shot and js.state != "UNKNOWN":  # a failure's result is its exception: the task's
+        js.shot = _first_arg(m)  # own arguments (kept with it: result_extended) name the source
     return js
+
+
+def _first_arg(meta: dict) -> str:
+    """The first argument of the task a result ``meta`` belongs to (a rig training's clip, a
+    library build's folder of takes), or ""."""
+    args = meta.get("args")
+    return str(args[0]) if isinstance(args, list | tuple) and args and args[0] else ""
 
 
 def train_rig_state(job_id: str) -> JobState:

@@ -18,7 +18,7 @@ from urllib.parse import unquote
 
 from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
-from workers import security
+from workers import backends, security
 
 
 class FarmConfigError(TweenError):
@@ -283,6 +283,17 @@ def _given(env, data: dict, key: str, file: Path) -> tuple[object, str] | None:
     return None
 
 
+def _env_roots(roots: str) -> tuple[str, ...]:
+    """The folders of ``TWEEN_SHOT_ROOTS`` (separated by ``os.pathsep``); a blank one is
+    refused, as the file's ``shot_roots = [""]`` is (" " was taken for a folder named so)."""
+    entries = roots.split(os.pathsep)
+    if not all(r.strip() for r in entries):
+        raise FarmConfigError(
+            f"TWEEN_SHOT_ROOTS={roots!r}: an empty folder path in {entries!r} (folders separated by {os.pathsep!r})"
+        )
+    return tuple(entries)
+
+
 def _values(env, data: dict) -> tuple[dict, dict[str, str]]:
     """Each setting given, from ``env`` (first) or the config file's ``data``, typed and
     checked, and where each came from (for the error lines). Relative paths of the file are
@@ -306,7 +317,7 @@ def _values(env, data: dict) -> tuple[dict, dict[str, str]]:
             vals[key] = security.resolve_path(vals[key], base if from_file else None)
     roots = env.get("TWEEN_SHOT_ROOTS")
     if roots:
-        vals["shot_roots"] = tuple(r for r in roots.split(os.pathsep) if r)
+        vals["shot_roots"] = _env_roots(roots)
         origin["shot_roots"] = "TWEEN_SHOT_ROOTS"
     elif data.get("shot_roots"):
         vals["shot_roots"] = tuple(security.resolve_path(r, base) for r in data["shot_roots"])
@@ -337,6 +348,12 @@ def _broker_and_backend(vals: dict, env, origin: dict[str, str]) -> tuple[str, s
             f"{_named('result_backend', backend, origin.get('result_backend', 'TWEEN_RESULT_BACKEND'))}: "
             "rpc:// cannot run chords; use redis:// or db+..."
         )
+    if "result_backend" in origin:  # the embedded default and a Redis broker's own are fine
+        why = backends.problem(backend)
+        for pw in url_passwords(backend) if why else ():
+            why = why.replace(pw, "***")
+        if why:
+            raise FarmConfigError(f"{_named('result_backend', backend, origin['result_backend'])}: {why}")
     return broker, backend, embedded
 
 

@@ -30,6 +30,7 @@ from celery.signals import worker_init, worker_process_init
 from pipeline.errors import TweenError
 from pipeline.fill import api as fill
 from pipeline.fill.api import FillOptions
+from pipeline.fill.options import MAX_TAKES
 from render.scene import list_takes
 from workers import cleanup, control, runtime
 from workers import paths as jobpaths
@@ -171,6 +172,26 @@ def _check(shot: str, opts: dict, job: dict) -> None:
     jobpaths.check_job(shot, opts, app.conf.tween.shot_roots, job.get("work_dir"))
 
 
+def _checked_layer(layer, shot: str, opts: dict, job: dict) -> int:
+    """The job's paths and what the layer stage handed the review stage (through the result
+    backend, which anyone who can write there can forge): its layer and review paths inside
+    the shot roots, as every path of a job; its takes a count a fill makes (1 to MAX_TAKES: a
+    forged 10**9 made the worker allocate 11 GB). Returns the takes."""
+    _check(shot, opts, job)
+    if not isinstance(layer, dict):
+        raise JobError(f"{shot}: the layer stage handed no layer ({type(layer).__name__})")
+    for role in ("layer", "review"):
+        p = layer.get(role)
+        if p is not None and not isinstance(p, str):
+            raise JobError(f"{shot}: the layer stage handed a {role} path that is no path ({p!r:.60})")
+        if p:
+            jobpaths.check_under_roots(p, app.conf.tween.shot_roots, f"{role} layer")
+    n = layer.get("takes") or 1
+    if type(n) is not int or not 1 <= n <= MAX_TAKES:
+        raise JobError(f"{shot}: the layer stage handed {n!r:.60} takes; a fill makes 1 to {MAX_TAKES}")
+    return n
+
+
 @app.task(name="tween.validate", base=FarmTask, bind=True)
 def validate(self, shot: str, opts: dict, job: dict) -> dict:
     """Refuses paths outside the shot roots, then checks the shot can be filled."""
@@ -214,6 +235,8 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
     """Drops the work folder, then renders the review of each take when asked to. Its time
     limits are the render's, sized by the job's frames × takes (``job["limits"]``)."""
     with _stage(self, shot, opts, job, "review"):
+        with _sorted_errors(shot):
+            _checked_layer(layer, shot, opts, job)
         result = dict(layer)
         if job.get("render"):
             try:
@@ -248,9 +271,10 @@ def render_version(self, review: str, job: dict) -> dict:
 
 
 def _render_takes(layer: dict, shot: str, opts: dict, job: dict) -> list:
-    work = job.get("work") or {"frames": 1, "takes": int(layer.get("takes") or 1)}
+    with _sorted_errors(shot):
+        n_takes = _checked_layer(layer, shot, opts, job)
+    work = job.get("work") or {"frames": 1, "takes": n_takes}
     with _sorted_errors(shot, work=work):
-        _check(shot, opts, job)
         from render.review import render_review as render_fn
 
         out_dir = cleanup.review_dir(layer)
@@ -258,7 +282,6 @@ def _render_takes(layer: dict, shot: str, opts: dict, job: dict) -> list:
         # being run again, so that run is over.
         for p in cleanup.clean_scratch(out_dir, job["id"]):
             print(f"tween worker: removed {p}, left by an earlier run of job {job['id']}", file=sys.stderr)
-        n_takes = int(layer.get("takes") or 1)
         # One take has no variant set to select: render the stage as composed.
         takes = list(range(n_takes)) if n_takes > 1 else [None]
         same = {int(k): int(v) for k, v in (layer.get("same_as") or {}).items()}
