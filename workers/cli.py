@@ -18,7 +18,6 @@ from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
-from pipeline.options import MAX_TEXT, one_line
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
@@ -636,25 +635,13 @@ def worker(
 
 
 def _check_rig_job(source: Path, o: TrainRigOptions) -> None:
-    """What the worker's `tween train-rig` would refuse, refused before the job is sent: the
-    clip read as the training reads it (a USD shot, BVH or .npz; ``--skeleton``, ``--frames``
-    inside it; ``--contacts`` joints of it: pipeline.rig.train's own functions, no model
-    trained), and option texts that are empty (a job carries none of them: it ran with the
-    default instead) or not one printable line (they go into the model card and rig.json)."""
+    """What the worker's `tween train-rig` would refuse of the clip, refused before the job
+    is sent (the options themselves: ``TrainRigOptions.check``): the clip read as the
+    training reads it (a USD shot, BVH or .npz; ``--skeleton``, ``--frames`` inside it;
+    ``--contacts`` joints of it: pipeline.rig.train's own functions, no model trained)."""
     from pipeline.rig.source import parse_frames
     from pipeline.rig.train import TrainConfig, prepare_motion, spec_for
 
-    for flag, v in (("--frames", o.frames), ("--skeleton", o.skeleton), ("--contacts", o.contacts),
-                    ("--name", o.name), ("--licence", o.licence), ("--credit", o.credit)):  # fmt: skip
-        if v is not None and not v.strip():
-            raise TweenError(f"{flag} {v!r}: empty; leave it out for the default")
-    for flag, v in (("--name", o.name), ("--licence", o.licence), ("--credit", o.credit)):
-        if v is not None and not one_line(v):
-            raise TweenError(
-                f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
-            )
-    if o.name is not None and ("/" in o.name or "\\" in o.name or o.name.strip() in (".", "..")):
-        raise TweenError(f"--name {o.name!r}: a model name, not a path")
     cfg = TrainConfig(
         source=str(source), out="", skeleton=o.skeleton, frames=parse_frames(o.frames), fps=o.fps
     )

@@ -12,7 +12,7 @@ import re
 from dataclasses import asdict, dataclass
 
 from pipeline.errors import TweenError
-from pipeline.options import flags_of, job_args, option, with_options
+from pipeline.options import MAX_TEXT, flags_of, job_args, one_line, option, with_options
 
 SCHEDULES = ("tiny", "reduced", "paper")
 MAX_SEED = 2**31 - 1
@@ -89,6 +89,7 @@ class TrainRigOptions:
             if v is not None and not (isinstance(v, int | float) and lo <= v <= hi):  # NaN fails too
                 raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
         check_device(self.device)
+        self._check_texts()
         parse_frames(self.frames)
         if self.contacts is not None and not self.contact_joints():
             raise TweenError(
@@ -96,6 +97,25 @@ class TrainRigOptions:
                 "leave it out for the joints that touch the floor)"
             )
         return self
+
+    def _check_texts(self) -> None:
+        """An option text given empty ran with the default (``--frames ''`` learnt the whole
+        clip; an empty ``--contacts`` names no joint, said in check); names, licences and
+        credits go into the card and rig.json as one line; a name is no path."""
+        texts = (("--frames", self.frames), ("--skeleton", self.skeleton), ("--name", self.name),
+                 ("--licence", self.licence), ("--credit", self.credit))  # fmt: skip
+        for flag, v in texts:
+            if v is not None and (not isinstance(v, str) or not v.strip()):
+                raise TweenError(f"{flag} {v!r}: empty; leave it out for the default")
+        for flag, v in texts[2:]:
+            if v is not None and not one_line(v):
+                raise TweenError(
+                    f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
+                )
+        if self.name is not None and (
+            "/" in self.name or "\\" in self.name or self.name.strip() in (".", "..")
+        ):
+            raise TweenError(f"--name {self.name!r}: a model name, not a path")
 
     def contact_joints(self) -> list[str] | None:
         """The joint names ``--contacts`` lists (None: not given, the joints that touch the floor)."""

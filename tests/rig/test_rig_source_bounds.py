@@ -167,3 +167,19 @@ def test_huge_bvh_values_are_one_line_without_warnings(tmp_path, capsys, where):
     )
     for line in _both(bvh, capsys, tmp_path):
         assert line.startswith(f"tween: error: {bvh}:") and "beyond" in line, line
+
+
+def test_empty_or_multi_line_option_texts_are_refused_by_train_rig_itself(tmp_path, capsys):
+    """``--frames ''`` learnt the whole clip and ``--name a/b`` named the model a path; before,
+    only submit-train-rig refused them (TrainRigOptions.check serves both)."""
+    pytest.importorskip("torch")
+    clip = tmp_path / "c.npz"
+    save_npz(walk(48), clip)
+    for flag, value, says in (("--frames", "", "empty; leave it out for the default"),
+                              ("--skeleton", " ", "empty; leave it out for the default"),
+                              ("--name", "", "empty; leave it out for the default"),
+                              ("--name", "a/b", "a model name, not a path"),
+                              ("--licence", "CC BY\n4.0", "must be one line of printable text"),
+                              ("--credit", "", "empty; leave it out for the default")):  # fmt: skip
+        line = refused(["train-rig", clip, "--out", tmp_path / "m", *TINY, flag, value], capsys, tmp_path)
+        assert line.startswith(f"tween: error: {flag} ") and says in line, line
