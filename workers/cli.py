@@ -719,9 +719,6 @@ def submit_library(
     # (A Path made of "" is the working folder: an empty argument is refused as given.)
     folder, out = _given_path(folder, "takes folder"), _given_path(out, "--out")
     opts.check()
-    if opts.include is not None and not any(p.strip() for p in opts.include.split(",")):
-        raise TweenError(f"--include {opts.include!r}: names no file-name glob (e.g. '001_*,002_*'); "
-                         "leave it out for every take")  # fmt: skip
     take_files(folder, opts.include)
     check_out(out, opts.add)
     check_farm(train_app)

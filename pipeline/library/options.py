@@ -27,12 +27,16 @@ class LibraryBuildOptions:
 
     def check(self) -> LibraryBuildOptions:
         """Raises TweenError (one line naming the option) unless the recorded texts are one
-        printable line: they go into library.json, every fill's record and ``library info``."""
+        printable line (they go into library.json, every fill's record and ``library info``)
+        and ``--include`` names a glob (an empty one read every take)."""
         for flag, v in (("--licence", self.licence), ("--name", self.name)):
             if v is not None and not one_line(v):
                 raise TweenError(
                     f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
                 )
+        if self.include is not None and not any(p.strip() for p in str(self.include).split(",")):
+            raise TweenError(f"--include {self.include!r}: names no file-name glob (e.g. '001_*,002_*'); "
+                             "leave it out for every take")  # fmt: skip
         return self
 
     def as_job(self) -> dict:

@@ -530,6 +530,9 @@ def test_info_shows_one_line_a_take_and_build_refuses_texts_that_are_not_one_lin
     for flag, bad in (("--licence", "CC BY\n4.0"), ("--name", "   "), ("--licence", "x" * 201)):
         line = refused(["library", "build", odd, "--out", out, flag, bad, "--no-progress"], capsys, tmp_path)
         assert line.startswith(f"tween: error: {flag} ") and "one line of printable text" in line
+    for bad in ("", " , "):  # an --include naming no glob read every take
+        line = refused(["library", "build", odd, "--out", out, "--include", bad], capsys, tmp_path)
+        assert line.startswith(f"tween: error: --include {bad!r}: names no file-name glob"), line
     assert not out.exists()
     succeeded(["library", "build", odd, "--out", out, "--licence", "CC BY 4.0", "--no-progress"], capsys)
     shown = succeeded(["library", "info", out], capsys).splitlines()
