@@ -6,6 +6,33 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: The linear units a character is measured in (metres per unit): a micrometre to 1,000 km.
+#: Beyond them lengths in metres overflow or vanish in float32.
+METERS_PER_UNIT = (1e-6, 1e6)
+#: The largest length (a rest offset, a translation, a root position) in a rig's own units:
+#: 10 km in millimetres. Beyond it nothing is a character, and what is computed from it
+#: (FK, the mesh, a rig's size) overflows to NaN.
+MAX_LENGTH = 1e7
+
+
+def topology_problem(names, parents) -> str | None:
+    """Why ``parents`` is not one hierarchy under one root, each joint after its parent
+    (None: it is): what :class:`Skeleton` refuses, said so that a reader can name its file
+    (UsdSkel allows several roots: a joint path whose parent is not listed)."""
+    parents = [int(p) for p in parents]
+    J = len(parents)
+    for j, p in enumerate(parents):
+        if not -1 <= p < J:
+            return f"joint {names[j]!r} has parent index {p}, not a joint of the {J}"
+    roots = [names[j] for j, p in enumerate(parents) if p < 0]
+    if len(roots) > 1:
+        listed = ", ".join(repr(r) for r in roots[:3]) + (", ..." if len(roots) > 3 else "")
+        return f"{len(roots)} root joints ({listed}); a rig is one hierarchy under one root joint"
+    for j, p in enumerate(parents):
+        if p >= j or (p < 0 and j != 0):
+            return f"joint {names[j]!r} comes before its parent (a parent is listed before its children)"
+    return None
+
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:
@@ -30,9 +57,9 @@ class Skeleton:
         object.__setattr__(self, "names", tuple(self.names))
         if len(self.names) != len(parents) or len(parents) != len(offsets):
             raise ValueError("skeleton: names, parents and offsets differ in length")
-        for j, p in enumerate(parents):
-            if p >= j or (p < 0 and j != 0):
-                raise ValueError(f"skeleton: joint {self.names[j]!r} comes before its parent")
+        why = topology_problem(self.names, parents)
+        if why:
+            raise ValueError(f"skeleton: {why}")
         if self.up_axis not in ("Y", "Z"):
             raise ValueError(f"skeleton: up axis must be Y or Z, not {self.up_axis!r}")
 

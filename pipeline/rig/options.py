@@ -36,6 +36,10 @@ def check_device(device, here: bool = False) -> None:
             raise TweenError(f"--device {device}: torch sees {n} CUDA device(s) on this host")
 
 
+#: The frame rates a rig model trains at (``--fps``), and so a clip's own rate.
+FPS_RANGE = (1.0, 1000.0)
+
+
 @dataclass
 class TrainRigOptions:
     """How a rig model is trained from its clip (JSON-serialisable: it travels to the farm)."""
@@ -85,7 +89,7 @@ class TrainRigOptions:
                                ("--threads", self.threads, 1, 256)):  # fmt: skip
             if v is not None and not (isinstance(v, int) and lo <= v <= hi):
                 raise TweenError(f"{opt} {v}: must be from {lo} to {hi}")
-        for opt, v, lo, hi in (("--fps", self.fps, 1.0, 1000.0), ("--ratio", self.ratio, 1e-3, 1.0)):
+        for opt, v, lo, hi in (("--fps", self.fps, *FPS_RANGE), ("--ratio", self.ratio, 1e-3, 1.0)):
             if v is not None and not (isinstance(v, int | float) and lo <= v <= hi):  # NaN fails too
                 raise TweenError(f"--{opt[2:]} {v}: must be from {lo:g} to {hi:g}")
         check_device(self.device)

@@ -20,17 +20,8 @@ from pipeline.errors import ShotError, TweenError
 from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import QUAT_EPS
-from pipeline.motion.skeleton import Skeleton
-
-#: A clip's frame rate: the range ``train-rig --fps`` takes (pipeline.rig.options).
-FPS_RANGE = (1.0, 1000.0)
-#: Its metersPerUnit: the range the USD reader takes (a micrometre to 1,000 km); beyond it no
-#: character is measured, and lengths in metres overflow or vanish in float32.
-MPU_RANGE = (1e-6, 1e6)
-#: The largest rest offset or root position (the clip's units): the USD reader's bound on a
-#: translation (10 km in millimetres; BVH's is 1e6). Beyond it nothing is a character, and
-#: the rig size and contact tests computed from it overflow float32 to NaN in rig.json.
-MAX_LENGTH = 1e7
+from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT, Skeleton, topology_problem
+from pipeline.rig.options import FPS_RANGE
 
 
 class RigSourceError(TweenError):
@@ -104,7 +95,7 @@ def _from_usd(path: Path, skeleton: str | None) -> Motion:
     up = _up_in_skeleton(shot.up_axis, char.skel_to_world)
     if not up:
         raise RigSourceError(path, f"{char.skel_path}: the stage's up axis is X or down in skeleton space")
-    why = tree_problem(char.joints, char.parents)
+    why = topology_problem(char.joints, char.parents)
     if why:
         raise ShotError(path, f"skeleton topology: {why}", char.skel_path)
     skel = Skeleton(
@@ -139,25 +130,6 @@ def _clip_times(path: Path, shot, char) -> tuple[np.ndarray, np.ndarray]:
         )
     lo, hi = np.round(times[0]), np.round(times[-1])
     return np.arange(lo, hi + 1.0), np.ones(1)
-
-
-def tree_problem(names, parents) -> str | None:
-    """Why ``parents`` is not one hierarchy under one root, each joint after its parent
-    (None: it is). ``Skeleton`` refuses such a list with a ValueError; UsdSkel allows
-    several roots (a joint path whose parent is not listed)."""
-    parents = [int(p) for p in parents]
-    J = len(parents)
-    for j, p in enumerate(parents):
-        if not -1 <= p < J:
-            return f"joint {names[j]!r} has parent index {p}, not a joint of the {J}"
-    roots = [names[j] for j, p in enumerate(parents) if p < 0]
-    if len(roots) > 1:
-        listed = ", ".join(repr(r) for r in roots[:3]) + (", ..." if len(roots) > 3 else "")
-        return f"{len(roots)} root joints ({listed}); a rig is one hierarchy under one root joint"
-    for j, p in enumerate(parents):
-        if p >= j or (p < 0 and j != 0):
-            return f"joint {names[j]!r} comes before its parent (a parent is listed before its children)"
-    return None
 
 
 def _scale(char) -> float:
@@ -248,7 +220,7 @@ def _check_values(path: Path, m: Motion) -> None:
         )
     if not (np.isfinite(s.meters_per_unit) and s.meters_per_unit > 0):
         raise RigSourceError(path, f"meters per unit {s.meters_per_unit!r}: not a positive number")
-    lo, hi = MPU_RANGE
+    lo, hi = METERS_PER_UNIT
     if not lo <= s.meters_per_unit <= hi:
         raise RigSourceError(
             path,
@@ -342,6 +314,6 @@ def _check_npz(path, a: dict) -> None:
             raise RigSourceError(path, f"{k}: an array of shape {a[k].shape}, expected one value")
     names, parents = a["names"], a["parents"]
     fits = names.ndim == parents.ndim == 1 and len(names) == len(parents)  # else Skeleton says so
-    why = fits and len(names) and tree_problem([str(n) for n in names], parents)
+    why = fits and len(names) and topology_problem([str(n) for n in names], parents)
     if why:
         raise RigSourceError(path, f"parents: {why}")

@@ -23,6 +23,7 @@ import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
 from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
 from pipeline.motion.rotations import QUAT_EPS, matrix_to_quat
+from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
 from usd_schemas import tokens
@@ -182,9 +183,6 @@ def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray
         raise ShotError(shot_path, f"{name}: NaN or infinite values (joint {joints[j]!r})", skel_path)
 
 
-#: The largest magnitude of a joint's translation or scale (stage units): 10 km in millimetres.
-#: Beyond it nothing is a character's motion, and what is computed from it overflows to NaN.
-MAX_VALUE = 1e7
 #: The value types UsdSkel's animation attributes may hold (a ``float4[]`` rotation reads its
 #: components in another order: x y z w against a quaternion's w x y z).
 TYPES = {
@@ -196,17 +194,12 @@ TYPES = {
 
 def _check_type(shot_path: str, attr, anim_path: str) -> None:
     """ShotError naming the attribute when it is authored with a value type UsdSkel does not
-    give it."""
-    # The authored specs' types: the attribute itself takes its schema's, whatever was authored.
-    given = next(
-        (str(s.typeName) for s in attr.GetPropertyStack() if str(s.typeName) not in TYPES[attr.GetName()]),
-        None,
-    )
+    give it (the attribute itself takes its schema's type, whatever the specs say)."""
+    allowed = TYPES[attr.GetName()]
+    given = next((str(s.typeName) for s in attr.GetPropertyStack() if str(s.typeName) not in allowed), None)
     if given is not None:
         raise ShotError(
-            shot_path,
-            f"{attr.GetName()} is {given}, not {TYPES[attr.GetName()][0]} (as UsdSkel declares it)",
-            anim_path,
+            shot_path, f"{attr.GetName()} is {given}, not {allowed[0]} (as UsdSkel declares it)", anim_path
         )
 
 
@@ -233,12 +226,12 @@ def check_samples(shot_path: str, anim, anim_path: str, anim_joints) -> None:
                 raise ShotError(
                     shot_path, f"{name}: NaN or infinite values {at} (joint {anim_joints[j]!r})", anim_path
                 )
-            far = (np.abs(a) > MAX_VALUE).any(1)
+            far = (np.abs(a) > MAX_LENGTH).any(1)  # scales too: no character is 1e7 times itself
             if far.any():
                 j = int(np.flatnonzero(far)[0])
                 raise ShotError(
                     shot_path,
-                    f"{name}: a value beyond ±{MAX_VALUE:g} {at} (joint {anim_joints[j]!r})",
+                    f"{name}: a value beyond ±{MAX_LENGTH:g} {at} (joint {anim_joints[j]!r})",
                     anim_path,
                 )
             if name == "rotations":
@@ -515,9 +508,10 @@ def _read_shot(path: str) -> Shot:
     if up not in ("Y", "Z"):  # UsdGeom allows these two; anything else was read as Z
         raise ShotError(path, f"upAxis {up!r} is not an up axis USD knows (Y or Z)")
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
-    if not 1e-6 <= mpu <= 1e6:  # a micrometre to 1,000 km: beyond, lengths overflow (NaN fails too)
+    lo, hi = METERS_PER_UNIT
+    if not lo <= mpu <= hi:  # NaN fails too
         raise ShotError(
-            path, f"metersPerUnit {mpu:g} is not a unit a character is measured in (1e-06 to 1e+06 m)"
+            path, f"metersPerUnit {mpu:g} is not a unit a character is measured in ({lo:g} to {hi:g} m)"
         )
     start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
     if not stage.HasAuthoredTimeCodeRange():
