@@ -236,11 +236,11 @@ def render_review(self, layer: dict, shot: str, opts: dict, job: dict) -> dict:
     limits are the render's, sized by the job's frames × takes (``job["limits"]``)."""
     with _stage(self, shot, opts, job, "review"):
         with _sorted_errors(shot):
-            _checked_layer(layer, shot, opts, job)
+            n_takes = _checked_layer(layer, shot, opts, job)
         result = dict(layer)
         if job.get("render"):
             try:
-                result["renders"] = _render_takes(layer, shot, opts, job)
+                result["renders"] = _render_takes(layer, shot, job, n_takes)
             except ImportError:
                 result["renders"] = None
                 result["render_note"] = "render.review is not available on this worker; review not rendered"
@@ -262,17 +262,17 @@ def render_version(self, review: str, job: dict) -> dict:
     with _stage(self, review, {}, job, "review"):
         try:
             with _sorted_errors(review):
-                n_takes = len(list_takes(review)) or 1
-            layer = {"review": review, "layer": review, "takes": n_takes}
-            return {"review": review, "renders": _render_takes(layer, review, {}, job)}
+                layer = {"review": review, "layer": review, "takes": len(list_takes(review)) or 1}
+                n_takes = _checked_layer(layer, review, {}, job)
+            return {"review": review, "renders": _render_takes(layer, review, job, n_takes)}
         except BaseException:
             cleanup.undo(review, {}, job)
             raise
 
 
-def _render_takes(layer: dict, shot: str, opts: dict, job: dict) -> list:
-    with _sorted_errors(shot):
-        n_takes = _checked_layer(layer, shot, opts, job)
+def _render_takes(layer: dict, shot: str, job: dict, n_takes: int) -> list:
+    """The review media of each of the ``n_takes`` takes of ``layer`` (checked by
+    :func:`_checked_layer`)."""
     work = job.get("work") or {"frames": 1, "takes": n_takes}
     with _sorted_errors(shot, work=work):
         from render.review import render_review as render_fn
