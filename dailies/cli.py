@@ -205,8 +205,9 @@ def publish(
         print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
         typer.echo(r["layer"])
     if sink is not None:
-        sent = {"tracker": sink.name, "sequence": approved.sequence, "shot": approved.shot,
-                "take": approved.take, **sink.send(approved)}  # fmt: skip
+        from dailies.tracker import send_take
+
+        sent = send_take(sink, approved)
         print(f"tween: sent take {sent['take']} to {sent['tracker']}: {sent['sequence']}/{sent['shot']}"
               f", status {sent.get('status')}", file=sys.stderr)  # fmt: skip
 
@@ -215,15 +216,14 @@ def _approved(shot: Path, out_dir: Path | None, mapping: dict | None):
     """The approved take of ``shot``'s latest fill with its MP4 (in ``review/`` beside the
     fills, where the farm renders it), as a tracker is sent it; one line saying what is
     missing."""
-    from dailies.shots import find
-    from dailies.tracker import approved_take
+    from dailies.tracker import approved_of
     from pipeline.usd.write import default_out_dir, shot_stem
 
     folder = Path(out_dir) if out_dir else default_out_dir(str(shot))
-    found = find([folder.resolve()], f"0/{shot_stem(str(shot))}") if folder.is_dir() else None
-    if found is None:
-        raise TweenError(f"{shot}: no fill of it in {folder}")
-    return approved_take(found, mapping)
+    try:
+        return approved_of([folder.resolve()], f"0/{shot_stem(str(shot))}", mapping)
+    except LookupError:
+        raise TweenError(f"{shot}: no fill of it in {folder}") from None
 
 
 def register(app: typer.Typer) -> None:

@@ -93,9 +93,19 @@ def approved_take(shot: Shot, mapping: dict | None = None) -> ApprovedTake:
 
 def send(roots: list[Path], key: str, tracker: Tracker, mapping: dict | None = None) -> dict:
     """Sends the approved take of the shot ``key`` (under ``roots``) to ``tracker``."""
+    return send_take(tracker, approved_of(roots, key, mapping))
+
+
+def approved_of(roots: list[Path], key: str, mapping: dict | None = None) -> ApprovedTake:
+    """The approved take of the shot ``key`` under ``roots`` (:func:`approved_take`);
+    LookupError when there is no such shot."""
     shot = find(roots, key)
     if shot is None:
         raise LookupError(key)
-    take = approved_take(shot, mapping)
+    return approved_take(shot, mapping)
+
+
+def send_take(tracker: Tracker, take: ApprovedTake) -> dict:
+    """Sends ``take`` to ``tracker``; what it answered, with where the take went."""
     return {"tracker": tracker.name, "sequence": take.sequence, "shot": take.shot, "take": take.take,
             **tracker.send(take)}  # fmt: skip
