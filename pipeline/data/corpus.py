@@ -55,6 +55,7 @@ from pipeline.data.split import is_eval, shared_data_dir
 from pipeline.data.terms import forbids_training
 from pipeline.errors import TweenError
 from pipeline.motion.rotations import quat_normalize
+from pipeline.options import MAX_TEXT, one_line
 from pipeline.progress import interval
 
 KIND, VERSION = "tween-corpus", 1
@@ -160,8 +161,10 @@ def load_corpus(path: str | Path) -> Corpus:
     if unknown:
         raise CorpusError(f"{path}: unknown key(s) {unknown}; known: fps, name, source")
     name = d.get("name", path.stem)
-    if not isinstance(name, str) or not name.strip() or not name.isprintable():
-        raise CorpusError(f"{path}: 'name' must be a non-empty string on one line, not {name!r}")
+    if not isinstance(name, str) or not one_line(name):
+        raise CorpusError(
+            f"{path}: 'name' must be a non-empty string on one line, at most {MAX_TEXT} characters, not {name!r}"
+        )
     fps = d.get("fps", 30.0)
     if isinstance(fps, bool) or not isinstance(fps, int | float) or not 1 <= fps <= 1000:
         raise CorpusError(f"{path}: 'fps' must be a number from 1 to 1000, not {fps!r}")
