@@ -38,7 +38,9 @@ ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
     "sqnorm": ("<f4", ()),  # |features|² (the search's dot-product form)
     "facing": ("<f4", (4,)),  # yaw quaternion turning the pose to face +X
     "contacts": ("u1", (2,)),  # left / right foot on the ground
-    "take_end": ("<i4", ()),  # index of the last frame of this frame's take
+    # index of the last frame of this frame's take: written for readers of version 1 and
+    # checked for its size, but read from the manifest here (Library.take_end)
+    "take_end": ("<i4", ()),
 }
 
 
