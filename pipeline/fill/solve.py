@@ -167,6 +167,19 @@ def _onto_rig(plan: Plan, cp: CharPlan, retarget, fps: float, filled: Motion | N
     return out
 
 
+def rig_feet(retarget, skeleton):
+    """The legs of a human character's rig (``skeleton``: its own joints), as the rig's joints
+    mapped to the model's legs, in its world's Y-up centimetres (pipeline.infer.plant.Feet);
+    None for a rig model's character or a leg that is not a hip-knee-ankle chain."""
+    from pipeline.data.skeletons import LEGS
+    from pipeline.infer.plant import feet_of
+
+    roles = getattr(retarget, "roles", None)
+    if roles is None:
+        return None
+    return feet_of(skeleton, [tuple(roles.get(n) for n in leg) for leg in LEGS], retarget.R, retarget.s)
+
+
 class OnRig:
     """Where the fill layer's trusted fill (infer.trust.trusted_fill) meets its two fills: the
     character's rig, at every frame of its fill range. The network's fill is turned back onto
@@ -186,7 +199,10 @@ class OnRig:
         own, rate = OwnRig(self.cp.char), own_rate(self.plan.shot.tcps, self.cp.keys)
         motion, m = _keyed_motion(self.plan, self.cp, self.keyed, own, own.skeleton, rate)
         breaks = jump_gaps(self.cp, self.plan.shot.tcps, rate)
-        return _onto_rig(self.plan, self.cp, own, rate, spline.fill(motion, m, breaks=breaks), m)
+        extra = {}
+        if getattr(spline, "plant", False):  # the trusted curve holds planted feet on the rig's legs
+            extra["feet"] = rig_feet(self.cp.retarget, own.skeleton)
+        return _onto_rig(self.plan, self.cp, own, rate, spline.fill(motion, m, breaks=breaks, **extra), m)
 
     def blend(self, decision, model: dict | None, spline: dict | None) -> dict:
         if model is None or spline is None:
@@ -268,6 +284,7 @@ def _trust_record(inb, cp: CharPlan, tcps: float, fps: float) -> dict | None:
     decision = inb.last_decision
     record = decision.to_json()
     record["curve"] = getattr(inb.spline, "method", None)  # the spline's tangents (infer.trust.CURVE)
+    record["plant"] = bool(getattr(inb.spline, "plant", False))  # feet the keys plant held (infer.plant)
     at, weights = gap_table(decision, cp, tcps, fps)
     record["gap_weights"] = gap_record(at, weights)
     if inb.model.capabilities.per_gap:

@@ -164,7 +164,9 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None, posed=No
     t = c + weight[sel, None] * (targets[sel] - c)
     lab = np.linalg.norm(b - a, axis=-1)
     lcb = np.linalg.norm(c - b, axis=-1)
-    lat = np.clip(np.linalg.norm(t - a, axis=-1), 1e-3, (lab + lcb) * 0.999)
+    # A leg already straighter than the bound keeps its reach: clipping it would bend the knee.
+    reach = np.maximum((lab + lcb) * 0.999, np.linalg.norm(c - a, axis=-1))
+    lat = np.clip(np.linalg.norm(t - a, axis=-1), 1e-3, reach)
     # Knee: set the interior angle so that hip–ankle distance equals hip–target distance.
     cos_now = ((a - b) * (c - b)).sum(-1) / (lab * lcb)
     cos_want = (lab**2 + lcb**2 - lat**2) / (2 * lab * lcb)

@@ -187,6 +187,8 @@ class SplineInbetweener:
     ``skeleton`` only names the rig the caller means (the Bandai skeleton by default); ``fill``
     works on whatever skeleton the motion carries, at its rate (``fill_batch``: at ``fps``).
     ``method``/``ends``: as :func:`spline_keys` (``"adaptive"``: the trusted fill's curve).
+    ``plant``: hold the feet the keys plant (pipeline.infer.plant; the trusted fill's curve),
+    on the legs ``fill`` is given (``feet``) or the model's leg joints by name.
     """
 
     name = "spline"
@@ -194,7 +196,9 @@ class SplineInbetweener:
     fps = 30.0
     capabilities = Capabilities(batch=True, any_rig=True)
 
-    def __init__(self, skeleton: Skeleton | None = None, method: str = "pchip", ends: str = "auto"):
+    def __init__(
+        self, skeleton: Skeleton | None = None, method: str = "pchip", ends: str = "auto", plant: bool = False
+    ):
         if skeleton is None:
             from pipeline.data.skeletons import bandai_skeleton
 
@@ -202,17 +206,36 @@ class SplineInbetweener:
         self.skeleton = skeleton
         self.method = method
         self.ends = ends
+        self.plant = plant
 
     def fill(
-        self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None, breaks=()
+        self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None, breaks=(), feet=None
     ) -> Motion:
-        """``breaks``: (a, b) adjacent key frames with a cut between them (:func:`spline_keys`)."""
+        """``breaks``: (a, b) adjacent key frames with a cut between them (:func:`spline_keys`);
+        ``feet``: the legs to plant on (pipeline.infer.plant.Feet; with ``plant`` only)."""
         refuse_extras(self, joint_keys, dna)
-        return spline_motion(motion, keys, self.method, self.ends, breaks)
+        out = spline_motion(motion, keys, self.method, self.ends, breaks)
+        if not self.plant:
+            return out
+        from pipeline.infer.plant import model_feet, plant_feet
+
+        feet = feet or model_feet(motion.skeleton)
+        return out if feet is None else plant_feet(out, np.unique(keys), feet, breaks)
 
     def fill_batch(self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray):
-        """(N, T, J, 4) / (N, T, 3) windows sharing ``keys``, in one spline call."""
+        """(N, T, J, 4) / (N, T, 3) windows sharing ``keys``, in one spline call (feet planted
+        window by window)."""
         rot, pos = spline_keys(
             np.moveaxis(rotations, 1, 0), np.moveaxis(roots, 1, 0), keys, self.method, self.ends, self.fps
         )
-        return np.moveaxis(rot, 0, 1), np.moveaxis(pos, 0, 1)
+        rot, pos = np.moveaxis(rot, 0, 1), np.moveaxis(pos, 0, 1)
+        if self.plant:
+            from pipeline.infer.plant import model_feet, plant_rotations
+
+            feet = model_feet(self.skeleton)
+            if feet is not None:
+                k = np.unique(keys)
+                rot = np.stack(
+                    [plant_rotations(r, p, self.skeleton, k, feet) for r, p in zip(rot, pos, strict=True)]
+                )
+        return rot, pos

@@ -624,10 +624,11 @@ def trusted_curve(skeleton=None):
     through the keys with :data:`CURVE` tangents (``pipeline.infer.spline``), not the DCC
     default's clamped ones the benches compare with (``--model spline``): on dense keys it
     is 3-5 % closer to held-out motion (4 % further on motion that ends in holds), and on
-    sparse ones it is that spline."""
+    sparse ones it is that spline; and a foot the keys plant stays planted between them
+    (pipeline.infer.plant)."""
     from pipeline.infer.spline import SplineInbetweener
 
-    return SplineInbetweener(skeleton, method=CURVE)
+    return SplineInbetweener(skeleton, method=CURVE, plant=True)
 
 
 def spline_fill(spline, motion: Motion, keys, joint_keys=None, breaks=()) -> Motion:

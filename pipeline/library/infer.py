@@ -1,5 +1,6 @@
 """The library as an in-betweener: per gap, the library's best windows fitted onto the keys,
-or the spline where the library has nothing like them.
+or the spline where the library has nothing like them (the trusted fill's curve, feet the keys
+plant held: :mod:`pipeline.infer.plant`).
 
 Per gap (:mod:`pipeline.library.match`): the ``BEST`` windows of least cost, fitted onto the
 two keys and averaged. How far the gap takes them over the spline through the same keys
@@ -29,6 +30,7 @@ import numpy as np
 
 from pipeline.data.skeletons import LEGS, bandai_skeleton
 from pipeline.infer.api import Capabilities
+from pipeline.infer.plant import model_feet, plant_rotations
 from pipeline.infer.post import lock_feet, match_keys
 from pipeline.infer.spline import spline_keys
 from pipeline.infer.trust import CURVE
@@ -119,6 +121,7 @@ class LibraryInbetweener:
         self.model_hash = f"library-{self.library.hash}"
         self.feet, self.best = feet, best
         self.legs = [tuple(self.skeleton.index(n) for n in leg) for leg in LEGS]
+        self.planted = model_feet(self.skeleton)
         self.last_gaps: list[dict] = []
 
     @cached_property
@@ -152,6 +155,8 @@ class LibraryInbetweener:
         library spans blended over it at its weight; the keys bitwise the input's."""
         skel = self.skeleton
         rot, root = spline_keys(rotations, roots, keys, CURVE, fps=self.fps)
+        if self.feet and self.planted is not None:  # the trusted curve's, as the gaps left to it
+            rot = plant_rotations(rot, root, skel, keys, self.planted)
         rot, root = rot.astype(np.float64), root.astype(np.float64)
         contacts = np.zeros((len(rot), 2))
         k_rot = np.asarray(rotations[keys], np.float64)

@@ -16,6 +16,23 @@ def _open(path):
     return Usd.Stage.Open(str(path))
 
 
+def rig_curve(shot, keys=None):
+    """The own-rig plan of ``shot`` and the trusted curve as the fill runs it on the rig: its
+    feet planted on the rig's legs as the human mapping finds them (solve.rig_feet)."""
+    from pipeline.fill import solve
+    from pipeline.fill.plan import make_plan
+    from pipeline.infer.trust import trusted_curve
+
+    own = make_plan(str(shot), keys, None, None, 30.0, own_rig=True)
+    human = make_plan(str(shot), keys, None, None, 30.0)
+    feet = solve.rig_feet(human.chars[0].retarget, own.chars[0].retarget.skeleton)
+    assert feet is not None
+    curve = trusted_curve()
+    plain_fill = curve.fill
+    curve.fill = lambda motion, at, **kw: plain_fill(motion, at, feet=feet, **kw)
+    return own, curve
+
+
 @pytest.fixture(scope="module")
 def walk(tmp_path_factory):
     d = tmp_path_factory.mktemp("walk")
@@ -201,7 +218,7 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, mo
     from pipeline.fill import api, solve
     from pipeline.fill.plan import make_plan
     from pipeline.infer.api import load_inbetweener
-    from pipeline.infer.trust import TrustDecision, TrustedInbetweener, trusted_curve
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
 
     monkeypatch.setattr(api, "SHIPPED_LIBRARY", False)
     shot = cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12)
@@ -215,14 +232,15 @@ def test_the_trusted_fill_blends_with_the_splines_on_the_rig_itself(tmp_path, mo
         )
     }
     got = {name: samples(_open(r["review"]), FILLED) for name, r in runs.items()}
-    own = make_plan(str(shot), None, None, None, 30.0, own_rig=True)
-    curve = solve.fill_character(own, own.chars[0], trusted_curve(), seed=0)
+    own, on_rig = rig_curve(shot)
+    curve = solve.fill_character(own, own.chars[0], on_rig, seed=0)
     got["rig"] = {
         float(t): r for t, r in zip(curve["times"], curve["rot"], strict=True) if float(t) in got["auto"]
     }
     d = runs["auto"]["trust"][ANIM]
     assert d["choice"] == "spline" and d["familiarity"] == 0.0  # a CMU take: unseen, spline better
     assert d["curve"] == "adaptive"  # recorded: which tangents the spline took
+    assert d["plant"] is True  # ... and that it holds the feet the keys plant
     for name in ("auto", "forced"):
         assert got[name].keys() == got["rig"].keys()
         assert all(np.array_equal(got[name][t], got["rig"][t]) for t in got["rig"])
@@ -278,7 +296,7 @@ def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
     from pipeline.fill import solve
     from pipeline.fill.plan import make_plan
     from pipeline.infer.api import load_inbetweener
-    from pipeline.infer.trust import TrustDecision, TrustedInbetweener, trusted_curve
+    from pipeline.infer.trust import TrustDecision, TrustedInbetweener
 
     shot = str(cmu_shot(tmp_path / "cc.usda", frames=121, keys_every=12))
     keys = "1001,1013,1049,1121"  # 60 fps: gaps of 5, 17 and 35 model frames
@@ -293,8 +311,8 @@ def test_each_gap_blends_on_the_rig_at_its_own_weight(tmp_path):
     plan = make_plan(shot, keys, None, None, 30.0)
     mix = solve.fill_character(plan, plan.chars[0], Fixed(load_inbetweener("default")), seed=0)
     net = solve.fill_character(plan, plan.chars[0], load_inbetweener("default"), seed=0, trust="model")
-    own = make_plan(shot, keys, None, None, 30.0, own_rig=True)
-    spl = solve.fill_character(own, own.chars[0], trusted_curve(), seed=0)
+    own, on_rig = rig_curve(shot, keys)
+    spl = solve.fill_character(own, own.chars[0], on_rig, seed=0)
     t = mix["times"]
     assert np.array_equal(t, net["times"]) and np.array_equal(t, spl["times"])
     first, second, third = ((t > a) & (t < b) for a, b in ((1001, 1013), (1013, 1049), (1049, 1121)))

@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from library_fixtures import BANDAI, CMU_TAKE, HELD_OUT  # noqa: F401  (fixtures: conftest)
 
+from pipeline.infer.plant import model_feet, plant_rotations
 from pipeline.infer.spline import spline_keys
 from pipeline.infer.trust import CURVE
 from pipeline.library import match
@@ -313,7 +314,8 @@ def test_a_slow_smooth_move_the_library_holds_is_the_splines(takes, tmp_path):
     """A studio's take of a slow, smooth move (a pose drifting into the next over four
     seconds), keyed every 10 frames: the library holds the very motion, so its match is
     perfect and the match gate alone would take it; but the keys lie on a curve the spline
-    follows, so every gap is the spline's, and the fill is the spline's bit for bit."""
+    follows, so every gap is the spline's, and the fill is the trusted curve's bit for bit
+    (its feet planted where the keys plant them, pipeline.infer.plant)."""
     m = read_bvh(takes / BANDAI[2]).continuous()
     a, b = m.rotations[0], m.rotations[3]
     t = np.linspace(0.0, 1.0, 121)[:, None] * np.ones(len(a))
@@ -330,6 +332,7 @@ def test_a_slow_smooth_move_the_library_holds_is_the_splines(takes, tmp_path):
     assert all(gap_weight(g["miss_cm"], g["change_cm"]) == 1.0 for g in gaps)  # matched in full
     assert all(g["weight"] == 0.0 and "smooth curve" in g["why"] for g in gaps)
     s_rot, s_root = spline_keys(slow.rotations[:91], slow.root_positions[:91], keys, CURVE)
+    s_rot = plant_rotations(s_rot, s_root, inb.skeleton, keys, model_feet(inb.skeleton))
     assert np.array_equal(out.rotations, s_rot.astype(np.float32))
     assert np.array_equal(out.root_positions, s_root.astype(np.float32))
 

@@ -1,0 +1,146 @@
+"""Feet the keys plant stay planted (pipeline.infer.plant) in the trusted fill's curve."""
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.data.skeletons import LEGS, bandai_skeleton
+from pipeline.infer.plant import PLANT_HEIGHT_CM, PLANT_TRAVEL_CM, feet_of, model_feet, plant_feet, planted
+from pipeline.infer.post import two_bone_ik
+from pipeline.infer.spline import SplineInbetweener, spline_motion
+from pipeline.infer.trust import CURVE, trusted_curve
+from pipeline.motion.bvh import read_bvh
+from pipeline.motion.fk import fk
+from pipeline.motion.skeleton import Skeleton
+
+SKEL = bandai_skeleton()
+LEG_JOINTS = {SKEL.index(n) for leg in LEGS for n in leg[:3]}
+
+
+def walk(bandai_clip, frames=121):
+    m = read_bvh(bandai_clip)
+    return replace(m, rotations=m.rotations[:frames], root_positions=m.root_positions[:frames])
+
+
+def positions(m, rot=None, root=None):
+    rot = m.rotations if rot is None else rot
+    root = m.root_positions if root is None else root
+    return fk(rot.astype(np.float64), root.astype(np.float64), m.skeleton.parents, m.skeleton.offsets)[1]
+
+
+def test_planted_needs_both_keys_low_and_still_and_no_cut():
+    ankles = np.zeros((4, 2, 3))
+    ankles[:, 1, 0] = [0.0, 30.0, 60.0, 90.0]  # the right foot steps 30 cm a gap
+    ankles[2, 0, 1] = PLANT_HEIGHT_CM + 1  # the left lifts at key 2
+    ankles[3, 0, 0] = PLANT_TRAVEL_CM - 1  # ... and comes down a little further on
+    got = planted(ankles)
+    assert got[:, 0].tolist() == [True, False, False]
+    assert not got[:, 1].any()
+    ankles[2, 0, 1] = 0.0
+    assert planted(ankles)[:, 0].tolist() == [True, True, True]
+    assert planted(ankles, [(1, 2)])[:, 0].tolist() == [True, False, True]
+    ankles[3, 0, 0] = PLANT_TRAVEL_CM + 1
+    assert planted(ankles)[:, 0].tolist() == [True, True, False]
+
+
+def test_a_walk_keyed_every_10_keeps_its_planted_feet_closer_to_the_capture(bandai_clip):
+    m = walk(bandai_clip)
+    keys = np.arange(0, 121, 10)
+    curve = spline_motion(m, keys, CURVE)
+    out = plant_feet(curve, keys, model_feet(SKEL))
+    assert np.array_equal(out.rotations[keys], m.rotations[keys])
+    assert np.array_equal(out.root_positions, curve.root_positions)
+    changed = {int(j) for j in np.flatnonzero((out.rotations != curve.rotations).any(axis=(0, 2)))}
+    assert changed and changed <= LEG_JOINTS
+    true, before, after = positions(m), positions(curve), positions(out)
+    between = np.setdiff1d(np.arange(121), keys)
+    err = lambda p, f, j: np.linalg.norm(p[f][:, j] - true[f][:, j], axis=-1).mean()  # noqa: E731
+    everything = np.arange(len(SKEL.names))
+    assert err(after, between, everything) < err(before, between, everything)
+    ankles = [SKEL.index(leg[2]) for leg in LEGS]
+    gaps = planted(true[keys][:, ankles])
+    assert 2 <= gaps.sum() < gaps.size  # this walk plants a foot in some gaps, not in all
+    for g, li in np.argwhere(gaps):  # the planted leg's joints, 15-27 % closer in each
+        frames, leg = np.arange(keys[g] + 1, keys[g + 1]), [SKEL.index(n) for n in LEGS[li]]
+        assert err(after, frames, leg) < 0.9 * err(before, frames, leg)
+    # A planted ankle lies on the line between its keys' ankles along the ground.
+    g, li = np.argwhere(gaps)[0]
+    a, b = keys[g], keys[g + 1]
+    j = ankles[li]
+    line = np.linspace(true[a, j], true[b, j], b - a + 1)
+    np.testing.assert_allclose(after[a : b + 1, j][:, [0, 2]], line[:, [0, 2]], atol=0.05)
+    assert np.abs(before[a : b + 1, j][:, [0, 2]] - line[:, [0, 2]]).max() > 0.05
+
+
+def test_a_foot_lifted_at_every_key_leaves_the_curve_as_it_is(bandai_clip):
+    m = walk(bandai_clip, 31)
+    keys = np.array([0, 15, 30])
+    rot = m.rotations.copy()
+    root = m.root_positions.copy()
+    root[15, 1] += 3 * PLANT_HEIGHT_CM  # a jump at the middle key: no foot is low there
+    m = replace(m, rotations=rot, root_positions=root)
+    curve = spline_motion(m, keys, CURVE)
+    assert plant_feet(curve, keys, model_feet(SKEL)) is curve
+
+
+def test_a_z_up_rig_in_metres_plants_as_the_same_motion_y_up(bandai_clip):
+    m = walk(bandai_clip, 61)
+    keys = np.arange(0, 61, 10)
+    to_z_up = Rotation.from_euler("x", 90, degrees=True)  # Y up -> Z up
+    z_skel = Skeleton(SKEL.names, SKEL.parents, SKEL.offsets / 100.0, "Z", 1.0)
+    rot = m.rotations.copy()
+    rot[:, 0] = (to_z_up * Rotation.from_quat(rot[:, 0])).as_quat()
+    z = replace(m, skeleton=z_skel, rotations=rot, root_positions=to_z_up.apply(m.root_positions) / 100.0)
+    curve = spline_motion(m, keys, CURVE)
+    # The same curve, turned (a clamped spline's slopes depend on the axes it is drawn in).
+    turned = curve.rotations.copy()
+    turned[:, 0] = (to_z_up * Rotation.from_quat(turned[:, 0])).as_quat()
+    z_curve = replace(z, rotations=turned, root_positions=to_z_up.apply(curve.root_positions) / 100.0)
+    y_out = plant_feet(curve, keys, model_feet(SKEL))
+    z_out = plant_feet(z_curve, keys, model_feet(z_skel))
+    legs = sorted(LEG_JOINTS)
+    dots = np.abs((y_out.rotations[:, legs] * z_out.rotations[:, legs]).sum(-1))
+    assert dots.min() > 1 - 1e-5  # the same leg rotations, either quaternion sign
+    assert not np.array_equal(y_out.rotations, curve.rotations)
+
+
+def test_feet_of_takes_only_hip_knee_ankle_chains():
+    legs = [tuple(SKEL.index(n) for n in leg) for leg in LEGS]
+    assert model_feet(SKEL).legs == tuple(legs)
+    no_toe = [(*leg[:3], None) for leg in legs]
+    assert [leg[3] for leg in feet_of(SKEL, no_toe).legs] == [leg[2] for leg in legs]
+    broken = [(legs[0][0], legs[0][2], legs[0][1], legs[0][3]), legs[1]]  # knee and ankle swapped
+    assert feet_of(SKEL, broken) is None
+    hip_root = Skeleton(("hip", "knee", "ankle"), np.array([-1, 0, 1]), np.zeros((3, 3)))
+    assert feet_of(hip_root, [(0, 1, 2, None)]) is None  # turned with the body: not a leg to plant
+    assert feet_of(SKEL, [(None, *legs[0][1:]), legs[1]]) is None
+    other = Skeleton(("a", "b"), np.array([-1, 0]), np.zeros((2, 3)))
+    assert model_feet(other) is None
+
+
+def test_only_the_trusted_curve_plants(bandai_clip):
+    m = walk(bandai_clip, 61)
+    keys = np.arange(0, 61, 10)
+    assert not SplineInbetweener(SKEL, method=CURVE).plant
+    plain = SplineInbetweener(SKEL, method=CURVE).fill(m, keys)
+    curve = trusted_curve(SKEL)
+    held = curve.fill(m, keys)
+    assert np.array_equal(plain.rotations, spline_motion(m, keys, CURVE).rotations)
+    assert not np.array_equal(held.rotations, plain.rotations)
+    # Windows (the trusted fill's probes) plant window by window, as fill does.
+    rot, root = curve.fill_batch(m.rotations[None], m.root_positions[None], keys)
+    np.testing.assert_allclose(rot[0], held.rotations, atol=1e-6)
+    np.testing.assert_array_equal(root[0], held.root_positions)
+
+
+def test_ik_leaves_a_straight_leg_straight():
+    # A leg straighter than the IK's reach bound, asked to hold its own ankle: no knee bend.
+    skel = Skeleton(("hip0", "hip", "knee", "ankle", "toe"), np.array([-1, 0, 1, 2, 3]),
+                    np.array([[0, 100, 0], [10, 0, 0], [0, -45, 0], [0, -45, 0], [0, -5, 10]]))  # fmt: skip
+    rot = np.tile(np.array([0, 0, 0, 1.0]), (3, 5, 1))
+    root = np.zeros((3, 3))
+    _, pos = fk(rot, root, skel.parents, skel.offsets)
+    out = two_bone_ik(rot, root, skel, (1, 2, 3, 4), pos[:, 3], np.ones(3))
+    _, new = fk(out, root, skel.parents, skel.offsets)
+    np.testing.assert_allclose(new[:, 2], pos[:, 2], atol=1e-6)
