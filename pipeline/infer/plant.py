@@ -2,18 +2,19 @@
 
 A spline through the keys moves the root and each leg's rotations on curves of their own, so a
 foot the animator planted at two keys drifts between them: the sum of those curves does not
-hold it still (on CMU subjects 1-3 keyed every 10 frames, the ankles of planted feet drifted a
-few centimetres mid-gap). Where both keys of a gap hold a foot near the ground and in nearly
-the same place, the foot is taken as planted through the gap: its ankle is held on the line
-between the two keys' ankle positions and its orientation slerped between theirs, by the
-fill's own two-bone IK (:func:`pipeline.infer.post.lock_feet`, anchored at the keys), so keys
-stay exact and bone lengths do not change. Nothing is learned: it holds on any rig whose legs
-map, for any actor.
+hold it still. Where both keys of a gap hold a foot near the ground and in nearly the same
+place, the foot is taken as planted through the gap: its ankle is held on the line between the
+two keys' ankle positions and its orientation slerped between theirs, by the fill's own
+two-bone IK (:func:`pipeline.infer.post.lock_feet`, anchored at the keys), so keys stay exact
+and bone lengths do not change. Nothing is learned: it holds on any rig whose legs map, for
+any actor.
 
-The constants were chosen on the tuning takes (CMU subjects 1-3 on the model skeleton, and
-every third Bandai dataset-2 train take numbered 3 mod 5), the curve's error between the keys
-÷ the curve's without it, keys every 10 / 30 frames: CMU 0.971 / 0.990, Bandai 0.988 / 0.998,
-no take worse than 1.001; heights 6-15 cm and distances 3-10 cm were within 0.002 of that.
+The constants were chosen on tuning takes (``experiments/foot_plant.py``: CMU subjects 1-3 on
+the model skeleton, and every third Bandai dataset-2 train take numbered 3 mod 5), the curve's
+error between the keys ÷ the curve's without it, keys every 10 / 30 frames: CMU 0.962 / 0.986,
+Bandai 0.981 / 0.998, no take worse than 1.014; heights 6-15 cm and travels 3-10 cm were within
+0.005 of that. Holding only the ankle's place on the ground, not its height: CMU 0.971 / 0.990,
+Bandai 0.988 / 0.998.
 """
 
 from __future__ import annotations
@@ -131,7 +132,7 @@ def plant_rotations(rot: np.ndarray, root: np.ndarray, skeleton, keys, feet: Fee
     q = np.broadcast_to(matrix_to_quat(feet.to_y_up), (len(rot), 4))
     turned[:, root_joint] = batch_quat_mul(q, turned[:, root_joint])
     locked = lock_feet(turned, root.astype(np.float64) @ feet.to_y_up.T, skeleton, contacts, keys, legs,
-                       anchor=True, orient=True)  # fmt: skip
+                       anchor=True, orient=True, height=True)  # fmt: skip
     out = rot.copy()
     moved = [j for leg in legs for j in leg[:3]]
     out[:, moved] = locked[:, moved].astype(rot.dtype)

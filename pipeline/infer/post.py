@@ -225,7 +225,16 @@ def _mean_rotation(q: np.ndarray) -> np.ndarray:
 
 
 def lock_feet(
-    rot, root, skeleton, contacts, keys, legs, ramp: int = 4, anchor: bool = False, orient: bool = False
+    rot,
+    root,
+    skeleton,
+    contacts,
+    keys,
+    legs,
+    ramp: int = 4,
+    anchor: bool = False,
+    orient: bool = False,
+    height: bool = False,
 ):
     """Two-bone IK on frames in contact (``contacts`` (N, 2): per leg), blended over ``ramp`` frames.
 
@@ -235,7 +244,9 @@ def lock_feet(
     at that key's own ankle position (between two such keys, their line) at full weight up to
     the key: the foot the animator planted stays planted, even in gaps shorter than the ramp.
     With ``orient`` the foot's world orientation is held too (the key's, slerped between two
-    such keys, else the contact's mean), so the toes stay put while the ankle is locked.
+    such keys, else the contact's mean), so the toes stay put while the ankle is locked. With
+    ``height`` (and ``anchor``) the ankle's height follows the held keys' line too, not only
+    its place on the ground.
     """
     # Long because it is one vectorised kernel: per leg, the contact segments, their targets
     # and the ramp weights feed one IK call; apart, each step would need all the others' arrays.
@@ -270,7 +281,7 @@ def lock_feet(
             ramp_in = np.clip((frames - s0 + 1) / ramp, 0, 1)
             ramp_out = np.clip((s1 - frames) / ramp, 0, 1)
             if len(held):
-                for axis in (0, 2):
+                for axis in (0, 1, 2) if height else (0, 2):
                     targets[s0:s1, axis] = np.interp(frames, held, gp[held, ankle, axis])
                 # The key's own position is the target there: no fade needed toward the key.
                 fade[s0:s1] = 1.0
