@@ -36,10 +36,6 @@ def check_device(device, here: bool = False) -> None:
             raise TweenError(f"--device {device}: torch sees {n} CUDA device(s) on this host")
 
 
-#: The frame rates a rig model trains at (``--fps``), and so a clip's own rate.
-FPS_RANGE = (1.0, 1000.0)
-
-
 @dataclass
 class TrainRigOptions:
     """How a rig model is trained from its clip (JSON-serialisable: it travels to the farm)."""
@@ -79,7 +75,7 @@ class TrainRigOptions:
 
     def check(self) -> TrainRigOptions:
         """Raises TweenError (one line naming the option) unless every field is valid."""
-        from pipeline.rig.source import parse_frames
+        from pipeline.rig.source import FPS_RANGE, parse_frames
 
         if self.schedule not in SCHEDULES:
             raise TweenError(

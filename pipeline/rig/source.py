@@ -21,7 +21,9 @@ from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import QUAT_EPS
 from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT, Skeleton, topology_problem
-from pipeline.rig.options import FPS_RANGE
+
+#: The frame rates a clip may have, and so those a rig model trains at (``--fps``).
+FPS_RANGE = (1.0, 1000.0)
 
 
 class RigSourceError(TweenError):
