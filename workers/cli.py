@@ -221,15 +221,50 @@ def _from_interrupt(e: BaseException | None) -> bool:
     return False
 
 
-def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None) -> int:
+#: Seconds `tween fill` waits on jobs no worker has started before it asks the farm, once,
+#: whether any worker consumes their queue.
+IDLE_CHECK_S = 5.0
+
+
+class _NoWorkerNotice:
+    """Polled while `tween fill` waits on a farm: once every job has sat queued for
+    IDLE_CHECK_S, asks the workers which queues they take and, where none takes the jobs'
+    queue, says so once on stderr. The jobs stay queued (a worker may yet start) and the wait
+    goes on: Ctrl-C cancels them as ever."""
+
+    def __init__(self, ids: list[str]):
+        self.ids, self.t0, self.asked = ids, time.monotonic(), False
+
+    def __call__(self) -> None:
+        if self.asked or time.monotonic() - self.t0 < IDLE_CHECK_S:
+            return
+        self.asked = True
+        jobs = _jobs()
+        states = [jobs.state(j) for j in self.ids]
+        if not states or any(s.state != "QUEUED" or s.done for s in states):
+            return
+        queues = {s.record.get("queue") for s in states} - {None}
+        try:
+            idle = jobs.unserved_queues(queues)
+        except Exception:  # the broker's own errors come through the wait itself
+            return
+        for q in idle:
+            print(f"tween: no worker takes the farm's queue {q!r} (start one: `tween worker`); "
+                  f"the job(s) wait there, Ctrl-C cancels them", file=sys.stderr)  # fmt: skip
+
+
+def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None, idle=None) -> int:
     """Waits for the jobs and reports them; on SIGINT/SIGTERM cancels them, waits until they
-    have stopped and undone their work, and returns 130."""
+    have stopped and undone their work, and returns 130. ``alive`` is polled while waiting
+    and cancelling, ``idle`` (a _NoWorkerNotice) while waiting only."""
     jobs = _jobs()
 
     def poll() -> None:
         intr.check()
         if alive is not None:
             alive()
+        if idle is not None:
+            idle()
 
     intr.armed = False  # from here the polls raise it, between the farm client's reads
     try:
@@ -417,7 +452,7 @@ def fill(
             intr.armed = False  # counted, not raised, while the jobs are sent
             ids = jobs.submit(paths, opts, render=render)
             _said(paths, ids, progress)
-            code = _run_jobs(ids, intr, progress)
+            code = _run_jobs(ids, intr, progress, idle=_NoWorkerNotice(ids))
         _exit(code)
     check_farm(celery_app)  # the embedded farm's stores
     _exit(_fill_embedded(paths, opts, render, min(concurrency, max(1, takes * len(paths))), progress))

@@ -376,6 +376,14 @@ def undo_orphaned(job_ids: list[str], why: str) -> int:
     return n
 
 
+def unserved_queues(queues, celery_app=None, timeout: float = 1.0) -> list[str]:
+    """Those of ``queues`` no worker answering within ``timeout`` s consumes (Celery's
+    remote control: each worker names the queues it takes); all of them when none answers."""
+    replies = (celery_app or app).control.inspect(timeout=timeout).active_queues() or {}
+    served = {q.get("name") for qs in replies.values() for q in qs or ()}
+    return sorted({q for q in queues if q not in served})
+
+
 def wait(
     job_ids: list[str], *, progress: bool = True, poll: float = 0.2, alive=None, timeout=None
 ) -> list[JobState]:

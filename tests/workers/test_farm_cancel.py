@@ -402,3 +402,12 @@ def test_an_interrupt_while_waiting_is_raised_by_the_next_poll_not_where_it_land
     intr = fill_cli._Interrupts()
     assert fill_cli._run_jobs(["j2"], intr, progress=False) == fill_cli.EXIT_CANCELLED
     assert calls[-1] == ("j2",)
+
+
+def test_a_worker_names_the_queues_it_takes(farm):
+    """What `tween fill`'s no-worker notice asks: the module's worker takes the farm's queue."""
+    from workers import jobs
+
+    _worker(farm)
+    queue = farm.app.conf.task_default_queue
+    assert jobs.unserved_queues([queue, "nobody-takes-this"]) == ["nobody-takes-this"]
