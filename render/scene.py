@@ -8,6 +8,7 @@ of capsules built from its joints. Everything is returned in metres, Y up.
 from __future__ import annotations
 
 import re
+import sys
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -370,9 +371,14 @@ def _time_range(stage, stage_path: str, chars: list[Character], frame_range) -> 
         samples = [t for c in chars for t in c._skel_query.GetAnimQuery().GetJointTransformTimeSamples()]
         start, end = (min(samples), max(samples)) if samples else (0.0, 0.0)
     if frame_range is not None:
-        start, end = max(start, frame_range[0]), min(end, frame_range[1])
-        if end < start:
+        lo, hi = max(start, frame_range[0]), min(end, frame_range[1])
+        if hi < lo:
             raise ShotError(stage_path, f"frame range {frame_range} is outside the shot")
+        if (lo, hi) != tuple(frame_range):  # said, not silently cut: the MP4 is shorter than asked
+            a, b = frame_range
+            print(f"tween: {stage_path}: --frames {a:g}:{b:g} reaches past the shot's {start:g}-{end:g}; "
+                  f"rendering {lo:g}-{hi:g}", file=sys.stderr)  # fmt: skip
+        start, end = lo, hi
     from pipeline.usd.read import check_span  # pxr
 
     # The fill's own bound on a shot's span: the review holds every frame's pose in memory.

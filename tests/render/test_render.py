@@ -17,6 +17,7 @@ from pipeline.errors import ShotError
 from render.gl import RenderError
 from render.overlays import KEY_RGB, BurnIn
 from render.review import render_review
+from render.scene import open_shot
 
 SIZE = (320, 180)
 KEY = np.array([round(c * 255) for c in KEY_RGB])
@@ -243,6 +244,18 @@ def test_cli_review(review, tmp_path):
         "sh010_v001_take0.mp4",
         "sh010_v001_take0_contact.png",
     ]
+
+
+def test_frames_past_the_shot_are_said_and_cut_to_it(review, capsys):
+    shot = open_shot(review["stage"], frame_range=(990, 1003))
+    assert shot.times[0] == 1001 and shot.times[-1] == 1003
+    err = capsys.readouterr().err
+    assert (
+        err
+        == f"tween: {review['stage']}: --frames 990:1003 reaches past the shot's 1001-1060; rendering 1001-1003\n"
+    )
+    open_shot(review["stage"], frame_range=(1001, 1003))  # within the shot: nothing said
+    assert capsys.readouterr().err == ""
 
 
 def test_start_frames_helper():
