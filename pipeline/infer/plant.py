@@ -34,6 +34,9 @@ PLANT_HEIGHT_CM = 10.0
 #: from the gap's first key to its last.
 PLANT_TRAVEL_CM = 6.0
 
+#: A thigh or shin shorter than this (cm) is no leg to hold a foot with (a rig's stand-in joint).
+MIN_BONE_CM = 1.0
+
 _Y_UP_FROM_Z_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
 
 
@@ -55,9 +58,10 @@ def feet_of(
     skeleton, legs, to_y_up: np.ndarray | None = None, cm_per_unit: float | None = None
 ) -> Feet | None:
     """:class:`Feet` of ``skeleton`` for ``legs`` ((hip, knee, ankle, toe) indices, or None
-    where a joint is missing), or None when a leg lacks a hip, knee or ankle or is not a parent chain (the
-    IK sets each joint's rotation in its parent's frame; a hip that is the root would be
-    turned with the body, :func:`plant_feet`). Space: the skeleton's own up axis and
+    where a joint is missing), or None when a leg lacks a hip, knee or ankle, is not a parent
+    chain (the IK sets each joint's rotation in its parent's frame; a hip that is the root
+    would be turned with the body, :func:`plant_feet`) or has a thigh or shin under
+    :data:`MIN_BONE_CM`. Space: the skeleton's own up axis and
     unit unless given."""
     # The toe is not moved (the IK sets hip, knee and ankle): a rig without one uses the ankle.
     legs = tuple((*leg[:3], leg[2] if leg[3] is None else leg[3]) for leg in legs)
@@ -71,6 +75,11 @@ def feet_of(
         to_y_up = np.eye(3) if skeleton.up_axis == "Y" else _Y_UP_FROM_Z_UP
     if cm_per_unit is None:
         cm_per_unit = 100.0 * float(skeleton.meters_per_unit)
+    # Thigh and shin as the rig's rest pose has them: under MIN_BONE_CM the IK has no triangle.
+    offsets = np.asarray(skeleton.offsets, np.float64)
+    bones = [np.linalg.norm(offsets[j]) * cm_per_unit for leg in legs for j in leg[1:3]]
+    if not all(np.isfinite(b) and b >= MIN_BONE_CM for b in bones):
+        return None
     return Feet(legs, np.asarray(to_y_up, np.float64), float(cm_per_unit))
 
 
@@ -133,8 +142,10 @@ def plant_rotations(rot: np.ndarray, root: np.ndarray, skeleton, keys, feet: Fee
     turned[:, root_joint] = batch_quat_mul(q, turned[:, root_joint])
     locked = lock_feet(turned, root.astype(np.float64) @ feet.to_y_up.T, skeleton, contacts, keys, legs,
                        anchor=True, orient=True, height=True)  # fmt: skip
-    out = rot.copy()
     moved = [j for leg in legs for j in leg[:3]]
+    if not np.isfinite(locked[:, moved]).all():  # no pose reaches the line: the curve as it is
+        return rot
+    out = rot.copy()
     out[:, moved] = locked[:, moved].astype(rot.dtype)
     out[keys] = rot[keys]
     return out

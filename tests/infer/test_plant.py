@@ -117,6 +117,13 @@ def test_feet_of_takes_only_hip_knee_ankle_chains():
     assert feet_of(SKEL, [(None, *legs[0][1:]), legs[1]]) is None
     other = Skeleton(("a", "b"), np.array([-1, 0]), np.zeros((2, 3)))
     assert model_feet(other) is None
+    # A rig whose shin is a stand-in joint on the knee (zero length): no triangle for the IK.
+    offsets = SKEL.offsets.copy()
+    offsets[legs[1][2]] = 0.0
+    flat = Skeleton(SKEL.names, SKEL.parents, offsets)
+    assert model_feet(flat) is None
+    offsets[legs[1][2]] = [0.0, -0.5, 0.0]  # 0.5 cm
+    assert model_feet(Skeleton(SKEL.names, SKEL.parents, offsets)) is None
 
 
 def test_only_the_trusted_curve_plants(bandai_clip):
@@ -144,3 +151,13 @@ def test_ik_leaves_a_straight_leg_straight():
     out = two_bone_ik(rot, root, skel, (1, 2, 3, 4), pos[:, 3], np.ones(3))
     _, new = fk(out, root, skel.parents, skel.offsets)
     np.testing.assert_allclose(new[:, 2], pos[:, 2], atol=1e-6)
+
+
+def test_a_leg_the_ik_cannot_pose_keeps_the_curve(bandai_clip, monkeypatch):
+    from pipeline.infer import post
+
+    m = walk(bandai_clip, 61)
+    keys = np.arange(0, 61, 10)
+    curve = spline_motion(m, keys, CURVE)
+    monkeypatch.setattr(post, "lock_feet", lambda rot, *a, **k: np.full_like(rot, np.nan))
+    assert plant_feet(curve, keys, model_feet(SKEL)) is curve  # never NaN in a fill
