@@ -170,7 +170,7 @@ def _onto_rig(plan: Plan, cp: CharPlan, retarget, fps: float, filled: Motion | N
 def rig_feet(retarget, skeleton):
     """The legs of a human character's rig (``skeleton``: its own joints), as the rig's joints
     mapped to the model's legs, in its world's Y-up centimetres (pipeline.infer.plant.Feet);
-    None for a rig model's character or a leg that is not a hip-knee-ankle chain."""
+    None for a rig model's character or legs the IK cannot take (pipeline.infer.plant.feet_of)."""
     from pipeline.data.skeletons import LEGS
     from pipeline.infer.plant import feet_of
 

@@ -45,7 +45,7 @@ class Feet:
     """The legs of a skeleton, as the IK takes them, and its space.
 
     ``legs``: (hip, knee, ankle, toe) skeleton indices per leg, left then right, each of hip,
-    knee and ankle the parent of the next; ``to_y_up``: the rotation (3x3) from the skeleton's
+    knee and ankle an ancestor of the next; ``to_y_up``: the rotation (3x3) from the skeleton's
     space to one whose Y is up; ``cm_per_unit``: centimetres per unit of that space.
     """
 
@@ -58,29 +58,39 @@ def feet_of(
     skeleton, legs, to_y_up: np.ndarray | None = None, cm_per_unit: float | None = None
 ) -> Feet | None:
     """:class:`Feet` of ``skeleton`` for ``legs`` ((hip, knee, ankle, toe) indices, or None
-    where a joint is missing), or None when a leg lacks a hip, knee or ankle, is not a parent
-    chain (the IK sets each joint's rotation in its parent's frame; a hip that is the root
-    would be turned with the body, :func:`plant_feet`) or has a thigh or shin under
-    :data:`MIN_BONE_CM`. Space: the skeleton's own up axis and
+    where a joint is missing), or None when a leg lacks a hip, knee or ankle, has them out of
+    order (each the ancestor of the next; joints between them are kept as they are), a hip
+    that is the root (it would be turned with the body, :func:`plant_feet`) or a thigh or shin
+    under :data:`MIN_BONE_CM` (their rest offsets). Space: the skeleton's own up axis and
     unit unless given."""
     # The toe is not moved (the IK sets hip, knee and ankle): a rig without one uses the ankle.
     legs = tuple((*leg[:3], leg[2] if leg[3] is None else leg[3]) for leg in legs)
     parents = np.asarray(skeleton.parents)
-    for leg in legs:
-        if any(j is None or j < 0 for j in leg) or parents[leg[0]] < 0:
-            return None
-        if parents[leg[1]] != leg[0] or parents[leg[2]] != leg[1]:
-            return None
+    offsets = np.asarray(skeleton.offsets, np.float64)
     if to_y_up is None:
         to_y_up = np.eye(3) if skeleton.up_axis == "Y" else _Y_UP_FROM_Z_UP
     if cm_per_unit is None:
         cm_per_unit = 100.0 * float(skeleton.meters_per_unit)
-    # Thigh and shin as the rig's rest pose has them: under MIN_BONE_CM the IK has no triangle.
-    offsets = np.asarray(skeleton.offsets, np.float64)
-    bones = [np.linalg.norm(offsets[j]) * cm_per_unit for leg in legs for j in leg[1:3]]
-    if not all(np.isfinite(b) and b >= MIN_BONE_CM for b in bones):
-        return None
+    for leg in legs:
+        if any(j is None or j < 0 for j in leg) or parents[leg[0]] < 0:
+            return None
+        for top, end in ((leg[0], leg[1]), (leg[1], leg[2])):  # thigh, shin
+            length = _chain_length(parents, offsets, top, end) * cm_per_unit
+            if not (np.isfinite(length) and length >= MIN_BONE_CM):  # not below it, or no bone
+                return None
     return Feet(legs, np.asarray(to_y_up, np.float64), float(cm_per_unit))
+
+
+def _chain_length(parents: np.ndarray, offsets: np.ndarray, top: int, end: int) -> float:
+    """The rest offsets' length (skeleton units) from ``end`` up to its ancestor ``top``, or
+    NaN when ``top`` is not above ``end``."""
+    length, j = 0.0, end
+    while j != top:
+        if j < 0:
+            return float("nan")
+        length += float(np.linalg.norm(offsets[j]))
+        j = int(parents[j])
+    return length
 
 
 def model_feet(skeleton) -> Feet | None:

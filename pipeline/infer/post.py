@@ -142,7 +142,8 @@ def _rot_between(u, v):
 def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None, posed=None):
     """Move the ankle of ``leg`` = (hip, knee, ankle, toe) toward ``targets`` (N, 3) by ``weight`` (N,).
 
-    Changes the local rotations of hip, knee and ankle only, so bone lengths never change.
+    Changes the local rotations of hip, knee and ankle only, so bone lengths never change;
+    joints between them in the chain (a rig's roll joints) keep theirs and turn with it.
     The ankle keeps its world orientation, or with ``orient`` (N, 4 world quaternions) turns
     toward it by the same weight. ``rot`` (N, J, 4) local, ``root`` (N, 3). ``posed``: the
     caller's FK of ``rot`` (global rotations, positions over all N frames, float64) where it
@@ -190,9 +191,20 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None, posed=No
             batch_quat_mul(batch_quat_conj(g_ankle), batch_quat_normalize(orient[sel]))
         )
         g_ankle = batch_quat_mul(g_ankle, batch_rotvec_to_quat(delta * weight[sel, None]))
+    # The knee's and the ankle's parents as the IK leaves them: the hip and the knee, or a joint
+    # between them (a rig's roll or twist joint in the chain), turned with the joint above it.
+    above_knee, above_ankle = skeleton.parents[knee], skeleton.parents[ankle]
+    if above_knee != hip:
+        g_hip_side = batch_quat_mul(r_hip, batch_quat_normalize(gq[:, above_knee]))
+    else:
+        g_hip_side = g_hip
+    if above_ankle != knee:
+        g_knee_side = batch_quat_mul(batch_quat_mul(r_hip, r_knee), batch_quat_normalize(gq[:, above_ankle]))
+    else:
+        g_knee_side = g_knee
     rot[sel, hip] = batch_quat_mul(batch_quat_conj(q_parent), g_hip)
-    rot[sel, knee] = batch_quat_mul(batch_quat_conj(g_hip), g_knee)
-    rot[sel, ankle] = batch_quat_mul(batch_quat_conj(g_knee), g_ankle)
+    rot[sel, knee] = batch_quat_mul(batch_quat_conj(g_hip_side), g_knee)
+    rot[sel, ankle] = batch_quat_mul(batch_quat_conj(g_knee_side), g_ankle)
     return rot
 
 

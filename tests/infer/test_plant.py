@@ -161,3 +161,49 @@ def test_a_leg_the_ik_cannot_pose_keeps_the_curve(bandai_clip, monkeypatch):
     curve = spline_motion(m, keys, CURVE)
     monkeypatch.setattr(post, "lock_feet", lambda rot, *a, **k: np.full_like(rot, np.nan))
     assert plant_feet(curve, keys, model_feet(SKEL)) is curve  # never NaN in a fill
+
+
+def _with_roll_joints(skel, motion):
+    """``skel`` and ``motion`` with a joint inserted halfway along each thigh and shin (a rig's
+    roll joints in the chain, at rest), the same world motion."""
+    names, parents, offsets, old_of = [], [], [], []
+    new_index = {}
+    inserted = {SKEL.index(n) for leg in LEGS for n in leg[1:3]}  # knees and ankles
+    for j, name in enumerate(skel.names):
+        p = skel.parents[j]
+        parent = new_index.get(p, -1)
+        off = skel.offsets[j].astype(np.float64)
+        if j in inserted:
+            names.append(f"{name}_roll")
+            parents.append(parent)
+            offsets.append(off / 2)
+            old_of.append(None)
+            parent, off = len(names) - 1, off / 2
+        new_index[j] = len(names)
+        names.append(name)
+        parents.append(parent)
+        offsets.append(off)
+        old_of.append(j)
+    rolled = Skeleton(tuple(names), np.array(parents), np.array(offsets, np.float32))
+    rot = np.tile(np.array([0, 0, 0, 1.0], np.float32), (len(motion.rotations), len(names), 1))
+    for k, j in enumerate(old_of):
+        if j is not None:
+            rot[:, k] = motion.rotations[:, j]
+    return (
+        rolled,
+        replace(motion, skeleton=rolled, rotations=rot),
+        [new_index[j] for j in range(len(skel.names))],
+    )
+
+
+def test_roll_joints_in_the_leg_plant_as_the_leg_without_them(bandai_clip):
+    m = walk(bandai_clip, 61)
+    keys = np.arange(0, 61, 10)
+    rolled, r_motion, old_at = _with_roll_joints(SKEL, m)
+    np.testing.assert_allclose(positions(r_motion)[:, old_at], positions(m), atol=1e-3)  # one motion
+    plain = plant_feet(spline_motion(m, keys, CURVE), keys, model_feet(SKEL))
+    rolled_out = plant_feet(spline_motion(r_motion, keys, CURVE), keys, model_feet(rolled))
+    assert not np.array_equal(plain.rotations, spline_motion(m, keys, CURVE).rotations)
+    np.testing.assert_allclose(positions(rolled_out)[:, old_at], positions(plain), atol=1e-3)
+    rolls = [i for i, n in enumerate(rolled.names) if n.endswith("_roll")]
+    assert np.array_equal(rolled_out.rotations[:, rolls], r_motion.rotations[:, rolls])  # kept at rest
