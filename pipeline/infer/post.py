@@ -191,21 +191,20 @@ def two_bone_ik(rot, root, skeleton, leg, targets, weight, orient=None, posed=No
             batch_quat_mul(batch_quat_conj(g_ankle), batch_quat_normalize(orient[sel]))
         )
         g_ankle = batch_quat_mul(g_ankle, batch_rotvec_to_quat(delta * weight[sel, None]))
-    # The knee's and the ankle's parents as the IK leaves them: the hip and the knee, or a joint
-    # between them (a rig's roll or twist joint in the chain), turned with the joint above it.
-    above_knee, above_ankle = skeleton.parents[knee], skeleton.parents[ankle]
-    if above_knee != hip:
-        g_hip_side = batch_quat_mul(r_hip, batch_quat_normalize(gq[:, above_knee]))
-    else:
-        g_hip_side = g_hip
-    if above_ankle != knee:
-        g_knee_side = batch_quat_mul(batch_quat_mul(r_hip, r_knee), batch_quat_normalize(gq[:, above_ankle]))
-    else:
-        g_knee_side = g_knee
     rot[sel, hip] = batch_quat_mul(batch_quat_conj(q_parent), g_hip)
-    rot[sel, knee] = batch_quat_mul(batch_quat_conj(g_hip_side), g_knee)
-    rot[sel, ankle] = batch_quat_mul(batch_quat_conj(g_knee_side), g_ankle)
+    above_knee = _turned_parent(gq, skeleton, knee, hip, g_hip, r_hip)
+    above_ankle = _turned_parent(gq, skeleton, ankle, knee, g_knee, batch_quat_mul(r_hip, r_knee))
+    rot[sel, knee] = batch_quat_mul(batch_quat_conj(above_knee), g_knee)
+    rot[sel, ankle] = batch_quat_mul(batch_quat_conj(above_ankle), g_ankle)
     return rot
+
+
+def _turned_parent(gq, skeleton, joint: int, above: int, g_above, turn):
+    """World rotation of ``joint``'s parent as the IK leaves it: ``g_above`` when the parent is
+    ``above`` (the hip or the knee), else the parent's own (a rig's roll or twist joint in the
+    chain, its local rotation kept) turned with the leg by ``turn``."""
+    parent = skeleton.parents[joint]
+    return g_above if parent == above else batch_quat_mul(turn, batch_quat_normalize(gq[:, parent]))
 
 
 # The held foot orientations: scipy's ``Slerp`` and ``Rotation.mean`` did these, one pair of
