@@ -50,6 +50,8 @@ from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
 METHODS = ("pchip", "cubic", "adaptive")
+#: ``SplineInbetweener.fill(feet=BY_NAME)``: plant on the legs the model's joint names find.
+BY_NAME = "model leg joints by name"
 #: ``adaptive``: a key whose neighbouring gaps are both at most this long (seconds) takes
 #: Catmull-Rom's slope; from SPARSE_S (either gap) PCHIP's; linearly between. 12 and 20 frames
 #: at 30 fps: Catmull-Rom is 0.93x PCHIP keyed every 10 frames, 0.97x every 15, 1.02x every 20.
@@ -209,17 +211,25 @@ class SplineInbetweener:
         self.plant = plant
 
     def fill(
-        self, motion: Motion, keys: np.ndarray, seed: int = 0, joint_keys=None, dna=None, breaks=(), feet=None
+        self,
+        motion: Motion,
+        keys: np.ndarray,
+        seed: int = 0,
+        joint_keys=None,
+        dna=None,
+        breaks=(),
+        feet=BY_NAME,
     ) -> Motion:
         """``breaks``: (a, b) adjacent key frames with a cut between them (:func:`spline_keys`);
-        ``feet``: the legs to plant on (pipeline.infer.plant.Feet; with ``plant`` only)."""
+        ``feet``: with ``plant``, the legs to plant on (pipeline.infer.plant.Feet), None for
+        none, or :data:`BY_NAME` (the model's leg joints by name, in the skeleton's space)."""
         refuse_extras(self, joint_keys, dna)
         out = spline_motion(motion, keys, self.method, self.ends, breaks)
         if not self.plant:
             return out
         from pipeline.infer.plant import model_feet, plant_feet
 
-        feet = feet or model_feet(motion.skeleton)
+        feet = model_feet(motion.skeleton) if feet is BY_NAME else feet
         return out if feet is None else plant_feet(out, np.unique(keys), feet, breaks)
 
     def fill_batch(self, rotations: np.ndarray, roots: np.ndarray, keys: np.ndarray):

@@ -135,6 +135,9 @@ def test_only_the_trusted_curve_plants(bandai_clip):
     held = curve.fill(m, keys)
     assert np.array_equal(plain.rotations, spline_motion(m, keys, CURVE).rotations)
     assert not np.array_equal(held.rotations, plain.rotations)
+    # A caller that found no legs to hold (a rig's, solve.rig_feet) gets the curve as it is,
+    # even where the joints carry the model's names.
+    assert np.array_equal(curve.fill(m, keys, feet=None).rotations, plain.rotations)
     # Windows (the trusted fill's probes) plant window by window, as fill does.
     rot, root = curve.fill_batch(m.rotations[None], m.root_positions[None], keys)
     np.testing.assert_allclose(rot[0], held.rotations, atol=1e-6)
