@@ -37,6 +37,9 @@ PLANT_TRAVEL_CM = 6.0
 #: A thigh or shin shorter than this (cm) is no leg to hold a foot with (a rig's stand-in joint).
 MIN_BONE_CM = 1.0
 
+#: Frames the IK holds feet in at once (from key to key): memory follows it, not the shot.
+PLANT_BLOCK = 4096
+
 _Y_UP_FROM_Z_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
 
 
@@ -147,15 +150,36 @@ def plant_rotations(rot: np.ndarray, root: np.ndarray, skeleton, keys, feet: Fee
     # The IK holds the ground plane as X-Z: turn the whole body into the Y-up space (the root
     # joint's rotation and position; every local below it is unchanged) and take back the legs.
     root_joint = int(np.flatnonzero(np.asarray(skeleton.parents) < 0)[0])
-    turned = rot.astype(np.float64)  # a copy: the caller's array is not touched
-    q = np.broadcast_to(matrix_to_quat(feet.to_y_up), (len(rot), 4))
-    turned[:, root_joint] = batch_quat_mul(q, turned[:, root_joint])
-    locked = lock_feet(turned, root.astype(np.float64) @ feet.to_y_up.T, skeleton, contacts, keys, legs,
-                       anchor=True, orient=True, height=True)  # fmt: skip
+    q = matrix_to_quat(feet.to_y_up)
     moved = [j for leg in legs for j in leg[:3]]
-    if not np.isfinite(locked[:, moved]).all():  # no pose reaches the line: the curve as it is
-        return rot
     out = rot.copy()
-    out[:, moved] = locked[:, moved].astype(rot.dtype)
+    # Only the runs of gaps a foot is held in, in blocks from key to key: a held gap's frames
+    # depend on its own keys alone, so the blocks give what the whole shot would, and memory
+    # follows PLANT_BLOCK, not the shot.
+    for first, last in _blocks(keys, gaps.any(axis=1), PLANT_BLOCK):
+        a, b = int(keys[first]), int(keys[last]) + 1
+        turned = rot[a:b].astype(np.float64)  # a copy: the caller's array is not touched
+        turned[:, root_joint] = batch_quat_mul(np.broadcast_to(q, (b - a, 4)), turned[:, root_joint])
+        locked = lock_feet(turned, root[a:b].astype(np.float64) @ feet.to_y_up.T, skeleton, contacts[a:b],
+                           keys[first : last + 1] - a, legs, anchor=True, orient=True, height=True)  # fmt: skip
+        if not np.isfinite(locked[:, moved]).all():  # no pose reaches the line: the curve as it is
+            return rot
+        out[a:b, moved] = locked[:, moved].astype(rot.dtype)
     out[keys] = rot[keys]
+    return out
+
+
+def _blocks(keys: np.ndarray, held: np.ndarray, block: int) -> list[tuple[int, int]]:
+    """(first, last) key indices of the runs of gaps ``held`` (K - 1,) marks, each cut at keys
+    into spans of at most ``block`` frames (a single longer gap is a span of its own)."""
+    out, g = [], 0
+    while g < len(held):
+        if not held[g]:
+            g += 1
+            continue
+        first = g
+        while g + 1 < len(held) and held[g + 1] and keys[g + 2] - keys[first] <= block:
+            g += 1
+        out.append((first, g + 1))
+        g += 1
     return out

@@ -210,3 +210,19 @@ def test_roll_joints_in_the_leg_plant_as_the_leg_without_them(bandai_clip):
     np.testing.assert_allclose(positions(rolled_out)[:, old_at], positions(plain), atol=1e-3)
     rolls = [i for i, n in enumerate(rolled.names) if n.endswith("_roll")]
     assert np.array_equal(rolled_out.rotations[:, rolls], r_motion.rotations[:, rolls])  # kept at rest
+
+
+def test_blocks_from_key_to_key_give_what_the_whole_shot_gives(bandai_clip, monkeypatch):
+    from pipeline.infer import plant
+
+    m = walk(bandai_clip, 121)
+    keys = np.arange(0, 121, 5)  # runs of up to six gaps with a foot held
+    curve = spline_motion(m, keys, CURVE)
+    whole = plant_feet(curve, keys, model_feet(SKEL)).rotations
+    monkeypatch.setattr(plant, "PLANT_BLOCK", 12)  # those runs cut into blocks of two gaps
+    assert np.array_equal(plant_feet(curve, keys, model_feet(SKEL)).rotations, whole)
+    assert not np.array_equal(whole, curve.rotations)
+    held = np.array([True, True, False, True, True, True, False])
+    assert plant._blocks(np.arange(0, 80, 10), held, 20) == [(0, 2), (3, 5), (5, 6)]
+    assert plant._blocks(np.arange(0, 80, 10), held, 10**6) == [(0, 2), (3, 6)]
+    assert plant._blocks(np.array([0, 50, 60]), np.array([True, True]), 20) == [(0, 1), (1, 2)]
