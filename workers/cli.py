@@ -150,7 +150,14 @@ def _shot_files(shots: list[Path]) -> list[str]:
     seen: dict[str, str] = {}
     for p in map(str, shots):
         if not os.path.isfile(p):
-            what = "a folder, not a shot file" if os.path.isdir(p) else "no such shot file"
+            if os.path.isdir(p):
+                what = "a folder, not a shot file"
+            elif os.path.lexists(p):  # a pipe, a device, a socket, or a link leading nowhere
+                what = (
+                    "not a regular file (a shot is a USD file)" if os.path.exists(p) else "a link to nothing"
+                )
+            else:
+                what = "no such shot file"
             raise TweenError(f"{p}: {what}")
         real = os.path.realpath(p)
         if real in seen:

@@ -44,6 +44,14 @@ def test_submit_refuses_a_missing_shot_or_a_folder_before_sending(tmp_path, shot
     _refused(_tween(tmp_path, "submit", str(shot), "."), ".: a folder, not a shot file")
 
 
+def test_a_shot_that_is_a_pipe_or_a_link_to_nothing_is_named_as_such(tmp_path, shot):
+    """Both were "no such shot file", though the path is there."""
+    os.mkfifo(tmp_path / "pipe.usda")
+    (tmp_path / "gone.usda").symlink_to(tmp_path / "nowhere.usda")
+    _refused(_tween(tmp_path, "submit", "pipe.usda"), "pipe.usda: not a regular file (a shot is a USD file)")
+    _refused(_tween(tmp_path, "submit", str(shot), "gone.usda"), "gone.usda: a link to nothing")
+
+
 def test_a_shot_given_twice_is_refused(tmp_path, shot):
     """`tween fill x.usda ./d/../x.usda` made two versions of one shot in one run."""
     (tmp_path / "d").mkdir()
