@@ -10,13 +10,14 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from dailies import decide, farm, media
 from dailies.auth import Login, LoginMiddleware
 from dailies.detail import detail
 from dailies.shots import find, listing
 from pipeline.errors import TweenError
+from pipeline.options import one_line
 
 HERE = Path(__file__).parent
 
@@ -30,6 +31,22 @@ class Approval(BaseModel):
     version: int | None = Field(
         None, strict=True, description="The fill version the page showed; refused if no longer the latest."
     )
+
+    # The approval's own rules (pipeline.usd.dailies), checked with the schema: a body that
+    # breaks them is invalid (422), not a decision the shot's state refuses (409).
+    @field_validator("by")
+    @classmethod
+    def _by_is_one_line(cls, by: str | None) -> str | None:
+        if by is not None and not one_line(by):
+            raise ValueError("the reviewer's name must be printable, one line, 1 to 200 characters")
+        return by
+
+    @field_validator("note")
+    @classmethod
+    def _note_has_no_nul(cls, note: str | None) -> str | None:
+        if note is not None and "\0" in note:
+            raise ValueError("the note must not hold a NUL character")
+        return note
 
 
 class Publication(BaseModel):

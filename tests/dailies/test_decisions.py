@@ -66,8 +66,12 @@ def test_refusals_are_one_message(client, roots):
     for url in (f"/api/shots/0/{'b/' * 2100}x", f"/media/0/{'a' * 5000}.mp4", f"/media/0/{'a/' * 3000}x.mp4"):
         assert client.get(url).status_code == 404, url
     assert _post(client, f"/api/shots/0/{'b/' * 2100}x/approve", {"take": 0}).status_code == 404
-    nameless = _post(client, APPROVE, {"take": 0, "version": 1, "by": "\t"})  # approve's own check
-    assert nameless.status_code == 409 and "the reviewer's name" in nameless.json()["detail"]
+    # The approval's own rules on the name and the note are the schema's: invalid, not a conflict.
+    for body in ({"by": "\t"}, {"by": "ana\nbo"}, {"by": "a\0b"}, {"by": "x" * 201}, {"note": "ok\0"}):
+        r = _post(client, APPROVE, {"take": 0, "version": 1, **body})
+        assert r.status_code == 422, (body, r.text)
+        (err,) = r.json()["detail"]
+        assert err["loc"][-1] in body and any(w in err["msg"] for w in ("name", "NUL", "200 characters")), err
     assert _post(client, APPROVE, {"take": 0, "version": 1}).status_code == 200
     again = _post(client, APPROVE, {"take": 1, "version": 2})  # the layer's own refusal
     assert again.status_code == 409 and "already approved (take 0 by" in again.json()["detail"]
