@@ -481,7 +481,27 @@ def training_clips(cfg: TrainConfig):
             f"{where}: no take of {max(short)} frames (at 30 fps) for --lengths {max(short)}; "
             f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"
         )
+    if cfg.corpus and clips.groups is not None:
+        _check_source_lengths(cfg, clips)
     return clips
+
+
+def _check_source_lengths(cfg: TrainConfig, clips) -> None:
+    """TweenError naming a corpus source with no take as long as the longest ``--lengths``:
+    its windows of that length could not be drawn, and its weight would go to the others
+    (ClipSet.draw_p) with nothing said."""
+    n = max(cfg.lengths)
+    groups = np.asarray(clips.groups)
+    for g in np.unique(groups):
+        at = np.flatnonzero(groups == g)
+        longest = int(clips.lengths[at].max())
+        if longest < n:
+            source = clips.names[at[0]].split("/", 1)[0]
+            raise TweenError(
+                f"{cfg.corpus}: source {source}: no take of {n} frames (at 30 fps) for --lengths {n}; "
+                f"its longest is {longest}: its share would go to the other sources. Give it longer "
+                "takes, drop it, or give shorter --lengths"
+            )
 
 
 def check_partial(cfg: TrainConfig, saved: dict | None = None) -> None:

@@ -204,8 +204,8 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
 def check_run(out: Path, cfg) -> None:
     """What `tween train` reads, checked before it writes anything: the run folder is not a
     model (a model is written by `tween export`), --init is a checkpoint that `tween train`
-    wrote, --device is one torch has here, --partial has a key adapter to train, and the
-    takes folder holds takes."""
+    wrote, --device is one torch has here, --partial has a key adapter to train, the
+    takes folder holds takes, and every source of a corpus has takes as long as --lengths."""
     from pipeline.train.generator_training import check_partial, load_init
     from pipeline.usd.take import take_files
 
@@ -218,8 +218,12 @@ def check_run(out: Path, cfg) -> None:
         take_files(cfg.data, cfg.data_include)
     if cfg.corpus:
         from pipeline.data.corpus import load_corpus
+        from pipeline.train.generator_training import training_clips
 
         load_corpus(cfg.corpus)
+        # Prepared (or read: memory maps) here, not first by the path predictor's stage: a
+        # source with no take as long as --lengths is named before anything trains.
+        training_clips(cfg)
 
 
 def _train(ctx: typer.Context, **values) -> None:

@@ -49,3 +49,30 @@ def test_train_on_a_corpus_of_two_rigs_and_its_terms(data_dir, bandai_clip, tmp_
     bad = CliRunner().invoke(app, ["train", "--corpus", str(desc), "--data", str(tmp_path), *opts, "--out",
                                    str(tmp_path / "r")])  # fmt: skip
     assert bad.exit_code == 2 and "drop --data" in bad.output and not (tmp_path / "r").exists()
+
+
+def test_a_source_with_no_take_as_long_as_the_lengths_is_named_before_training(bandai_clip, tmp_path):
+    """Its weight went to the other sources with nothing said (ClipSet.draw_p)."""
+    pytest.importorskip("torch")
+    import os
+    import subprocess
+    import sys
+
+    from pipeline.motion.bvh import read_bvh, write_bvh
+
+    (tmp_path / "long").mkdir()
+    shutil.copy(bandai_clip, tmp_path / "long" / bandai_clip.name)
+    (tmp_path / "short").mkdir()
+    write_bvh(read_bvh(bandai_clip).slice(0, 40), tmp_path / "short" / "stub.bvh")  # 40 frames
+    desc = tmp_path / "corpus.toml"
+    desc.write_text('name = "mixed"\n[[source]]\nname = "long"\npath = "long"\nlicence = "CC0"\n'
+                    '[[source]]\nname = "stubs"\npath = "short"\nlicence = "CC0"\n')  # fmt: skip
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "pipeline.cli", "train", "--corpus", str(desc), "--path-steps", "2", "--steps", "4",
+           "--batch", "4", "--adv-start", "-1", "--lengths", "30,64", "--out", str(out)]  # fmt: skip
+    env = {**os.environ, "TWEEN_CACHE": str(tmp_path / "cache")}
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
+    assert "source stubs: no take of 64 frames (at 30 fps) for --lengths 64; its longest is 40" in line, line
+    assert "path predictor" not in res.stderr and not out.exists()  # refused before anything trained
