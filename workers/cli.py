@@ -152,10 +152,10 @@ def _shot_files(shots: list[Path]) -> list[str]:
         if not os.path.isfile(p):
             if os.path.isdir(p):
                 what = "a folder, not a shot file"
-            elif os.path.lexists(p):  # a pipe, a device, a socket, or a link leading nowhere
-                what = (
-                    "not a regular file (a shot is a USD file)" if os.path.exists(p) else "a link to nothing"
-                )
+            elif os.path.exists(p):  # a pipe, a device, a socket
+                what = "not a regular file (a shot is a USD file)"
+            elif os.path.lexists(p):
+                what = "a link to nothing"
             else:
                 what = "no such shot file"
             raise TweenError(f"{p}: {what}")

@@ -171,13 +171,12 @@ def rig_feet(retarget, skeleton):
     """The legs of a human character's rig (``skeleton``: its own joints), as the rig's joints
     mapped to the model's legs, in its world's Y-up centimetres (pipeline.infer.plant.Feet);
     None for a rig model's character or legs the IK cannot take (pipeline.infer.plant.feet_of)."""
-    from pipeline.data.skeletons import LEGS
-    from pipeline.infer.plant import feet_of
+    from pipeline.infer.plant import feet_of, legs_named
 
     roles = getattr(retarget, "roles", None)
     if roles is None:
         return None
-    return feet_of(skeleton, [tuple(roles.get(n) for n in leg) for leg in LEGS], retarget.R, retarget.s)
+    return feet_of(skeleton, legs_named(roles), retarget.R, retarget.s)
 
 
 class OnRig:

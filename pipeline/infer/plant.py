@@ -96,12 +96,17 @@ def _chain_length(parents: np.ndarray, offsets: np.ndarray, top: int, end: int) 
     return length
 
 
-def model_feet(skeleton) -> Feet | None:
-    """:class:`Feet` of a skeleton that carries the model's leg joint names, else None."""
+def legs_named(index) -> list[tuple]:
+    """(hip, knee, ankle, toe) per leg, left then right, of the model's leg joints as
+    ``index`` (model joint name -> skeleton index) finds them; None where it has no joint."""
     from pipeline.data.skeletons import LEGS
 
-    index = {n: i for i, n in enumerate(skeleton.names)}
-    return feet_of(skeleton, [tuple(index.get(n) for n in leg) for leg in LEGS])
+    return [tuple(index.get(n) for n in leg) for leg in LEGS]
+
+
+def model_feet(skeleton) -> Feet | None:
+    """:class:`Feet` of a skeleton that carries the model's leg joint names, else None."""
+    return feet_of(skeleton, legs_named({n: i for i, n in enumerate(skeleton.names)}))
 
 
 def planted(ankles_cm: np.ndarray, breaks=()) -> np.ndarray:

@@ -217,12 +217,11 @@ def check_run(out: Path, cfg) -> None:
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
     if cfg.corpus:
-        from pipeline.data.corpus import load_corpus
         from pipeline.train.generator_training import training_clips
 
-        load_corpus(cfg.corpus)
-        # Prepared (or read: memory maps) here, not first by the path predictor's stage: a
-        # source with no take as long as --lengths is named before anything trains.
+        # Loaded (its description refused as load_corpus refuses it), prepared or read (memory
+        # maps) here, not first by the path predictor's stage: a source with no take as long
+        # as --lengths is named before anything trains.
         training_clips(cfg)
 
 
