@@ -55,6 +55,21 @@ def model_frames(keys: np.ndarray, tcps: float, fps: float) -> tuple[np.ndarray,
     return m, order[first]
 
 
+def model_time(times: np.ndarray, keys: np.ndarray, tcps: float, fps: float) -> np.ndarray:
+    """The (fractional) model frame of each time code: ``fps`` frames a second from the first
+    key, moved gap by gap so that every key the in-betweener is given falls on the model frame
+    :func:`model_frames` gives it. A key between two model frames (every key of a 24 fps shot
+    keyed every 10 frames is 12.5 model frames from the last) is filled at the nearer one;
+    read at the rate alone, the fill would put that key, and the motion into and out of it,
+    up to half a model frame off its time. Keys on model frames keep the rate's mapping as it is."""
+    t = (times - keys[0]) / tcps * fps
+    m, keep = model_frames(keys, tcps, fps)
+    off = (keys[keep] - keys[0]) / tcps * fps - m[keep]
+    if np.abs(off).max() < 1e-6:
+        return t
+    return t - np.interp(times, keys[keep], off)
+
+
 def jump_gaps(cp: CharPlan, tcps: float, fps: float) -> list[tuple[int, int]]:
     """The key pairs the character's body teleports between (``cp.jumps``), as the model
     frames :func:`model_frames` gives those keys."""
@@ -141,7 +156,7 @@ def _onto_rig(plan: Plan, cp: CharPlan, retarget, fps: float, filled: Motion | N
     T = int(m[-1]) + 1
     lo, hi = cp.fill_range
     inside = merge_times(k[(k >= lo - TIME_EPS) & (k <= hi + TIME_EPS)], frames_in(lo, hi))
-    u = np.clip((inside - k[0]) / shot.tcps * fps, 0, T - 1)
+    u = np.clip(model_time(inside, k, shot.tcps, fps), 0, T - 1)
     out = {"inside": inside, "u": u, "m": m, "rot": None, "tr": None}
     if filled is None:
         out["sc"] = anim_values(shot.stage, c, inside)[2]
