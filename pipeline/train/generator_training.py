@@ -91,7 +91,9 @@ class TrainConfig:
     seed: int = _knob(0, "Seed of weights and batches: a run is deterministic for a seed.")
     threads: int = _knob(1, "torch threads; 1 is fastest on 2 shared cores (more threads thrash).")
     checkpoint_minutes: float = _knob(3.0, "Minutes between checkpoints (a run resumes from its last one).")
-    limit_clips: int | None = _knob(None, "Use only the first N train clips (smoke tests).")
+    limit_clips: int | None = _knob(
+        None, "Use only the first N clips of the train split or of --data (smoke tests)."
+    )
     data: str | None = _knob(
         None,
         "A folder of your own takes instead of Bandai train: BVH or USD of any humanoid rig, "
@@ -183,6 +185,10 @@ class TrainConfig:
                                 ("--limit-clips", self.limit_clips), ("--pos-zscore", self.pos_zscore)) if v]  # fmt: skip
         if self.corpus and given:
             raise ValueError(f"--corpus {self.corpus}: reads its own sources; drop {', '.join(given)}")
+        if self.data_pack and self.limit_clips:  # a pack is read whole (its clips are one array)
+            raise ValueError(
+                f"--data-pack {self.data_pack}: trains on every clip it holds; drop --limit-clips"
+            )
         if self.gap_end < self.gap_start:
             raise ValueError(f"--gap-end {self.gap_end}: must be at least --gap-start {self.gap_start}")
 
@@ -472,7 +478,9 @@ def training_clips(cfg: TrainConfig):
         clips = corpus_clips(cfg.corpus)
     else:
         clips = (
-            load_takes(cfg.data, cfg.data_include) if cfg.data else load_split("train", limit=cfg.limit_clips)
+            load_takes(cfg.data, cfg.data_include, cfg.limit_clips)
+            if cfg.data
+            else load_split("train", limit=cfg.limit_clips)
         )
     short = [n for n in cfg.lengths if not (clips.lengths >= n).any()]
     if short:

@@ -207,13 +207,20 @@ def check_run(out: Path, cfg) -> None:
     wrote, --device is one torch has here, --partial has a key adapter to train, the
     takes folder holds takes, and every source of a corpus has takes as long as --lengths."""
     from pipeline.train.generator_training import check_partial, load_init
-    from pipeline.usd.take import take_files
 
     refuse_model(out, "--out (a run folder)", force_hint=None)
     check_device(cfg.device, here=True)
     # --init first: whether --partial has a key adapter may be its network's to say.
     saved = (load_init(cfg.init).get("config") or {}).get("model") if cfg.init else None
     check_partial(cfg, saved)
+    check_data(cfg)
+
+
+def check_data(cfg) -> None:
+    """The takes folder holds takes, and every source of a corpus has takes as long as
+    --lengths: for `tween train`, and for every stage of a recipe before its first trains."""
+    from pipeline.usd.take import take_files
+
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
     if cfg.corpus:
@@ -654,6 +661,10 @@ def _finished_stages(rec: Recipe, configs_: list, out: Path, start: int) -> set[
         runs.add(s.name)
         if cfg.init is not None and s.init not in runs and not Path(cfg.init).exists():
             raise RecipeError(f"{rec.source}: stage {s.name!r}: its --init {cfg.init} does not exist")
+        try:  # a later stage's takes or corpus refused now, not after the stages before it trained
+            check_data(cfg)
+        except TweenError as e:
+            raise RecipeError(f"{rec.source}: stage {s.name!r}: {e}") from None
     return done
 
 

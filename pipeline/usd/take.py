@@ -130,9 +130,10 @@ def studio_take(path: Path) -> Motion:
     return model_take(path, 30.0)
 
 
-def load_takes(folder: str | Path, include: str | None = None):
+def load_takes(folder: str | Path, include: str | None = None, limit: int | None = None):
     """A studio's own takes (``take_files``) on the model skeleton, as a cached ClipSet: what
-    ``tween train --data FOLDER`` trains on."""
+    ``tween train --data FOLDER`` trains on; ``limit``: the first N of them (``--limit-clips``)."""
     from pipeline.data.cache import load_files
 
-    return load_files(take_files(folder, include), "takes", read=studio_take)
+    files = take_files(folder, include)
+    return load_files(files[:limit] if limit else files, "takes", read=studio_take)

@@ -76,3 +76,32 @@ def test_a_source_with_no_take_as_long_as_the_lengths_is_named_before_training(b
     (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
     assert "source stubs: no take of 64 frames (at 30 fps) for --lengths 64; its longest is 40" in line, line
     assert "path predictor" not in res.stderr and not out.exists()  # refused before anything trained
+
+
+def test_a_recipe_stage_whose_corpus_is_too_short_is_named_before_the_first_stage_trains(
+    bandai_clip, tmp_path
+):
+    """Stage one would have trained for its minutes before stage two's corpus was found wanting."""
+    pytest.importorskip("torch")
+    import os
+    import subprocess
+    import sys
+
+    from pipeline.motion.bvh import read_bvh, write_bvh
+
+    (tmp_path / "short").mkdir()
+    write_bvh(read_bvh(bandai_clip).slice(0, 40), tmp_path / "short" / "stub.bvh")  # 40 frames
+    desc = tmp_path / "corpus.toml"
+    desc.write_text('name = "stubs"\n[[source]]\nname = "stubs"\npath = "short"\nlicence = "CC0"\n')
+    tiny = "--steps 4 --batch 2 --lengths 64 --adv-start -1 --path-steps 0"
+    recipe = tmp_path / "two.toml"
+    recipe.write_text(f'name = "two"\n[[stage]]\nname = "one"\nargs = "{tiny} --limit-clips 1"\n'
+                      f'[[stage]]\nname = "later"\ninit = "one"\nargs = "{tiny} --corpus {desc}"\n')  # fmt: skip
+    out = tmp_path / "runs"
+    cmd = [sys.executable, "-m", "pipeline.cli", "train", "--recipe", str(recipe), "--out", str(out)]
+    env = {**os.environ, "TWEEN_CACHE": str(tmp_path / "cache")}
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
+    assert f"{recipe}: stage 'later': " in line and "no take of 64 frames" in line, line
+    assert not (out / "one").exists()  # stage one never started

@@ -45,6 +45,9 @@ def test_takes_of_any_rig_come_on_the_model_skeleton_at_30_fps(takes, bandai_cli
     rot, root = cs.clip(1)
     np.testing.assert_allclose(rot, cmu.rotations, atol=1e-6)
     np.testing.assert_allclose(root, cmu.root_positions, atol=1e-4)
+    # --limit-clips: the first N takes only (it was ignored with --data, every take trained on).
+    one = load_takes(takes, limit=1)
+    assert one.names == cs.names[:1] and np.array_equal(one.clip(0)[0], cs.clip(0)[0])
     # Cached: a second call reads no file; a changed take is read again.
     monkeypatch.setattr("pipeline.usd.take.model_take", lambda *a, **k: pytest.fail("read again"))
     again = load_takes(str(takes) + "/")
