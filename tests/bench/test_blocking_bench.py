@@ -29,11 +29,11 @@ def test_blocking_bench_runs_end_to_end_on_cmu_takes(tmp_path, capsys):
     # them (probed_beside), each with the share of shots it decided.
     library, *networks = report["beside"]
     assert "cmu-subjects-1-3" in library["name"] and library["hash"]
-    assert [b["name"] for b in networks] == ["tween-bandai-delta-v2"]
+    assert [b["name"] for b in networks] == ["tween-bandai-delta-v3"]
     assert len(r["alternative_shares"]) == 2 and sum(r["alternative_shares"]) == pytest.approx(
         r["alternative_share"]
     )
-    assert "| lib | tween-bandai-delta-v2 |" in report["markdown"]
+    assert "| lib | tween-bandai-delta-v3 |" in report["markdown"]
 
 
 def test_blocking_bench_without_the_library_probes_the_network_only(tmp_path):

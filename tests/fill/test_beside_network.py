@@ -23,7 +23,7 @@ from pipeline.motion.augment import posture_offsets
 from pipeline.motion.clip import Motion
 from pipeline.usd.take import model_take
 
-DELTA = "tween-bandai-delta-v2"
+DELTA = "tween-bandai-delta-v3"
 
 
 def test_the_default_ships_the_delta_network_inside_its_folder():
@@ -100,7 +100,7 @@ def test_an_unfamiliar_shot_probes_it_and_names_its_licence(tmp_path, capsys):
     said = f"human model tween-bandai-v5.3, with library:cmu-subjects-1-3 and {DELTA} probed beside it"
     assert said in capsys.readouterr().err
     assert DELTA in {c["name"] for c in res["trust"][ANIM]["candidates"]}
-    assert res["licence"][DELTA] == "CC BY-NC 4.0"
+    assert res["licence"][DELTA].startswith("CC BY-NC 4.0") and "CMU Graphics Lab" in res["licence"][DELTA]
     # --trust model is the network alone: nothing is probed beside it.
     alone = fill_shot(str(shot), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "net")))
     assert DELTA not in alone["licence"]

@@ -61,10 +61,11 @@ def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, 
     # The network, and the library and delta network it ships beside it (probed on the shot's
     # keys with it).
     cmu = json.loads((ROOT / "models" / "default" / "library" / "library.json").read_text())["licence"]
+    delta = json.loads((ROOT / "models" / "default" / "delta" / "model.json").read_text())["licence"]
     want = {
         "tween-bandai-v5.3": "CC BY-NC 4.0",
         "library:cmu-subjects-1-3": cmu,
-        "tween-bandai-delta-v2": "CC BY-NC 4.0",
+        "tween-bandai-delta-v3": delta,
     }
     assert res["licence"] == want and cmu.startswith("CMU Graphics Lab")
     layer = Sdf.Layer.FindOrOpen(res["layer"])
@@ -72,7 +73,7 @@ def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, 
     stage = Usd.Stage.Open(res["layer"])
     assert (
         stage.GetPrimAtPath(FILLED).GetAttribute(tokens.MODEL_LICENCE).Get()
-        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v2: CC BY-NC 4.0"
+        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v3: {delta}"
     )
     # The network alone (--trust model) probes nothing beside it: its licence only.
     alone = fill_shot(str(walk), FillOptions(model="default", trust="model", out_dir=str(tmp_path / "alone")))
@@ -85,7 +86,7 @@ def test_a_fill_names_its_models_licence_in_json_layer_and_published_take(walk, 
     pstage = Usd.Stage.Open(pub["layer"])
     assert (
         pstage.GetPrimAtPath(pub["animations"][0]).GetAttribute(tokens.MODEL_LICENCE).Get()
-        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v2: CC BY-NC 4.0"
+        == f"tween-bandai-v5.3: CC BY-NC 4.0; library:cmu-subjects-1-3: {cmu}; tween-bandai-delta-v3: {delta}"
     )
 
 

@@ -45,7 +45,7 @@ def test_a_take_of_the_library_is_filled_from_it_and_recorded(tmp_path):
     res = fill_shot(str(shot), FillOptions(model="default", out_dir=str(tmp_path / "auto")))
     d = res["trust"][ANIM]
     assert d["source"] == LIB
-    assert {c["name"] for c in d["candidates"]} == {LIB, "tween-bandai-v5.3", "tween-bandai-delta-v2"}
+    assert {c["name"] for c in d["candidates"]} == {LIB, "tween-bandai-v5.3", "tween-bandai-delta-v3"}
     scores = {c["name"]: c["score"] for c in d["candidates"]}
     assert scores[LIB] > scores["tween-bandai-v5.3"]
     assert d["library"]["gaps"] and any(g["weight"] > 0 for g in d["library"]["gaps"])

@@ -37,7 +37,7 @@ def _tween(*args, env=None):
 
 def test_every_shipped_model_has_a_recipe():
     assert SHIPPED == [
-        "tween-bandai-delta-v2",
+        "tween-bandai-delta-v3",
         "tween-bandai-dna-v1",
         "tween-bandai-v5.3",
         "tween-cmu-s123-delta-ft",
@@ -240,7 +240,7 @@ def test_the_delta_model_ships_the_checkpoint_its_next_stage_resumes_from():
     assert ckpt == folder / "torch" / "generator.pt"
     state = torch.load(ckpt, weights_only=False, map_location="cpu")
     meta = json.loads((folder / "model.json").read_text())
-    rec = load_recipe("tween-bandai-delta-v2")
+    rec = load_recipe("tween-bandai-delta-v3")
     assert state["config"]["model"]["delta"] and meta["generator"]["delta"]
     assert (
         state["step"]
