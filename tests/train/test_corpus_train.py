@@ -51,31 +51,44 @@ def test_train_on_a_corpus_of_two_rigs_and_its_terms(data_dir, bandai_clip, tmp_
     assert bad.exit_code == 2 and "drop --data" in bad.output and not (tmp_path / "r").exists()
 
 
-def test_a_source_with_no_take_as_long_as_the_lengths_is_named_before_training(bandai_clip, tmp_path):
-    """Its weight went to the other sources with nothing said (ClipSet.draw_p)."""
-    pytest.importorskip("torch")
+def _stub_source(bandai_clip, folder):
+    """``folder`` holding one 40-frame take: a corpus source too short for --lengths 64."""
+    from pipeline.motion.bvh import read_bvh, write_bvh
+
+    folder.mkdir()
+    write_bvh(read_bvh(bandai_clip).slice(0, 40), folder / "stub.bvh")
+
+
+def _refused_line(args, tmp_path) -> str:
+    """`tween ARGS` in its own process (its own cache), refused: exit 2, nothing on stdout;
+    its one error line."""
     import os
     import subprocess
     import sys
 
-    from pipeline.motion.bvh import read_bvh, write_bvh
+    env = {**os.environ, "TWEEN_CACHE": str(tmp_path / "cache")}
+    res = subprocess.run([sys.executable, "-m", "pipeline.cli", *map(str, args)], env=env, capture_output=True,
+                         text=True, timeout=300)  # fmt: skip
+    assert res.returncode == 2 and res.stdout == "", res.stderr
+    (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
+    assert "path predictor" not in res.stderr, res.stderr  # refused before anything trained
+    return line
 
+
+def test_a_source_with_no_take_as_long_as_the_lengths_is_named_before_training(bandai_clip, tmp_path):
+    """Its weight went to the other sources with nothing said (ClipSet.draw_p)."""
+    pytest.importorskip("torch")
     (tmp_path / "long").mkdir()
     shutil.copy(bandai_clip, tmp_path / "long" / bandai_clip.name)
-    (tmp_path / "short").mkdir()
-    write_bvh(read_bvh(bandai_clip).slice(0, 40), tmp_path / "short" / "stub.bvh")  # 40 frames
+    _stub_source(bandai_clip, tmp_path / "short")
     desc = tmp_path / "corpus.toml"
     desc.write_text('name = "mixed"\n[[source]]\nname = "long"\npath = "long"\nlicence = "CC0"\n'
                     '[[source]]\nname = "stubs"\npath = "short"\nlicence = "CC0"\n')  # fmt: skip
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "pipeline.cli", "train", "--corpus", str(desc), "--path-steps", "2", "--steps", "4",
-           "--batch", "4", "--adv-start", "-1", "--lengths", "30,64", "--out", str(out)]  # fmt: skip
-    env = {**os.environ, "TWEEN_CACHE": str(tmp_path / "cache")}
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-    assert res.returncode == 2 and res.stdout == "", res.stderr
-    (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
+    line = _refused_line(["train", "--corpus", desc, "--path-steps", "2", "--steps", "4", "--batch", "4",
+                          "--adv-start", "-1", "--lengths", "30,64", "--out", out], tmp_path)  # fmt: skip
     assert "source stubs: no take of 64 frames (at 30 fps) for --lengths 64; its longest is 40" in line, line
-    assert "path predictor" not in res.stderr and not out.exists()  # refused before anything trained
+    assert not out.exists()
 
 
 def test_a_recipe_stage_whose_corpus_is_too_short_is_named_before_the_first_stage_trains(
@@ -83,14 +96,7 @@ def test_a_recipe_stage_whose_corpus_is_too_short_is_named_before_the_first_stag
 ):
     """Stage one would have trained for its minutes before stage two's corpus was found wanting."""
     pytest.importorskip("torch")
-    import os
-    import subprocess
-    import sys
-
-    from pipeline.motion.bvh import read_bvh, write_bvh
-
-    (tmp_path / "short").mkdir()
-    write_bvh(read_bvh(bandai_clip).slice(0, 40), tmp_path / "short" / "stub.bvh")  # 40 frames
+    _stub_source(bandai_clip, tmp_path / "short")
     desc = tmp_path / "corpus.toml"
     desc.write_text('name = "stubs"\n[[source]]\nname = "stubs"\npath = "short"\nlicence = "CC0"\n')
     tiny = "--steps 4 --batch 2 --lengths 64 --adv-start -1 --path-steps 0"
@@ -98,10 +104,6 @@ def test_a_recipe_stage_whose_corpus_is_too_short_is_named_before_the_first_stag
     recipe.write_text(f'name = "two"\n[[stage]]\nname = "one"\nargs = "{tiny} --limit-clips 1"\n'
                       f'[[stage]]\nname = "later"\ninit = "one"\nargs = "{tiny} --corpus {desc}"\n')  # fmt: skip
     out = tmp_path / "runs"
-    cmd = [sys.executable, "-m", "pipeline.cli", "train", "--recipe", str(recipe), "--out", str(out)]
-    env = {**os.environ, "TWEEN_CACHE": str(tmp_path / "cache")}
-    res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-    assert res.returncode == 2 and res.stdout == "", res.stderr
-    (line,) = [x for x in res.stderr.splitlines() if x.startswith("tween: error:")]
+    line = _refused_line(["train", "--recipe", recipe, "--out", out], tmp_path)
     assert f"{recipe}: stage 'later': " in line and "no take of 64 frames" in line, line
     assert not (out / "one").exists()  # stage one never started
