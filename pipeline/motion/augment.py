@@ -1,13 +1,13 @@
-"""Posture offsets: the same motion as a differently set-up rig or a stylised character would
-carry it. Used to train for robustness (``tween train --posture``) and to measure it
-(``tween bench --posture``)."""
+"""Posture offsets: the same motion as a differently set-up rig, a stylised character or another
+actor would carry it. Measured with them (``tween bench --posture``) and trained with them for
+robustness (``tween train --joint-offsets``)."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.motion.rotations import quat_mul, slerp_pairs
+from pipeline.motion.rotations import quat_mul
 
 
 def posture_offsets(rot: np.ndarray, rng: np.random.Generator, max_deg: float, prob: float) -> np.ndarray:
@@ -39,25 +39,3 @@ def joint_offsets(rot: np.ndarray, rng: np.random.Generator, sigma_deg: float, p
     part = rot[on, :, 1:].astype(np.float64)
     out[on, :, 1:] = quat_mul(part, np.broadcast_to(off, part.shape)).astype(rot.dtype)
     return out
-
-
-def tempo_factor(rng: np.random.Generator, max_change: float) -> float:
-    """A playback speed, log-uniform between 1 / (1 + max_change) and 1 + max_change: the
-    same motion performed faster or slower, as another actor or a stylised take would."""
-    span = np.log1p(max_change)
-    return float(np.exp(rng.uniform(-span, span)))
-
-
-def time_warp(rot: np.ndarray, root: np.ndarray, frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """Windows (B, N, J, 4) / (B, N, 3) resampled to ``frames`` frames spanning the same time
-    (first and last frames kept): rotations by SLERP, the root linearly. N > frames plays the
-    motion faster, N < frames slower."""
-    n = rot.shape[1]
-    t = np.linspace(0.0, n - 1.0, frames)
-    i = np.minimum(np.floor(t).astype(np.int64), n - 2)
-    f = t - i
-    w = np.broadcast_to(f[None, :, None], rot.shape[:1] + (frames,) + rot.shape[2:3])
-    out_rot = slerp_pairs(rot[:, i], rot[:, i + 1], w).astype(rot.dtype)
-    r = root.astype(np.float64)
-    out_root = (r[:, i] + f[None, :, None] * (r[:, i + 1] - r[:, i])).astype(root.dtype)
-    return out_rot, out_root
