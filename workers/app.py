@@ -250,8 +250,3 @@ def farm_errors(celery_app: Celery):
         url = celery_app.conf.result_backend
         same = url == celery_app.conf.broker_url
         raise connection_error("broker" if same else "result backend", url, e) from None
-
-
-def use_queue(queue: str) -> None:
-    """Sends this process's fill jobs to ``queue`` (the embedded default uses a private one)."""
-    app.conf.task_default_queue = queue

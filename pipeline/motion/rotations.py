@@ -25,12 +25,6 @@ def _flat(a: np.ndarray, tail: int) -> tuple[np.ndarray, tuple[int, ...]]:
     return a.reshape((-1,) + a.shape[a.ndim - tail :]), lead
 
 
-def quat_identity(shape: tuple[int, ...] = ()) -> np.ndarray:
-    q = np.zeros(shape + (4,), np.float32)
-    q[..., 3] = 1.0
-    return q
-
-
 def quat_normalize(q: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
