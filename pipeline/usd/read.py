@@ -183,12 +183,14 @@ def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray
         raise ShotError(shot_path, f"{name}: NaN or infinite values (joint {joints[j]!r})", skel_path)
 
 
-#: The value types UsdSkel's animation attributes may hold (a ``float4[]`` rotation reads its
-#: components in another order: x y z w against a quaternion's w x y z).
+#: The value types UsdSkel poses its animation attributes from: with any other (``quatd[]``,
+#: ``double3[]`` translations, ``float3[]`` scales...) its ``ComputeJointLocalTransforms``
+#: returns nothing and every viewer shows the bind pose, so a fill of the values would show
+#: what the shot never did (a ``float4[]`` rotation also reads x y z w as w x y z).
 TYPES = {
-    "rotations": ("quatf[]", "quath[]", "quatd[]"),
-    "translations": ("float3[]", "double3[]", "half3[]", "vector3f[]", "vector3d[]", "vector3h[]"),
-    "scales": ("half3[]", "float3[]", "double3[]"),
+    "rotations": ("quatf[]",),
+    "translations": ("float3[]", "vector3f[]"),
+    "scales": ("half3[]",),
 }
 
 

@@ -153,19 +153,37 @@ def _metadata(key, value):
     return lambda stage: stage.SetMetadata(key, value)
 
 
-def _float4_rotations(stage):
-    """rotations authored as float4[] (x y z w read where a quaternion holds w x y z)."""
-    from pxr import Gf, Sdf, Vt
+def _retyped(name: str, type_name: str):
+    """The animation's ``name`` authored as ``type_name``, same values: a type UsdSkel does not
+    pose from (its ComputeJointLocalTransforms gives nothing), or float4[] rotations (x y z w
+    read where a quaternion holds w x y z)."""
 
-    attr = stage.GetPrimAtPath(ANIM).GetAttribute("rotations")
-    samples = {t: [Gf.Vec4f(*q.GetImaginary(), q.GetReal()) for q in attr.Get(t)]
-               for t in attr.GetTimeSamples()}  # fmt: skip
-    layer = stage.GetRootLayer()  # the stage refuses the type the schema does not give it
-    prim_spec = layer.GetPrimAtPath(ANIM)
-    prim_spec.RemoveProperty(prim_spec.properties["rotations"])
-    spec = Sdf.AttributeSpec(prim_spec, "rotations", Sdf.ValueTypeNames.Float4Array)
-    for t, a in samples.items():
-        layer.SetTimeSample(spec.path, t, Vt.Vec4fArray(a))
+    def edit(stage):
+        from pxr import Gf, Sdf, Vt
+
+        attr = stage.GetPrimAtPath(ANIM).GetAttribute(name)
+        kind = Sdf.ValueTypeNames.Find(type_name)
+        value = {
+            "float4[]": lambda a: Vt.Vec4fArray([Gf.Vec4f(*q.GetImaginary(), q.GetReal()) for q in a]),
+            "quatd[]": lambda a: Vt.QuatdArray(
+                [Gf.Quatd(q.GetReal(), Gf.Vec3d(q.GetImaginary())) for q in a]
+            ),
+            "quath[]": lambda a: Vt.QuathArray(
+                [Gf.Quath(q.GetReal(), Gf.Vec3h(q.GetImaginary())) for q in a]
+            ),
+            "double3[]": lambda a: Vt.Vec3dArray([Gf.Vec3d(v) for v in a]),
+            "half3[]": lambda a: Vt.Vec3hArray([Gf.Vec3h(v) for v in a]),
+            "float3[]": lambda a: Vt.Vec3fArray([Gf.Vec3f(v) for v in a]),
+        }[type_name]
+        samples = {t: value(attr.Get(t)) for t in attr.GetTimeSamples()}
+        layer = stage.GetRootLayer()  # the stage refuses the type the schema does not give it
+        prim_spec = layer.GetPrimAtPath(ANIM)
+        prim_spec.RemoveProperty(prim_spec.properties[name])
+        spec = Sdf.AttributeSpec(prim_spec, name, kind)
+        for t, a in samples.items():
+            layer.SetTimeSample(spec.path, t, a)
+
+    return edit
 
 
 def _keyed_joints_default(kind):
@@ -314,7 +332,23 @@ CONTENT = [
         "translations: a value beyond ±1e+07 at time 1011",
         ANIM,
     ),
-    ("float4-rotations", _float4_rotations, "rotations is float4[], not quatf[]", ANIM),
+    ("float4-rotations", _retyped("rotations", "float4[]"), "rotations is float4[], not quatf[]", ANIM),
+    # UsdSkel poses nothing from these (its joint transforms come back empty: the bind pose).
+    ("quatd-rotations", _retyped("rotations", "quatd[]"), "rotations is quatd[], not quatf[]", ANIM),
+    ("quath-rotations", _retyped("rotations", "quath[]"), "rotations is quath[], not quatf[]", ANIM),
+    (
+        "double3-translations",
+        _retyped("translations", "double3[]"),
+        "translations is double3[], not float3[]",
+        ANIM,
+    ),
+    (
+        "half3-translations",
+        _retyped("translations", "half3[]"),
+        "translations is half3[], not float3[]",
+        ANIM,
+    ),
+    ("float3-scales", _retyped("scales", "float3[]"), "scales is float3[], not half3[]", ANIM),
     ("keyed-joints-default", _keyed_joints_default("token"), "tween:keyedJoints has no time samples", ANIM),
     ("keyed-joints-int", _keyed_joints_default("int"), "tween:keyedJoints is int[], not token[]", ANIM),
     ("up-axis-x", _metadata("upAxis", "X"), "upAxis 'X' is not an up axis USD knows (Y or Z)", None),
