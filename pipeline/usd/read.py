@@ -484,6 +484,28 @@ def bound_skeletons(stage, path: str) -> list[BoundSkeleton]:
     return out
 
 
+def binding_prim(path: str, skel_prim) -> str:
+    """The prim on which the fill layer points a skeleton at its fill: the Skeleton itself, or,
+    for a skeleton inside an instance (an instance proxy, on which no layer's opinion counts),
+    the instance prim, from which it inherits the binding (a crowd's instances bind their
+    animations so). ShotError when the binding it inherits is authored inside the instance: an
+    opinion on the instance prim would not override it."""
+    from pxr import UsdSkel
+
+    prim = skel_prim
+    while prim.IsInstanceProxy():
+        if UsdSkel.BindingAPI(prim).GetAnimationSourceRel().HasAuthoredTargets():
+            inst = prim
+            while inst.IsInstanceProxy():
+                inst = inst.GetParent()
+            raise ShotError(
+                path, f"its animation is bound inside an instanced prim; set instanceable = false on "
+                f"{inst.GetPath()} to fill it", str(skel_prim.GetPath()),
+            )  # fmt: skip
+        prim = prim.GetParent()
+    return str(prim.GetPath())
+
+
 def _read_shot(path: str) -> Shot:
     from pxr import UsdGeom
 
@@ -503,6 +525,7 @@ def _read_shot(path: str) -> Shot:
                 path, f"its animation is inside an instanced prim; set instanceable = false on {where} to fill it",
                 str(b.skeleton.GetPath()),
             )  # fmt: skip
+        binding_prim(path, b.skeleton.GetPrim())
     chars = [_character(path, stage, b.skeleton, b.query, b.query.GetAnimQuery()) for b in bound]
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")

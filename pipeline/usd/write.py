@@ -23,6 +23,7 @@ from pipeline.atomic import writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
+from pipeline.usd.read import binding_prim
 from usd_schemas import tokens
 
 VARIANT_SET = tokens.TAKE_VARIANT_SET
@@ -275,7 +276,10 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     many = len(takes) > 1
     src = stage.GetPrimAtPath(c["anim"])
     filled = Sdf.Path(c["anim"]).GetParentPath().AppendChild(Sdf.Path(c["anim"]).name + "_tween")
-    sk = Sdf.CreatePrimInLayer(layer, c["skel"])
+    # The skeleton, or the instance it inherits its binding through (read.binding_prim).
+    sk = Sdf.CreatePrimInLayer(
+        layer, binding_prim(stage.GetRootLayer().identifier, stage.GetPrimAtPath(c["skel"]))
+    )
     apply_api(sk, "SkelBindingAPI")
     rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(sk, "skel:animationSource")
     rel.targetPathList.explicitItems = [filled]

@@ -8,6 +8,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from usd_fixtures import ANIM, BANDAI_CLIP, tree_hashes
 
@@ -195,6 +196,87 @@ def test_an_instanced_character_is_one_line_naming_the_instance(tmp_path, monkey
         "char.usda",
         "shot.usda",
     ]
+
+
+def _crowd_shot(tmp_path: Path, bind_inside: bool = False) -> Path:
+    """A crowd's layout: the example's character (SkelRoot, Skeleton, mesh) as an asset without
+    its animation, placed in the shot as an instance; the animation lives outside it
+    (/World/Anims/Walk), bound on the instance prim, so the Skeleton, an instance proxy,
+    inherits the binding. ``bind_inside``: the character comes from a class instead, whose
+    Skeleton binds the animation itself, inside the instance."""
+    from pxr import Sdf, Usd, UsdSkel
+
+    shot = tmp_path / "crowd.usda"
+    shot.write_bytes(SHOT.read_bytes())
+    stage = Usd.Stage.Open(str(shot))
+    layer = stage.GetRootLayer()
+    anim, skel = "/World/Walker/Skel/Anim", "/World/Walker/Skel"
+    layer.GetPrimAtPath("/World").nameChildren.append(
+        Sdf.PrimSpec(layer.GetPrimAtPath("/World"), "Anims", Sdf.SpecifierDef, "Scope")
+    )
+    assert Sdf.CopySpec(layer, anim, layer, "/World/Anims/Walk")
+    stage.RemovePrim(anim)
+    stage.GetPrimAtPath(skel).RemoveProperty("skel:animationSource")
+    if bind_inside:
+        assert Sdf.CopySpec(layer, "/World/Walker", layer, "/_walker")
+        layer.GetPrimAtPath("/_walker").specifier = Sdf.SpecifierClass
+        stage.RemovePrim("/World/Walker")
+        rel = UsdSkel.BindingAPI.Apply(stage.GetPrimAtPath("/_walker/Skel")).CreateAnimationSourceRel()
+        rel.SetTargets(["/World/Anims/Walk"])
+        inst = stage.DefinePrim("/World/Walker")
+        inst.GetInherits().AddInherit("/_walker")
+    else:
+        asset = tmp_path / "walker.usda"
+        Sdf.Layer.CreateNew(str(asset)).Save()
+        out = Sdf.Layer.FindOrOpen(str(asset))
+        Sdf.CreatePrimInLayer(out, "/Walker")
+        assert Sdf.CopySpec(layer, "/World/Walker", out, "/Walker")
+        out.defaultPrim = "Walker"
+        out.Save()
+        stage.RemovePrim("/World/Walker")
+        inst = stage.DefinePrim("/World/Walker")
+        inst.GetReferences().AddReference("./walker.usda")
+        UsdSkel.BindingAPI.Apply(inst).CreateAnimationSourceRel().SetTargets(["/World/Anims/Walk"])
+    inst.SetInstanceable(True)
+    stage.Save()
+    return shot
+
+
+def test_an_instanced_character_bound_from_outside_is_filled_through_its_instance(
+    tmp_path, monkeypatch, capsys
+):
+    """The Skeleton is an instance proxy, on which no layer's opinion counts: the fill layer
+    rebinds the instance prim it inherits the binding from (it once wrote an over on the
+    proxy's path, said "filled", and the review showed the shot's own animation)."""
+    from pxr import Usd, UsdSkel
+
+    shot = _crowd_shot(tmp_path)
+    before = tree_hashes(tmp_path)
+    assert Usd.Stage.Open(str(shot)).GetPrimAtPath("/World/Walker/Skel").IsInstanceProxy()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", tmp_path / "out")
+    assert rc == 0, err
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "crowd.review.v001.usda"))
+    skel = UsdSkel.Skeleton(stage.GetPrimAtPath("/World/Walker/Skel"))
+    anim = UsdSkel.Cache().GetSkelQuery(skel).GetAnimQuery()
+    assert str(anim.GetPrim().GetPath()) == "/World/Anims/Walk_tween"
+    shown = np.array(anim.ComputeJointLocalTransforms(1005.0))
+    own = UsdSkel.Cache().GetAnimQuery(UsdSkel.Animation(stage.GetPrimAtPath("/World/Anims/Walk")))
+    assert not np.allclose(shown, np.array(own.ComputeJointLocalTransforms(1005.0)))  # the fill shows
+    assert {k: v for k, v in tree_hashes(tmp_path).items() if k in before} == before
+
+
+def test_an_instanced_character_bound_inside_its_instance_is_one_line(tmp_path, monkeypatch, capsys):
+    shot = _crowd_shot(tmp_path, bind_inside=True)
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", tmp_path / "out")
+    _one_error(
+        rc,
+        err,
+        str(shot),
+        "/World/Walker/Skel",
+        "bound inside an instanced prim",
+        "instanceable = false on /World/Walker",
+    )
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_fixture_animation_is_where_the_tests_look():
