@@ -400,7 +400,7 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
             arrays[f"c{i}_{k}"] = v
         c = cp.char
         name, model_hash = _decided_model(inb, decision)
-        chars.append({"anim": c.anim_path, "skel": c.skel_path, "joints": list(c.anim_joints),
+        chars.append({"anim": c.anim_path, "skel": c.skel_path, "also": cp.also, "joints": list(c.anim_joints),
                       "keys": [float(x) for x in cp.keys], "model": name, "model_hash": model_hash,
                       "model_kind": "rig" if cp.model else "human",
                       "licence": _licences(opts, cp, inb, alternatives if cp.model is None else ()),

@@ -36,6 +36,9 @@ class CharPlan:
     fps: float = 30.0  # the frame rate of this character's model
     authored_keys: bool = False  # keys are the animation's own samples (not --keys / tween:keyTimes)
     jumps: list[dict] = field(default_factory=list)  # key pairs the body teleports between (fill.jumps)
+    also: list[str] = field(
+        default_factory=list
+    )  # other skeletons bound to its animation: filled once, all rebound
 
     def retarget_info(self) -> dict:
         """How the character reaches its model: the reference pose mapped through and the
@@ -74,6 +77,7 @@ class Plan:
             "up_axis": self.shot.up_axis,
             "meters_per_unit": self.shot.meters_per_unit,
             "characters": [c.char.anim_path for c in self.chars],
+            "skeletons": {c.char.anim_path: [c.char.skel_path, *c.also] for c in self.chars},
             "keys": {c.char.anim_path: [float(k) for k in c.keys] for c in self.chars},
             "range": {c.char.anim_path: [float(x) for x in c.fill_range] for c in self.chars},
             "refused": [{"prim": p, "reason": r} for p, r in self.refused],
@@ -254,6 +258,11 @@ def make_plan(
     refused: list[tuple[str, str]] = []
     notes: list[str] = []  # said on stderr once every check has passed (one line on refusal)
     for c in shot.characters:
+        # Skeletons sharing an animation (a crowd's instances on one cycle) share its fill.
+        same = next((p for p in chars if p.char.anim_path == c.anim_path), None)
+        if same is not None:
+            same.also.append(c.skel_path)
+            continue
         k = _keys_for(shot, c, want)
         if len(k) < 2:
             raise ShotError(path, f"animation has {len(k)} key(s); at least two are needed", c.anim_path)

@@ -276,13 +276,13 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     many = len(takes) > 1
     src = stage.GetPrimAtPath(c["anim"])
     filled = Sdf.Path(c["anim"]).GetParentPath().AppendChild(Sdf.Path(c["anim"]).name + "_tween")
-    # The skeleton, or the instance it inherits its binding through (read.binding_prim).
-    sk = Sdf.CreatePrimInLayer(
-        layer, binding_prim(stage.GetRootLayer().identifier, stage.GetPrimAtPath(c["skel"]))
-    )
-    apply_api(sk, "SkelBindingAPI")
-    rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(sk, "skel:animationSource")
-    rel.targetPathList.explicitItems = [filled]
+    for skel in (c["skel"], *c.get("also", ())):  # skeletons sharing the animation share its fill
+        # The skeleton, or the instance it inherits its binding through (read.binding_prim).
+        where = binding_prim(stage.GetRootLayer().identifier, stage.GetPrimAtPath(skel))
+        sk = Sdf.CreatePrimInLayer(layer, where)
+        apply_api(sk, "SkelBindingAPI")
+        rel = sk.relationships.get("skel:animationSource") or Sdf.RelationshipSpec(sk, "skel:animationSource")
+        rel.targetPathList.explicitItems = [filled]
     spec = Sdf.CreatePrimInLayer(layer, filled)
     spec.specifier = Sdf.SpecifierDef
     spec.typeName = "SkelAnimation"

@@ -109,6 +109,34 @@ def test_several_characters_filled_independently_with_takes(tmp_path):
     assert len(samples(stage, "/World/Dancer/Skel/Anim_tween")) == 81
 
 
+def test_skeletons_sharing_an_animation_share_one_fill(tmp_path):
+    """Two characters bound to one animation (a crowd on one cycle): filled once, listed once,
+    both rebound to the fill (each was filled again, and its fill written over the last)."""
+    from pxr import Sdf, Usd, UsdSkel
+
+    shot = bandai_shot(tmp_path / "sh030.usda", frames=41, keys_every=10, name="Walker")
+    layer = Sdf.Layer.FindOrOpen(str(shot))
+    assert Sdf.CopySpec(layer, "/World/Walker", layer, "/World/Twin")
+    stage = Usd.Stage.Open(layer)
+    stage.RemovePrim("/World/Twin/Skel/Anim")
+    UsdSkel.BindingAPI(stage.GetPrimAtPath("/World/Twin/Skel")).GetAnimationSourceRel().SetTargets(
+        ["/World/Walker/Skel/Anim"]
+    )
+    layer.Save()
+    o = FillOptions(model="interp", out_dir=str(tmp_path / "o"), takes=2)
+    s = validate_shot(str(shot), o)
+    assert s["characters"] == ["/World/Walker/Skel/Anim"]
+    assert s["skeletons"] == {"/World/Walker/Skel/Anim": ["/World/Walker/Skel", "/World/Twin/Skel"]}
+    res = fill_shot(str(shot), o)
+    assert res["characters"] == ["/World/Walker/Skel/Anim"]
+    review = Usd.Stage.Open(res["review"])
+    cache = UsdSkel.Cache()
+    for skel in ("/World/Walker/Skel", "/World/Twin/Skel"):
+        query = cache.GetSkelQuery(UsdSkel.Skeleton(review.GetPrimAtPath(skel)))
+        assert str(query.GetAnimQuery().GetPrim().GetPath()) == "/World/Walker/Skel/Anim_tween", skel
+    assert not review.GetPrimAtPath("/World/Twin/Skel/Anim_tween")
+
+
 def test_tween_key_times_attribute_overrides_the_samples(tmp_path):
     from pxr import Sdf, Usd, Vt
 
