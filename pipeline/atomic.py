@@ -17,6 +17,12 @@ def writable_folder(folder: str | Path) -> bool:
     return os.access(folder, os.W_OK) and bool(Path(folder).stat().st_mode & 0o222)
 
 
+def writable_file(path: str | Path) -> bool:
+    """Whether this process may rewrite the file ``path``, by its access and its mode bits
+    (as :func:`writable_folder`: a read-only layer stays untouched even for root)."""
+    return os.access(path, os.W_OK) and bool(Path(path).stat().st_mode & 0o222)
+
+
 @contextmanager
 def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     """A temporary file beside ``path`` (``.NAME.XXXX`` + ``suffix``) for the block to write,

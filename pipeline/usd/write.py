@@ -14,12 +14,13 @@ import datetime
 import json
 import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
 
 import pipeline.usd  # noqa: F401
-from pipeline.atomic import writable_folder
+from pipeline.atomic import writable_file, writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -488,28 +489,34 @@ def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
             shot, f"{review} is one of the shot's own layers; the animator's layers are never modified"
         )
     _open_review_layer(review)
-    folder = review.absolute().parent
-    if not writable_folder(folder):
-        raise TweenError(f"--review-layer {review}: its folder {folder} is read-only")
+    real = Path(os.path.realpath(review))  # a link is written through: the file it names
+    if not writable_file(real):
+        raise TweenError(f"--review-layer {review}: read-only (the fill is added to a layer this may edit)")
+    if not writable_folder(real.parent):
+        raise TweenError(f"--review-layer {review}: its folder {real.parent} is read-only")
 
 
 def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
     from pxr import Sdf, UsdUtils
 
-    tmp = files.temp_path(review)
     if existing:
+        # Through a link to the file it names (the link stays a link), keeping the file's mode.
+        real = Path(os.path.realpath(review))
+        tmp = files.temp_path(real)
         layer, text = _open_review_layer(review)
         text.TransferContent(layer)
         subs = list(text.subLayerPaths)
         subs.insert(0, _rel(fill, review.parent))
         text.subLayerPaths = subs
-        with files.saving(review, tmp):
+        with files.saving(real, tmp):
             if not text.Export(str(tmp)):
                 raise TweenError(f"{review}: cannot write the review layer")
-            os.replace(tmp, review)
+            os.chmod(tmp, stat.S_IMODE(real.stat().st_mode))
+            os.replace(tmp, real)
         layer.Reload()
         return
+    tmp = files.temp_path(review)
     with files.saving(review, tmp):
         layer = Sdf.Layer.CreateNew(str(tmp))
         if layer is None:

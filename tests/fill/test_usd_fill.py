@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from usd_fixtures import ANIM, BANDAI_CLIP, FILLED, bandai_shot, cmu_shot, samples, tree_hashes
 
-from pipeline.errors import ShotError
+from pipeline.errors import ShotError, TweenError
 from pipeline.fill.api import FillOptions, fill_shot, fill_take, validate_shot, write_layers
 from pipeline.infer.interp import interpolate_keys
 from pipeline.motion.bvh import read_bvh
@@ -389,6 +389,53 @@ def test_animators_sublayers_untouched_and_named_review_layer(walk, tmp_path):
     assert list(lay.subLayerPaths)[0].endswith("sh010.tween.v001.usda") and len(lay.subLayerPaths) == 2
     stage = _open(tmp_path / "dailies.usda")
     assert len(samples(stage, FILLED)) == 31
+
+
+def _dailies_layer(path, shot):
+    from pxr import Sdf, UsdUtils
+
+    review = Sdf.Layer.CreateNew(str(path))
+    review.subLayerPaths = [str(shot)]
+    UsdUtils.CopyLayerMetadata(Sdf.Layer.FindOrOpen(str(shot)), review, True, True)
+    review.Save()
+    return path
+
+
+def test_a_read_only_review_layer_is_refused_untouched(tmp_path):
+    """A --review-layer the user made read-only is refused before anything runs (it was
+    rewritten, and came back writable)."""
+    import os
+
+    shot = bandai_shot(tmp_path / "sh010.usda", frames=21, keys_every=10)
+    dailies = _dailies_layer(tmp_path / "dailies.usda", shot)
+    os.chmod(dailies, 0o444)
+    before = dailies.read_bytes()
+    opts = FillOptions(model="interp", out_dir=str(tmp_path / "out"), review_layer=str(dailies))
+    with pytest.raises(TweenError, match="dailies.usda: read-only"):
+        fill_shot(str(shot), opts)
+    assert dailies.read_bytes() == before and (dailies.stat().st_mode & 0o777) == 0o444
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_linked_review_layer_is_written_through_its_link_keeping_its_mode(tmp_path):
+    """A --review-layer that is a symbolic link stays one: the file it names gets the fill,
+    with the mode it had (it was replaced by a plain file, world-readable, and the file the
+    link named never got the fill)."""
+    import os
+
+    from pxr import Sdf
+
+    shot = bandai_shot(tmp_path / "sh010.usda", frames=21, keys_every=10)
+    real = _dailies_layer(tmp_path / "real.usda", shot)
+    os.chmod(real, 0o640)
+    link = tmp_path / "dailies.usda"
+    link.symlink_to(real.name)
+    fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path), review_layer=str(link)))
+    assert link.is_symlink() and os.readlink(link) == "real.usda"
+    assert (real.stat().st_mode & 0o777) == 0o640
+    layer = Sdf.Layer.OpenAsAnonymous(str(real))
+    subs = list(layer.subLayerPaths)
+    assert subs[0].endswith("sh010.tween.v001.usda") and len(subs) == 2
 
 
 def test_blend_shape_weights_are_kept(tmp_path):
