@@ -18,6 +18,7 @@ from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
+from pipeline.outputs import refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
@@ -718,6 +719,7 @@ def submit_train_rig(
     _check_rig_job(source, checked)
     if not checked.force:  # as `tween train-rig` refuses it, before a worker takes the job
         refuse_model(out)
+    refuse_read_only(out)  # a job the worker could only fail (and only fill jobs are cancelled)
     check_farm(rig_app)
     with farm_errors(rig_app):
         job_id = jobs.submit_train_rig(str(source), str(out), opts)

@@ -54,6 +54,7 @@ from typing import Any
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.outputs import refuse_read_only
 from pipeline.rig.options import check_device
 from pipeline.staging import refuse_model
 from pipeline.train.commands import export_command
@@ -209,6 +210,7 @@ def check_run(out: Path, cfg) -> None:
     from pipeline.train.generator_training import check_partial, load_init
 
     refuse_model(out, "--out (a run folder)", force_hint=None)
+    refuse_read_only(out)
     check_device(cfg.device, here=True)
     # --init first: whether --partial has a key adapter may be its network's to say.
     saved = (load_init(cfg.init).get("config") or {}).get("model") if cfg.init else None
@@ -232,8 +234,16 @@ def check_data(cfg) -> None:
         training_clips(cfg)
 
 
+def _run_folder(value: str | None) -> Path | None:
+    """--out as given (None: the default), or one line when it is empty or blank (``Path("")``
+    is the working folder: a run was written there)."""
+    if value is not None and not value.strip():
+        raise TweenError(f"--out {value!r}: empty; give a path")
+    return None if value is None else Path(value)
+
+
 def _train(ctx: typer.Context, **values) -> None:
-    out, recipe = values.pop("out"), values.pop("recipe")
+    out, recipe = _run_folder(values.pop("out")), values.pop("recipe")
     from_stage, dry_run = values.pop("from_stage"), values.pop("dry_run")
     if recipe is None:
         if from_stage is not None or dry_run:
@@ -273,7 +283,7 @@ def _run_folder_params() -> list[inspect.Parameter]:
         inspect.Parameter(
             "out",
             inspect.Parameter.KEYWORD_ONLY,
-            annotation=Path,
+            annotation=str,
             default=typer.Option(
                 None,
                 help="Run folder: checkpoints, logs (resumes if present). Default runs/default; "
@@ -683,6 +693,8 @@ def run_recipe(
     """Replay a recipe into ``out``/<stage>/ (and ``out``/model/ for its export). Returns the
     last stage's generator checkpoint (the export's folder when it has one)."""
     configs_ = check_recipe(rec, overrides, out)
+    if not dry_run:
+        refuse_read_only(out)
     start = rec.names.index(rec.stage(from_stage).name) if from_stage else 0
     say = echo if dry_run else (lambda m: print(m, file=sys.stderr))
     done = set() if dry_run else _finished_stages(rec, configs_, out, start)

@@ -101,6 +101,13 @@ CASES = [
     ("worker-redis-down", ["worker", "-c", "1"], REDIS_DOWN, REDIS_SHOWN),
     ("fill-redis-down", ["fill", "s.usda", "--no-progress"], REDIS_DOWN, REDIS_SHOWN),
     ("train-rig-redis-down", ["submit-train-rig", "s.usda", "--out", "m"], REDIS_DOWN, REDIS_SHOWN),
+    # A job the worker could only fail, and that nothing could withdraw (cancel takes fill jobs).
+    (
+        "train-rig-read-only-out",
+        ["submit-train-rig", "s.usda", "--out", "/proc/m"],
+        REDIS_DOWN,
+        "/proc/m: --out is in /proc, which is read-only",
+    ),
     ("submit-amqp-down", ["submit", "s.usda"], AMQP_DOWN, AMQP_SHOWN),
     ("worker-amqp-down", ["worker", "-c", "1"], AMQP_DOWN, AMQP_SHOWN),
     ("status-backend-down", ["status", JOB], AMQP_DOWN, REDIS_SHOWN),

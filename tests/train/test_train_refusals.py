@@ -83,6 +83,25 @@ def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, mod
     assert f"{model_folder}: --out (a run folder) holds a finished model (model.json)" in line
 
 
+def test_train_refuses_an_empty_or_read_only_run_folder_before_it_writes(tmp_path, capsys, monkeypatch):
+    """``--out ''`` trained into the working folder, and a run folder in a read-only one was
+    written (root passes access checks): both are one line now, as for every other --out."""
+    monkeypatch.chdir(tmp_path)
+    ro = tmp_path / "published"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        for out, want in (("", "--out '': empty; give a path"), (" ", "--out ' ': empty"),
+                          (ro / "run", f"--out is in {ro}, which is read-only")):  # fmt: skip
+            assert want in refused(["train", "--out", out, *TINY], capsys, tmp_path)
+            assert want in refused(
+                ["train", "--out", out, "--recipe", "tween-bandai-delta-v3"], capsys, tmp_path
+            )
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["published"] and not any(ro.iterdir())
+    finally:
+        ro.chmod(0o755)
+
+
 def test_an_init_whose_weights_are_damaged_is_refused_before_the_run_folder_is_made(tmp_path, capsys):
     """Was an internal error with an empty run folder left (a state_dict mismatch, a negative
     width), or a run of NaN losses with exit 0 (NaN weights)."""
