@@ -43,6 +43,9 @@ def export(
     for flag, value in (("--pad-tail", pad_tail), ("--min-window", min_window)):
         if not 0 <= value <= PAD_MAX:
             raise TweenError(f"{flag} {value}: must be 0 to {PAD_MAX} frames (the fill's window grows by it)")
+    if name is not None and (not name.strip() or "/" in name or "\\" in name or name.strip() in (".", "..")):
+        # model.json's name is what fills record and --model finds; `tween train-rig` refuses the same
+        raise TweenError(f"--name {name!r}: a model name, not a path or nothing")
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written

@@ -170,6 +170,9 @@ def test_export_replaces_a_model_only_with_force_and_only_when_complete(tmp_path
         assert (
             line == f"tween: error: {flag} {value}: must be 0 to 1024 frames (the fill's window grows by it)"
         )
+    for bad in ("", " ", "a/b", ".."):  # model.json's name: what fills record, not a path
+        line = refused(["export", run, "--out", model_folder, "--force", "--name", bad], capsys, tmp_path)
+        assert line == f"tween: error: --name {bad!r}: a model name, not a path or nothing"
     assert _digest(model_folder) == before
     succeeded(["export", run, "--out", model_folder, "--force", "--name", "replaced"], capsys)
     assert '"name": "replaced"' in (model_folder / "model.json").read_text()
