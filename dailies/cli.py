@@ -174,7 +174,7 @@ def approve(
 def publish(
     shot: Path = typer.Argument(..., help="USD shot whose approved take is published."),
     fmt: str = typer.Option(None, "--format", help="usda (default) or usdc."),
-    out: Path = typer.Option(
+    out: str = typer.Option(  # str: an empty --out must not become Path("."), the working folder
         None, "--out", help="Published layer (default: <shot>.publish.vNNN.<format> beside the fills)."
     ),
     out_dir: Path = typer.Option(None, "--out-dir", help=OUT_DIR_HELP),

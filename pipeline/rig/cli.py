@@ -86,6 +86,8 @@ def rig_extract(
     """Save a reference clip as a self-contained .npz that `train-rig` reads."""
     from pipeline.rig.source import load_rig_source, parse_frames, save_npz
 
+    if skeleton is not None and not skeleton.strip():  # read as "not given" before
+        raise TweenError(f"--skeleton {skeleton!r}: empty; leave it out for the skeleton with most joints")
     if out.suffix.lower() != ".npz":
         raise TweenError(f"{out}: OUT must name an .npz file")
     if out.is_dir():

@@ -354,6 +354,8 @@ def _publish_path(shot: str, out: Path, stem: str, n: int, fmt: str | None, dest
     if dest is None:
         fmt = fmt or "usda"
         return out / f"{stem}.publish.v{n:03d}.{fmt}", fmt
+    if not str(dest).strip():  # Path("") is the working folder, named "." in the line
+        raise TweenError(f"--out {str(dest)!r}: empty; give the published layer's path")
     dest = Path(dest)
     if dest.suffix not in (".usda", ".usdc", ".usd"):
         raise TweenError(f"{dest}: the published layer must end in .usda, .usdc or .usd")

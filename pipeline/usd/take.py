@@ -55,7 +55,8 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
     path = Path(path)
     override = load_override(mapping)
     if not path.is_file():
-        raise ShotError(path, "no such take file")
+        raise ShotError(path, "a folder, not a take file" if path.is_dir() else
+                        "not a regular file" if path.exists() else "no such take file")  # fmt: skip
     if is_bvh(path):
         from pipeline.motion.bvh import read_bvh
         from pipeline.usd.convert import write_shot

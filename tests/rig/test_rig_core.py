@@ -416,6 +416,8 @@ def test_rig_extract_writes_only_the_npz_it_names_and_replaces_only_with_force(t
     for (target,), says in cases.items():
         line = refused(["rig-extract", shot, target], capsys, tmp_path)
         assert line.startswith(f"tween: error: {says}"), line
+    line = refused(["rig-extract", shot, tmp_path / "s.npz", "--skeleton", " "], capsys, tmp_path)
+    assert line.startswith("tween: error: --skeleton ' ': empty"), line  # was read as not given
     assert out.read_bytes() == b"the user's own file"
     with pytest.raises(SystemExit) as e:
         main(["rig-extract", str(shot), str(out), "--force"])

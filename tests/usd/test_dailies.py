@@ -164,6 +164,7 @@ REFUSALS = [
     ("publish-pending", None, ["publish", "{shot}"], "{d}/walk.tween.v001.usda", "nothing approved"),
     ("publish-no-fill", _no_fill, ["publish", "{shot}"], "{shot}", "no fill yet"),
     ("publish-format", _approved, ["publish", "{shot}", "--format", "fbx"], "--format 'fbx'", "usda or usdc"),
+    ("publish-empty-out", _approved, ["publish", "{shot}", "--out", ""], "--out ''", "empty; give the published layer's path"),
     ("publish-unreadable", _garbage_latest, ["publish", "{shot}"], "{d}/walk.tween.v002.usda",
      "cannot read the fill layer"),
     # A layer usd-tween made, given as the shot: its review layer would stack the next version

@@ -279,6 +279,17 @@ def test_an_instanced_character_bound_inside_its_instance_is_one_line(tmp_path, 
     assert not (tmp_path / "out").exists()
 
 
+def test_a_take_that_is_a_folder_or_a_device_is_named_so(tmp_path):
+    """A --dna take (or a library's) that is a folder or a device said "no such take file"."""
+    from pipeline.errors import ShotError
+    from pipeline.usd.take import model_take
+
+    for path, says in ((tmp_path, "a folder, not a take file"), (Path("/dev/null"), "not a regular file"),
+                       (tmp_path / "none.usda", "no such take file")):  # fmt: skip
+        with pytest.raises(ShotError, match=says):
+            model_take(path)
+
+
 def test_the_fixture_animation_is_where_the_tests_look():
     assert ANIM.endswith("/Anim")  # the examples' shot names its animation Anim too
     assert _anim_path(SHOT).endswith("/Anim")
