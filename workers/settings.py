@@ -334,6 +334,11 @@ def _broker_and_backend(vals: dict, env, origin: dict[str, str]) -> tuple[str, s
     if embedded:
         broker, default_backend = embedded_urls(cache_dir(env) / "farm")
         backend = backend or default_backend
+    elif "://" not in broker:  # else read as a transport name, and refused for what it lacks
+        raise FarmConfigError(
+            f"{_named('broker_url', broker, origin['broker_url'])}: not a broker URL "
+            "(redis://HOST:6379/0, rediss://..., amqp://USER@HOST//, amqps://...)"
+        )
     elif backend is None:
         if broker.startswith(("redis://", "rediss://")):
             backend = broker

@@ -389,6 +389,9 @@ def test_limits_that_disagree_name_where_they_came_from(tmp_path):
     assert msg.startswith(f"{cfg}: train_queue: queue, train_queue and train_rig_queue must be three"), msg
     msg = _refused(_env(tmp_path, TWEEN_BROKER_URL="amqp://u:pw@h//"))
     assert msg.startswith("TWEEN_BROKER_URL=amqp://u:***@h//: a non-Redis broker needs result_backend"), msg
+    for garbage in ("garbage", "localhost:6379"):  # said "a non-Redis broker needs result_backend"
+        msg = _refused(_env(tmp_path, TWEEN_BROKER_URL=garbage))
+        assert msg.startswith(f"TWEEN_BROKER_URL={garbage}: not a broker URL (redis://"), msg
 
 
 def test_seconds_settings_have_an_upper_bound(tmp_path):
