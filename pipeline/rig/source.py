@@ -9,6 +9,7 @@ axis expressed in skeleton space (through the skeleton's world transform).
 
 from __future__ import annotations
 
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -17,13 +18,16 @@ import numpy as np
 
 from pipeline.data.split import shared_data_dir
 from pipeline.errors import ShotError, TweenError
-from pipeline.motion.bvh import is_bvh
+from pipeline.motion.bvh import MAX_BYTES, MAX_FRAMES, is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import QUAT_EPS
 from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT, Skeleton, topology_problem
 
 #: The frame rates a clip may have, and so those a rig model trains at (``--fps``).
 FPS_RANGE = (1.0, 1000.0)
+#: The most joints a clip .npz may declare: far above the rigs here (Bandai 21, CMU 31, the
+#: elephant 27) and a film rig's thousands; it bounds the Python work on names and hierarchy.
+MAX_JOINTS = 10_000
 
 
 class RigSourceError(TweenError):
@@ -284,12 +288,12 @@ NUMBERS = ("parents", "offsets", "meters_per_unit", "rotations", "root_positions
 
 
 def load_npz(path: str | Path) -> Motion:
+    """The clip ``tween rig-extract`` saved in ``path`` (RigSourceError naming it otherwise)."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in NPZ_KEYS}
+        with zipfile.ZipFile(path) as z:
+            a = _npz_arrays(path, z)
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        # np.load raises EOFError for an empty file, BadZipFile for a truncated one and
-        # ValueError/OSError for most others.
+        # BadZipFile for an empty, truncated or other file, ValueError for a damaged array.
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None
     _check_npz(path, a)
@@ -301,6 +305,59 @@ def load_npz(path: str | Path) -> Motion:
     except (ValueError, IndexError, TypeError) as e:
         why = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise RigSourceError(path, f"not a clip .npz written by `tween rig-extract`: {why}") from None
+
+
+def _npz_arrays(path, z: zipfile.ZipFile) -> dict:
+    """The clip's arrays, read only once every header (shape and type, before its data) fits
+    a clip (:func:`_check_npz_sizes`): each array is allocated as its header declares, so a
+    small file of compressed zeros declaring millions of frames made train-rig take 16 GB."""
+    listed = set(z.namelist())
+    members = {k: k if k in listed else f"{k}.npy" for k in NPZ_KEYS}  # as np.load finds them
+    heads = {}
+    for k, member in members.items():
+        if member not in listed:
+            raise KeyError(f"{k} is not a file in the archive")
+        with z.open(member) as f:
+            heads[k] = _npy_header(k, f)
+    _check_npz_sizes(path, heads)
+    out = {}
+    for k, member in members.items():
+        with z.open(member) as f:
+            out[k] = np.lib.format.read_array(f, allow_pickle=False)
+    return out
+
+
+def _npy_header(key: str, f) -> tuple[tuple, np.dtype]:
+    """The shape and type an .npy member declares, read without its data."""
+    fmt = np.lib.format
+    version = fmt.read_magic(f)
+    if version == (1, 0):
+        shape, _, dtype = fmt.read_array_header_1_0(f)
+    elif version == (2, 0):
+        shape, _, dtype = fmt.read_array_header_2_0(f)
+    else:  # 3.0 is for structured types' field names, never a clip's
+        raise ValueError(f"{key}: .npy format {version[0]}.{version[1]}")
+    return shape, dtype
+
+
+def _check_npz_sizes(path, heads: dict) -> None:
+    """RigSourceError unless the arrays ``heads`` declares ((shape, dtype) by key) hold at
+    most MAX_FRAMES frames (a shot's limit), MAX_JOINTS joints and MAX_BYTES in all."""
+    for k in ("rotations", "root_positions"):
+        shape = heads[k][0]
+        if shape and shape[0] > MAX_FRAMES:
+            raise RigSourceError(path, f"{k}: {shape[0]:,} frames; a clip holds at most {MAX_FRAMES:,}")
+    for k, axis in (("names", 0), ("parents", 0), ("offsets", 0), ("rotations", 1)):
+        shape = heads[k][0]
+        if len(shape) > axis and shape[axis] > MAX_JOINTS:
+            raise RigSourceError(
+                path, f"{k}: {shape[axis]:,} joints; a clip's rig has at most {MAX_JOINTS:,}"
+            )
+    size = sum(math.prod(shape) * dtype.itemsize for shape, dtype in heads.values())
+    if size > MAX_BYTES:
+        raise RigSourceError(
+            path, f"its arrays hold {size:,} bytes; a clip holds at most {MAX_BYTES >> 30} GiB"
+        )
 
 
 def _check_npz(path, a: dict) -> None:

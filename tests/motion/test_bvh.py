@@ -316,3 +316,33 @@ def test_tabs_between_the_words_of_frame_time(tmp_path):
         write(tmp_path, GOOD.replace("Frame Time:", "Frame\tTime:").replace("Frames: 2", "Frames:\t2"))
     )
     assert len(m) == 2 and m.fps == 30
+
+
+def test_a_frame_count_over_the_cap_is_refused_from_the_header(tmp_path, capsys):
+    """Before: a 218 KB .bvh.gz declaring ``Frames: 5000000`` ran `tween convert` past 120 s
+    and 2.1 GB, and `tween rig-extract` wrote a 46-hour clip. Now the header is refused, in one
+    line naming the file, the count and the cap, before a frame is read."""
+    from cli_contract import refused
+
+    bomb = tmp_path / "bomb.bvh.gz"
+    with gzip.open(bomb, "wt") as f:  # the frames it holds do not matter: the header is refused
+        f.write(GOOD.replace("Frames: 2", "Frames: 5000000"))
+    says = f"{bomb}:17: Frames: 5,000,000 is more than the 1,000,000 a take may hold"
+    with pytest.raises(MotionFormatError) as err:
+        read_bvh(bomb)
+    assert str(err.value) == says
+    out = tmp_path / "out"
+    out.mkdir()
+    for argv in (["convert", bomb, out / "bomb.usda"], ["rig-extract", bomb, out / "bomb.npz"]):
+        assert refused(argv, capsys, tmp_path) == f"tween: error: {says}"
+    assert not any(out.iterdir())
+
+
+def test_a_header_declaring_fewer_or_more_frames_than_held_reads_as_before(tmp_path):
+    """Fewer: the frames after the count are not read; more, up to the cap: truncated."""
+    assert len(read_bvh(write(tmp_path, GOOD.replace("Frames: 2", "Frames: 1"), "few.bvh"))) == 1
+    p = write(tmp_path, GOOD.replace("Frames: 2", "Frames: 1000000"), "more.bvh")
+    with pytest.raises(
+        MotionFormatError, match=r"more\.bvh:20: file has 2 of 1000000 frames \(truncated\?\)"
+    ):
+        read_bvh(p)

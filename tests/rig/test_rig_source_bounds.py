@@ -5,7 +5,9 @@ complex numbers, ``--skeleton`` for a source holding one skeleton (pipeline.rig.
 
 from __future__ import annotations
 
+import math
 import shutil
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -183,3 +185,52 @@ def test_empty_or_multi_line_option_texts_are_refused_by_train_rig_itself(tmp_pa
                               ("--credit", "", "empty; leave it out for the default")):  # fmt: skip
         line = refused(["train-rig", clip, "--out", tmp_path / "m", *TINY, flag, value], capsys, tmp_path)
         assert line.startswith(f"tween: error: {flag} ") and says in line, line
+
+
+def _declaring(tmp_path: Path, stem: str, data: bool, **declared) -> Path:
+    """The walk's .npz with each ``declared`` member (key: (shape, dtype)) replaced by one whose
+    header declares that shape, followed by as many compressed zero bytes (``data``) or by
+    nothing: a file of kilobytes, whatever it declares (no array that large is made here)."""
+    from numpy.lib import format as fmt
+
+    path = tmp_path / f"{stem}.npz"
+    arrays = {k: np.asarray(v) for k, v in np.load(_npz(tmp_path, stem)).items()}
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for k, a in arrays.items():
+            with z.open(f"{k}.npy", "w", force_zip64=True) as f:
+                if k not in declared:
+                    fmt.write_array(f, a)
+                    continue
+                shape, dtype = declared[k]
+                fmt.write_array_header_1_0(
+                    f, {"descr": fmt.dtype_to_descr(np.dtype(dtype)), "fortran_order": False, "shape": shape}
+                )
+                left, zeros = math.prod(shape) * np.dtype(dtype).itemsize * data, bytes(1 << 24)
+                while left > 0:
+                    f.write(zeros[: min(left, len(zeros))])
+                    left -= len(zeros)
+    return path
+
+
+def test_an_npz_declaring_more_frames_than_a_shot_is_refused_before_reading(tmp_path, capsys):
+    """Before: a 2.6 MB .npz of compressed zeros declaring millions of frames made train-rig
+    take 16 GB. Now its headers are read first: one line naming the file, the count and the cap."""
+    clip = _declaring(
+        tmp_path, "long", True, rotations=((2_000_000, 9, 4), "<f4"), root_positions=((2_000_000, 3), "<f4")
+    )
+    assert clip.stat().st_size < 1_000_000  # 312 MB of zeros
+    for line in _both(clip, capsys, tmp_path):
+        assert line == f"tween: error: {clip}: rotations: 2,000,000 frames; a clip holds at most 1,000,000"
+    assert not any((tmp_path / "out").iterdir())
+
+
+def test_an_npz_declaring_too_many_joints_or_bytes_is_refused_before_reading(tmp_path, capsys):
+    """Joint counts and string lengths come from the file too: 20,000 names, or a name of 1.2 GB."""
+    joints = _declaring(tmp_path, "joints", False, names=((20_000,), "<U8"))
+    for line in _both(joints, capsys, tmp_path):
+        assert line == f"tween: error: {joints}: names: 20,000 joints; a clip's rig has at most 10,000"
+    big = _declaring(tmp_path, "bytes", False, name=((), "<U300000000"))
+    for line in _both(big, capsys, tmp_path):  # 1.2 GB, and the bytes of the walk's own arrays
+        assert line.startswith(f"tween: error: {big}: its arrays hold 1,200,0"), line
+        assert line.endswith(" bytes; a clip holds at most 1 GiB"), line
+    assert not any((tmp_path / "out").iterdir())
