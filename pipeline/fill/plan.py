@@ -87,6 +87,29 @@ class Plan:
         }
 
 
+def _key_jumps(path, shot: Shot, c: Character, k, rt, keyed, notes: list[str]) -> list[dict]:
+    """The key pairs ``c``'s body teleports between (fill.jumps), said in ``notes``; none on a
+    creature's own rig model (the bounds are a human's). ``keyed``: the keys' skeleton-order
+    rotations and translations."""
+    if isinstance(rt, RigMap):
+        return []
+    up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
+    centre = body_centre(c.parents, *keyed) * mpu
+    jumps = key_jumps(k, centre, shot.tcps, {"Y": 1, "Z": 2}.get(up))
+    if jumps:
+        notes.append(f"tween: warning: {path} {c.anim_path}: {jump_line(jumps)}")
+    return jumps
+
+
+def _shares_a_fill(chars: list[CharPlan], c: Character) -> bool:
+    """Whether ``c``'s animation is planned already (skeletons sharing an animation, a crowd's
+    instances on one cycle, share its fill): then ``c``'s skeleton is rebound to it too."""
+    same = next((p for p in chars if p.char.anim_path == c.anim_path), None)
+    if same is not None:
+        same.also.append(c.skel_path)
+    return same is not None
+
+
 def _keys_for(shot: Shot, char: Character, want: np.ndarray | None) -> np.ndarray:
     """``want``: the parsed --keys, or None (tween:keyTimes, else the authored samples)."""
     if want is None and char.key_override is not None:
@@ -258,10 +281,7 @@ def make_plan(
     refused: list[tuple[str, str]] = []
     notes: list[str] = []  # said on stderr once every check has passed (one line on refusal)
     for c in shot.characters:
-        # Skeletons sharing an animation (a crowd's instances on one cycle) share its fill.
-        same = next((p for p in chars if p.char.anim_path == c.anim_path), None)
-        if same is not None:
-            same.also.append(c.skel_path)
+        if _shares_a_fill(chars, c):
             continue
         k = _keys_for(shot, c, want)
         if len(k) < 2:
@@ -276,13 +296,7 @@ def make_plan(
             refused.append((c.skel_path, folder))
             continue
         _check_key_frames(path, shot, c, k, fps, notes)
-        jumps = []
-        if not isinstance(rt, RigMap):  # a human's bounds: not for a creature's own rig model
-            up, mpu = skeleton_space(c, shot.up_axis, shot.meters_per_unit)
-            centre = body_centre(c.parents, srot, strans) * mpu
-            jumps = key_jumps(k, centre, shot.tcps, {"Y": 1, "Z": 2}.get(up))
-        if jumps:
-            notes.append(f"tween: warning: {path} {c.anim_path}: {jump_line(jumps)}")
+        jumps = _key_jumps(path, shot, c, k, rt, (srot, strans), notes)
         fr = rng or (float(k[0]), float(k[-1]))
         if fr[1] < shot.start - TIME_EPS or fr[0] > shot.end + TIME_EPS:
             raise ShotError(

@@ -10,6 +10,21 @@ from pipeline.errors import TweenError
 from pipeline.staging import StagedFolder
 
 
+def _check_options(root: str, pad: str, pad_tail: int, min_window: int, name: str | None) -> None:
+    """`tween export`'s options, before anything is read or written."""
+    from pipeline.infer.folder import FIXED, PAD_MAX
+
+    for flag, value in (("--root", root), ("--pad", pad)):
+        if value != FIXED[flag[2:]]:
+            raise TweenError(f"{flag} {value!r}: this release fills with {FIXED[flag[2:]]!r} only")
+    for flag, value in (("--pad-tail", pad_tail), ("--min-window", min_window)):
+        if not 0 <= value <= PAD_MAX:
+            raise TweenError(f"{flag} {value}: must be 0 to {PAD_MAX} frames (the fill's window grows by it)")
+    # --name: model.json's name, what fills record; not empty, not a path (as train-rig).
+    if name is not None and (not name.strip() or "/" in name or "\\" in name or name.strip() in (".", "..")):
+        raise TweenError(f"--name {name!r}: a model name, not a path or nothing")
+
+
 def export(
     run: Path = typer.Argument(..., help="Run folder written by `tween train`."),
     out: Path = typer.Option(..., help="Model folder to write (ONNX files + model.json)."),
@@ -33,19 +48,10 @@ def export(
     ),
 ):
     """Export both networks to ONNX and check onnxruntime against torch."""
-    from pipeline.infer.folder import FIXED, PAD_MAX
     from pipeline.train.export import export as do_export
     from pipeline.train.export import verify
 
-    for flag, value in (("--root", root), ("--pad", pad)):
-        if value != FIXED[flag[2:]]:
-            raise TweenError(f"{flag} {value!r}: this release fills with {FIXED[flag[2:]]!r} only")
-    for flag, value in (("--pad-tail", pad_tail), ("--min-window", min_window)):
-        if not 0 <= value <= PAD_MAX:
-            raise TweenError(f"{flag} {value}: must be 0 to {PAD_MAX} frames (the fill's window grows by it)")
-    if name is not None and (not name.strip() or "/" in name or "\\" in name or name.strip() in (".", "..")):
-        # model.json's name is what fills record and --model finds; `tween train-rig` refuses the same
-        raise TweenError(f"--name {name!r}: a model name, not a path or nothing")
+    _check_options(root, pad, pad_tail, min_window, name)
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written

@@ -24,7 +24,6 @@ from pipeline.atomic import writable_file, writable_folder
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
-from pipeline.usd.read import binding_prim
 from usd_schemas import tokens
 
 VARIANT_SET = tokens.TAKE_VARIANT_SET
@@ -273,6 +272,8 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     """Character ``ci``: its skeleton bound to a new ``<anim>_tween`` SkelAnimation holding
     the keys, the provenance and each take's samples (in its variant, for several takes)."""
     from pxr import Sdf, Vt
+
+    from pipeline.usd.read import binding_prim  # here: the reader brings scipy, `tween --help` not
 
     many = len(takes) > 1
     src = stage.GetPrimAtPath(c["anim"])
