@@ -60,8 +60,10 @@ def _slice(path, motion: Motion, frames) -> Motion:
         return motion
     lo, hi = frames
     hi = len(motion) if hi is None else hi
-    if not (0 <= lo < hi <= len(motion)) or hi - lo < 2:
+    if not (0 <= lo < hi <= len(motion)):
         raise RigSourceError(path, f"frames {lo}:{hi} are not inside the clip's {len(motion)} frames")
+    if hi - lo < 2:  # inside, but no motion: it said "not inside the clip"
+        raise RigSourceError(path, f"frames {lo}:{hi} hold {hi - lo} frame; a clip needs at least 2")
     return motion.slice(lo, hi)
 
 

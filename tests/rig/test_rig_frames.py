@@ -34,6 +34,12 @@ def test_rig_extract_frames_cut_the_clip_and_a_negative_stop_is_refused(tmp_path
     out.mkdir()
     line = refused(["rig-extract", clip, out / "x.npz", "--frames", "0:-5"], capsys, out)
     assert line == "tween: error: --frames '0:-5': frame indices count from 0 (the clip's first frame)"
+    line = refused(["rig-extract", clip, out / "x.npz", "--frames", "0:1"], capsys, out)
+    assert (
+        line == f"tween: error: {clip}: frames 0:1 hold 1 frame; a clip needs at least 2"
+    )  # not "not inside"
+    line = refused(["rig-extract", clip, out / "x.npz", "--frames", "40:60"], capsys, out)
+    assert line == f"tween: error: {clip}: frames 40:60 are not inside the clip's 48 frames"
     succeeded(["rig-extract", clip, out / "x.npz", "--frames", "10:"], capsys)
     with np.load(out / "x.npz") as z:
         assert len(z["rotations"]) == 38
