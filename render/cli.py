@@ -77,6 +77,8 @@ def _latest_fill(shot: str, fills: str | None) -> tuple[str, str | None]:
         return str(found), f"tween: review: {shot}: rendered through its review layer, {found}"
     if made:
         raise TweenError(f"{shot}: {made} holds no character alone; sublayer it over its shot to review it")
+    if fills is not None and not fills.strip():  # Path("") is the working folder
+        raise TweenError(f"--fills {fills!r}: empty; leave it out for the folder beside the shot")
     if fills is not None and not Path(fills).is_dir():  # a typo would render the unfilled shot
         raise TweenError(f"--fills {fills}: no such folder")
     found = latest_review(shot, fills)

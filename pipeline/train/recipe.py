@@ -223,6 +223,10 @@ def check_data(cfg) -> None:
     --lengths: for `tween train`, and for every stage of a recipe before its first trains."""
     from pipeline.usd.take import take_files
 
+    if cfg.data_include is not None and not any(p.strip() for p in cfg.data_include.split(",")):
+        # as `tween library build --include`: an empty one read every take
+        raise TweenError(f"--data-include {cfg.data_include!r}: names no file-name glob (e.g. '001_*,002_*'); "
+                         "leave it out for every take")  # fmt: skip
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
     if cfg.corpus:

@@ -139,6 +139,7 @@ CASES = [
     ),  # fmt: skip
     ("bench-farm-workers", ["bench-farm", "--workers", "a,b"], {}, "--workers"),
     # tween review: size (even, 16..7680), finite floats, frames, take, camera
+    ("review-fills-empty", ["review", "s.usda", "--fills", ""], {}, "--fills ''"),  # was the working folder
     ("review-size-huge", ["review", "s.usda", "--size", "100000x100000"], {}, "--size"),
     ("review-size-0", ["review", "s.usda", "--size", "0x0"], {}, "--size"),
     ("review-size-text", ["review", "s.usda", "--size", "abc"], {}, "--size"),

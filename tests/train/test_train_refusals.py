@@ -72,6 +72,12 @@ def test_train_refuses_bad_input_before_it_writes_anything(tmp_path, capsys, mod
         "--device 'foo': must be cpu or cuda (cuda:N)": ["--device", "foo"],
         "--device cuda:99: torch sees ": ["--device", "cuda:99"],
         "--path-steps -1: must be from 0 to 1e+09": ["--path-steps", "-1"],
+        "--data-include ' ,': names no file-name glob": [
+            "--data",
+            tmp_path / "creature",
+            "--data-include",
+            " ,",
+        ],
         # A pack is read whole: --limit-clips (in TINY) would be ignored, not obeyed.
         "trains on every clip it holds; drop --limit-clips": ["--data-pack", tmp_path / "some.pack"],
     }
