@@ -82,6 +82,9 @@ MAX_VALUE = 1e6
 #: 9 hours at 30 fps. Checked before the frames are read: a small gzip declaring 5,000,000
 #: frames of a short line took minutes and GiBs, then made a 46-hour clip.
 MAX_FRAMES = 1_000_000
+#: The most lines a BVH file may have: a take's frames, and a hierarchy of up to a million
+#: lines (ten thousand joints take a tenth of it).
+MAX_LINES = 2 * MAX_FRAMES
 
 
 def is_bvh(path: str | Path) -> bool:
@@ -115,11 +118,20 @@ def _open_text(path: Path) -> list[str]:
         raise MotionFormatError(path, None, "file not found") from None
     except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as e:
         raise MotionFormatError(path, None, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    breaks = raw.count(b"\n") + raw.count(b"\r")
+    if breaks > MAX_LINES:  # a small gzip of line breaks: a list of a billion lines (GiBs)
+        raise MotionFormatError(path, None, f"more than {MAX_LINES:,} lines: not a BVH take")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         text = raw.decode("latin-1")
-    return text.splitlines()
+    del raw
+    # Lines end at CR, LF or CRLF only (str.splitlines also splits at form feeds and the like,
+    # which the count above would not bound); no last empty line, as splitlines.
+    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    if lines and not lines[-1]:
+        lines.pop()
+    return lines
 
 
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]:

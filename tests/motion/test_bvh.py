@@ -338,6 +338,21 @@ def test_a_frame_count_over_the_cap_is_refused_from_the_header(tmp_path, capsys)
     assert not any(out.iterdir())
 
 
+def test_a_gzip_of_line_breaks_is_refused_before_it_is_split(tmp_path):
+    """A few KB of gzip holding 3 million line breaks (or form feeds, which str.splitlines
+    also breaks at) was split into a list of millions of lines first: GiBs for a larger one."""
+    for name, body in (("breaks", b"\n" * 3_000_000), ("feeds", b"x\x0c" * 3_000_000)):
+        bomb = tmp_path / f"{name}.bvh.gz"
+        with gzip.open(bomb, "wb") as f:
+            f.write(b"HIERARCHY\n" + body)
+        with pytest.raises(MotionFormatError) as err:
+            read_bvh(bomb)
+        if name == "breaks":
+            assert str(err.value) == f"{bomb}: more than 2,000,000 lines: not a BVH take"
+        else:  # one line, not 3 million: refused as the malformed take it is
+            assert "lines" not in str(err.value) and str(bomb) in str(err.value)
+
+
 def test_a_header_declaring_fewer_or_more_frames_than_held_reads_as_before(tmp_path):
     """Fewer: the frames after the count are not read; more, up to the cap: truncated."""
     assert len(read_bvh(write(tmp_path, GOOD.replace("Frames: 2", "Frames: 1"), "few.bvh"))) == 1
