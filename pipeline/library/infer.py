@@ -227,7 +227,7 @@ class LibraryInbetweener:
         else:
             rot[inner] = slerp_pairs(rot[inner], q[1:-1], np.full(q[1:-1].shape[:-1], w))
             root[inner] += w * (p[1:-1] - root[inner])
-        c = sum(wt * np.asarray(self.library.contacts[s : s + n + 1], np.float64)
+        c = sum(wt * match.window_contacts(self.library, int(s), n)
                 for s, wt in zip(m.starts, m.weights, strict=True))  # fmt: skip
         contacts[lo : hi + 1] = np.maximum(contacts[lo : hi + 1], w * c)
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.library.store import LibraryError
+from pipeline.library.store import DAMAGED, LibraryError, damage, sqnorm_damage
 from pipeline.motion.rotations import (
     batch_quat_apply,
     batch_quat_conj,
@@ -34,9 +34,9 @@ from pipeline.motion.rotations import (
     slerp_pairs,
 )
 
-#: What a library array that is not finite numbers says (checked where the search reads it,
-#: not on opening: that would read every frame of a 10-hour library for each fill).
-DAMAGED = "not finite numbers (the library is damaged; build it again)"
+# DAMAGED (pipeline.library.store): what a library array that is not finite numbers says,
+# checked where the search reads it, not on opening: that would read every frame of a
+# 10-hour library for each fill (`tween library info` does, pipeline.library.store.verify).
 #: Windows fitted and averaged per gap.
 BEST = 8
 #: Windows of least pose miss whose travel terms are computed.
@@ -88,13 +88,15 @@ def key_distances(lib, feats: np.ndarray) -> np.ndarray:
     k2 = -2.0 * k.T
     kk = (k * k).sum(1)
     out = np.empty((len(k), lib.frames), np.float32)
-    for s in range(0, lib.frames, FRAME_BLOCK):
-        d = lib.features[s : s + FRAME_BLOCK] @ k2
-        d += lib.sqnorm[s : s + FRAME_BLOCK, None]
-        d += kk[None]
-        np.maximum(d, 0.0, out=d)
-        out[:, s : s + FRAME_BLOCK] = d.T
-    out /= joints
+    # Damaged numbers overflow or are NaN here: the check below names the file, numpy is quiet.
+    with np.errstate(over="ignore", invalid="ignore"):
+        for s in range(0, lib.frames, FRAME_BLOCK):
+            d = lib.features[s : s + FRAME_BLOCK] @ k2
+            d += lib.sqnorm[s : s + FRAME_BLOCK, None]
+            d += kk[None]
+            np.maximum(d, 0.0, out=d)
+            out[:, s : s + FRAME_BLOCK] = d.T
+        out /= joints
     if not np.isfinite(out).all():  # else those frames would drop out of every search unsaid
         raise LibraryError(f"{lib.folder / 'features.bin'}: {DAMAGED}")
     return out
@@ -176,15 +178,17 @@ def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, tu
         return None
     pose_cm = 0.5 * (np.sqrt(d_a[cand]) + np.sqrt(d_b[cand + n]))
     ctx_cm = np.sqrt(pose / 2.0)  # the pose terms with the context keys, as an RMS (cm)
-    face = np.asarray(lib.facing[cand], np.float64)
-    step = np.asarray(lib.roots[cand + n], np.float64) - lib.roots[cand]
-    disp = batch_quat_apply(face, step)[:, [0, 2]]
-    lib_turn = wrap_angle(yaw_of(face) - yaw_of(np.asarray(lib.facing[cand + n], np.float64)))
-    cost = 2.0 * ctx_cm if context and CONTEXT_WEIGHT else 2.0 * pose_cm
-    cost = cost + DISP_WEIGHT * np.linalg.norm(disp - travel, axis=1)
-    cost += TURN_WEIGHT * np.abs(wrap_angle(lib_turn - turn))
+    with np.errstate(over="ignore", invalid="ignore"):  # damaged numbers: named just below
+        face = np.asarray(lib.facing[cand], np.float64)
+        step = np.asarray(lib.roots[cand + n], np.float64) - lib.roots[cand]
+        disp = batch_quat_apply(face, step)[:, [0, 2]]
+        lib_turn = wrap_angle(yaw_of(face) - yaw_of(np.asarray(lib.facing[cand + n], np.float64)))
+        cost = 2.0 * ctx_cm if context and CONTEXT_WEIGHT else 2.0 * pose_cm
+        cost = cost + DISP_WEIGHT * np.linalg.norm(disp - travel, axis=1)
+        cost += TURN_WEIGHT * np.abs(wrap_angle(lib_turn - turn))
     if not np.isfinite(cost).all():
         raise LibraryError(f"{lib.folder / 'roots.bin'} or facing.bin: {DAMAGED}")
+    _check_ends(lib, np.concatenate([cand, cand + n]))
     order = np.argsort(cost, kind="stable")[:best]
     if SOFTMIN_CM:
         w = np.exp(-(cost[order] - cost[order[0]]) / SOFTMIN_CM)
@@ -194,15 +198,41 @@ def search(lib, d_a: np.ndarray, d_b: np.ndarray, n: int, travel: np.ndarray, tu
     return GapMatch(cand[order], cost[order], pose_cm[order], w)
 
 
+def _check_ends(lib, frames: np.ndarray) -> None:
+    """LibraryError naming the file where the candidate windows' end frames hold finite
+    numbers no library holds (a facing of another length than 1, features and squared
+    lengths that disagree): the cost would take them as it takes any number."""
+    why = damage("facing", lib.facing[frames])
+    if why:
+        raise LibraryError(f"{lib.folder / 'facing.bin'}: {why}")
+    why = sqnorm_damage(lib.features[frames], lib.sqnorm[frames])
+    if why:
+        raise LibraryError(f"{lib.folder / 'features.bin'} or sqnorm.bin: {why}")
+
+
+def window_contacts(lib, s: int, n: int) -> np.ndarray:
+    """(n + 1, 2) float64: the feet's contacts over library frames ``s .. s + n``; LibraryError
+    naming contacts.bin where they are not 0 and 1 (each would count as a foot planted)."""
+    c = np.asarray(lib.contacts[s : s + n + 1])
+    why = damage("contacts", c)
+    if why:
+        raise LibraryError(f"{lib.folder / 'contacts.bin'}, frames {s}-{s + n}: {why}")
+    return c.astype(np.float64)
+
+
 def fit_window(lib, s: int, n: int, key_rot: np.ndarray, key_root: np.ndarray,
                key_face: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Library frames ``s .. s + n`` fitted onto the keys: (n + 1, J, 4) rotations and
     (n + 1, 3) roots equal to the keys (``key_rot`` (2, J, 4), ``key_root`` (2, 3)) at both
     ends up to rounding. ``key_face``: key a's facing turn (4,)."""
-    rot = np.array(lib.rotations[s : s + n + 1], np.float64)
-    root = np.array(lib.roots[s : s + n + 1], np.float64)
+    with np.errstate(invalid="ignore"):  # a damaged file's signalling NaN: named just below
+        rot = np.array(lib.rotations[s : s + n + 1], np.float64)
+        root = np.array(lib.roots[s : s + n + 1], np.float64)
     if not (np.isfinite(rot).all() and np.isfinite(root).all()):
         raise LibraryError(f"{lib.folder / 'rotations.bin'} or roots.bin, frames {s}-{s + n}: {DAMAGED}")
+    why = damage("rotations", rot)
+    if why:
+        raise LibraryError(f"{lib.folder / 'rotations.bin'}, frames {s}-{s + n}: {why}")
     # Turn the window to face as key a does and stand where it stands.
     align = batch_quat_mul(batch_quat_conj(key_face), np.asarray(lib.facing[s], np.float64))
     rot[:, 0] = batch_quat_mul(np.broadcast_to(align, rot[:, 0].shape), rot[:, 0])

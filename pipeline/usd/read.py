@@ -93,11 +93,13 @@ def open_stage(path: str | Path):
         raise ShotError(path, "its path is not UTF-8 text, which USD cannot open; rename it") from None
     with usd_diagnostics(path):
         try:
+            odd, held = _not_files(path)  # a FIFO or device named as a layer: a stand-in, never read
             stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
         except Tf.ErrorException as e:
             raise ShotError(path, f"cannot open as USD: {error_text(e, path)}") from None
         if stage is None:
             raise ShotError(path, "cannot open as USD")
+        stage.MuteAndUnmuteLayers(odd, [])  # out of GetUsedLayers (the digest reads those)
     with usd_diagnostics(path, fold=False):  # its own reason, not USD's warning appended
         _check_sublayers(stage, path)
     return stage
@@ -127,13 +129,61 @@ def _check_sublayers(stage, path: str) -> None:
 
 def missing_assets(path: str | Path) -> list[str]:
     """The sublayers, references and payloads the shot (and the layers it brings in) names
-    that cannot be found: USD composes the stage without them and only warns, so a shot
-    whose set or props did not load would otherwise fill without a word."""
+    that cannot be found, or are there but no regular file (a folder, a device): USD
+    composes the stage without them and warns at most, so a shot whose set or props did not
+    load would otherwise fill without a word."""
     from pxr import UsdUtils
 
+    path = str(path)
     # Its own warnings are what this returns; a file USD cannot parse is a one-line ShotError.
-    with usd_diagnostics(str(path)):
-        return sorted(set(UsdUtils.ComputeAllDependencies(str(path))[2]))
+    with usd_diagnostics(path):
+        odd, held = _not_files(path)
+        found = UsdUtils.ComputeAllDependencies(path)[2]
+        del held  # the stand-ins go once USD has followed the shot
+        return sorted(set(found) | set(odd))
+
+
+def _not_files(path: str) -> tuple[list[str], list]:
+    """The sublayers, references and payloads of the shot's layers (followed as USD follows
+    them, opening regular files only) that are there but no regular file, and the layers to
+    hold while USD follows the shot: those read here, and an empty stand-in named as each
+    such path that USD would open as a layer (its extension names a format), for reading a
+    FIFO blocks and a device can read without end."""
+    from pxr import Ar, Sdf, Tf, Usd
+
+    def regular(p: str) -> bool | None:  # None: nothing there (USD lists it as unresolved)
+        try:
+            return Path(p).is_file() if Path(p).exists() else None
+        except (OSError, ValueError):
+            return None
+
+    if regular(path) is False:
+        raise ShotError(path, "not a file")
+    odd, held, seen = [], [], {str(Path(path).absolute())}
+    todo = [Sdf.Layer.FindOrOpen(path)]
+    while todo:
+        layer = todo.pop()
+        held.append(layer)
+        for dep in layer.GetCompositionAssetDependencies() if layer else ():
+            where = layer.ComputeAbsolutePath(dep)
+            if where in seen:
+                continue
+            seen.add(where)
+            kind = regular(str(Ar.GetResolver().Resolve(where)) or where)
+            is_layer = Usd.Stage.IsSupportedFile(where)
+            if kind is False:
+                odd.append(where)
+                if is_layer:
+                    fmt = Sdf.FileFormat.FindByExtension(where)
+                    held.append(Sdf.Layer.Find(where) or Sdf.Layer.New(fmt, where))
+            elif kind and is_layer:
+                try:
+                    sub = Sdf.Layer.FindOrOpen(where)
+                except Tf.ErrorException:  # said where the stage is opened, or USD leaves it out
+                    continue
+                if sub is not None and not sub.GetFileFormat().IsPackage():
+                    todo.append(sub)
+    return odd, held
 
 
 def _fk_bind(parents, rest_rot, rest_trans):

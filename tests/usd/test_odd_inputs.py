@@ -373,3 +373,61 @@ def test_shots_that_share_a_stem_do_not_share_versions(tmp_path, monkeypatch, ca
     a.unlink()
     rc, err = tween(monkeypatch, capsys, "fill-local", tmp_path / "shot.a.usd", "--model", "spline")
     assert rc == 0 and (tmp_path / "shot.tween.v002.usda").is_file(), err
+
+
+def _sublayering(shot: Path, target: str) -> Path:
+    """``shot`` with ``target`` (a path as authored) as its first sublayer."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(shot))
+    layer.subLayerPaths.insert(0, target)
+    layer.Save()
+    return shot
+
+
+@pytest.mark.parametrize("kind", ["folder", "device"])
+def test_a_sublayer_that_is_a_folder_or_a_device_is_a_missing_asset(shot, kind, monkeypatch, capsys):
+    """USD skips such a sublayer without a word: the fill said nothing, recorded
+    ``missing_assets: []`` and --strict filled it. Now it counts as a missing sublayer does."""
+    import json
+
+    if kind == "folder":
+        (shot.parent / "anim.usda").mkdir()
+    odd = str(shot.parent / "anim.usda") if kind == "folder" else "/dev/zero"
+    _sublayering(shot, "./anim.usda" if kind == "folder" else odd)
+    out = shot.parent / "out"
+    rc, err = tween(
+        monkeypatch, capsys, "fill-local", shot, "--model", "spline", "--out-dir", out, "--strict"
+    )
+    _one_error(rc, err, str(shot), odd, "--strict")
+    assert len(err.strip().splitlines()) == 1 and not out.exists(), err
+    monkeypatch.setattr(
+        sys, "argv", ["tween", "fill-local", str(shot), "--model", "spline", "--out-dir", str(out)]
+    )
+    with pytest.raises(SystemExit) as e:
+        main()
+    res, err = capsys.readouterr()
+    assert e.value.code == 0, err
+    assert json.loads(res)["missing_assets"] == [odd]
+    assert f"tween: warning: {shot}: {odd}: not found; the shot is filled without it" in err.splitlines()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_missing_assets_lists_a_fifo_sublayer_without_waiting_on_it(shot):
+    """Reading a FIFO blocks until something writes to it: USD (UsdUtils.ComputeAllDependencies)
+    opened it and waited for ever. Run apart, so that a regression fails instead of hanging."""
+    import subprocess
+
+    os.mkfifo(shot.parent / "anim.usda")
+    _sublayering(shot, "./anim.usda")
+    code = "import sys; from pipeline.usd.read import missing_assets; print(missing_assets(sys.argv[1]))"
+    r = subprocess.run([sys.executable, "-c", code, str(shot)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == repr([str(shot.parent / "anim.usda")]), r.stderr
+    # The fill opens the stage with a stand-in for it (it waited for ever there too).
+    fill = [sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--model", "spline", "--out-dir"]
+    r = subprocess.run(
+        [*fill, str(shot.parent / "a"), "--strict"], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 2 and "anim.usda" in r.stderr.splitlines()[-1], r.stderr
+    r = subprocess.run([*fill, str(shot.parent / "b")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and f"{shot.parent / 'anim.usda'}: not found" in r.stderr, r.stderr
