@@ -217,7 +217,10 @@ def composition(shot: str, opts: FillOptions) -> list[str]:
         more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
         raise ShotError(shot, f"missing sublayer, reference or payload {missing[0]}{more} (--strict)")
     for asset in missing:
-        print(f"tween: warning: {shot}: {asset}: not found; the shot is filled without it", file=sys.stderr)
+        # A folder, a device or a FIFO is there (missing_assets names those by absolute path).
+        there = os.path.isabs(asset) and os.path.lexists(asset) and not os.path.isfile(asset)
+        what = "not a regular file" if there else "not found"
+        print(f"tween: warning: {shot}: {asset}: {what}; the shot is filled without it", file=sys.stderr)
     return missing
 
 
