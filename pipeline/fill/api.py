@@ -554,5 +554,6 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
+    result["skeletons"] = summary["skeletons"]  # per animation: the skeletons its fill is bound to
     result["retarget"] = summary["retarget"]  # per character: reference pose, joints the rig lacks
     return result

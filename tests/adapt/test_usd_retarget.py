@@ -129,6 +129,7 @@ def test_skeletons_sharing_an_animation_share_one_fill(tmp_path):
     assert s["skeletons"] == {"/World/Walker/Skel/Anim": ["/World/Walker/Skel", "/World/Twin/Skel"]}
     res = fill_shot(str(shot), o)
     assert res["characters"] == ["/World/Walker/Skel/Anim"]
+    assert res["skeletons"] == {"/World/Walker/Skel/Anim": ["/World/Walker/Skel", "/World/Twin/Skel"]}
     review = Usd.Stage.Open(res["review"])
     cache = UsdSkel.Cache()
     for skel in ("/World/Walker/Skel", "/World/Twin/Skel"):
