@@ -1,6 +1,6 @@
 """A file replaced whole or not at all: written beside its destination under a temporary
 name and renamed over it, so a reader (or an interrupted writer) never sees half of it; and
-whether a folder may be written in at all."""
+whether a folder may be written in, or a file rewritten, at all."""
 
 from __future__ import annotations
 
@@ -11,15 +11,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
-def writable_folder(folder: str | Path) -> bool:
-    """Whether this process may write in ``folder``, by its access and by its mode bits: a
-    read-only (published) folder stays untouched even for root, whom access lets write."""
-    return os.access(folder, os.W_OK) and bool(Path(folder).stat().st_mode & 0o222)
-
-
-def writable_file(path: str | Path) -> bool:
-    """Whether this process may rewrite the file ``path``, by its access and its mode bits
-    (as :func:`writable_folder`: a read-only layer stays untouched even for root)."""
+def writable(path: str | Path) -> bool:
+    """Whether this process may write in the folder ``path``, or rewrite the file ``path``, by
+    its access and by its mode bits: a read-only (published) folder or layer stays untouched
+    even for root, whom access lets write."""
     return os.access(path, os.W_OK) and bool(Path(path).stat().st_mode & 0o222)
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.atomic import writable_folder
+from pipeline.atomic import writable
 from pipeline.errors import TweenError
 
 
@@ -26,6 +26,6 @@ def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path
     probe = Path(os.path.abspath(folder if folder is not None else path))
     while not probe.is_dir() and probe != probe.parent:
         probe = probe.parent
-    if not writable_folder(probe):
+    if not writable(probe):
         where = "is" if probe == Path(os.path.abspath(path)) else f"is in {probe}, which is"
         raise TweenError(f"{path}: {option} {where} read-only; give a folder you can write")

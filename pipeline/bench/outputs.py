@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.atomic import writable_folder
+from pipeline.atomic import writable
 from pipeline.errors import TweenError
 
 
@@ -15,7 +15,7 @@ def _writable_folder(option: str, out: Path, probe: Path) -> None:
     if not probe.is_dir():
         raise TweenError(f"{option} {out}: {probe} is a file, not a folder")
     # The mode bits too: a read-only folder stays untouched even for root.
-    if not writable_folder(probe) or not os.access(probe, os.X_OK):
+    if not writable(probe) or not os.access(probe, os.X_OK):
         where = "" if probe == out else f" ({probe} is read-only)"
         raise TweenError(f"{option} {out}: cannot write there{where}")
 

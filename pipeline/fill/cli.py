@@ -16,7 +16,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.atomic import writable_folder
+from pipeline.atomic import writable
 from pipeline.errors import TweenError
 from pipeline.fill.api import fill_shot
 from pipeline.fill.options import FillOptions, with_fill_options
@@ -80,7 +80,7 @@ def _check_shot_path(out: Path, force: bool, source: Path | None = None) -> None
     if not out.parent.is_dir():
         raise TweenError(f"{out}: the folder {out.parent} does not exist")
     # The mode bits too, as the fill's layers: a read-only (published) folder stays untouched even for root.
-    if not writable_folder(out.parent):
+    if not writable(out.parent):
         raise TweenError(f"{out}: the folder {out.parent} is read-only")
     if (out.exists() or out.is_symlink()) and not force:  # fill layers may sublayer it
         raise TweenError(f"{out}: exists; pass --force to replace it (fills of it keep pointing at it)")

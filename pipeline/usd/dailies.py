@@ -23,7 +23,7 @@ import re
 from pathlib import Path
 
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
-from pipeline.atomic import writable_folder
+from pipeline.atomic import writable
 from pipeline.errors import ShotError, TweenError
 from pipeline.options import one_line
 from pipeline.usd import files, write
@@ -465,7 +465,7 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     final, fmt = _publish_path(shot, out, stem, n, fmt, dest)
     if final.exists():
         raise AlreadyPublished(final)
-    if not writable_folder(final.parent):
+    if not writable(final.parent):
         raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
     stage = open_stage(shot)
     take = int(d["take"])

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401
-from pipeline.atomic import writable_file, writable_folder
+from pipeline.atomic import writable
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -356,7 +356,7 @@ def check_out_dir(shot: str, out_dir: str | None) -> Path:
         what = "is a file" if probe == out else f"is under {probe}, a file"
         raise ShotError(shot, f"output folder {out} {what}, not a folder (give another with --out-dir DIR)")
     # The mode bits too: a published (read-only) shot folder stays untouched even for root.
-    if not writable_folder(probe):
+    if not writable(probe):
         raise ShotError(shot, f"output folder {out} is read-only (give another with --out-dir DIR)")
     return out
 
@@ -491,9 +491,9 @@ def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
         )
     _open_review_layer(review)
     real = Path(os.path.realpath(review))  # a link is written through: the file it names
-    if not writable_file(real):
+    if not writable(real):
         raise TweenError(f"--review-layer {review}: read-only (the fill is added to a layer this may edit)")
-    if not writable_folder(real.parent):
+    if not writable(real.parent):
         raise TweenError(f"--review-layer {review}: its folder {real.parent} is read-only")
 
 
