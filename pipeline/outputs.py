@@ -14,6 +14,14 @@ from pipeline.atomic import writable
 from pipeline.errors import TweenError
 
 
+def given_path(value: str, what: str) -> Path:
+    """A path argument or option as given, or one line naming it when it is empty or blank
+    (``Path("")`` is the working folder: a job or a run was written there)."""
+    if not value.strip():
+        raise TweenError(f"{what} {value!r}: empty; give a path")
+    return Path(value)
+
+
 def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path | None = None) -> None:
     """Raises TweenError when ``path`` cannot be written in: ``folder`` if given, else the
     folder ``path`` is (or, not made yet, the nearest one above it that exists; a file's

@@ -18,7 +18,7 @@ from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.library.options import LibraryBuildOptions, with_library_options
-from pipeline.outputs import refuse_read_only
+from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
@@ -165,14 +165,6 @@ def _shot_files(shots: list[Path]) -> list[str]:
             raise TweenError(f"{p}: the same shot as {seen[real]} (give each shot once)")
         seen[real] = p
     return list(seen.values())
-
-
-def _given_path(value: str, what: str) -> Path:
-    """A path argument or option as given, or one line naming it when it is empty or blank
-    (``Path("")`` is the working folder: a job for it was sent)."""
-    if not value.strip():
-        raise TweenError(f"{what} {value!r}: empty; give a path")
-    return Path(value)
 
 
 def _job_ids(job_ids: list[str]) -> list[str]:
@@ -712,7 +704,7 @@ def submit_train_rig(
     if rig_app.conf.tween.embedded:
         _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
         raise typer.Exit(2)
-    out = _given_path(out, "--out")
+    out = given_path(out, "--out")
     if not source.is_file():
         _err(f"{source}: " + ("a folder, not a clip file" if source.is_dir() else "no such file"))
         raise typer.Exit(2)
@@ -761,7 +753,7 @@ def submit_library(
 
     # What `tween library build` refuses is refused here, before a worker takes the job.
     # (A Path made of "" is the working folder: an empty argument is refused as given.)
-    folder, out = _given_path(folder, "takes folder"), _given_path(out, "--out")
+    folder, out = given_path(folder, "takes folder"), given_path(out, "--out")
     opts.check()
     take_files(folder, opts.include)
     check_out(out, opts.add)

@@ -54,7 +54,7 @@ from typing import Any
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.outputs import refuse_read_only
+from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import check_device
 from pipeline.staging import refuse_model
 from pipeline.train.commands import export_command
@@ -238,16 +238,9 @@ def check_data(cfg) -> None:
         training_clips(cfg)
 
 
-def _run_folder(value: str | None) -> Path | None:
-    """--out as given (None: the default), or one line when it is empty or blank (``Path("")``
-    is the working folder: a run was written there)."""
-    if value is not None and not value.strip():
-        raise TweenError(f"--out {value!r}: empty; give a path")
-    return None if value is None else Path(value)
-
-
 def _train(ctx: typer.Context, **values) -> None:
-    out, recipe = _run_folder(values.pop("out")), values.pop("recipe")
+    out, recipe = values.pop("out"), values.pop("recipe")
+    out = None if out is None else given_path(out, "--out")
     from_stage, dry_run = values.pop("from_stage"), values.pop("dry_run")
     if recipe is None:
         if from_stage is not None or dry_run:
