@@ -22,6 +22,12 @@ def one_line(text: str, limit: int = MAX_TEXT) -> bool:
     return bool(text.strip()) and text.isprintable() and len(text) <= limit
 
 
+def path_like(name: str) -> bool:
+    """Whether a model ``name`` (model.json's, rig.json's: what fills record and ``--model``
+    finds) would read as a path: a separator in it, or ``.``/``..``."""
+    return "/" in name or "\\" in name or name.strip() in (".", "..")
+
+
 def option(default, *flags: str, help: str, **meta):
     """A dataclass field that is a command-line option: its default, flags, help, and any
     more ``meta`` (e.g. a path role) for the code that reads the fields."""

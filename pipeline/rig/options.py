@@ -12,7 +12,7 @@ import re
 from dataclasses import asdict, dataclass
 
 from pipeline.errors import TweenError
-from pipeline.options import MAX_TEXT, flags_of, job_args, one_line, option, with_options
+from pipeline.options import MAX_TEXT, flags_of, job_args, one_line, option, path_like, with_options
 
 SCHEDULES = ("tiny", "reduced", "paper")
 MAX_SEED = 2**31 - 1
@@ -112,9 +112,7 @@ class TrainRigOptions:
                 raise TweenError(
                     f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
                 )
-        if self.name is not None and (
-            "/" in self.name or "\\" in self.name or self.name.strip() in (".", "..")
-        ):
+        if self.name is not None and path_like(self.name):
             raise TweenError(f"--name {self.name!r}: a model name, not a path")
 
     def contact_joints(self) -> list[str] | None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.options import path_like
 from pipeline.staging import StagedFolder
 
 
@@ -20,8 +21,8 @@ def _check_options(root: str, pad: str, pad_tail: int, min_window: int, name: st
     for flag, value in (("--pad-tail", pad_tail), ("--min-window", min_window)):
         if not 0 <= value <= PAD_MAX:
             raise TweenError(f"{flag} {value}: must be 0 to {PAD_MAX} frames (the fill's window grows by it)")
-    # --name: model.json's name, what fills record; not empty, not a path (as train-rig).
-    if name is not None and (not name.strip() or "/" in name or "\\" in name or name.strip() in (".", "..")):
+    # --name: not empty, not a path (as train-rig).
+    if name is not None and (not name.strip() or path_like(name)):
         raise TweenError(f"--name {name!r}: a model name, not a path or nothing")
 
 
