@@ -36,9 +36,8 @@ class CharPlan:
     fps: float = 30.0  # the frame rate of this character's model
     authored_keys: bool = False  # keys are the animation's own samples (not --keys / tween:keyTimes)
     jumps: list[dict] = field(default_factory=list)  # key pairs the body teleports between (fill.jumps)
-    also: list[str] = field(
-        default_factory=list
-    )  # other skeletons bound to its animation: filled once, all rebound
+    # Other skeletons bound to its animation: it is filled once, and every one rebound to it.
+    also: list[str] = field(default_factory=list)
 
     def retarget_info(self) -> dict:
         """How the character reaches its model: the reference pose mapped through and the

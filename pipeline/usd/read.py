@@ -542,18 +542,16 @@ def binding_prim(path: str, skel_prim) -> str:
     opinion on the instance prim would not override it."""
     from pxr import UsdSkel
 
-    prim = skel_prim
-    while prim.IsInstanceProxy():
-        if UsdSkel.BindingAPI(prim).GetAnimationSourceRel().HasAuthoredTargets():
-            inst = prim
-            while inst.IsInstanceProxy():
-                inst = inst.GetParent()
-            raise ShotError(
-                path, f"its animation is bound inside an instanced prim; set instanceable = false on "
-                f"{inst.GetPath()} to fill it", str(skel_prim.GetPath()),
-            )  # fmt: skip
-        prim = prim.GetParent()
-    return str(prim.GetPath())
+    inside, inst = [], skel_prim
+    while inst.IsInstanceProxy():
+        inside.append(inst)
+        inst = inst.GetParent()
+    if any(UsdSkel.BindingAPI(p).GetAnimationSourceRel().HasAuthoredTargets() for p in inside):
+        raise ShotError(
+            path, f"its animation is bound inside an instanced prim; set instanceable = false on "
+            f"{inst.GetPath()} to fill it", str(skel_prim.GetPath()),
+        )  # fmt: skip
+    return str(inst.GetPath())
 
 
 def _read_shot(path: str) -> Shot:
