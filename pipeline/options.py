@@ -28,6 +28,12 @@ def path_like(name: str) -> bool:
     return "/" in name or "\\" in name or name.strip() in (".", "..")
 
 
+def names_a_glob(globs: str) -> bool:
+    """Whether comma-separated file-name globs (``--include``, ``--data-include``) name at
+    least one: an empty or blank one read every take."""
+    return any(p.strip() for p in str(globs).split(","))
+
+
 def option(default, *flags: str, help: str, **meta):
     """A dataclass field that is a command-line option: its default, flags, help, and any
     more ``meta`` (e.g. a path role) for the code that reads the fields."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from pipeline.errors import TweenError
-from pipeline.options import MAX_TEXT, flags_of, job_args, one_line, option, with_options
+from pipeline.options import MAX_TEXT, flags_of, job_args, names_a_glob, one_line, option, with_options
 
 
 @dataclass
@@ -34,7 +34,7 @@ class LibraryBuildOptions:
                 raise TweenError(
                     f"{flag} {v[:60]!r}: must be one line of printable text, at most {MAX_TEXT} characters"
                 )
-        if self.include is not None and not any(p.strip() for p in str(self.include).split(",")):
+        if self.include is not None and not names_a_glob(self.include):
             raise TweenError(f"--include {self.include!r}: names no file-name glob (e.g. '001_*,002_*'); "
                              "leave it out for every take")  # fmt: skip
         return self

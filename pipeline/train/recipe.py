@@ -54,6 +54,7 @@ from typing import Any
 import typer
 
 from pipeline.errors import TweenError
+from pipeline.options import names_a_glob
 from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import check_device
 from pipeline.staging import refuse_model
@@ -223,8 +224,7 @@ def check_data(cfg) -> None:
     --lengths: for `tween train`, and for every stage of a recipe before its first trains."""
     from pipeline.usd.take import take_files
 
-    if cfg.data_include is not None and not any(p.strip() for p in cfg.data_include.split(",")):
-        # as `tween library build --include`: an empty one read every take
+    if cfg.data_include is not None and not names_a_glob(cfg.data_include):  # as library build's
         raise TweenError(f"--data-include {cfg.data_include!r}: names no file-name glob (e.g. '001_*,002_*'); "
                          "leave it out for every take")  # fmt: skip
     if cfg.data and not cfg.data_pack:
