@@ -153,9 +153,9 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     # (`tween train --init <model>/torch/generator.pt`) without the optimiser state.
     (out_dir / "torch").mkdir(exist_ok=True)
     keep = ("model", "config", "step", "elapsed")
-    torch.save({k: gstate[k] for k in keep if k in gstate}, out_dir / "torch" / "generator.pt")
+    torch.save(_shipped(gstate, keep), out_dir / "torch" / "generator.pt")
     if "path" in files:
-        torch.save({k: pstate[k] for k in keep if k in pstate}, out_dir / "torch" / "path.pt")
+        torch.save(_shipped(pstate, keep), out_dir / "torch" / "path.pt")
     meta["files"] = files
     # Padded like training windows (64–128 frames, ending on a key, motion after a target);
     # see OnnxInbetweener._network (models/default/HISTORY.md, Pad layout: the layouts tried).
@@ -175,6 +175,30 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     meta["hash"] = model_hash(out_dir, meta)
     (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
     return meta
+
+
+#: Paths under this folder (the repository) are written relative to it in exported checkpoints.
+REPOSITORY = Path(__file__).resolve().parents[2]
+
+
+def _shipped(state: dict, keep: tuple[str, ...]) -> dict:
+    """The checkpoint's ``keep`` entries, its config's paths inside the repository (``init``,
+    ``corpus``: a recipe resolves them) relative to it, so a shipped model folder does not
+    carry the path of the machine it was exported on."""
+    out = {k: state[k] for k in keep if k in state}
+    if isinstance(out.get("config"), dict):
+        out["config"] = {k: _relative(v) for k, v in out["config"].items()}
+    return out
+
+
+def _relative(value):
+    """``value`` relative to the repository where it is an absolute path inside it."""
+    if isinstance(value, str) and value.startswith("/"):
+        try:
+            return Path(value).resolve().relative_to(REPOSITORY).as_posix()
+        except ValueError:  # outside the repository (a studio's takes): the run's own record
+            return value
+    return value
 
 
 #: The Bandai Namco dataset's terms (../shared/data/README.md: CC BY-NC 4.0, `*/LICENSE`).

@@ -250,6 +250,27 @@ def test_the_delta_model_ships_the_checkpoint_its_next_stage_resumes_from():
     assert verify(ckpt.parent, folder) < 1e-4  # the ONNX file is this checkpoint's export
 
 
+def test_exported_checkpoints_name_repository_paths_relative_to_it(tmp_path):
+    """A shipped model's torch checkpoint does not carry the exporting machine's paths: its
+    config's paths inside the repository (a recipe resolves ``init`` and ``corpus``) are
+    written relative to it; a studio's takes elsewhere stay as the run recorded them."""
+    import torch
+
+    from pipeline.train.export import _shipped
+
+    state = {"model": {}, "step": 3, "optimiser": {}, "config": {
+        "init": str(ROOT / "models/delta"), "corpus": str(ROOT / "pipeline/data/corpora/bandai-cmu123.toml"),
+        "data": str(tmp_path / "takes"), "steps": 3}}  # fmt: skip
+    out = _shipped(state, ("model", "config", "step"))
+    assert "optimiser" not in out and out["step"] == 3
+    assert out["config"] == {"init": "models/delta", "corpus": "pipeline/data/corpora/bandai-cmu123.toml",
+                             "data": str(tmp_path / "takes"), "steps": 3}  # fmt: skip
+    for ckpt in sorted(ROOT.glob("models/*/torch/*.pt")):
+        config = torch.load(ckpt, weights_only=False, map_location="cpu")["config"]
+        absolute = {k: v for k, v in config.items() if isinstance(v, str) and v.startswith("/")}
+        assert not absolute, f"{ckpt}: {absolute}"
+
+
 def test_saved_configs_drop_retired_switches_and_refuse_other_values():
     """A checkpoint's network config (or model.json's "generator") may still carry the
     switches of retired experiments, at the value every shipped model has; another value
