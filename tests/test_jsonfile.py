@@ -54,7 +54,8 @@ def test_a_mapping_that_is_a_pipe_or_a_folder_is_refused_not_waited_on(tmp_path)
         r = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--mapping", str(odd),
                             "--out-dir", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)  # fmt: skip
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
-        assert f"mapping file {odd}: not a regular file" in r.stderr and not (tmp_path / "o").exists()
+        says = "a folder, not a mapping file" if odd.is_dir() else "not a regular file"
+        assert f"mapping file {odd}: {says}" in r.stderr and not (tmp_path / "o").exists()
 
 
 def test_json_nested_too_deeply_is_a_value_error_naming_the_file(tmp_path):

@@ -16,6 +16,7 @@ LAYERS = {
     "pipeline.options": 0,  # options declared on dataclasses, as CLI options
     "pipeline.jsonfile": 0,  # JSON a person wrote: duplicate keys refused
     "pipeline.atomic": 0,  # a file replaced whole or not at all
+    "pipeline.inputs": 0,  # what a command reads: a regular file, or what the path is instead
     "pipeline.arguments": 1,  # argparse whose errors are one line (the python -m entry points)
     "pipeline.progress": 0,  # how often a progress bar redraws (a terminal, a log file)
     "pipeline.outputs": 1,  # where a command writes, checked before it writes (read-only, links)

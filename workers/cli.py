@@ -17,6 +17,7 @@ import typer
 from pipeline.errors import TweenError
 from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
+from pipeline.inputs import not_a_file
 from pipeline.library.options import LibraryBuildOptions, with_library_options
 from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
@@ -150,16 +151,8 @@ def _shot_files(shots: list[Path]) -> list[str]:
     path, made two versions of it in one run); or one line naming the first that is not."""
     seen: dict[str, str] = {}
     for p in map(str, shots):
-        if not os.path.isfile(p):
-            if os.path.isdir(p):
-                what = "a folder, not a shot file"
-            elif os.path.exists(p):  # a pipe, a device, a socket
-                what = "not a regular file (a shot is a USD file)"
-            elif os.path.lexists(p):
-                what = "a link to nothing"
-            else:
-                what = "no such shot file"
-            raise TweenError(f"{p}: {what}")
+        if why := not_a_file(p, "shot file"):
+            raise TweenError(f"{p}: {why}")
         real = os.path.realpath(p)
         if real in seen:
             raise TweenError(f"{p}: the same shot as {seen[real]} (give each shot once)")

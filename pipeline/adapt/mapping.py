@@ -26,6 +26,7 @@ from pipeline.adapt import chains
 from pipeline.adapt.conventions import CONVENTIONS
 from pipeline.adapt.hierarchy import ancestors, common_ancestor, depths
 from pipeline.errors import TweenError
+from pipeline.inputs import not_a_file
 
 MODEL_JOINTS = (
     "Hips", "Spine", "Chest", "Neck", "Head",
@@ -123,8 +124,8 @@ def _read(conv: str, names: list[str]) -> tuple[dict[str, list[tuple[int, int]]]
 def load_override(path: str | Path | None) -> dict[str, str | None]:
     if not path:
         return {}
-    if Path(path).exists() and not Path(path).is_file():  # a pipe would wait for a writer forever
-        raise MappingError(f"mapping file {path}: not a regular file (a folder, a pipe or a device)")
+    if (why := not_a_file(path, "mapping file")) and Path(path).exists():  # else read_text names it
+        raise MappingError(f"mapping file {path}: {why}")
     try:
         d = jsonfile.loads(Path(path).read_text())
     except (OSError, ValueError) as e:  # a key twice (DuplicateKeyError) names it and its line

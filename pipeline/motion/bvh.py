@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import MotionFormatError
+from pipeline.inputs import not_a_file
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import euler_to_quat, quat_apply, quat_mul, quat_to_euler
 from pipeline.motion.skeleton import Skeleton
@@ -103,10 +104,8 @@ def _open_text(path: Path) -> list[str]:
     """The file's lines. UTF-8 (with or without a BOM); a file that is not UTF-8 is read as
     Latin-1, so joint names written by older tools keep their accented letters."""
     try:
-        if path.is_dir():
-            raise MotionFormatError(path, None, "is a folder, not a BVH file")
-        if path.exists() and not path.is_file():  # a FIFO or a device would block or never end
-            raise MotionFormatError(path, None, "is not a regular file")
+        if why := not_a_file(path, "BVH file"):  # a FIFO or a device would block or never end
+            raise MotionFormatError(path, None, why)
         zipped = gzipped(path)
         if path.name.lower().endswith(".gz") and not zipped:
             raise MotionFormatError(path, None, "cannot read: named .gz, but not gzip data")

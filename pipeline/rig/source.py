@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline.data.split import shared_data_dir
 from pipeline.errors import ShotError, TweenError
+from pipeline.inputs import not_a_file
 from pipeline.motion.bvh import MAX_BYTES, MAX_FRAMES, is_bvh
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import QUAT_EPS
@@ -175,10 +176,8 @@ def load_rig_source(
     the clip (stop exclusive, -1 = the end).
     """
     path = Path(path)
-    if not path.exists():
-        raise RigSourceError(path, "file not found")
-    if not path.is_file():
-        raise RigSourceError(path, "not a file")
+    if why := not_a_file(path, "clip file"):
+        raise RigSourceError(path, why)
     if path.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
         motion = _from_usd(path, skeleton)
     elif is_bvh(path):

@@ -25,6 +25,7 @@ from pathlib import Path
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
 from pipeline.atomic import writable
 from pipeline.errors import ShotError, TweenError
+from pipeline.inputs import not_a_file
 from pipeline.options import one_line
 from pipeline.usd import files, write
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -133,10 +134,8 @@ def _fill_folder(shot: str, out_dir: str | os.PathLike | None) -> Path:
 
 
 def _check_shot(shot: str) -> None:
-    if not Path(shot).exists():
-        raise ShotError(shot, "file not found")
-    if not Path(shot).is_file():
-        raise ShotError(shot, "not a file")
+    if why := not_a_file(shot, "shot file"):
+        raise ShotError(shot, why)
     write.check_shot_name(shot)
 
 

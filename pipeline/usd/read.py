@@ -22,6 +22,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401  (registers the schema before any stage opens)
 from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
+from pipeline.inputs import not_a_file
 from pipeline.motion.rotations import QUAT_EPS, matrix_to_quat
 from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
@@ -83,10 +84,8 @@ def open_stage(path: str | Path):
     from pxr import Tf, Usd
 
     path = str(path)
-    if not Path(path).exists():
-        raise ShotError(path, "file not found")
-    if not Path(path).is_file():
-        raise ShotError(path, "not a file")
+    if why := not_a_file(path, "shot file"):
+        raise ShotError(path, why)
     try:
         path.encode("utf-8")
     except UnicodeEncodeError:  # usd-core takes UTF-8 paths only (raising deep inside it)
@@ -158,7 +157,7 @@ def _not_files(path: str) -> tuple[list[str], list]:
             return None
 
     if regular(path) is False:
-        raise ShotError(path, "not a file")
+        raise ShotError(path, not_a_file(path, "shot file"))
     odd, held, seen = [], [], {str(Path(path).absolute())}
     todo = [Sdf.Layer.FindOrOpen(path)]
     while todo:

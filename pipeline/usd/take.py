@@ -19,6 +19,7 @@ import numpy as np
 from pipeline.adapt.mapping import MappingError, load_override, map_joints
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.errors import ShotError
+from pipeline.inputs import not_a_file
 from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
 
@@ -54,9 +55,8 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
     ``mapping``: a joint mapping file for its rig (as ``tween fill --mapping``)."""
     path = Path(path)
     override = load_override(mapping)
-    if not path.is_file():
-        raise ShotError(path, "a folder, not a take file" if path.is_dir() else
-                        "not a regular file" if path.exists() else "no such take file")  # fmt: skip
+    if why := not_a_file(path, "take file"):
+        raise ShotError(path, why)
     if is_bvh(path):
         from pipeline.motion.bvh import read_bvh
         from pipeline.usd.convert import write_shot

@@ -282,7 +282,7 @@ def test_bad_channel_lists_name_the_line(tmp_path, edit, line, message):
 
 
 def test_folder_and_overflowing_values_are_refused(tmp_path):
-    with pytest.raises(MotionFormatError, match="is a folder"):
+    with pytest.raises(MotionFormatError, match="a folder, not a BVH file"):
         read_bvh(tmp_path)
     # Beyond float32 (a numpy overflow warning on stderr before the line), and finite ones
     # whose products overflow later (the mesh of `tween convert` was NaN): 10 km, 2,700 turns.

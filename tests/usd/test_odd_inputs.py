@@ -285,7 +285,7 @@ def test_a_take_that_is_a_folder_or_a_device_is_named_so(tmp_path):
     from pipeline.usd.take import model_take
 
     for path, says in ((tmp_path, "a folder, not a take file"), (Path("/dev/null"), "not a regular file"),
-                       (tmp_path / "none.usda", "no such take file")):  # fmt: skip
+                       (tmp_path / "none.usda", "file not found")):  # fmt: skip
         with pytest.raises(ShotError, match=says):
             model_take(path)
 

@@ -40,7 +40,7 @@ def _refused(res, says: str) -> None:
 
 def test_submit_refuses_a_missing_shot_or_a_folder_before_sending(tmp_path, shot):
     """Both exited 0 with a job id, whose job then failed on the farm ("file not found")."""
-    _refused(_tween(tmp_path, "submit", "nosuch.usda"), "nosuch.usda: no such shot file")
+    _refused(_tween(tmp_path, "submit", "nosuch.usda"), "nosuch.usda: file not found")
     _refused(_tween(tmp_path, "submit", str(shot), "."), ".: a folder, not a shot file")
 
 
@@ -48,7 +48,7 @@ def test_a_shot_that_is_a_pipe_or_a_link_to_nothing_is_named_as_such(tmp_path, s
     """Both were "no such shot file", though the path is there."""
     os.mkfifo(tmp_path / "pipe.usda")
     (tmp_path / "gone.usda").symlink_to(tmp_path / "nowhere.usda")
-    _refused(_tween(tmp_path, "submit", "pipe.usda"), "pipe.usda: not a regular file (a shot is a USD file)")
+    _refused(_tween(tmp_path, "submit", "pipe.usda"), "pipe.usda: not a regular file (a pipe, socket or device), not a shot file")
     _refused(_tween(tmp_path, "submit", str(shot), "gone.usda"), "gone.usda: a link to nothing")
 
 
