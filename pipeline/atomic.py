@@ -1,12 +1,14 @@
 """A file replaced whole or not at all: written beside its destination under a temporary
-name and renamed over it, so a reader (or an interrupted writer) never sees half of it; and
-whether a folder may be written in, or a file rewritten, at all."""
+name and renamed over it, so a reader (or an interrupted writer) never sees half of it;
+whether a folder may be written in, or a file rewritten, at all; and one writer at a time
+(:func:`locked`), for what is read, changed and written back."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -35,3 +37,62 @@ def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def locked(
+    lock: str | Path,
+    make: Callable[[], None] | None = None,
+    waiting: Callable[[], None] | None = None,
+    failed: Callable[[OSError], BaseException] | None = None,
+) -> Iterator[None]:
+    """Holds an exclusive lock (flock) on the file ``lock`` for the block, then removes it.
+
+    ``make()`` runs before each try (it makes the lock's folder); ``waiting()`` once, when
+    another process holds the lock (to say so before blocking); ``failed(e)`` turns an error
+    opening the lock file into the caller's. A waiter that then holds the lock of a file its
+    holder removed sees the inode gone and locks the new file instead. A killed holder's
+    lock is released by the kernel, so a lock file left behind never blocks anyone.
+    """
+    lock, told = Path(lock), False
+    while True:
+        if make is not None:
+            make()
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except FileNotFoundError:
+            if make is None:
+                raise
+            continue  # the folder was removed meanwhile (another writer's failure)
+        except OSError as e:
+            if failed is None:
+                raise
+            raise failed(e) from None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if waiting is not None and not told:
+                    waiting()
+                    told = True
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            st = os.fstat(fd)
+            try:
+                cur = os.stat(lock)
+                same = (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
+            except FileNotFoundError:
+                same = False
+        except BaseException:
+            os.close(fd)
+            raise
+        if same:
+            break
+        os.close(fd)
+    try:
+        yield
+    finally:
+        try:
+            os.unlink(lock)
+        except OSError:
+            pass
+        os.close(fd)

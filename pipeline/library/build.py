@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.atomic import locked
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError, printable
 from pipeline.library.match_features import contacts, frame_features
@@ -82,13 +83,25 @@ def _skipped(line: str) -> None:
     print(f"tween: skipped take: {line}", file=sys.stderr)
 
 
+#: The lock every build of a library holds from its first look at the folder to its
+#: manifest (``pipeline.atomic.locked``): two builds adding at once each appended to the
+#: arrays and each wrote its own manifest, which lost the other's takes and left arrays
+#: longer than the manifest says. Removed when released; not counted as the folder's content.
+LOCK = ".library.lock"
+
+
+def _contents(out: Path) -> list[Path]:
+    """What ``out`` holds, but a build's lock."""
+    return [p for p in out.iterdir() if p.name != LOCK]
+
+
 def _leftovers(out: Path) -> list[Path]:
     """What a first build killed before its manifest was written left in ``out`` (its array
     files, a manifest being written), when ``out`` holds nothing else; else []."""
     if not out.is_dir() or is_library(out):
         return []
     names = {f"{a}.bin" for a in ARRAYS}
-    found = list(out.iterdir())
+    found = _contents(out)
     ours = [p for p in found if p.is_file() and (p.name in names or p.name.startswith(f".{MANIFEST}."))]
     return ours if ours and len(ours) == len(found) else []
 
@@ -101,10 +114,10 @@ def check_out(out: Path, add: bool) -> None:
     refuse_read_only(out, "--out")
     if _leftovers(out):
         return
-    if out.exists() and not add and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and not add and (not out.is_dir() or _contents(out)):
         what = "a library" if is_library(out) else "not empty" if out.is_dir() else "a file, not a folder"
         raise LibraryError(f"{out}: {what}; use --add to append takes, or a new folder")
-    if add and out.exists() and not is_library(out) and any(out.iterdir()):
+    if add and out.exists() and not is_library(out) and _contents(out):
         raise LibraryError(f"{out}: not a library (no library.json); --add appends to a library")
     if add and is_library(out):
         open_library(out)  # a damaged manifest is named before any take is read
@@ -184,9 +197,38 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     from pipeline.usd.take import take_files
 
     out = Path(out)
+    check_out(out, add)  # before the takes are listed: a wrong --out is said at once
+    paths = [Path(p) for p in files] if files is not None else take_files(folder, include)
+    made = []  # the folders the lock made (``out`` and any above it)
+
+    def make() -> None:
+        missing = [p for p in (out, *out.parents) if not p.exists()]
+        out.mkdir(parents=True, exist_ok=True)
+        made.extend(p for p in reversed(missing) if p not in made)
+
+    def waiting() -> None:
+        print(f"tween: {out}: another build is writing this library; waiting for it", file=sys.stderr)
+
+    try:
+        with locked(out / LOCK, make=make, waiting=waiting):
+            return _build_locked(folder if files is None else out, out, paths, licence, name, add, progress, mirror, on_progress,
+                                 out in made)  # fmt: skip
+    finally:
+        if not out.exists():  # a build that failed removed ``out``: the folders it made above it go too
+            for d in reversed(made):
+                try:
+                    d.rmdir()
+                except OSError:
+                    pass
+
+
+def _build_locked(where, out: Path, paths: list[Path], licence, name, add: bool, progress: bool, mirror: bool,
+                  on_progress, created: bool) -> dict:  # fmt: skip
+    """:func:`build`'s work, holding the library's lock: what the folder holds is read again
+    here, since another build may have written it while this one waited. ``created``: this
+    build made ``out``; ``where``: what a build none of whose takes could be read names."""
     check_out(out, add)
     _remove_leftovers(out)
-    paths = [Path(p) for p in files] if files is not None else take_files(folder, include)
     manifest = _start_manifest(out, add, licence, name)
     have = {t["file"] for t in manifest["takes"]}
     todo = []
@@ -196,7 +238,8 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
             todo.append(p)
     # What this call makes goes again if it ends with nothing: the folder, or what it put in
     # an empty one the user gave.
-    created, was_empty = not out.exists(), out.is_dir() and not any(out.iterdir())
+    was_empty = not is_library(out) and not _contents(out)
+    created = created and was_empty
     writer = bar = None
     try:  # from the first file made: an interrupt anywhere after it removes what was made
         writer = Writer(out, manifest)
@@ -204,10 +247,7 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                    disable=not progress or None, mininterval=max(2.0, interval()), delay=1.0)  # fmt: skip
         added, failed, held = _add_takes(writer, bar, len(todo), manifest, licence, mirror, on_progress)
         if not manifest["takes"] and failed:
-            raise LibraryError(
-                f"{folder if files is None else out}: no take could be read ({len(failed)} failed; "
-                f"the first: {held[0]})"
-            )
+            raise LibraryError(f"{where}: no take could be read ({len(failed)} failed; the first: {held[0]})")
         writer.commit()
         if on_progress is not None:
             on_progress(len(todo), len(todo), "")
@@ -217,7 +257,7 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
         if created:
             shutil.rmtree(out, ignore_errors=True)
         elif was_empty:
-            for p in out.iterdir():
+            for p in _contents(out):
                 shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
         raise
     finally:

@@ -7,7 +7,6 @@ writers of one shot's versions. :mod:`pipeline.usd.write`, :mod:`pipeline.usd.da
 from __future__ import annotations
 
 import errno
-import fcntl
 import os
 import re
 import shutil
@@ -16,6 +15,7 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from pipeline.atomic import locked
 from pipeline.errors import ShotError, TweenError
 
 # Every temp file (or take folder) this package writes is named ``.<base>.<pid>@<host>[.<rand>]
@@ -194,38 +194,12 @@ def folder_lock(shot: str, out: Path, stem: str, created: list[Path]):
     """Exclusive lock (flock) on ``out/.<stem>.tween.lock``, creating ``out`` when needed.
 
     Serialises the job-id check and the version allocation of every writer of ``stem`` into
-    ``out``. The lock file is removed when released; a waiter that then holds a removed file's
-    lock sees its inode gone from the folder and locks the new file instead.
+    ``out`` (:func:`pipeline.atomic.locked`: the lock file is removed when released).
     """
-
     lock = out / f".{stem}.tween.lock"
-    while True:
-        make_dirs(shot, out, created)
-        try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-        except FileNotFoundError:
-            continue  # the folder was removed meanwhile (another writer's failure)
-        except OSError as e:
-            raise write_error(lock, e) or ShotError(shot, f"cannot lock {lock}: {e.strerror}") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-            st = os.fstat(fd)
-            try:
-                cur = os.stat(lock)
-                same = (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
-            except FileNotFoundError:
-                same = False
-        except BaseException:
-            os.close(fd)
-            raise
-        if same:
-            break
-        os.close(fd)
-    try:
+
+    def failed(e: OSError) -> BaseException:
+        return write_error(lock, e) or ShotError(shot, f"cannot lock {lock}: {e.strerror}")
+
+    with locked(lock, make=lambda: make_dirs(shot, out, created), failed=failed):
         yield
-    finally:
-        try:
-            os.unlink(lock)
-        except OSError:
-            pass
-        os.close(fd)

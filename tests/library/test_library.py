@@ -546,3 +546,56 @@ def test_info_shows_one_line_a_take_and_build_refuses_texts_that_are_not_one_lin
     (bad / "bad\nname.bvh").write_text("junk\n")
     line = refused(["library", "build", bad, "--out", tmp_path / "lib2", "--no-progress"], capsys, tmp_path)
     assert line.endswith("bad\\nname.bvh:1: expected HIERARCHY at the start of the file)"), line
+
+
+def test_builds_of_one_library_at_once_take_turns_and_lose_no_take(takes, tmp_path):
+    """Two `library build --add` on one library at once both exited 0, each wrote its own
+    manifest over the other's, and the arrays held both's frames: one run's takes were lost
+    and another take's motion filled under their names. Now a build waits for the one
+    writing (saying so), then reads the library again. Two first builds into one new folder
+    take turns the same way: the second is an add, or refused without --add."""
+    import time
+
+    from pipeline.atomic import locked
+    from pipeline.library.build import LOCK
+
+    parts = {}
+    for i, name in enumerate(BANDAI[:2]):
+        parts[i] = tmp_path / f"part{i}"
+        parts[i].mkdir()
+        shutil.copy(takes / name, parts[i] / name)
+    out = tmp_path / "lib"
+    out.mkdir()
+    cmd = [sys.executable, "-m", "pipeline.cli", "library", "build"]
+    with locked(out / LOCK):  # another build holds the library: both wait for it
+        procs = [subprocess.Popen([*cmd, str(parts[i]), "--out", str(out), "--add"], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True) for i in (0, 1)]  # fmt: skip
+        time.sleep(3)
+        assert all(p.poll() is None for p in procs), "a build did not wait for the lock"
+    outs = [p.communicate(timeout=300) for p in procs]
+    for p, (_, err) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, err[-2000:]
+        assert f"tween: {out}: another build is writing this library; waiting for it" in err
+    lib = open_library(out)
+    assert sorted(t["name"] for t in lib.manifest["takes"]) == sorted(BANDAI[:2])
+    assert lib.frames == sum(t["frames"] for t in lib.manifest["takes"]) == len(lib.rotations)
+    info = subprocess.run([*cmd[:-1], "info", str(out)], capture_output=True, text=True, timeout=300)
+    assert info.returncode == 0, info.stderr  # every array checked against the manifest
+    assert sorted(p.name for p in out.iterdir()) == sorted([MANIFEST, *(f"{a}.bin" for a in ARRAYS)])
+
+    # Two first builds of one new folder: the one that waited finds a library, and says so.
+    new = tmp_path / "new"
+    new.mkdir()
+    with locked(new / LOCK):
+        procs = [subprocess.Popen([*cmd, str(parts[i]), "--out", str(new)], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True) for i in (0, 1)]  # fmt: skip
+        time.sleep(3)
+    outs = [p.communicate(timeout=300) for p in procs]
+    codes = sorted(p.returncode for p in procs)
+    assert codes == [0, 2], outs
+    refused = next(err for p, (_, err) in zip(procs, outs, strict=True) if p.returncode == 2)
+    assert (
+        refused.strip().splitlines()[-1]
+        == f"tween: error: {new}: a library; use --add to append takes, or a new folder"
+    )
+    assert len(open_library(new).manifest["takes"]) == 1
