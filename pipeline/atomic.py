@@ -45,12 +45,14 @@ def locked(
     make: Callable[[], None] | None = None,
     waiting: Callable[[], None] | None = None,
     failed: Callable[[OSError], BaseException] | None = None,
+    busy: Callable[[], BaseException] | None = None,
 ) -> Iterator[None]:
     """Holds an exclusive lock (flock) on the file ``lock`` for the block, then removes it.
 
     ``make()`` runs before each try (it makes the lock's folder); ``waiting()`` once, when
     another process holds the lock (to say so before blocking); ``failed(e)`` turns an error
-    opening the lock file into the caller's. A waiter that then holds the lock of a file its
+    opening the lock file into the caller's; ``busy()``, where given, is raised instead of
+    waiting for another holder. A waiter that then holds the lock of a file its
     holder removed sees the inode gone and locks the new file instead. A killed holder's
     lock is released by the kernel, so a lock file left behind never blocks anyone.
     """
@@ -72,6 +74,8 @@ def locked(
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
+                if busy is not None:
+                    raise busy() from None
                 if waiting is not None and not told:
                     waiting()
                     told = True
@@ -95,4 +99,20 @@ def locked(
             os.unlink(lock)
         except OSError:
             pass
+        os.close(fd)
+
+
+@contextmanager
+def holding(folder: str | Path, busy: Callable[[], BaseException]) -> Iterator[None]:
+    """Holds an exclusive lock (flock) on the folder itself for the block, so nothing is
+    written in it to lock it (a refusal leaves the folder as it was); raises ``busy()`` where
+    another process holds it. A killed holder's lock is released by the kernel."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise busy() from None
+        yield
+    finally:
         os.close(fd)

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pipeline.atomic import replacing
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
@@ -809,8 +810,8 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         }
         if disc is not None:
             state["disc"], state["d_opt"] = disc.state_dict(), d_opt.state_dict()
-        torch.save(state, path.with_suffix(".tmp"))
-        path.with_suffix(".tmp").replace(path)
+        with replacing(path) as tmp:  # a name of its own: not another run's half-written file
+            torch.save(state, tmp)
 
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator", mininterval=interval())
     batches = batches_from(cfg, clips, skel, feet, step)

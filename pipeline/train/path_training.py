@@ -12,13 +12,16 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pipeline.atomic import replacing
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
+from pipeline.errors import TweenError
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
 from pipeline.motion.fk import fk
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.progress import interval
 from pipeline.train.batches import sample_batch
+from pipeline.train.generator_training import read_checkpoint
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
@@ -45,6 +48,7 @@ class PathTrainConfig:
     data: str | None = None  # a folder of the studio's own takes instead of the Bandai train split
     data_include: str | None = None  # file-name globs under ``data``
     corpus: str | None = None  # a corpus description (pipeline.data.corpus) instead of either
+    checkpoint_minutes: float = 3.0  # the generator's --checkpoint-minutes: a run resumes from its last one
     model: PathConfig = field(default_factory=PathConfig)
 
 
@@ -82,6 +86,12 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     torch.set_num_threads(cfg.threads)
     skel = bandai_skeleton()
     clips = _clips(cfg)
+    if not (clips.lengths >= cfg.length).any():  # else numpy's error from the first batch
+        where = cfg.corpus or cfg.data or "the train split"
+        raise TweenError(
+            f"{where}: no take of {cfg.length} frames (at 30 fps) for the path predictor's windows; the longest "
+            f"is {int(clips.lengths.max())}: give longer takes, or --path-steps 0 to train the generator only"
+        )
     out_dir.mkdir(parents=True, exist_ok=True)  # the data read first: a refusal writes nothing
     model = PathPredictor(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
@@ -89,13 +99,22 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     ckpt = out_dir / "path.pt"
     step = 0
     if ckpt.exists():
-        state = torch.load(ckpt, weights_only=False)
+        state = read_checkpoint(
+            ckpt, "the run's path checkpoint", hint="; remove it to train the path predictor again"
+        )
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         step = state["step"]
     log = (out_dir / "path_log.jsonl").open("a")
-    t0 = time.time()
+    t0 = t_ckpt = time.time()
+
+    def save() -> None:  # whole or not at all: a run killed while saving resumes from the last one
+        state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(),
+                 "step": step, "config": asdict(cfg)}  # fmt: skip
+        with replacing(ckpt) as tmp:
+            torch.save(state, tmp)
+
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="path predictor", mininterval=interval())
     while step < cfg.steps:
         rng = np.random.default_rng([cfg.seed, 7, step])
@@ -117,15 +136,9 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
             log.write(json.dumps({"step": step, "loss": loss.item(), "t": time.time() - t0}) + "\n")
             log.flush()
             bar.set_postfix(loss=f"{loss.item():.5f}")
-    torch.save(
-        {
-            "model": model.state_dict(),
-            "opt": opt.state_dict(),
-            "sched": sched.state_dict(),
-            "step": step,
-            "config": asdict(cfg),
-        },
-        ckpt,
-    )
+        if time.time() - t_ckpt > cfg.checkpoint_minutes * 60:
+            save()
+            t_ckpt = time.time()
+    save()
     bar.close()
     return ckpt

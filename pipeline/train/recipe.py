@@ -53,6 +53,7 @@ from typing import Any
 
 import typer
 
+from pipeline.atomic import holding
 from pipeline.errors import TweenError
 from pipeline.options import names_a_glob
 from pipeline.outputs import given_path, refuse_read_only
@@ -186,7 +187,8 @@ def configs(values: dict):
         cfg = TrainConfig(**kw, model=GeneratorConfig(**model))
     except ValueError as e:
         raise typer.BadParameter(str(e)) from None
-    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include", "corpus")}
+    common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include", "corpus",
+                                 "checkpoint_minutes")}  # fmt: skip
     if not 0 <= values["path_steps"] <= 1e9:  # as --steps; 0: no path predictor in this run
         raise typer.BadParameter(f"--path-steps {values['path_steps']}: must be from 0 to 1e+09")
     return cfg, PathTrainConfig(steps=values["path_steps"], **common)
@@ -198,9 +200,22 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
     from pipeline.train.generator_training import train as train_generator
     from pipeline.train.path_training import train_path
 
-    if path_cfg.steps:
-        train_path(path_cfg, out)
-    return train_generator(cfg, out)
+    made = not out.exists()
+
+    def busy() -> TweenError:
+        return TweenError(
+            f"{out}: another `tween train` is writing this run folder; wait for it, or give another --out"
+        )
+
+    out.mkdir(parents=True, exist_ok=True)
+    try:  # one run a folder: two wrote the same checkpoints and logs
+        with holding(out, busy):
+            if path_cfg.steps:
+                train_path(path_cfg, out)
+            return train_generator(cfg, out)
+    finally:
+        if made and out.is_dir() and not any(out.iterdir()):  # refused before it wrote anything
+            out.rmdir()
 
 
 def check_run(out: Path, cfg) -> None:

@@ -312,14 +312,8 @@ def approve(
         tmp = files.temp_path(final)
         with files.saving(final, tmp):
             _save_approved(src, final, tmp, n, review, path, take, d)
-        with files.saving(final, tmp):
-            if not files.link_new(tmp, final):
-                raise ShotError(shot, f"{final} already exists; never overwritten")
-        try:
-            write.write_review(shot, shot_layer, final, review, False)
-        except BaseException:
-            final.unlink(missing_ok=True)
-            raise
+        if not write.link_version(shot, shot_layer, tmp, final, review):
+            raise ShotError(shot, f"{final} already exists; never overwritten")
     return {
         "layer": str(final),
         "review": str(review),

@@ -76,6 +76,16 @@ def error_text(exc, path: str | None = None) -> str:
     return short(telling[0])
 
 
+def _commentary(item) -> str:
+    """The item's text. USD cuts a name it quotes at a byte, which may fall inside a
+    character (``Ill-formed SdfPath <Head😀>: ... at character 5``); the binding then cannot
+    decode the text at all, and it is dropped ("": the check that refuses the name says why)."""
+    try:
+        return item.commentary
+    except UnicodeDecodeError:
+        return ""
+
+
 @dataclass
 class Diagnostics:
     """What USD posted while the block ran, in order (duplicates dropped)."""
@@ -84,7 +94,7 @@ class Diagnostics:
 
     def _take(self, delegate) -> None:
         for item in delegate.TakeUncoalescedDiagnostics():
-            d = Diagnostic(_kind(item), _one_line(item.commentary))
+            d = Diagnostic(_kind(item), _one_line(_commentary(item)))
             if d.text and d not in self.items:
                 self.items.append(d)
 

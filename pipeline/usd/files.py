@@ -7,6 +7,7 @@ writers of one shot's versions. :mod:`pipeline.usd.write`, :mod:`pipeline.usd.da
 from __future__ import annotations
 
 import errno
+import glob
 import os
 import re
 import shutil
@@ -77,8 +78,15 @@ def dead_temp(name: str) -> bool:
     return bool(m) and not pid_alive(int(m["pid"]))
 
 
+#: A fill layer's temp (:func:`temp_path`): ``.<stem>.tween.v<NNN>.<owner>.tmp.usd[ac]``.
+_FILL_TEMP = re.compile(r"^\.(?P<stem>.+?)\.tween\.v(?P<n>\d+)\..+\.tmp\.usd[ac]?$")
+
+
 def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
-    """Removes the temp files and take folders of dead writers in ``folder``; returns them."""
+    """Removes the temp files and take folders of dead writers in ``folder``, and the review
+    layer a dead writer made for the version its temp was to become, where no fill layer of
+    that version is there (pipeline.usd.write.link_version writes the review first); returns
+    them."""
     removed = []
     try:
         entries = list(os.scandir(folder))
@@ -97,9 +105,16 @@ def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
         except OSError:
             continue
         removed.append(e.path)
+        m = _FILL_TEMP.match(e.name)
+        if m and not list(Path(folder).glob(f"{glob.escape(m['stem'])}.tween.v{m['n']}.usd*")):
+            review = Path(folder) / f"{m['stem']}.review.v{m['n']}.usda"
+            if review.is_file():
+                review.unlink(missing_ok=True)
+                removed.append(str(review))
     if removed and not quiet:
         print(
-            f"tween: removed {len(removed)} temp file(s) left in {folder} by a dead writer", file=sys.stderr
+            f"tween: removed {len(removed)} file(s) a dead writer left in {folder} (temps, reviews of no fill)",
+            file=sys.stderr,
         )
     return removed
 

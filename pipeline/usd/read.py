@@ -24,7 +24,7 @@ from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
 from pipeline.inputs import not_a_file
 from pipeline.motion.rotations import QUAT_EPS, matrix_to_quat
-from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT
+from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT, topology_problem
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
 from usd_schemas import tokens
@@ -204,7 +204,8 @@ def _fk_bind(parents, rest_rot, rest_trans):
 def check_topology(shot_path: str, skel_path: str, joints) -> None:
     """Refuses a joint list UsdSkel cannot build a hierarchy from: a token that is not a
     relative prim path (USD warns ``Ill-formed SdfPath`` and drops the joint's parent), a
-    joint listed twice, a parent listed after its child (``mis-ordered parent``)."""
+    joint listed twice, a parent listed after its child (``mis-ordered parent``), several
+    root joints."""
     from pxr import Sdf, UsdSkel, Vt
 
     bad = "skeleton topology is invalid"
@@ -212,7 +213,10 @@ def check_topology(shot_path: str, skel_path: str, joints) -> None:
         raise ShotError(shot_path, f"{bad}: the skeleton lists no joints", skel_path)
     seen: dict[str, int] = {}
     for i, t in enumerate(joints):
-        ok, why = Sdf.Path.IsValidPathString(t)
+        try:
+            ok, why = Sdf.Path.IsValidPathString(t)
+        except UnicodeDecodeError:  # USD's reason quotes the name cut inside a character
+            ok, why = False, "a character a prim name cannot hold"
         if ok and (Sdf.Path(t).IsAbsolutePath() or not Sdf.Path(t).IsPrimPath()):
             ok, why = False, "expected a relative prim path like Hips/Spine"
         if not ok:
@@ -220,9 +224,15 @@ def check_topology(shot_path: str, skel_path: str, joints) -> None:
         if t in seen:
             raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is joint {seen[t]} again", skel_path)
         seen[t] = i
-    ok, why = UsdSkel.Topology(Vt.TokenArray(list(joints))).Validate()
+    topology = UsdSkel.Topology(Vt.TokenArray(list(joints)))
+    ok, why = topology.Validate()
     if not ok:
         raise ShotError(shot_path, f"{bad}: {short(why) or 'UsdSkel refuses it'}", skel_path)
+    # UsdSkel allows several roots; the fill's own-rig curves and foot cleanup need one
+    # hierarchy (they failed deep inside, exit 1, where the trust chose the spline).
+    why = topology_problem(list(joints), list(topology.GetParentIndices()))
+    if why:
+        raise ShotError(shot_path, f"skeleton topology: {why}", skel_path)
 
 
 def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray, joints) -> None:

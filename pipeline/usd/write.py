@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import pipeline.usd  # noqa: F401
-from pipeline.atomic import writable
+from pipeline.atomic import locked, writable
 from pipeline.errors import ShotError, TweenError
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -433,17 +433,21 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
             if not layer.Save():
                 raise TweenError(f"{final}: cannot write the layer")
             del layer
-        with files.saving(final, tmp):
-            linked = files.link_new(tmp, final)
+        if review_layer:
+            with files.saving(final, tmp):
+                linked = files.link_new(tmp, final)
+        else:
+            linked = link_version(shot, src_root, tmp, final, review)
         if linked:
             break
     else:
         raise ShotError(shot, f"could not find a free version in {out}")
-    try:
-        write_review(shot, src_root, final, review, bool(review_layer))
-    except BaseException:
-        final.unlink(missing_ok=True)
-        raise
+    if review_layer:  # the user's layer names the fill: it goes in once the fill is there
+        try:
+            write_review(shot, src_root, final, review, True)
+        except BaseException:
+            final.unlink(missing_ok=True)
+            raise
     return {"layer": str(final), "review": str(review), "version": n, "takes": len(takes),
             "model": meta["model"], "model_hash": meta["model_hash"],
             "models": {c["anim"]: c.get("model", meta["model"]) for c in takes[0]["chars"]}}  # fmt: skip
@@ -497,25 +501,51 @@ def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
         raise TweenError(f"--review-layer {review}: its folder {real.parent} is read-only")
 
 
+def link_version(shot: str, src_root, tmp: Path, final: Path, review: Path) -> bool:
+    """Makes the saved fill layer ``tmp`` the version ``final``, its review layer ``review``
+    first: a process killed between the two left a fill layer without its review, which the
+    next fill skipped and approve, publish and a farm job's retry took for a finished one.
+    Killed now, it leaves a review layer of no fill, which every reader ignores (versions are
+    the fill layers). False, and nothing made, where ``final`` is another writer's."""
+    try:
+        write_review(shot, src_root, final, review, False)
+    except BaseException:
+        files.discard(tmp)
+        raise
+    try:
+        with files.saving(final, tmp):
+            linked = files.link_new(tmp, final)
+    except BaseException:
+        review.unlink(missing_ok=True)
+        raise
+    if not linked:
+        review.unlink(missing_ok=True)  # ours, made for the version another writer took
+    return linked
+
+
 def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
     from pxr import Sdf, UsdUtils
 
     if existing:
-        # Through a link to the file it names (the link stays a link), keeping the file's mode.
+        # Through a link to the file it names (the link stays a link), keeping the file's mode;
+        # one fill at a time, whatever its output folder: two read the layer, each added its
+        # fill and wrote it back, and one fill was gone from it.
         real = Path(os.path.realpath(review))
         tmp = files.temp_path(real)
-        layer, text = _open_review_layer(review)
-        text.TransferContent(layer)
-        subs = list(text.subLayerPaths)
-        subs.insert(0, _rel(fill, review.parent))
-        text.subLayerPaths = subs
-        with files.saving(real, tmp):
-            if not text.Export(str(tmp)):
-                raise TweenError(f"{review}: cannot write the review layer")
-            os.chmod(tmp, stat.S_IMODE(real.stat().st_mode))
-            os.replace(tmp, real)
-        layer.Reload()
+        with locked(real.parent / f".{real.name}.lock"):
+            layer, text = _open_review_layer(review)
+            layer.Reload()  # the layer as the last writer left it, not as USD's registry holds it
+            text.TransferContent(layer)
+            subs = list(text.subLayerPaths)
+            subs.insert(0, _rel(fill, review.parent))
+            text.subLayerPaths = subs
+            with files.saving(real, tmp):
+                if not text.Export(str(tmp)):
+                    raise TweenError(f"{review}: cannot write the review layer")
+                os.chmod(tmp, stat.S_IMODE(real.stat().st_mode))
+                os.replace(tmp, real)
+            layer.Reload()
         return
     tmp = files.temp_path(review)
     with files.saving(review, tmp):

@@ -224,8 +224,10 @@ def test_kill_during_save_leaves_temps_the_next_run_removes(tmp_path):
         p.kill()
         p.wait()
     left = sorted(x.name for x in out.iterdir())
-    # The lock file of the killed writer stays too (the next writer locks it, and removes it).
-    assert left == sorted([f".{STEM}.tween.v001.{p.pid}@{_HOST}.tmp.usda", f".{STEM}.tween.lock"]), left
+    # The lock file of the killed writer stays too (the next writer locks it, and removes it),
+    # and the review layer it wrote before the fill layer: no fill layer, so no version.
+    assert left == sorted([f".{STEM}.tween.v001.{p.pid}@{_HOST}.tmp.usda", f".{STEM}.tween.lock",
+                           f"{STEM}.review.v001.usda"]), left  # fmt: skip
     (take_dir,) = systmp.iterdir()
     assert take_dir.name.startswith(f"tween-take.{p.pid}@") and list(take_dir.glob("*.npz"))
     # Also: a temp of the earlier naming by a dead pid (removed), a live writer's and another
@@ -237,7 +239,11 @@ def test_kill_during_save_leaves_temps_the_next_run_removes(tmp_path):
         f.write_text("#usda 1.0\n")
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr[-3000:]
-    assert "removed 2 temp file(s)" in res.stderr
+    assert f"removed 3 file(s) a dead writer left in {out}" in res.stderr  # the review of no fill too
+    assert sorted(x.name for x in out.glob(f"{STEM}.*")) == [
+        f"{STEM}.review.v001.usda",
+        f"{STEM}.tween.v001.usda",
+    ]
     assert sorted(x.name for x in out.iterdir()) == sorted(
         [live.name, other.name, f"{STEM}.tween.v001.usda", f"{STEM}.review.v001.usda"]
     )
@@ -324,17 +330,20 @@ def test_disk_full_writing_the_review_layer(tmp_path, tmpfs, monkeypatch, capfd)
     shot = _shot(tmp_path)
     base = tmpfs or tmp_path
     out = base / "out"
-    real = files.link_new
+    real, real_review = files.link_new, write.write_review
 
     def then_full(tmp, final):
         if ".review." in final.name and tmpfs is None:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        ok = real(tmp, final)
-        if ".tween." in final.name and tmpfs is not None:
-            _fill_up(tmpfs, 0)  # the fill layer is in: nothing is left for the review
-        return ok
+        return real(tmp, final)
+
+    def full_review(*args):  # the fill layer is saved (its temp): nothing is left for the review
+        _fill_up(tmpfs, 0)
+        return real_review(*args)
 
     monkeypatch.setattr(files, "link_new", then_full)
+    if tmpfs is not None:
+        monkeypatch.setattr(write, "write_review", full_review)
     with pytest.raises(TweenError) as e:
         fill_shot(str(shot), FillOptions(model="interp", out_dir=str(out)))
     assert str(e.value) == f"{out}/{STEM}.review.v001.usda: no space left on device"

@@ -491,3 +491,41 @@ def test_write_speed_10000_frames_100_joints(tmp_path):
     path = Sdf.Path("/World/C/Skel/Anim_tween.rotations")
     assert back.GetNumTimeSamplesForPath(path) == T
     assert np.array_equal(np.array(back.QueryTimeSample(path, 5000.0 + 1001)), q[5000])
+
+
+def test_fills_into_one_review_layer_take_turns_and_none_is_lost(tmp_path):
+    """Two fills of different output folders into one --review-layer each read the layer,
+    added their fill and wrote it back: one fill was gone from it (both said "review: it").
+    Now each holds the layer's lock from reading it to writing it: a fill waits while another
+    writer holds it, then adds its fill to what that one wrote."""
+    import subprocess
+    import sys
+    import time
+
+    from pxr import Sdf
+
+    from pipeline.atomic import locked
+
+    shot = bandai_shot(tmp_path / "sh010.usda", frames=21, keys_every=10)
+    dailies = _dailies_layer(tmp_path / "dailies.usda", shot)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill-local", str(shot), "--model", "interp", "--out-dir", str(out),
+           "--review-layer", str(dailies)]  # fmt: skip
+    with locked(tmp_path / ".dailies.usda.lock"):  # another fill is writing the layer
+        p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        t0 = time.monotonic()
+        while not (out / "sh010.tween.v001.usda").exists():
+            assert p.poll() is None and time.monotonic() - t0 < 120, p.communicate()[1][-2000:]
+            time.sleep(0.05)
+        time.sleep(1.0)
+        assert p.poll() is None, "the fill wrote the review layer without its lock"
+        other = Sdf.Layer.OpenAsAnonymous(str(dailies))  # what the other writer adds meanwhile
+        subs = ["other/sh010.tween.v001.usda", *list(other.subLayerPaths)]
+        other.subLayerPaths = subs
+        other.Export(str(dailies))
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 0, err[-2000:]
+    after = Sdf.Layer.OpenAsAnonymous(str(dailies))
+    subs = list(after.subLayerPaths)
+    assert subs == ["out/sh010.tween.v001.usda", "other/sh010.tween.v001.usda", str(shot)], subs
+    assert not (tmp_path / ".dailies.usda.lock").exists()

@@ -289,3 +289,65 @@ def test_a_run_folder_resumes_only_its_own_training(tmp_path, capsys, monkeypatc
         assert "this run folder holds a training with other options" in line and want in line, line
     assert _digest(out) == before
     succeeded(["train", "--out", out, *TINY, "--threads", "1"], capsys)  # how it runs may change
+
+
+def test_a_run_folder_another_training_holds_is_refused(tmp_path, capsys):
+    """Two `tween train` into one --out wrote the same checkpoint's temporary name: one died
+    with "generator.tmp -> generator.pt: No such file or directory" (exit 2, as bad input)."""
+    from pipeline.atomic import holding
+
+    out = tmp_path / "run"
+    out.mkdir()
+    with holding(out, busy=AssertionError):  # another training runs here
+        line = refused(["train", "--out", out, *TINY], capsys, tmp_path)
+    assert (
+        line
+        == f"tween: error: {out}: another `tween train` is writing this run folder; wait for it, or give another --out"
+    )
+    assert list(out.iterdir()) == []
+    succeeded(["train", "--out", out, *TINY], capsys)  # and once it is done, the folder is free
+    assert (out / "generator.pt").exists()
+
+
+def test_takes_shorter_than_the_path_predictors_windows_are_refused(tmp_path, capsys, data_dir):
+    """Takes of under 128 frames: numpy's "a cannot be empty" from the first path batch, an
+    internal error (exit 1), and a run folder left with a log."""
+    from pipeline.motion.bvh import read_bvh, write_bvh
+
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    clip = read_bvh(data_dir / "bandai_namco" / "dataset-2" / "dataset-2_walk_active_001.bvh.gz")
+    write_bvh(clip.slice(0, 90), takes / "short.bvh")
+    line = refused(["train", "--data", takes, "--out", tmp_path / "run", "--steps", "4", "--path-steps", "2",
+                    "--lengths", "64", "--batch", "2"], capsys, tmp_path)  # fmt: skip
+    assert (
+        f"{takes}: no take of 128 frames (at 30 fps) for the path predictor's windows; the longest is" in line
+    )
+    assert "--path-steps 0" in line and not (tmp_path / "run").exists()
+
+
+def test_a_path_checkpoint_is_written_whole_and_a_damaged_one_named(tmp_path, capsys, monkeypatch):
+    """torch.save wrote path.pt in place: a run killed while it saved left a truncated file,
+    and every resume failed with an internal error (EOFError), exit 1."""
+    import torch
+
+    out = tmp_path / "run"
+    args = ["train", "--out", out, *TINY[:2], "--path-steps", "2", *TINY[4:]]
+    real = torch.save
+
+    def killed(obj, f, *a, **k):  # half the file, then the kill
+        real(obj, f, *a, **k)
+        Path(f).write_bytes(Path(f).read_bytes()[:600])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", killed)
+    with pytest.raises((KeyboardInterrupt, SystemExit)):
+        from pipeline.cli import main
+
+        main([str(a) for a in args])
+    monkeypatch.setattr(torch, "save", real)
+    assert not (out / "path.pt").exists() and not [p for p in out.iterdir() if p.suffix == ".tmp"]
+    succeeded(args, capsys)  # resumes: nothing half-written is read
+    (out / "path.pt").write_bytes((out / "path.pt").read_bytes()[:600])
+    line = refused(args, capsys)
+    assert line.startswith(f"tween: error: {out / 'path.pt'}: the run's path checkpoint: not a checkpoint")

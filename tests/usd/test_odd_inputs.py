@@ -434,3 +434,44 @@ def test_missing_assets_lists_a_fifo_sublayer_without_waiting_on_it(shot):
     assert r.returncode == 2 and "anim.usda" in r.stderr.splitlines()[-1], r.stderr
     r = subprocess.run([*fill, str(shot.parent / "b")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and f"{shot.parent / 'anim.usda'}: not a regular file" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("char", ["\U0001f600", "€"])
+def test_a_joint_name_with_a_character_usd_paths_cannot_hold_is_one_line(
+    shot, tmp_path, monkeypatch, capsys, char
+):
+    """USD's reason for refusing the name quotes it cut inside the character; decoding that
+    text raised UnicodeDecodeError, an internal error (exit 1)."""
+    from pxr import Usd, Vt
+
+    stage = Usd.Stage.Open(str(shot))
+    for path in ("/World/Walker/Skel", _anim_path(shot)):
+        attr = stage.GetPrimAtPath(path).GetAttribute("joints")
+        attr.Set(Vt.TokenArray([str(j).replace("Head", f"Head{char}") for j in attr.Get()]))
+    stage.Save()
+    before = tree_hashes(tmp_path)
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", tmp_path / "out")
+    _one_error(rc, err, str(shot), "/World/Walker/Skel", f"Head{char}'", "is not a joint path")
+    assert "USD:" not in err and tree_hashes(tmp_path) == before
+
+
+@pytest.mark.parametrize("opts", [["--trust", "spline"], ["--model", "interp"], []])
+def test_a_skeleton_with_two_root_joints_is_one_line(shot, tmp_path, monkeypatch, capsys, opts):
+    """UsdSkel allows a second root joint; the fill's own-rig curve built a one-root
+    skeleton of it and failed (ValueError, exit 1) wherever the trust chose the spline."""
+    from pxr import Gf, Usd, Vt
+
+    stage = Usd.Stage.Open(str(shot))
+    skel = stage.GetPrimAtPath("/World/Walker/Skel")
+    for name in ("joints", "bindTransforms", "restTransforms"):
+        attr = skel.GetAttribute(name)
+        values = list(attr.Get())
+        values.append("Extra" if name == "joints" else Gf.Matrix4d(1))
+        attr.Set(Vt.TokenArray(values) if name == "joints" else Vt.Matrix4dArray(values))
+    stage.Save()
+    before = tree_hashes(tmp_path)
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--out-dir", tmp_path / "out", *opts)
+    _one_error(
+        rc, err, str(shot), "/World/Walker/Skel", "skeleton topology: 2 root joints ('Hips', 'Extra'); a rig"
+    )
+    assert tree_hashes(tmp_path) == before

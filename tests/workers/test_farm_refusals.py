@@ -48,7 +48,10 @@ def test_a_shot_that_is_a_pipe_or_a_link_to_nothing_is_named_as_such(tmp_path, s
     """Both were "no such shot file", though the path is there."""
     os.mkfifo(tmp_path / "pipe.usda")
     (tmp_path / "gone.usda").symlink_to(tmp_path / "nowhere.usda")
-    _refused(_tween(tmp_path, "submit", "pipe.usda"), "pipe.usda: not a regular file (a pipe, socket or device), not a shot file")
+    _refused(
+        _tween(tmp_path, "submit", "pipe.usda"),
+        "pipe.usda: not a regular file (a pipe, socket or device), not a shot file",
+    )
     _refused(_tween(tmp_path, "submit", str(shot), "gone.usda"), "gone.usda: a link to nothing")
 
 
