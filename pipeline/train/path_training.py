@@ -67,16 +67,25 @@ def multiscale_loss(vel: torch.Tensor, root: torch.Tensor, scales) -> torch.Tens
 
 
 def _clips(cfg: PathTrainConfig):
-    """What the path predictor trains on: a corpus, a studio's takes or the train split."""
+    """What the path predictor trains on: a corpus, a studio's takes or the train split;
+    TweenError where no take is as long as its windows (else numpy's error, first batch)."""
     if cfg.corpus:
         from pipeline.train.corpus import corpus_clips
 
-        return corpus_clips(cfg.corpus)
-    if cfg.data:
+        clips = corpus_clips(cfg.corpus)
+    elif cfg.data:
         from pipeline.usd.take import load_takes
 
-        return load_takes(cfg.data, cfg.data_include)
-    return load_split("train", limit=cfg.limit_clips)
+        clips = load_takes(cfg.data, cfg.data_include)
+    else:
+        clips = load_split("train", limit=cfg.limit_clips)
+    if not (clips.lengths >= cfg.length).any():
+        where = cfg.corpus or cfg.data or "the train split"
+        raise TweenError(
+            f"{where}: no take of {cfg.length} frames (at 30 fps) for the path predictor's windows; the longest "
+            f"is {int(clips.lengths.max())}: give longer takes, or --path-steps 0 to train the generator only"
+        )
+    return clips
 
 
 def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
@@ -86,12 +95,6 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     torch.set_num_threads(cfg.threads)
     skel = bandai_skeleton()
     clips = _clips(cfg)
-    if not (clips.lengths >= cfg.length).any():  # else numpy's error from the first batch
-        where = cfg.corpus or cfg.data or "the train split"
-        raise TweenError(
-            f"{where}: no take of {cfg.length} frames (at 30 fps) for the path predictor's windows; the longest "
-            f"is {int(clips.lengths.max())}: give longer takes, or --path-steps 0 to train the generator only"
-        )
     out_dir.mkdir(parents=True, exist_ok=True)  # the data read first: a refusal writes nothing
     model = PathPredictor(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)

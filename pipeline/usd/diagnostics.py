@@ -29,7 +29,8 @@ class Diagnostic:
 
 
 def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+    """USD's text on one line, without the C++ addresses it names objects by (``<0x5f…>``)."""
+    return " ".join(re.sub(r"\s*<0x[0-9a-fA-F]+>", "", str(text)).split())
 
 
 def _kind(item) -> str:

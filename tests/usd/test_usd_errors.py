@@ -134,3 +134,12 @@ def test_shot_error_type_and_cli_one_line_exit_2(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and str(shot) in lines[0] and ANIM in lines[0] and "at least two" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_usd_messages_lose_the_cpp_addresses_they_name_objects_by():
+    """A refusal carried USD's "(instantiating stage on stage @shot.usda@ <0x560a886dc790>)",
+    an address that differs each run and tells the user nothing."""
+    from pipeline.usd.diagnostics import _one_line
+
+    text = "Could not load sublayer @m.usda@\n (instantiating stage on stage @shot.usda@ <0x560a886dc790>)"
+    assert _one_line(text) == "Could not load sublayer @m.usda@ (instantiating stage on stage @shot.usda@)"
