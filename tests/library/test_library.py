@@ -567,15 +567,18 @@ def test_builds_of_one_library_at_once_take_turns_and_lose_no_take(takes, tmp_pa
     out = tmp_path / "lib"
     out.mkdir()
     cmd = [sys.executable, "-m", "pipeline.cli", "library", "build"]
-    with locked(out / LOCK):  # another build holds the library: both wait for it
-        procs = [subprocess.Popen([*cmd, str(parts[i]), "--out", str(out), "--add"], stdout=subprocess.PIPE,
-                                  stderr=subprocess.PIPE, text=True) for i in (0, 1)]  # fmt: skip
-        time.sleep(3)
-        assert all(p.poll() is None for p in procs), "a build did not wait for the lock"
-    outs = [p.communicate(timeout=300) for p in procs]
-    for p, (_, err) in zip(procs, outs, strict=True):
-        assert p.returncode == 0, err[-2000:]
-        assert f"tween: {out}: another build is writing this library; waiting for it" in err
+    waiting = f"tween: {out}: another build is writing this library; waiting for it"
+    errs = [tmp_path / f"add{i}.err" for i in (0, 1)]
+    with locked(out / LOCK):  # another build holds the library: both wait for it, and say so
+        procs = [subprocess.Popen([*cmd, str(parts[i]), "--out", str(out), "--add"], stdout=subprocess.DEVNULL,
+                                  stderr=errs[i].open("w"), text=True) for i in (0, 1)]  # fmt: skip
+        t0 = time.monotonic()
+        while not all(e.exists() and waiting in e.read_text() for e in errs):
+            assert all(p.poll() is None for p in procs), "a build did not wait for the lock"
+            assert time.monotonic() - t0 < 120, [e.read_text() for e in errs]
+            time.sleep(0.1)
+    for p, e in zip(procs, errs, strict=True):
+        assert p.wait(timeout=300) == 0, e.read_text()[-2000:]
     lib = open_library(out)
     assert sorted(t["name"] for t in lib.manifest["takes"]) == sorted(BANDAI[:2])
     assert lib.frames == sum(t["frames"] for t in lib.manifest["takes"]) == len(lib.rotations)
