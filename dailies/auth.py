@@ -14,10 +14,21 @@ import hmac
 import json
 import secrets
 from http.cookies import SimpleCookie
-from urllib.parse import parse_qsl, urlencode
+from urllib.parse import parse_qsl, quote, urlencode
 
 SAFE = ("GET", "HEAD", "OPTIONS")
 CSRF_HEADER = b"x-csrf-token"
+#: The largest request body read (a decision's JSON, its note at most 10,000 characters, is
+#: far under it): a 100 MB body took the server 800 MB before it was refused.
+MAX_BODY = 1 << 20
+
+
+def _here(path: str) -> str:
+    """The login redirect's target: the page asked for, percent-encoded, on this server. A
+    path with a CR/LF broke the response (no answer), and ``//host/`` led to another site."""
+    if not path.startswith("/") or path.startswith("//") or not path.isprintable():
+        return "/"
+    return quote(path, safe="/:@!$&'()*+,;=-._~")
 
 
 def new_token() -> str:
@@ -63,6 +74,10 @@ class LoginMiddleware:
             return await self.app(scope, receive, send)
         h, login = _headers(scope), self.login
         api = scope["path"].startswith("/api")
+        length = h.get(b"content-length", b"0").decode("latin-1").strip()
+        if not length.isdigit() or int(length) > MAX_BODY:
+            return await _send_text(send, 413, f"request body over {MAX_BODY:,} bytes, or its length unreadable",
+                                    as_json=api)  # fmt: skip
         query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
         bearer = h.get(b"authorization", b"").decode("latin-1")
         if bearer.lower().startswith("bearer ") and login.same(bearer[7:].strip(), login.token):
@@ -75,7 +90,7 @@ class LoginMiddleware:
             rest = urlencode(
                 [(k, v) for k, v in parse_qsl(scope["query_string"].decode("latin-1")) if k != "token"]
             )
-            where = scope["path"] + (f"?{rest}" if rest else "")
+            where = _here(scope["path"]) + (f"?{rest}" if rest else "")
             # Lax, not Strict: the URL is often opened from another site (a chat, a mail), and
             # a Strict cookie set there is not sent on the redirect that follows; cross-site
             # changes are stopped by the CSRF token (and Lax sends no cookie on a foreign POST).

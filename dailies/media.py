@@ -32,6 +32,7 @@ def resolve(roots: list[Path], index: int, rel: str) -> Path | None:
     try:  # a name too long for a path (ENAMETOOLONG) is no media either
         real = Path(os.path.realpath(roots[index] / rel))
         inside = any(real == r or real.is_relative_to(r) for r in (Path(os.path.realpath(x)) for x in roots))
-        return real if inside and real.is_file() else None
+        # What the name leads to is media too: a link named .mp4 to a layer was a 500 (no type).
+        return real if inside and real.is_file() and real.suffix.lower() in TYPES else None
     except OSError:
         return None

@@ -105,7 +105,8 @@ def _walk(roots: list[Path]) -> list[Shot]:
             dirs[:] = sorted(d for d in dirs if not d.startswith(".") and d not in SKIP_DIRS)
             for name in files:
                 m = FILL.match(name)
-                if m:
+                # Regular files only: a pipe named like a layer blocked every request that read it.
+                if m and os.path.isfile(os.path.join(folder, name)):
                     found.setdefault((i, Path(folder), m["stem"]), {})[int(m["n"])] = Path(folder) / name
     shots = []
     for (i, folder, stem), versions in found.items():
@@ -134,7 +135,7 @@ def find(roots: list[Path], key: str) -> Shot | None:
         versions = {}
         for p in path.glob(f"{glob.escape(stem)}.tween.v*.usd*"):
             m = FILL.match(p.name)
-            if m and m["stem"] == stem:
+            if m and m["stem"] == stem and p.is_file():
                 versions[int(m["n"])] = p
     except OSError:
         return None

@@ -72,6 +72,10 @@ def _snap_step(step: float) -> float:
     return 1.0 / k if k and abs(1.0 / step - k) <= NEAR else step
 
 
+#: The fastest playback a review renders (frames a second); high-frame-rate capture is 120–240.
+MAX_RATE = 1000
+
+
 def shot_timing(stage) -> Timing:
     """The stage's :class:`Timing`, from what is authored on the root/session layer.
 
@@ -403,6 +407,9 @@ def open_shot(
         )
 
     timing = shot_timing(stage)
+    if timing.rate > MAX_RATE:  # 100,000 fps: 97 frames took minutes in the camera's smoothing
+        raise ShotError(stage_path, f"plays at {float(timing.rate):g} frames a second (framesPerSecond); a review "
+                        f"plays at most {MAX_RATE} (author the shot's playback rate)")  # fmt: skip
     times, frames = frame_times(*_time_range(stage, stage_path, chars, frame_range), timing)
 
     key_times = np.unique(np.concatenate([c.key_times for c in chars]))

@@ -56,3 +56,31 @@ def test_a_script_logs_in_with_a_bearer_header(roots):
 def test_two_servers_on_one_host_keep_their_own_cookie(roots):
     a, b = client_for(roots, "a" * 40, login=False), client_for(roots, "b" * 40, login=False)
     assert a.login.cookie != b.login.cookie
+
+
+@pytest.mark.parametrize(
+    "path, where",
+    [
+        ("/%0d%0aX-Injected:%20y", "/"),
+        ("//evil.example/", "/"),
+        ("/shot/0/seq01/sh 010", "/shot/0/seq01/sh%20010"),
+    ],
+)
+def test_the_login_redirect_stays_on_this_server_and_answers(roots, path, where):
+    """A CR/LF in the path left the login without an answer (the server could not write that
+    Location header), and ``//evil.example/`` sent the browser to another site."""
+    c = client_for(roots, login=False)
+    r = c.get(f"{path}?token={TOKEN}", follow_redirects=False)
+    assert r.status_code == 303 and r.headers["location"] == where
+    assert "x-injected" not in r.headers
+
+
+def test_a_request_body_over_the_limit_is_refused_unread(client):
+    """A 100 MB body was read whole before it was refused (the server grew by 800 MB)."""
+    from dailies.auth import MAX_BODY
+
+    headers = {"X-CSRF-Token": client.login.csrf, "Content-Type": "application/json"}
+    r = client.post("/api/shots/0/seq01/sh010/approve", content=b"[" + b"0," * (MAX_BODY // 2) + b"0]",
+                    headers=headers)  # fmt: skip
+    assert r.status_code == 413 and "request body over" in r.json()["detail"]
+    assert client.get("/api/shots").status_code == 200  # and the server answers on

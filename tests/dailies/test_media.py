@@ -56,3 +56,27 @@ def test_resolve_refuses_every_way_out(roots):
         assert resolve(roots, 0, rel) is None, rel
     assert resolve(roots, 1, "seq01/review/sh010_v001_take0.mp4") is None
     assert resolve(roots, -1, "seq01/review/sh010_v001_take0.mp4") is None
+
+
+def test_a_media_name_that_leads_to_a_layer_or_a_shot_is_no_media(client, roots):
+    """A link named .mp4 to a fill layer (or .png to the shot) under the roots was a 500: the
+    name was media, what it led to had no media type. Layers and shots are never served."""
+    review = roots[0] / "seq01" / "review"
+    os.symlink(roots[0] / "seq01" / "sh010.tween.v001.usda", review / "layer.mp4")
+    os.symlink(roots[0] / "seq01" / "sh010.usda", review / "shot.png")
+    for name in ("layer.mp4", "shot.png"):
+        r = client.get(f"/media/0/seq01/review/{name}")
+        assert r.status_code == 404 and b"#usda" not in r.content
+
+
+def test_a_pipe_named_like_a_fill_layer_is_no_shot(client, roots):
+    """A FIFO named like a fill layer under a root blocked every request that listed or read
+    it (each held a server thread for good), and Ctrl-C no longer stopped the server."""
+    os.mkfifo(roots[0] / "seq01" / "sh090.tween.v001.usda")
+    os.mkfifo(roots[0] / "seq01" / "sh010.tween.v009.usda")  # beside a real shot's layers
+    shots = client.get("/api/shots")
+    assert shots.status_code == 200
+    keys = {s["key"]: s for s in shots.json()}
+    assert "0/seq01/sh090" not in keys and keys["0/seq01/sh010"]["version"] != 9
+    assert client.get("/api/shots/0/seq01/sh090").status_code == 404
+    assert client.get("/api/shots/0/seq01/sh010").status_code == 200

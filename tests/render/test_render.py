@@ -271,3 +271,26 @@ def test_cli_all_takes(review, tmp_path):
     assert r.returncode == 0, r.stderr
     names = sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".mp4")
     assert names == ["sh010_v001_take0.mp4", "sh010_v001_take1.mp4"]
+
+
+@pytest.mark.parametrize("fps, tcps", [(100000, 100000), (240000, 24)])
+def test_a_playback_rate_no_review_plays_is_refused_up_front(tmp_path, fps, tcps):
+    """At 100,000 frames a second the camera's smoothing (half a second of frames wide) took
+    minutes on 97 frames, deaf to SIGTERM; 240,000 over 24 time codes made 960,001 frames."""
+    from pxr import Usd
+
+    from render.scene import MAX_RATE
+
+    shot = tmp_path / "sh.usda"
+    shot.write_bytes(Path(__file__).resolve().parents[2].joinpath("examples/sh010_walk.usda").read_bytes())
+    stage = Usd.Stage.Open(str(shot))
+    stage.SetFramesPerSecond(fps)
+    stage.SetTimeCodesPerSecond(tcps)
+    stage.Save()
+    with pytest.raises(
+        ShotError, match=f"plays at {fps} frames a second .*; a review plays at most {MAX_RATE}"
+    ):
+        open_shot(str(shot))
+    with pytest.raises(ShotError, match="a review plays at most"):
+        render_review(str(shot), str(tmp_path / "o"))
+    assert not (tmp_path / "o").exists()
