@@ -698,8 +698,8 @@ def submit_train_rig(
         _err("no broker configured (set TWEEN_BROKER_URL); run `tween train-rig` on this host instead")
         raise typer.Exit(2)
     out = given_path(out, "--out")
-    if not source.is_file():
-        _err(f"{source}: " + ("a folder, not a clip file" if source.is_dir() else "no such file"))
+    if why := not_a_file(source, "clip file"):  # a pipe said "no such file"
+        _err(f"{source}: {why}")
         raise typer.Exit(2)
     _check_rig_job(source, checked)
     if not checked.force:  # as `tween train-rig` refuses it, before a worker takes the job

@@ -35,6 +35,7 @@ from pipeline.library.store import (
 from pipeline.motion.bvh import gzipped, is_bvh
 from pipeline.outputs import refuse_read_only
 from pipeline.progress import interval
+from pipeline.usd.files import remove_created
 
 FPS = 30.0
 
@@ -215,11 +216,7 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
                                  out in made)  # fmt: skip
     finally:
         if not out.exists():  # a build that failed removed ``out``: the folders it made above it go too
-            for d in reversed(made):
-                try:
-                    d.rmdir()
-                except OSError:
-                    pass
+            remove_created(made)
 
 
 def _build_locked(where, out: Path, paths: list[Path], licence, name, add: bool, progress: bool, mirror: bool,

@@ -483,16 +483,22 @@ def training_clips(cfg: TrainConfig):
             if cfg.data
             else load_split("train", limit=cfg.limit_clips)
         )
-    short = [n for n in cfg.lengths if not (clips.lengths >= n).any()]
-    if short:
-        where = cfg.corpus or cfg.data or "the train split"
-        raise TweenError(
-            f"{where}: no take of {max(short)} frames (at 30 fps) for --lengths {max(short)}; "
-            f"the longest is {int(clips.lengths.max())}: give longer takes or shorter --lengths"
-        )
+    n = max(cfg.lengths)
+    refuse_short(cfg, clips, n, f"--lengths {n}", "give longer takes or shorter --lengths")
     if cfg.corpus and clips.groups is not None:
         _check_source_lengths(cfg, clips)
     return clips
+
+
+def refuse_short(cfg, clips, n: int, what: str, remedy: str) -> None:
+    """TweenError where no take of the run's data (``cfg``: a corpus, a studio's takes or the
+    train split) is ``n`` frames long, the length ``what`` needs (numpy's error at the first
+    batch otherwise), naming the longest and ``remedy``."""
+    if not (clips.lengths >= n).any():
+        where = cfg.corpus or cfg.data or "the train split"
+        raise TweenError(
+            f"{where}: no take of {n} frames (at 30 fps) for {what}; the longest is {int(clips.lengths.max())}: {remedy}"
+        )
 
 
 def _check_source_lengths(cfg: TrainConfig, clips) -> None:

@@ -15,13 +15,12 @@ from tqdm import tqdm
 from pipeline.atomic import replacing
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
-from pipeline.errors import TweenError
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
 from pipeline.motion.fk import fk
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.progress import interval
 from pipeline.train.batches import sample_batch
-from pipeline.train.generator_training import read_checkpoint
+from pipeline.train.generator_training import read_checkpoint, refuse_short
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
@@ -79,12 +78,8 @@ def _clips(cfg: PathTrainConfig):
         clips = load_takes(cfg.data, cfg.data_include)
     else:
         clips = load_split("train", limit=cfg.limit_clips)
-    if not (clips.lengths >= cfg.length).any():
-        where = cfg.corpus or cfg.data or "the train split"
-        raise TweenError(
-            f"{where}: no take of {cfg.length} frames (at 30 fps) for the path predictor's windows; the longest "
-            f"is {int(clips.lengths.max())}: give longer takes, or --path-steps 0 to train the generator only"
-        )
+    refuse_short(cfg, clips, cfg.length, "the path predictor's windows",
+                 "give longer takes, or --path-steps 0 to train the generator only")  # fmt: skip
     return clips
 
 

@@ -308,7 +308,7 @@ def approve(
         n = max(_taken(out, stem)) + 1
         fmt = path.suffix.lstrip(".")
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
-        review = out / f"{stem}.review.v{n:03d}.usda"
+        review = files.review_path(out, stem, n)
         tmp = files.temp_path(final)
         with files.saving(final, tmp):
             _save_approved(src, final, tmp, n, review, path, take, d)

@@ -78,6 +78,11 @@ def dead_temp(name: str) -> bool:
     return bool(m) and not pid_alive(int(m["pid"]))
 
 
+def review_path(folder: str | Path, stem: str, n: int) -> Path:
+    """Version ``n``'s review layer of the shot ``stem`` in ``folder`` (beside its fill layer)."""
+    return Path(folder) / f"{stem}.review.v{n:03d}.usda"
+
+
 #: A fill layer's temp (:func:`temp_path`): ``.<stem>.tween.v<NNN>.<owner>.tmp.usd[ac]``.
 _FILL_TEMP = re.compile(r"^\.(?P<stem>.+?)\.tween\.v(?P<n>\d+)\..+\.tmp\.usd[ac]?$")
 
@@ -107,7 +112,7 @@ def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
         removed.append(e.path)
         m = _FILL_TEMP.match(e.name)
         if m and not list(Path(folder).glob(f"{glob.escape(m['stem'])}.tween.v{m['n']}.usd*")):
-            review = Path(folder) / f"{m['stem']}.review.v{m['n']}.usda"
+            review = review_path(folder, m["stem"], int(m["n"]))
             if review.is_file():
                 review.unlink(missing_ok=True)
                 removed.append(str(review))

@@ -406,7 +406,7 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
         }
         n = max(taken, default=0) + 1
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
-        review = Path(review_layer) if review_layer else out / f"{stem}.review.v{n:03d}.usda"
+        review = Path(review_layer) if review_layer else files.review_path(out, stem, n)
         tmp = files.temp_path(final)
         with files.saving(final, tmp):
             layer = Sdf.Layer.CreateNew(str(tmp))

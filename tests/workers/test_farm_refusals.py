@@ -104,3 +104,7 @@ def test_submit_train_rig_of_a_folder_says_so(tmp_path):
     """A folder given as the clip said "no such file"."""
     (tmp_path / "clips").mkdir()
     _refused(_tween(tmp_path, "submit-train-rig", "clips", "--out", "m"), "clips: a folder, not a clip file")
+    os.mkfifo(tmp_path / "pipe.bvh")  # said "no such file" too, in other words than every reader's
+    _refused(_tween(tmp_path, "submit-train-rig", "pipe.bvh", "--out", "m"),
+             "pipe.bvh: not a regular file (a pipe, socket or device), not a clip file")  # fmt: skip
+    _refused(_tween(tmp_path, "submit-train-rig", "none.bvh", "--out", "m"), "none.bvh: file not found")
