@@ -16,11 +16,14 @@ import secrets
 from http.cookies import SimpleCookie
 from urllib.parse import parse_qsl, quote, urlencode
 
+from starlette.exceptions import HTTPException
+
 SAFE = ("GET", "HEAD", "OPTIONS")
 CSRF_HEADER = b"x-csrf-token"
 #: The largest request body read (a decision's JSON, its note at most 10,000 characters, is
 #: far under it): a 100 MB body took the server 800 MB before it was refused.
 MAX_BODY = 1 << 20
+TOO_LARGE = f"request body over {MAX_BODY:,} bytes"
 
 
 def _here(path: str) -> str:
@@ -76,8 +79,7 @@ class LoginMiddleware:
         api = scope["path"].startswith("/api")
         length = h.get(b"content-length", b"0").decode("latin-1").strip()
         if not length.isdigit() or int(length) > MAX_BODY:
-            return await _send_text(send, 413, f"request body over {MAX_BODY:,} bytes, or its length unreadable",
-                                    as_json=api)  # fmt: skip
+            return await _send_text(send, 413, f"{TOO_LARGE}, or its length unreadable", as_json=api)
         query = dict(parse_qsl(scope.get("query_string", b"").decode("latin-1")))
         bearer = h.get(b"authorization", b"").decode("latin-1")
         if bearer.lower().startswith("bearer ") and login.same(bearer[7:].strip(), login.token):
@@ -116,4 +118,21 @@ class LoginMiddleware:
             h.get(CSRF_HEADER, b"").decode("latin-1"), login.csrf
         ):
             return await _send_text(send, 403, "missing or wrong CSRF token: reload the page", as_json=api)
-        return await self.app(scope, receive, send)
+        return await self.app(scope, _counted(receive), send)
+
+
+def _counted(receive):
+    """``receive``, refusing a body past MAX_BODY as it arrives: one sent in chunks has no
+    Content-Length to refuse it by up front (a chunked 100 MB body was read whole). FastAPI
+    answers the HTTPException raised while it reads the body with its 413."""
+    seen = 0
+
+    async def counted():
+        nonlocal seen
+        message = await receive()
+        seen += len(message.get("body", b""))
+        if seen > MAX_BODY:
+            raise HTTPException(413, TOO_LARGE)
+        return message
+
+    return counted

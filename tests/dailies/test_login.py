@@ -84,3 +84,15 @@ def test_a_request_body_over_the_limit_is_refused_unread(client):
                     headers=headers)  # fmt: skip
     assert r.status_code == 413 and "request body over" in r.json()["detail"]
     assert client.get("/api/shots").status_code == 200  # and the server answers on
+
+
+def test_a_body_sent_in_chunks_is_refused_past_the_limit(client):
+    """A chunked body carries no Content-Length to refuse it by: it was read whole (100 MB)."""
+    headers = {"X-CSRF-Token": client.login.csrf, "Content-Type": "application/json"}
+    big = iter([b" " * (1 << 16)] * 64)  # 4 MiB, 64 KiB a chunk
+    r = client.post("/api/shots/0/seq01/sh010/approve", content=big, headers=headers)
+    assert "content-length" not in {k.lower() for k in r.request.headers}  # it was chunked
+    assert r.status_code == 413 and "request body over" in r.json()["detail"]
+    assert client.get("/api/shots").status_code == 200
+    small = client.post("/api/shots/0/seq01/sh010/approve", content=iter([b"{}"]), headers=headers)
+    assert small.status_code == 422  # a small chunked body is read (and this one lacks the take)
