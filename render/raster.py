@@ -16,12 +16,18 @@ import ctypes
 import numpy as np
 
 from render import shaders
+from render.culling import Runs
 from render.geometry import Geometry
 from render.gl import RenderError, context
 
 CLAY = (0.62, 0.50, 0.38)  # linear albedo of the filled character
 BLOCKING_CLAY = (0.40, 0.47, 0.60)  # the stepped-keys character, so the panels cannot be confused
 GHOST = (0.35, 0.75, 1.0)
+#: (past, future) RGBA of the body paths, then of the key marks
+OVERLAY_COLORS = (
+    ((1.0, 0.78, 0.25, 0.95), (0.85, 0.85, 0.9, 0.35)),
+    ((1.0, 0.45, 0.15, 1.0), (1.0, 0.45, 0.15, 0.55)),
+)
 KEY_DIR = np.array([0.45, 0.80, 0.40]) / np.linalg.norm([0.45, 0.80, 0.40])
 FILL_DIR = np.array([-0.6, 0.35, -0.3]) / np.linalg.norm([-0.6, 0.35, -0.3])
 
@@ -101,38 +107,33 @@ class MeshSet:
 
 
 def _ribbon(path: np.ndarray, y: float, width: float) -> np.ndarray:
-    """Triangles (as a flat (N, 4) array of x, y, z, frame) of a ground ribbon along ``path``."""
+    """Triangles (as a flat (N, 4) array of x, y, z, frame) of a ground ribbon along ``path``:
+    two a segment, frame by frame."""
     p = path[:, [0, 2]].astype(np.float64)
     d = np.gradient(p, axis=0) if len(p) > 1 else np.zeros_like(p)
     n = np.stack([-d[:, 1], d[:, 0]], 1)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
-    a, b = p + n * width / 2, p - n * width / 2
-    t = np.arange(len(p), dtype=np.float64)
-    quads = []
-    for i in range(len(p) - 1):
-        quads += [
-            (a[i], t[i]),
-            (b[i], t[i]),
-            (a[i + 1], t[i + 1]),
-            (b[i], t[i]),
-            (b[i + 1], t[i + 1]),
-            (a[i + 1], t[i + 1]),
-        ]
-    return np.array([[q[0], y, q[1], tt] for q, tt in quads], np.float32).reshape(-1, 4)
+    sides = np.stack([p + n * width / 2, p - n * width / 2])  # (2, N, 2): the left and right edges
+    side, step = (
+        np.array([0, 1, 0, 1, 1, 0]),
+        np.array([0, 0, 1, 0, 1, 1]),
+    )  # (a_i, b_i, a_i+1), (b_i, b_i+1, a_i+1)
+    frame = np.arange(len(p) - 1)[:, None] + step  # (N - 1, 6)
+    xz = sides[side, frame].reshape(-1, 2)
+    return np.stack([xz[:, 0], np.full(len(xz), y), xz[:, 1], frame.ravel()], 1).astype(np.float32)
 
 
 def _discs(centers: np.ndarray, y: float, r_in: float, r_out: float, t: np.ndarray, seg=20) -> np.ndarray:
     """Flat rings (r_in > 0) or discs on the ground, as (N, 4) x, y, z, frame triangles."""
     th = np.linspace(0, 2 * np.pi, seg + 1)
-    out = []
-    for c in centers:
-        for k in range(seg):
-            o0 = c[[0, 2]] + r_out * np.array([np.cos(th[k]), np.sin(th[k])])
-            o1 = c[[0, 2]] + r_out * np.array([np.cos(th[k + 1]), np.sin(th[k + 1])])
-            i0 = c[[0, 2]] + r_in * np.array([np.cos(th[k]), np.sin(th[k])])
-            i1 = c[[0, 2]] + r_in * np.array([np.cos(th[k + 1]), np.sin(th[k + 1])])
-            out += [o0, o1, i1, o0, i1, i0]
-    pts = np.array(out, np.float64).reshape(-1, 2)
+    unit = np.stack([np.cos(th), np.sin(th)], 1)  # (seg + 1, 2)
+    c = np.asarray(centers, np.float64).reshape(-1, 3)[:, None, [0, 2]]
+    rims = np.stack([c + r_out * unit, c + r_in * unit], 1)  # (K, 2, seg + 1, 2): outer, inner
+    rim, step = (
+        np.array([0, 0, 1, 0, 1, 1]),
+        np.array([0, 1, 1, 0, 1, 0]),
+    )  # (o_k, o_k+1, i_k+1), (o_k, i_k+1, i_k)
+    pts = rims[:, rim, np.arange(seg)[:, None] + step].reshape(-1, 2)
     tt = np.repeat(np.asarray(t, np.float64), seg * 6)
     return np.stack([pts[:, 0], np.full(len(pts), y), pts[:, 1], tt], 1).astype(np.float32)
 
@@ -266,8 +267,12 @@ class Renderer:
             for rt in roots
             if len(key_frames)
         ]
-        self.path_vao = self._flat_vao(np.concatenate(tri) if tri else None)
-        self.keymark_vao = self._flat_vao(np.concatenate(marks) if marks else None)
+        # (vao, runs, colours) of the paths, then of the key marks: a frame draws the runs in view
+        self.overlays = [
+            (self._flat_vao(np.concatenate(t)), Runs(np.concatenate(t)), colors)
+            for t, colors in zip((tri, marks), OVERLAY_COLORS, strict=True)
+            if sum(map(len, t))
+        ]
         self.roots = roots
         # every key frame's ring, made once into one buffer: frame -> (first vertex, count)
         self.rings, self.ring_vao = {}, None
@@ -277,10 +282,6 @@ class Renderer:
             first = np.cumsum([0] + [len(d) for d in data])
             self.rings = {k: (int(first[n]), len(data[n]), data[n][:, :3]) for n, k in enumerate(kf)}
             self.ring_vao = self._flat_vao(np.concatenate(data))
-        # the corners of every static overlay triangle: what bounds them on screen
-        self.overlay_points = np.concatenate([np.zeros((0, 3))] + [t[:, :3] for t in tri + marks]).astype(
-            np.float64
-        )
 
     def _ring(self, frame: int) -> np.ndarray:
         """The KEY ring under the body joints at ``frame`` (flat triangles, t = 0)."""
@@ -335,7 +336,10 @@ class Renderer:
         # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
         # premultiplied, inside the rectangle they cover
         ring = self._key_ring(frame) if is_key else None
-        covered = [self.overlay_points, *points]
+        in_view = [runs.visible(vp32) for _, runs, _ in self.overlays]
+        covered = [
+            runs.points(keep) for (_, runs, _), keep in zip(self.overlays, in_view, strict=True)
+        ] + points
         if ring is not None:
             covered.append(ring[2])
         if ghosts is not None:
@@ -351,7 +355,7 @@ class Renderer:
         self.msaa.scissor = rect
         self.msaa.clear(0.0, 0.0, 0.0, 0.0, depth=1.0, viewport=rect)
         self.ctx.blend_func = mgl.SRC_ALPHA, mgl.ONE_MINUS_SRC_ALPHA, mgl.ONE, mgl.ONE_MINUS_SRC_ALPHA
-        self._draw_overlays(frame, vp, ring)
+        self._draw_overlays(frame, vp, ring, in_view)
         self._draw_characters(vp, eye, ms, color, ghosts)
         self.msaa.scissor = None
         self._composite(rect)
@@ -388,18 +392,16 @@ class Renderer:
             ring = (None, len(data), data[:, :3], data)
         return ring
 
-    def _draw_overlays(self, frame: int, vp, ring):
-        """The trajectories (past and future), the key markers and this key frame's ring."""
+    def _draw_overlays(self, frame: int, vp, ring, in_view):
+        """The trajectories (past and future), the key markers (the runs of them ``in_view``
+        selects) and this key frame's ring."""
         self.flat["vp"].write(vp)
         self.flat["current"].value = float(frame)
-        if self.path_vao is not None:
-            self.flat["color_past"].value = (1.0, 0.78, 0.25, 0.95)
-            self.flat["color_future"].value = (0.85, 0.85, 0.9, 0.35)
-            self.path_vao.render()
-        if self.keymark_vao is not None:
-            self.flat["color_past"].value = (1.0, 0.45, 0.15, 1.0)
-            self.flat["color_future"].value = (1.0, 0.45, 0.15, 0.55)
-            self.keymark_vao.render()
+        for (vao, runs, (past, future)), keep in zip(self.overlays, in_view, strict=True):
+            self.flat["color_past"].value = past
+            self.flat["color_future"].value = future
+            for first, count in runs.spans(keep):
+                vao.render(first=first, vertices=count)
         if ring is not None:
             self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
             if ring[0] is None:

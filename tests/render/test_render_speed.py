@@ -218,3 +218,55 @@ def test_burn_in_rgba_same_colour_as_rgb(panels):
         assert np.array_equal(rgba[..., :3], rgb)
         assert np.array_equal(rgba[..., 3], img[..., 3])
         assert not np.array_equal(rgb, img[..., :3])
+
+
+@pytest.fixture(scope="module")
+def long_stage(tmp_path_factory, bandai_clip):
+    """A 40-s walk (about 54 m, 1,200 frames), filled: its path and key marks run far out of
+    the following camera's view."""
+    from render_fixtures import long_walk
+
+    from pipeline.fill.api import FillOptions, fill_shot
+    from pipeline.usd.convert import write_shot
+
+    work = tmp_path_factory.mktemp("long")
+    shot = write_shot(long_walk(bandai_clip, 1200), work / "walk.usda", keys_every=10)
+    return fill_shot(shot, FillOptions(model="interp", out_dir=str(work)))["review"]
+
+
+def test_overlay_runs_out_of_view_are_not_drawn_and_no_pixel_changes(long_stage, monkeypatch):
+    """The path and key marks are drawn by the runs in view (``render.culling``): the time per
+    frame grew with the shot's length when every triangle was set up on every frame."""
+    from render import culling
+
+    plan = plan_review(long_stage, size=SIZE)
+    frames = [0, 400, 777, 1199]  # the first and last frames, a key and an in-between
+    shown = []
+    visible = culling.Runs.visible
+    monkeypatch.setattr(
+        culling.Runs, "visible", lambda self, vp: shown.append(visible(self, vp)) or shown[-1]
+    )
+    cut = _frames(plan, frames)
+    assert len(shown) == 2 * len(frames) and all(s.any() for s in shown)
+    # past the start, most of the path and its marks lie behind the following camera
+    assert all(s.mean() < 0.5 for s in shown[2:])
+    monkeypatch.setattr(culling.Runs, "visible", lambda self, vp: np.ones(len(self.first), bool))
+    whole = _frames(plan, frames)
+    for a, b in zip(cut, whole, strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_overlay_runs_split_into_draw_spans():
+    """Adjacent runs in view are one draw call; the last run may be short."""
+    from render.culling import RUN, Runs
+
+    data = np.zeros((RUN * 3 + 6, 4), np.float32)
+    data[:, 0] = np.arange(len(data))  # each run's box along x
+    runs = Runs(data)
+    assert runs.count.tolist() == [RUN, RUN, RUN, 6]
+    keep = np.array([True, True, False, True])
+    assert runs.spans(keep) == [(0, 2 * RUN), (3 * RUN, 6)]
+    assert runs.spans(np.zeros(4, bool)) == []
+    assert runs.points(keep).shape == (3 * 8, 3)
+    # a view that sees x in [-1, 1] (orthographic, identity): the first run only
+    assert runs.visible(np.eye(4)).tolist() == [True, False, False, False]
