@@ -18,6 +18,8 @@ from contextlib import contextmanager
 from fractions import Fraction
 from pathlib import Path
 
+from render.output import write_whole
+
 TRACK_KEY = "tween"
 
 
@@ -155,7 +157,5 @@ def update_timeline(existing: str | Path | None, out_path: str | Path, shot: str
         t.metadata[TRACK_KEY] = dict(t.metadata[TRACK_KEY])
         tl.tracks.append(t)
     out_path = str(out_path)
-    tmp = f"{out_path}.tmp{os.getpid()}.otio"
-    otio.adapters.write_to_file(tl, tmp)
-    os.replace(tmp, out_path)
+    write_whole(out_path, otio.adapters.write_to_string(tl, "otio_json").encode(), "timeline")
     return out_path

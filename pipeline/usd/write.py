@@ -523,6 +523,17 @@ def link_version(shot: str, src_root, tmp: Path, final: Path, review: Path) -> b
     return linked
 
 
+def _strongest(sub: str, subs: list[str], anchor: Path) -> list[str]:
+    """``subs`` with ``sub`` first, and no other entry naming its file: a layer that already
+    listed this version (a fill since removed, its name written again) was an internal error,
+    "Duplicate item not allowed for field 'subLayers'"."""
+
+    def where(s: str) -> str:
+        return os.path.normpath(os.path.join(anchor, s))
+
+    return [sub] + [s for s in subs if where(s) != where(sub)]
+
+
 def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) -> None:
     """A new review root layer [fill, shot], or the fill inserted strongest into ``review``."""
     from pxr import Sdf, UsdUtils
@@ -537,9 +548,9 @@ def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) 
             layer, text = _open_review_layer(review)
             layer.Reload()  # the layer as the last writer left it, not as USD's registry holds it
             text.TransferContent(layer)
-            subs = list(text.subLayerPaths)
-            subs.insert(0, _rel(fill, review.parent))
-            text.subLayerPaths = subs
+            text.subLayerPaths = _strongest(
+                _rel(fill, review.parent), list(text.subLayerPaths), review.parent
+            )
             with files.saving(real, tmp):
                 if not text.Export(str(tmp)):
                     raise TweenError(f"{review}: cannot write the review layer")

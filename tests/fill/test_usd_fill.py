@@ -493,6 +493,24 @@ def test_write_speed_10000_frames_100_joints(tmp_path):
     assert np.array_equal(np.array(back.QueryTimeSample(path, 5000.0 + 1001)), q[5000])
 
 
+def test_a_review_layer_that_already_names_the_version_gets_it_strongest_once(tmp_path):
+    """A --review-layer still listing a version since removed (its name about to be written
+    again) was an internal error, USD's "Duplicate item not allowed for field 'subLayers'"."""
+    from pxr import Sdf
+
+    shot = bandai_shot(tmp_path / "sh010.usda", frames=21, keys_every=10)
+    (tmp_path / "out").mkdir()
+    dailies = tmp_path / "out" / "dailies.usda"
+    layer = Sdf.Layer.CreateNew(str(dailies))
+    layer.subLayerPaths = ["../sh010.usda", "./sh010.tween.v001.usda"]  # weakest, another spelling
+    layer.Save()
+    fill_shot(
+        str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "out"), review_layer=str(dailies))
+    )
+    written = Sdf.Layer.OpenAsAnonymous(str(dailies))
+    assert list(written.subLayerPaths) == ["sh010.tween.v001.usda", "../sh010.usda"]
+
+
 def test_fills_into_one_review_layer_take_turns_and_none_is_lost(tmp_path):
     """Two fills of different output folders into one --review-layer each read the layer,
     added their fill and wrote it back: one fill was gone from it (both said "review: it").
