@@ -304,7 +304,12 @@ def _scratch(out: Path, job: str):
     created = not out.exists()
     if not created and not out.is_dir():
         raise TweenError(f"{out}: is a file, not a folder for the review's media")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # said "Not a directory" where a folder above it is a file
+        above = next((p for p in out.parents if p.exists()), out)
+        why = f"{above} is a file, not a folder" if not above.is_dir() else e.strerror
+        raise TweenError(f"{out}: cannot make the folder for the review's media: {why}") from None
     clean_dead_temps(out, quiet=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
     try:

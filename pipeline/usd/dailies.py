@@ -357,7 +357,8 @@ def _publish_path(shot: str, out: Path, stem: str, n: int, fmt: str | None, dest
             raise TweenError(f"{dest}: --format {fmt} does not match the file's extension")
         fmt = dest.suffix[1:]
     if not dest.parent.is_dir():
-        raise TweenError(f"{dest}: the folder {dest.parent} does not exist")
+        what = "is not a folder" if dest.parent.exists() else "does not exist"
+        raise TweenError(f"{dest}: the folder {dest.parent} {what}")
     return dest, fmt or "usda"
 
 
@@ -459,7 +460,8 @@ def publish(shot: str, fmt: str | None = None, dest=None, out_dir: str | None = 
     if final.exists():
         raise AlreadyPublished(final)
     if not writable(final.parent):
-        raise TweenError(f"{final}: the folder {final.parent} is read-only (use --out PATH)")
+        where = "another --out" if dest is not None else "--out PATH"
+        raise TweenError(f"{final}: the folder {final.parent} is read-only (use {where})")
     stage = open_stage(shot)
     take = int(d["take"])
     anims = _published_animations(stage, shot, src, take)

@@ -117,6 +117,11 @@ def test_a_single_take_fill_is_its_take_and_refusals_are_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         f"tween: error: {tmp_path / 'afile'}: is a file, not a folder for the review's media"
     ]
+    r = _review(tmp_path, shot, "--out", tmp_path / "afile" / "media")  # said "Not a directory"
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"tween: error: {tmp_path / 'afile' / 'media'}: cannot make the folder for the review's media: "
+        f"{tmp_path / 'afile'} is a file, not a folder"
+    ]
 
 
 def test_a_span_beyond_the_fills_bound_is_refused_before_rendering(tmp_path):

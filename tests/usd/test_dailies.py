@@ -324,6 +324,24 @@ def test_publish_usdc_and_out_path(shot, capsys, tmp_path):
     assert code == 2 and "does not match" in err and not dest.with_suffix(".usdc").exists()
 
 
+def test_publish_out_under_a_file_or_a_read_only_folder_says_which(shot, capsys, tmp_path):
+    """A --out under a file said its folder "does not exist"; one in a read-only folder
+    ended "(use --out PATH)" though --out was given."""
+    dailies.approve(str(shot), 1)
+    (tmp_path / "afile").write_text("")
+    code, out, err = tween(capsys, "publish", shot, "--out", tmp_path / "afile" / "x.usda")
+    assert code == 2 and out == "" and f"the folder {tmp_path / 'afile'} is not a folder" in err
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        code, out, err = tween(capsys, "publish", shot, "--out", ro / "x.usda")  # by its mode, even for root
+        assert code == 2 and "read-only (use another --out)" in err, err
+        assert list(ro.iterdir()) == []
+    finally:
+        ro.chmod(0o755)
+
+
 def test_single_take_fill_approve_and_publish(tmp_path, monkeypatch):
     monkeypatch.setenv("LOGNAME", "bob")
     shot = bandai_shot(tmp_path / "run.usda", frames=21, keys_every=10)
