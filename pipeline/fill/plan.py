@@ -19,7 +19,7 @@ from pipeline.errors import ShotError, TweenError
 from pipeline.fill.jumps import body_centre, jump_line, key_jumps
 from pipeline.rig import store
 from pipeline.rig.store import no_model_hint
-from pipeline.usd.keys import merge_times, parse_keys, parse_range
+from pipeline.usd.keys import MAX_JOINT_FRAMES, merge_times, parse_keys, parse_range
 from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
 
 #: The most model frames one character's keys may span (the in-betweener fills them all).
@@ -254,6 +254,19 @@ def _check_key_frames(path: str, shot, c: Character, k: np.ndarray, fps: float, 
         )
 
 
+def _check_size(path: str, c: Character, fr: tuple[float, float]) -> None:
+    """ShotError where the fill range ``fr`` holds more than MAX_JOINT_FRAMES joint-frames of
+    ``c``: refused before the minutes it ran and the memory it ran out of."""
+    frames = int(np.floor(fr[1] + TIME_EPS) - np.ceil(fr[0] - TIME_EPS)) + 1
+    joints = max(len(c.joints), len(c.anim_joints))
+    if frames * joints > MAX_JOINT_FRAMES:
+        raise ShotError(
+            path, f"the fill range {fr[0]:g}-{fr[1]:g} is {frames:,} frames of {joints:,} joints, over "
+            f"{MAX_JOINT_FRAMES:,} joint-frames (about 4 GB to fill): fill it in parts with --range",
+            c.anim_path,
+        )  # fmt: skip
+
+
 def make_plan(
     path: str,
     keys: str | None,
@@ -301,6 +314,7 @@ def make_plan(
             raise ShotError(
                 path, f"range {fr[0]:g}-{fr[1]:g} is outside the stage range {shot.start:g}-{shot.end:g}"
             )
+        _check_size(path, c, fr)
         authored = not keys and c.key_override is None
         chars.append(CharPlan(c, rt, k, fr, folder, float(fps), authored_keys=authored, jumps=jumps))
     if not chars:

@@ -19,6 +19,10 @@ from pipeline.errors import ShotError, TweenError
 MAX_KEYS = 1_000_000
 #: The most frames a stage range (and so ``--range``) may span.
 MAX_FRAMES = 1_000_000
+#: The most joint-frames (frames of a fill range × its character's joints) one fill holds: a
+#: fill keeps about 100 bytes a joint-frame at once, and 2,000 joints × 100,000 frames ran out
+#: of memory after minutes (9.4 GB). 40 million is about 4 GB: a 100-joint rig's 400,000 frames.
+MAX_JOINT_FRAMES = 40_000_000
 _EPS = 1e-4  # as read.TIME_EPS: time codes closer than this are the same frame
 
 _NUM = r"[-+]?(?:(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?|nan|inf(?:inity)?)"

@@ -205,6 +205,27 @@ def test_solve_blocks_and_key_channels_are_exact(tmp_path, monkeypatch):
     assert np.array_equal(near < 1e-4, np.abs(k[:, None] - times[None]).min(axis=1) < 1e-4)
 
 
+def test_a_fill_range_of_too_many_joint_frames_is_refused_before_it_runs(tmp_path, monkeypatch, capsys):
+    """2,000 joints x 100,000 frames (within the frame bound) ran for minutes and then out of
+    memory (9.4 GB), an internal error; --range fills such a shot in parts."""
+    from pipeline.cli import main
+    from pipeline.fill import plan
+
+    def tween(*args) -> tuple[int, list[str]]:
+        with pytest.raises(SystemExit) as e:
+            main(["fill-local", str(shot), "--model", "interp", *args])
+        return e.value.code, capsys.readouterr().err.strip().splitlines()
+
+    shot = long_shot(tmp_path / "s.usda", 300, keys_every=9)  # 21 joints, frames 1001-1300
+    monkeypatch.setattr(plan, "MAX_JOINT_FRAMES", 21 * 200)  # as if 200 frames were 4 GB
+    code, err = tween("--out-dir", str(tmp_path / "out"))
+    assert code == 2 and len(err) == 1, err
+    assert "/Anim" in err[0] and "is 300 frames of 21 joints, over 4,200 joint-frames" in err[0]
+    assert "fill it in parts with --range" in err[0] and not (tmp_path / "out").exists()
+    code, err = tween("--range", "1001-1150", "--out-dir", str(tmp_path / "o"))
+    assert code == 0, err
+
+
 # -- farm time limits ------------------------------------------------------------------------
 
 
