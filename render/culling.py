@@ -34,6 +34,8 @@ class Runs:
         lo = np.minimum.reduceat(pos, self.first, axis=0)
         hi = np.maximum.reduceat(pos, self.first, axis=0)
         corners = np.where(_CORNERS[None], hi[:, None], lo[:, None])  # (R, 8, 3)
+        t = np.asarray(data, np.float64)[:, 3]
+        self.t_lo, self.t_hi = np.minimum.reduceat(t, self.first), np.maximum.reduceat(t, self.first)
         self.corners = np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=2)
 
     def visible(self, vp: np.ndarray) -> np.ndarray:
@@ -43,6 +45,10 @@ class Runs:
         w = clip[..., 3:] + MARGIN * np.abs(clip[..., 3:])
         xyz = clip[..., :3]
         return ~((xyz < -w).all(axis=1).any(axis=1) | (xyz > w).all(axis=1).any(axis=1))
+
+    def near(self, frame: float, reach: float) -> np.ndarray:
+        """Which runs hold a frame within ``reach`` of ``frame`` (the trail a frame draws)."""
+        return (self.t_hi >= frame - reach) & (self.t_lo <= frame + reach)
 
     def spans(self, keep: np.ndarray) -> list[tuple[int, int]]:
         """The (first vertex, count) spans that draw the runs ``keep`` selects, adjacent runs

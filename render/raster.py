@@ -23,6 +23,7 @@ from render.gl import RenderError, context
 CLAY = (0.62, 0.50, 0.38)  # linear albedo of the filled character
 BLOCKING_CLAY = (0.40, 0.47, 0.60)  # the stepped-keys character, so the panels cannot be confused
 GHOST = (0.35, 0.75, 1.0)
+EVERY_FRAME = 3.0e38  # a trail's reach (frames) that draws every frame: a float32 GL takes
 #: (past, future) RGBA of the body paths, then of the key marks
 OVERLAY_COLORS = (
     ((1.0, 0.78, 0.25, 0.95), (0.85, 0.85, 0.9, 0.35)),
@@ -210,8 +211,18 @@ class Renderer:
         self._owned.extend(objs)
         return objs[0]
 
-    def set_stage(self, bbox_min, bbox_max, ground_y: float, roots: list[np.ndarray], key_frames: np.ndarray):
-        """Static scene: ground plane, trajectories and key markers (frame indices ``key_frames``)."""
+    def set_stage(
+        self,
+        bbox_min,
+        bbox_max,
+        ground_y: float,
+        roots: list[np.ndarray],
+        key_frames: np.ndarray,
+        reach=EVERY_FRAME,
+    ):
+        """Static scene: ground plane, trajectories and key markers (frame indices ``key_frames``),
+        drawn ``reach`` frames either side of the current one."""
+        self.reach = min(float(reach), EVERY_FRAME)
         lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
         ext = hi - lo
         self.height = max(float(ext[1]), 1e-3)
@@ -336,7 +347,7 @@ class Renderer:
         # 3. trajectory, markers, characters and ghosts: 4x MSAA over transparent black,
         # premultiplied, inside the rectangle they cover
         ring = self._key_ring(frame) if is_key else None
-        in_view = [runs.visible(vp32) for _, runs, _ in self.overlays]
+        in_view = [runs.visible(vp32) & runs.near(frame, self.reach) for _, runs, _ in self.overlays]
         covered = [
             runs.points(keep) for (_, runs, _), keep in zip(self.overlays, in_view, strict=True)
         ] + points
@@ -397,12 +408,14 @@ class Renderer:
         selects) and this key frame's ring."""
         self.flat["vp"].write(vp)
         self.flat["current"].value = float(frame)
+        self.flat["reach"].value = self.reach
         for (vao, runs, (past, future)), keep in zip(self.overlays, in_view, strict=True):
             self.flat["color_past"].value = past
             self.flat["color_future"].value = future
             for first, count in runs.spans(keep):
                 vao.render(first=first, vertices=count)
         if ring is not None:
+            self.flat["reach"].value = EVERY_FRAME  # the ring's vertices carry no frame
             self.flat["color_past"].value = (1.0, 0.3, 0.1, 0.95)
             if ring[0] is None:
                 self._flat_vao(ring[3]).render()

@@ -29,6 +29,10 @@ from render.scene import SUMMARY_FACTS, Shot, evaluate, frame_times, open_shot, 
 from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
+#: The body paths and key marks are drawn this many seconds either side of the current frame:
+#: a long shot's whole path is a scribble, and its every frame drawn on every frame made the
+#: time per frame grow with the shot. A shot of a minute or less shows all of it.
+TRAIL_S = 30.0
 CONTACT_FRAMES = 12
 QUEUE_FRAMES = 4  # rendered frames waiting for the writer thread at most (bounded memory)
 FRAME_THREADS = 2  # threads writing numbered frames (PNG/EXR encoding lets go of the GIL)
@@ -427,7 +431,7 @@ def render_review(
         renderer = Renderer((w, h), panels=len(plan.panels))
         sets = []
         try:
-            renderer.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, key_idx)
+            renderer.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, key_idx, TRAIL_S * shot.fps)
             sets = [renderer.mesh_set(g) for g in plan.panels]
             ghost_set = renderer.mesh_set(ghost_geoms) if ghost_geoms else None
             thumbs, frames = _render_frames(

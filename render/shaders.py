@@ -111,9 +111,13 @@ FLAT_FS = """#version 330
 uniform vec4 color_past;    // drawn where in_t <= current
 uniform vec4 color_future;
 uniform float current;
+uniform float reach;         // frames either side of the current one drawn (the trail)
 in float v_t;
 out vec4 color;
-void main() { color = v_t <= current + 0.5 ? color_past : color_future; }"""
+void main() {
+    if (abs(v_t - current) > reach) discard;
+    color = v_t <= current + 0.5 ? color_past : color_future;
+}"""
 
 # The characters and overlays are drawn into the 4x MSAA buffer over transparent black with
 # premultiplied alpha, and only in the screen rectangle they cover; this pass resolves that

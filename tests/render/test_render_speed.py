@@ -26,11 +26,11 @@ def stage(tmp_path_factory, bandai_clip):
     return converted_review(bandai_clip, work, frames=40, key_step=10, takes=1)[0]
 
 
-def _frames(plan, frames, ghosts=False):
+def _frames(plan, frames, ghosts=False, reach=raster.EVERY_FRAME):
     r = raster.Renderer(plan.size, panels=len(plan.panels))
     try:
         is_key = plan.shot.is_key()
-        r.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, np.nonzero(is_key)[0])
+        r.set_stage(plan.lo, plan.hi, float(plan.lo[1]), plan.roots, np.nonzero(is_key)[0], reach)
         sets = [r.mesh_set(g) for g in plan.panels]
         gs = None
         if ghosts:
@@ -270,3 +270,16 @@ def test_overlay_runs_split_into_draw_spans():
     assert runs.points(keep).shape == (3 * 8, 3)
     # a view that sees x in [-1, 1] (orthographic, identity): the first run only
     assert runs.visible(np.eye(4)).tolist() == [True, False, False, False]
+
+
+def test_a_long_shot_draws_its_trail_around_the_current_frame(long_stage):
+    """The path and key marks are drawn ``reach`` frames either side of the current frame
+    (review.TRAIL_S seconds): half-way through a 40-s walk, a 1-s trail leaves out the path in
+    view ahead of and behind the character, and a trail longer than the shot draws all of it."""
+    from render.review import TRAIL_S
+
+    plan = plan_review(long_stage, size=SIZE)
+    assert plan.shot.fps * TRAIL_S >= 30 * 30  # a minute's shot shows all of its path
+    whole, trail, longer = (_frames(plan, [600], reach=r)[0] for r in (raster.EVERY_FRAME, 30, 1200))
+    assert np.array_equal(whole, longer)
+    assert not np.array_equal(whole, trail)
