@@ -37,7 +37,7 @@ test-nightly: $(STAMP) system-deps
 	TWEEN_HYPOTHESIS_EXAMPLES=2000 TWEEN_ALL_DATA=1 $(BIN)/python -m pytest -q tests/test_bad_input_generated.py tests/motion/test_bvh.py
 
 bench: $(STAMP)
-	$(BIN)/tween bench --methods zero,interp
+	$(BIN)/tween bench --methods zero,interp --force
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -6,6 +6,7 @@ whether a folder may be written in, or a file rewritten, at all; and one writer 
 from __future__ import annotations
 
 import fcntl
+import io
 import os
 import tempfile
 from collections.abc import Callable, Iterator
@@ -37,6 +38,45 @@ def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def file_above(path: str | Path) -> Path | None:
+    """The file (not a folder) nearest above ``path`` where a folder would have to be made
+    for it, or ``None``: what making ``path``'s folders would fail on with "Not a directory"
+    naming a path of its own."""
+    probe = Path(os.path.abspath(path)).parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return None if probe.is_dir() else probe
+
+
+@contextmanager
+def naming(path: str | Path) -> Iterator[None]:
+    """An OSError of the block, which writes the file ``path``, names ``path``: a write that
+    finds the disk full names no file, and a temporary's hidden name is not one the user gave."""
+    try:
+        yield
+    except OSError as e:
+        raise OSError(e.errno, e.strerror or str(e), str(path)) from None
+
+
+def write_bytes(path: str | Path, data) -> None:
+    """``data`` (bytes or a buffer) as the file ``path``, whole or not at all
+    (:func:`replacing`); an OSError names ``path``."""
+    with naming(path), replacing(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+
+
+def save_torch(obj, path: str | Path) -> None:
+    """``torch.save(obj, path)`` whole or not at all, serialised in memory first: torch's own
+    file writer turns a full disk into a RuntimeError ("unexpected pos") that names nothing,
+    and left its half-written file; here the write's OSError names ``path`` and the
+    temporary goes. Only the training imports torch (the ``[train]`` extra)."""
+    import torch
+
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    write_bytes(path, buf.getbuffer())
 
 
 @contextmanager

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.bench.outputs import check_out_folder
+from pipeline.bench.outputs import OUTPUTS, check_out_folder, refuse_earlier
 from pipeline.bench.speed import check_speed_model, run_speed
 from pipeline.errors import TweenError
 
@@ -127,6 +127,7 @@ def bench(
         help="Fill speed: a 4096-frame fill of the model (--methods, default 'default') against "
         "the core's sgemm peak (pipeline/bench/speed.py; TWEEN_SPEED_FRAMES, TWEEN_SPEED_REPEATS).",
     ),
+    force: bool = typer.Option(False, "--force", help="Replace an earlier run's results in --out."),
 ):
     """Run the benchmark; prints the Markdown table, writes JSON + Markdown under --out."""
     # Long because of its option declarations; each kind of bench runs in a function of its own.
@@ -151,6 +152,7 @@ def bench(
     names = names if names is not None or mode == "--speed" else ["zero", "interp"]
     _check_methods_of(mode, names, keys_every)
     check_out_folder(out)
+    refuse_earlier(out, OUTPUTS[mode], force)  # before the data is read, as every check
     if mode == "--speed":
         name = _speed_model(names)
         check_speed_model(name)

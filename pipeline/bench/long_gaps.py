@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.outputs import write_outputs
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.data.split import list_clips, shared_data_dir
 from pipeline.motion.bvh import read_bvh
@@ -123,8 +124,6 @@ def run_long_gap_bench(methods: list[str], limit: int | None, out_dir: Path) -> 
             continue
         print(f"long gaps: {m} on {len(takes)} takes…", file=sys.stderr)
         res[m] = evaluate_long_gaps(load_inbetweener(name), takes)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "long_gaps.json").write_text(json.dumps(res, indent=1))
     md = markdown(res)
-    (out_dir / "long_gaps.md").write_text(md)
+    write_outputs(out_dir, {"long_gaps.json": json.dumps(res, indent=1), "long_gaps.md": md})
     return md

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.bench import metrics
+from pipeline.bench.outputs import write_outputs
 from pipeline.data.protocol import CONTEXT, global_positions
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import interpolate
@@ -130,10 +131,7 @@ def run_partial_bench(methods: list[str], rots, roots, mean, std, out_dir: Path)
             continue
         print(f"partial keys: {m} on {len(rots)} windows…", file=sys.stderr)
         res[m] = evaluate_partial(method_fill(m), rots, roots, mean, std)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "partial_keys.json").write_text(
-        json.dumps({"windows": len(rots), "results": json_ready(res)}, indent=1)
-    )
     md = markdown(res)
-    (out_dir / "partial_keys.md").write_text(md)
+    text = json.dumps({"windows": len(rots), "results": json_ready(res)}, indent=1)
+    write_outputs(out_dir, {"partial_keys.json": text, "partial_keys.md": md})
     return md

@@ -6,12 +6,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from pipeline.bench.outputs import write_outputs
+
 
 def publish(report: dict, out: Path | None, name: str) -> None:
     """``report`` holds ``markdown`` and ``seconds``; JSON values it cannot write become text."""
     md = report["markdown"] + f"\nTotal: {report['seconds']:.0f} s.\n"
     if out:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / f"{name}.json").write_text(json.dumps(report, indent=1, default=str))
-        (out / f"{name}.md").write_text(md)
+        text = json.dumps(report, indent=1, default=str)
+        write_outputs(out, {f"{name}.json": text, f"{name}.md": md})
     print(md)

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.adapt.hierarchy import ancestors
 from pipeline.adapt.mapping import MODEL_JOINTS
+from pipeline.bench.outputs import write_outputs
 from pipeline.data.split import list_clips, shared_data_dir
 from pipeline.fill.api import FillOptions, fill_shot
 from pipeline.motion.clip import Motion
@@ -451,11 +452,8 @@ def run_rig_bench(
     }
     res["markdown"] = _markdown(res, methods)
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "rig_bench.json").write_text(
-            json.dumps({k: v for k, v in res.items() if k != "markdown"}, indent=1)
-        )
-        (out / "rig_bench.md").write_text(res["markdown"])
+        text = json.dumps({k: v for k, v in res.items() if k != "markdown"}, indent=1)
+        write_outputs(out, {"rig_bench.json": text, "rig_bench.md": res["markdown"]})
     return res
 
 

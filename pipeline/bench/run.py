@@ -11,6 +11,7 @@ import numpy as np
 
 from pipeline.bench import metrics
 from pipeline.bench.methods import Method, resolve
+from pipeline.bench.outputs import write_outputs
 from pipeline.data.cache import load_split
 from pipeline.data.protocol import (
     CONTEXT,
@@ -146,7 +147,6 @@ def run_bench(
     for name in methods:
         print(f"evaluating {name} on {len(rots)} windows…", file=sys.stderr)
         results[name] = evaluate(resolve(name), rots, roots, mean, std)
-    out_dir.mkdir(parents=True, exist_ok=True)
     payload = {
         "protocol": "PROTOCOL.md",
         "windows": int(len(rots)),
@@ -157,11 +157,10 @@ def run_bench(
         "source": source,
         "results": {m: {str(t): v for t, v in r.items()} for m, r in results.items()},
     }
-    (out_dir / "bench.json").write_text(json.dumps(payload, indent=1))
     md = markdown(results, len(rots), windows=describe_windows(source, limit))
     if posture:
         md = f"Posture offsets: up to {posture:g}° per joint (not the protocol).\n" + md
     if mirrored:
         md = "Mirrored: the left/right mirror image of every window (not the protocol).\n" + md
-    (out_dir / "bench.md").write_text(md)
+    write_outputs(out_dir, {"bench.json": json.dumps(payload, indent=1), "bench.md": md})
     return {"json": str(out_dir / "bench.json"), "markdown": md, "results": results}

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.bench.outputs import write_outputs
 from pipeline.data.split import shared_data_dir
 from pipeline.errors import TweenError
 
@@ -344,10 +345,7 @@ def run_speed(
     }
     md = speed_markdown(report)
     if out is not None:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "speed.json").write_text(json.dumps(report, indent=1))
-        (out / "speed.md").write_text(md)
+        write_outputs(Path(out), {"speed.json": json.dumps(report, indent=1), "speed.md": md})
     return md
 
 

@@ -249,8 +249,8 @@ def _build_locked(where, out: Path, paths: list[Path], licence, name, add: bool,
         if on_progress is not None:
             on_progress(len(todo), len(todo), "")
     except BaseException:
-        if writer is not None:
-            writer.close()
+        if writer is not None:  # the arrays as they were (closing alone raised on a full disk)
+            writer.discard()
         if created:
             shutil.rmtree(out, ignore_errors=True)
         elif was_empty:

@@ -8,8 +8,9 @@ chain), recorded in every fill that uses it so that fill can be reproduced.
 Each array is a raw little-endian file (``ARRAYS``) read with ``np.memmap``: a worker maps the
 files, and every process of a host shares one copy in the page cache whatever its
 concurrency. Takes are appended to the files; the manifest, written last and atomically, says
-how many frames are valid, so an interrupted ``--add`` leaves the library as it was (the bytes
-past the manifest's frames are cut off by the next ``--add``).
+how many frames are valid, so an interrupted ``--add`` leaves the library as it was: a failed
+one (a full disk, Ctrl-C) cuts the files back to their sizes before it, and the bytes a killed
+one left past the manifest's frames are cut off by the next ``--add``.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline import jsonfile
-from pipeline.atomic import replacing
+from pipeline.atomic import naming, write_bytes
 from pipeline.errors import TweenError
 
 MANIFEST = "library.json"
@@ -295,19 +296,23 @@ def empty_manifest(name: str, licence: str | None, skeleton_names, fps: float) -
 
 
 class Writer:
-    """Appends takes to a library folder; :meth:`commit` writes the manifest (atomically)."""
+    """Appends takes to a library folder; :meth:`commit` writes the manifest (atomically),
+    :meth:`discard` cuts the arrays back to what the manifest holds. An OSError names its file
+    (a full disk's names none)."""
 
     def __init__(self, folder: Path, manifest: dict):
         self.folder, self.manifest = folder, manifest
         folder.mkdir(parents=True, exist_ok=True)
         frames = int(manifest["frames"])
-        self.files = {}
+        self.files, self.sizes = {}, {}
         for name, (dtype, shape) in ARRAYS.items():
             f = folder / f"{name}.bin"
-            f.touch()
-            with open(f, "r+b") as h:  # drop what an interrupted add left past the manifest
-                h.truncate(frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize)
-            self.files[name] = open(f, "ab")
+            self.sizes[name] = frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+            with naming(f):
+                f.touch()
+                with open(f, "r+b") as h:  # drop what an interrupted add left past the manifest
+                    h.truncate(self.sizes[name])
+                self.files[name] = open(f, "ab")
 
     def add(self, take: dict, arrays: dict[str, np.ndarray]) -> None:
         """One take: its manifest entry and its per-frame arrays (``take_end`` is made here)."""
@@ -321,7 +326,8 @@ class Writer:
                 raise ValueError(f"{name}: shape {a.shape}, expected {(n, *shape)}")
             if name != "take_end":
                 digest.update(a.tobytes())
-            self.files[name].write(a.tobytes())
+            with naming(self.folder / f"{name}.bin"):
+                self.files[name].write(a.tobytes())
         chain = hashlib.sha256((self.manifest["hash"] + digest.hexdigest()).encode())
         self.manifest["hash"] = chain.hexdigest()[:16]
         self.manifest["takes"].append(dict(take, start=start, frames=n))
@@ -329,12 +335,28 @@ class Writer:
         self.manifest["hours"] = round(self.manifest["frames"] / self.manifest["fps"] / 3600.0, 6)
 
     def commit(self) -> None:
-        for h in self.files.values():
-            h.flush()
-            os.fsync(h.fileno())
-        with replacing(self.folder / MANIFEST) as tmp:  # readable as the arrays are
-            tmp.write_text(json.dumps(self.manifest, indent=1), encoding="utf-8")
+        for name, h in self.files.items():
+            with naming(self.folder / f"{name}.bin"):
+                h.flush()
+                os.fsync(h.fileno())
+        # Written whole or not at all, once the arrays it describes are on disk.
+        write_bytes(self.folder / MANIFEST, json.dumps(self.manifest, indent=1).encode("utf-8"))
 
     def close(self) -> None:
         for h in self.files.values():
             h.close()
+
+    def discard(self) -> None:
+        """After a failed add: the files closed, what could not be written dropped, and each
+        cut back to the frames the manifest on disk holds, so the library is byte for byte as
+        it was (a full disk had left the takes' bytes past its frames)."""
+        for h in self.files.values():
+            try:
+                h.close()
+            except OSError:  # the buffered bytes it could not write (a full disk): dropped
+                pass
+        for name, size in self.sizes.items():
+            try:
+                os.truncate(self.folder / f"{name}.bin", size)
+            except OSError:  # (a file removed meanwhile): the next --add cuts it
+                pass

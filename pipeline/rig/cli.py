@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from pipeline import command
-from pipeline.atomic import replacing
+from pipeline.atomic import file_above, naming, replacing
 from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
@@ -44,6 +44,8 @@ def train_rig(
     from pipeline.rig.train import TrainConfig
 
     o = opts.check()
+    if file_above(out):  # else "Not a directory" naming the hidden folder the model is made in
+        raise TweenError(f"{out}: --out is inside {file_above(out)}, which is a file, not a folder")
     # Refuses a finished model in --out before anything is read or written; the new
     # model is made beside it and moved into place when complete (pipeline.staging).
     stage = StagedFolder(out, o.force, what="rig model")
@@ -100,7 +102,7 @@ def rig_extract(
         raise TweenError(f"{out.parent}: no such folder for OUT")
     refuse_read_only(out, "OUT")
     motion = load_rig_source(source, skeleton, parse_frames(frames))
-    with replacing(out, suffix=".npz") as tmp:  # an interrupted write leaves OUT as it was
+    with naming(out), replacing(out, suffix=".npz") as tmp:  # an interrupted write leaves OUT as it was
         save_npz(motion, tmp)
     typer.echo(f"{out}  ({len(motion)} frames at {motion.fps:g} fps, {len(motion.skeleton)} joints)")
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.atomic import naming, write_bytes
 from pipeline.data.terms import commercial
 from pipeline.infer.folder import files_hash
 from pipeline.rig.source import portable_path
@@ -67,7 +68,9 @@ def _export_levels(tr: Trainer, out: Path) -> list[str]:
         up = torch.zeros(1, tr.F, L)
         z = torch.zeros(1, 1, L)
         name = f"level_{i + 1}.onnx"
-        with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+        # The ONNX writer's OSError on a full disk names no file; torch's note on Slice
+        # folding is nothing to act on.
+        with warnings.catch_warnings(), naming(out / name):
             warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
             torch.onnx.export(
                 G,
@@ -159,7 +162,7 @@ def export(tr: Trainer, out: str | Path, verify: bool = True, dest: str | Path |
     meta = _rig_meta(tr, out, files)
     if verify:
         meta["onnx_max_abs_diff"] = verify_onnx(tr, out, files)
-    (out / "rig.json").write_text(json.dumps(meta, indent=1))
+    write_bytes(out / "rig.json", json.dumps(meta, indent=1).encode())
     write_card(out, meta, dest)
     return meta
 
@@ -263,4 +266,4 @@ discriminators {t["discriminator_params"]["stored"]:,} (training only). ONNX fil
 
 {mtext}
 """
-    (out / CARD).write_text(text)
+    write_bytes(out / CARD, text.encode())

@@ -17,7 +17,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.atomic import save_torch, write_bytes
 from pipeline.errors import TweenError
 from pipeline.motion.clip import Motion
 from pipeline.rig.options import check_device
@@ -310,9 +310,7 @@ class Trainer:
             "log": self.log,
             "wall": self.wall,
         }
-        tmp = self.ckpt_dir / "state.pt.tmp"
-        torch.save(state, tmp)
-        os.replace(tmp, self.ckpt_dir / "state.pt")
+        save_torch(state, self.ckpt_dir / "state.pt")  # a full disk: one line, the last one kept
 
     def load(self) -> dict | None:
         import torch
@@ -372,8 +370,6 @@ class Trainer:
     def train(self, on_progress: ProgressCallback | None = None, resumed: dict | None = None) -> None:
         """Trains every group not done yet (``resumed``: :meth:`load`'s state, if read); ``on_progress``
         gets a :class:`Progress` at each group's start and each iteration (one if nothing is left)."""
-        import torch
-
         state = resumed if resumed is not None else self.load()
         iters, n = self.sched.iters, len(self.lengths)
         steps = len(self.groups) * iters
@@ -426,7 +422,7 @@ class Trainer:
                     self.save(opt_g, opt_d)
             self.group_done, self.iteration = gi + 1, 0
             self.save(None, None)
-            torch.save([self.G[i].state_dict() for i in range(top + 1)], self.ckpt_dir / f"group{gi}.pt")
+            save_torch([self.G[i].state_dict() for i in range(top + 1)], self.ckpt_dir / f"group{gi}.pt")
         if last is None or not last.done:  # resumed after the end: still say where it stands
             report(len(self.groups) - 1, iters, self.log[-1] if self.log else {})
 
@@ -521,9 +517,8 @@ def train(
     tr = Trainer(cfg, motion, quiet)  # reads and checks the clip before anything is written
     resumed = tr.load()  # and the checkpoint it resumes (another run's, a damaged one: refused)
     tr.ckpt_dir.mkdir(parents=True, exist_ok=True)
-    (tr.ckpt_dir / "train_config.json").write_text(
-        json.dumps({k: v for k, v in asdict(cfg).items()}, indent=1, default=str)
-    )
+    config = json.dumps({k: v for k, v in asdict(cfg).items()}, indent=1, default=str)
+    write_bytes(tr.ckpt_dir / "train_config.json", config.encode())
     if on_progress is not None or quiet:
         tr.train(on_progress, resumed)
     else:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from pipeline.atomic import file_above
 from pipeline.errors import TweenError
 from pipeline.options import path_like
 from pipeline.staging import StagedFolder
@@ -55,6 +56,8 @@ def export(
     _check_options(root, pad, pad_tail, min_window, name)
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
+    if file_above(out):  # else "Not a directory" naming the hidden folder the model is made in
+        raise TweenError(f"{out}: --out is inside {file_above(out)}, which is a file, not a folder")
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written
 
     settings = {
@@ -73,6 +76,9 @@ def export(
             raise TweenError(
                 f"{run}: onnxruntime's output is not a finite number where torch's is; nothing was exported"
             )
+    except OSError as e:
+        stage.discard()
+        raise _in_out(e, stage.work, out) from None
     except BaseException:
         stage.discard()  # a failed export leaves --out as it was
         raise
@@ -80,6 +86,16 @@ def export(
     typer.echo(
         f"{out}: model {meta['name']} hash {meta['hash']}; onnx and torch agree within {err:.2e} (export.verify)"
     )
+
+
+def _in_out(e: OSError, work: Path, out: Path) -> Exception:
+    """An OSError on a file of the model being made (a full disk) as one line naming --out, not
+    the hidden folder it is made in; any other as it is."""
+    try:
+        rel = Path(e.filename).relative_to(work)
+    except (TypeError, ValueError):
+        return e
+    return TweenError(f"{out}: cannot write the new model's {rel}: {e.strerror or e}; --out is as it was")
 
 
 @cache

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pipeline.atomic import naming, save_torch, write_bytes
 from pipeline.data import posebank
 from pipeline.data.cache import load_split
 from pipeline.data.split import list_clips
@@ -98,7 +99,9 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
         args = (x, torch.randn(1, n_dna_channels(gcfg.n_joints), 3), torch.ones(1, 1))
         names += ["dna", "dna_weight"]
         axes.update(dna={0: "batch", 2: "poses"}, dna_weight={0: "batch"})
-    with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+    # The ONNX writer's OSError on a full disk names no file; torch's note on Slice folding
+    # is nothing to act on.
+    with warnings.catch_warnings(), naming(out_dir / "generator.onnx"):
         warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
         torch.onnx.export(
             gen,
@@ -129,7 +132,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     if (run_dir / "path.pt").exists():
         path, pcfg, pstate = _load(PathPredictor, PathConfig, run_dir / "path.pt")
         xp = torch.randn(1, (pcfg.n_joints - 1) * 3, 64)
-        with warnings.catch_warnings():  # torch's note on Slice folding: nothing to act on
+        with warnings.catch_warnings(), naming(out_dir / "path.onnx"):  # (as the generator's)
             warnings.filterwarnings("ignore", message="Constant folding - Only steps=1", category=UserWarning)
             torch.onnx.export(
                 path,
@@ -153,9 +156,9 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     # (`tween train --init <model>/torch/generator.pt`) without the optimiser state.
     (out_dir / "torch").mkdir(exist_ok=True)
     keep = ("model", "config", "step", "elapsed")
-    torch.save(_shipped(gstate, keep), out_dir / "torch" / "generator.pt")
+    save_torch(_shipped(gstate, keep), out_dir / "torch" / "generator.pt")
     if "path" in files:
-        torch.save(_shipped(pstate, keep), out_dir / "torch" / "path.pt")
+        save_torch(_shipped(pstate, keep), out_dir / "torch" / "path.pt")
     meta["files"] = files
     # Padded like training windows (64–128 frames, ending on a key, motion after a target);
     # see OnnxInbetweener._network (models/default/HISTORY.md, Pad layout: the layouts tried).
@@ -173,7 +176,7 @@ def export(run_dir: Path, out_dir: Path, name: str, extra: dict | None = None) -
     if not credit:  # (absent means true: models exported before the key keep their hash)
         meta["familiar_credit"] = False
     meta["hash"] = model_hash(out_dir, meta)
-    (out_dir / "model.json").write_text(json.dumps(meta, indent=1))
+    write_bytes(out_dir / "model.json", json.dumps(meta, indent=1).encode())
     return meta
 
 
@@ -269,7 +272,8 @@ def _pose_bank(out_dir: Path, config: dict) -> str | None:
     each = posebank.POSES // len(sets)
     bank = np.concatenate([posebank.build(c.rotations, c.roots, each) for _, c in sets])
     source = "; ".join(f"{name}: {min(each, len(c.rotations))} poses" for name, c in sets) + ", seed 0"
-    posebank.save(out_dir / "pose_bank.npz", bank, source)
+    with naming(out_dir / "pose_bank.npz"):
+        posebank.save(out_dir / "pose_bank.npz", bank, source)
     return "pose_bank.npz"
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline.atomic import replacing
+from pipeline.atomic import save_torch
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
@@ -816,8 +816,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         }
         if disc is not None:
             state["disc"], state["d_opt"] = disc.state_dict(), d_opt.state_dict()
-        with replacing(path) as tmp:  # a name of its own: not another run's half-written file
-            torch.save(state, tmp)
+        save_torch(state, path)  # a temporary of its own: not another run's half-written file
 
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="generator", mininterval=interval())
     batches = batches_from(cfg, clips, skel, feet, step)

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline.atomic import replacing
+from pipeline.atomic import save_torch
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.infer.features import ROOT_SCALE, apply_transform, canonical_transform
@@ -110,8 +110,7 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
     def save() -> None:  # whole or not at all: a run killed while saving resumes from the last one
         state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(),
                  "step": step, "config": asdict(cfg)}  # fmt: skip
-        with replacing(ckpt) as tmp:
-            torch.save(state, tmp)
+        save_torch(state, ckpt)
 
     bar = tqdm(total=cfg.steps, initial=step, file=sys.stderr, desc="path predictor", mininterval=interval())
     while step < cfg.steps:

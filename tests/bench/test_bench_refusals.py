@@ -219,3 +219,24 @@ def test_bench_records_and_describes_the_windows_it_ran_on(tmp_path, monkeypatch
     assert res["markdown"].startswith(
         "Windows: 3 (eval split, first 2 clip(s), 65 frames every 40, PROTOCOL.md)"
     )
+
+
+@pytest.mark.parametrize("mode", MODES, ids=lambda m: m[0] if m else "protocol")
+def test_bench_refuses_to_replace_an_earlier_runs_results_without_force(tmp_path, capsys, no_work, mode):
+    """Nothing a user has is replaced without --force: a rerun overwrote the results before."""
+    from pipeline.bench.cli import _check_mode
+    from pipeline.bench.outputs import OUTPUTS
+
+    kind = _check_mode({}, {m: m in mode for m in OUTPUTS if m})
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = out / OUTPUTS[kind][-1]
+    earlier.write_text("an earlier run's")
+    line = refused(["bench", *mode, "--out", out], capsys, tmp_path)
+    assert (
+        line
+        == f"tween: error: {earlier}: --out holds an earlier run's results; give --force to replace them, or another folder"
+    )
+    with pytest.raises(AssertionError, match="started its work"):  # --force: past every check
+        refused(["bench", *mode, "--out", out, "--force"], capsys, tmp_path)
+    assert earlier.read_text() == "an earlier run's"

@@ -351,3 +351,17 @@ def test_a_path_checkpoint_is_written_whole_and_a_damaged_one_named(tmp_path, ca
     (out / "path.pt").write_bytes((out / "path.pt").read_bytes()[:600])
     line = refused(args, capsys)
     assert line.startswith(f"tween: error: {out / 'path.pt'}: the run's path checkpoint: not a checkpoint")
+
+
+def test_an_out_inside_a_file_is_named_as_the_user_gave_it(tmp_path, capsys, bandai_clip):
+    """Making the model beside --out said "…/afile/.model.partial: Not a directory"."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "generator.pt").write_bytes(b"")  # refused before it is read
+    afile = tmp_path / "afile"
+    afile.write_text("a file")
+    for cmd in (["export", run], ["train-rig", bandai_clip, "--schedule", "tiny"]):
+        line = refused([*cmd, "--out", afile / "model"], capsys, tmp_path)
+        assert (
+            line == f"tween: error: {afile / 'model'}: --out is inside {afile}, which is a file, not a folder"
+        )
