@@ -83,6 +83,13 @@ MAX_VALUE = 1e6
 #: 9 hours at 30 fps. Checked before the frames are read: a small gzip declaring 5,000,000
 #: frames of a short line took minutes and GiBs, then made a 46-hour clip.
 MAX_FRAMES = 1_000_000
+#: The most joints a take's hierarchy may hold, and how deep it may nest them (the root is
+#: level 1). Far above any rig here (the CMU/iClone rig has 101 joints, 13 deep; Bandai 21)
+#: and a film rig's thousands; the joint count is ``pipeline.rig.source``'s for clips. USD
+#: joint tokens are full paths, so a chain of N joints holds N²/2 names: 20,000 nested joints
+#: in a 1 MB BVH took `tween convert` 5.3 GB and wrote a 576 MB shot.
+MAX_JOINTS = 10_000
+MAX_DEPTH = 256
 #: The most lines a BVH file may have: a take's frames, and a hierarchy of up to a million
 #: lines (ten thousand joints take a tenth of it).
 MAX_LINES = 2 * MAX_FRAMES
@@ -161,6 +168,12 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[BvhJoint], int]
             parent = next((s for s in reversed(stack) if s >= 0), -1) if stack else -1
             if kw == "JOINT" and not stack:
                 raise MotionFormatError(path, lineno, "JOINT outside any ROOT")
+            if len(joints) >= MAX_JOINTS:
+                raise MotionFormatError(path, lineno, f"more than the {MAX_JOINTS:,} joints a take may hold")
+            if len(stack) >= MAX_DEPTH:  # its ancestors' braces: a hierarchy nested deeper
+                raise MotionFormatError(
+                    path, lineno, f"joints nested more than the {MAX_DEPTH} levels deep a take may hold"
+                )
             pending = (" ".join(tok[1:]), parent)
         elif kw == "End" and len(tok) > 1 and tok[1] == "Site":
             pending = ("__end__", stack[-1] if stack else -1)
@@ -262,19 +275,16 @@ def _motion_header(path: Path, lines: list[str], i: int) -> tuple[int, float]:
 def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tuple[np.ndarray, float, int]:
     n_frames, frame_time = _motion_header(path, lines, i)
     start = i + 2
-    body = [ln for ln in lines[start : start + n_frames]]
-    try:
-        data = np.array(" ".join(body).split(), dtype=np.float64)
-        ok = data.size == n_frames * n_channels and (np.abs(data) <= MAX_VALUE).all()
-    except ValueError:
-        ok = False
-    if not ok:
+    body = lines[start : start + n_frames]
+    data = _read_values(body, n_frames * n_channels)
+    if data is None:
         # Slow path only on error: find the first offending line.
         for k, ln in enumerate(body):
-            vals = ln.split()
+            vals = ln.split(None, n_channels)  # at most n_channels + 1 strings, however long the line
             if len(vals) != n_channels:
+                n = len(vals) if len(vals) < n_channels else n_channels + _count_values(vals[-1])
                 raise MotionFormatError(
-                    path, start + k + 1, f"frame {k} has {len(vals)} values, expected {n_channels}"
+                    path, start + k + 1, f"frame {k} has {n} values, expected {n_channels}"
                 )
             try:
                 arr = np.array(vals, dtype=np.float64)
@@ -295,6 +305,71 @@ def _parse_motion(path: Path, lines: list[str], i: int, n_channels: int) -> tupl
     if abs(fps - round(fps)) < 1e-3 * fps:
         fps = float(round(fps))
     return data.reshape(n_frames, n_channels), fps, start
+
+
+#: The most text the motion is split into values at a time. A value's Python string costs
+#: up to 17 bytes per byte of text (splitting the whole MOTION section at once took 8.3 GB
+#: for 505 MB), so the values are parsed a block at a time into one float array: a few MB
+#: over it, however long the take.
+_BLOCK_CHARS = 1 << 18
+_SPACE = re.compile(r"\s")  # the characters str.split() splits at
+
+
+def _read_values(body: list[str], total: int) -> np.ndarray | None:
+    """The values of ``body``, read as ``np.array(" ".join(body).split(), np.float64)`` would
+    read them but a block at a time; None unless they are ``total`` numbers within
+    ±MAX_VALUE (the caller then names the line at fault)."""
+    # Each value takes a character and a space: a count the text cannot hold is refused
+    # before an array of that size is made (a header may declare a million frames).
+    if total > (sum(map(len, body)) + len(body) + 1) // 2:
+        return None
+    out = np.empty(total)
+    n = 0
+    for words in _value_blocks(body):
+        if n + len(words) > total:
+            return None
+        try:
+            vals = np.array(words, dtype=np.float64)
+        except ValueError:
+            return None
+        if not (np.abs(vals) <= MAX_VALUE).all():  # NaN fails too
+            return None
+        out[n : n + len(vals)] = vals
+        n += len(vals)
+        del words, vals  # not held while the next block is split
+    return out if n == total else None
+
+
+def _value_blocks(body: list[str]):
+    """The words of ``body`` (``" ".join(body).split()``), in lists of about _BLOCK_CHARS of
+    text; a longer line is cut at whitespace, so no word is split."""
+    block: list[str] = []
+    size = 0
+    for line in body:
+        for piece in _cut(line) if len(line) > _BLOCK_CHARS else (line,):
+            block.append(piece)
+            size += len(piece) + 1
+            if size >= _BLOCK_CHARS:
+                yield " ".join(block).split()
+                block, size = [], 0
+    if block:
+        yield " ".join(block).split()
+
+
+def _cut(line: str):
+    """``line`` in pieces of _BLOCK_CHARS or more (the last may be shorter), each ending
+    before whitespace or at the line's end."""
+    a = 0
+    while a < len(line):
+        m = _SPACE.search(line, a + _BLOCK_CHARS)
+        b = m.start() if m else len(line)
+        yield line[a:b]
+        a = b
+
+
+def _count_values(text: str) -> int:
+    """``len(text.split())``, counted a block at a time (a line may hold a GiB of values)."""
+    return sum(len(piece.split()) for piece in _cut(text))
 
 
 def _is_float(v: str) -> bool:
@@ -376,9 +451,12 @@ def read_bvh(
     joints, i = _parse_hierarchy(path, lines)
     n_channels = sum(len(j.channels) for j in joints)
     data, fps, _ = _parse_motion(path, lines, i, n_channels)
+    del lines  # the text: as large as the values, and not needed again
     trans, rots = _joint_transforms(joints, data, root_position or "replace")
     if root_position is None and _root_rule(joints, trans, rots) == "add":
+        del trans, rots  # not held beside their replacement
         trans, rots = _joint_transforms(joints, data, "add")
+    del data
 
     names = [jt.name for jt in joints]
     parents = [jt.parent for jt in joints]

@@ -361,3 +361,96 @@ def test_a_header_declaring_fewer_or_more_frames_than_held_reads_as_before(tmp_p
         MotionFormatError, match=r"more\.bvh:20: file has 2 of 1000000 frames \(truncated\?\)"
     ):
         read_bvh(p)
+
+
+def chain_bvh(depth: int, fan: int = 0) -> str:
+    """A 3-frame take: a chain of ``depth`` joints under the root, and ``fan`` leaf joints
+    beside the chain's first joint (the shape of /tmp/scale_audit's gen_deep_bvh.py)."""
+    joint = "JOINT j{}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n"
+    text = "HIERARCHY\nROOT r\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation\n"
+    text += "".join(joint.format(f"f{k}") + "}\n" for k in range(fan))
+    text += "".join(joint.format(k) for k in range(depth)) + "}\n" * depth + "}\n"
+    row = " ".join(["0"] * (6 + 3 * (depth + fan)))
+    return text + f"MOTION\nFrames: 3\nFrame Time: 0.0333333\n{row}\n{row}\n{row}\n"
+
+
+def test_a_hierarchy_too_deep_or_with_too_many_joints_is_refused_in_one_line(tmp_path, capsys):
+    """Before: a 1 MB, 3-frame take of 20,000 nested joints took `tween convert` 77 s and
+    5.3 GB and wrote a 576 MB shot (USD joint tokens are full paths: N²/2 names). Now the
+    hierarchy is refused at the joint past the bound, before MOTION is read."""
+    from cli_contract import refused
+
+    # The root is level 1: a chain of 255 below it is as deep as a take may nest.
+    assert len(read_bvh(write(tmp_path, chain_bvh(255), "deepest.bvh")).skeleton.names) == 256
+    deep = write(tmp_path, chain_bvh(20_000), "deep.bvh")  # j255, level 257, on line 1026
+    wide = write(tmp_path, chain_bvh(0, fan=10_000), "wide.bvh")  # 10,001 joints, two levels
+    for p, says in (
+        (deep, f"{deep}:1026: joints nested more than the 256 levels deep a take may hold"),
+        (wide, f"{wide}:50001: more than the 10,000 joints a take may hold"),
+    ):
+        with pytest.raises(MotionFormatError) as err:
+            read_bvh(p)
+        assert str(err.value) == says
+        out = tmp_path / "out"
+        out.mkdir(exist_ok=True)
+        assert refused(["convert", p, out / "shot.usdc"], capsys, tmp_path) == f"tween: error: {says}"
+        assert not any(out.iterdir())
+
+
+def test_values_read_a_block_at_a_time_are_those_of_the_whole_text(tmp_path, monkeypatch):
+    """The motion is split into values a block of text at a time; blocks of a few characters
+    (a line cut at whitespace, a value never) read what the whole text read at once did."""
+    from pipeline.motion import bvh
+
+    rng = np.random.default_rng(0)
+    words = [f"{v:.{rng.integers(0, 12)}f}" for v in rng.uniform(-1e3, 1e3, 90)]
+    seps = rng.choice([" ", "  ", "\t", " \t "], 90)
+    rows = [
+        "".join(f"{s}{w}" for s, w in zip(seps[k : k + 9], words[k : k + 9], strict=True)) + " "
+        for k in range(0, 90, 9)
+    ]
+    # As written, then all values on one line (read as before: the count is of the whole).
+    for body in ("\n".join(rows), "".join(rows)):
+        text = GOOD.split("MOTION")[0] + f"MOTION\nFrames: 10\nFrame Time: 0.0333333\n{body}\n"
+        whole = np.array(" ".join(text.split("Time: 0.0333333\n")[1].split("\n")).split(), np.float64)
+        for size in (1, 5, 17, 1 << 20):
+            monkeypatch.setattr(bvh, "_BLOCK_CHARS", size)
+            lines = bvh._open_text(write(tmp_path, text, "blocks.bvh"))
+            joints, i = bvh._parse_hierarchy(tmp_path / "blocks.bvh", lines)
+            data, _, _ = bvh._parse_motion(tmp_path / "blocks.bvh", lines, i, 9)
+            assert np.array_equal(data.ravel(), whole), size
+
+
+def test_reading_the_motion_makes_no_python_string_per_value(tmp_path):
+    """The values were split into one Python string each, all at once: about 17 bytes per
+    byte of text (a 505 MB take took 8.3 GB). Read a block at a time into one float array,
+    8 MB of motion peaks under 2.5 bytes per byte (1.3 now, the floats 0.9 of it; it was 8.4)."""
+    import tracemalloc
+
+    from pipeline.motion import bvh
+
+    row = " ".join(["-123.456"] * 9) + "\n"
+    frames = 8_000_000 // len(row)
+    text = GOOD.split("Frames:")[0] + f"Frames: {frames}\nFrame Time: 0.0333333\n" + row * frames
+    p = write(tmp_path, text, "long.bvh")
+    lines = bvh._open_text(p)
+    joints, i = bvh._parse_hierarchy(p, lines)
+    tracemalloc.start()
+    try:
+        data, _, _ = bvh._parse_motion(p, lines, i, 9)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert data.shape == (frames, 9) and (data == -123.456).all()
+    assert peak < 2.5 * len(row) * frames, f"{peak / (len(row) * frames):.1f} bytes per byte of text"
+
+
+def test_a_line_of_too_many_values_is_counted_without_splitting_it_at_once(tmp_path, monkeypatch):
+    """A frame of too many values is named with their count, counted a block at a time."""
+    from pipeline.motion import bvh
+
+    monkeypatch.setattr(bvh, "_BLOCK_CHARS", 1000)
+    p = write(tmp_path, GOOD.replace("1 90 0 0 0 0 20 0 0", "1 2 " * 5000), "long_line.bvh")
+    with pytest.raises(MotionFormatError) as err:
+        read_bvh(p)
+    assert str(err.value) == f"{p}:20: frame 1 has 10000 values, expected 9"
