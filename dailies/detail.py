@@ -3,6 +3,7 @@ per character, the model, and the version history with its decisions."""
 
 from __future__ import annotations
 
+import glob
 import json
 import re
 from pathlib import Path
@@ -204,5 +205,5 @@ def detail(shot: Shot) -> dict:
         "takes": [{"take": t, **{k: v for k, v in files[t].items() if k not in ("fps",)}} for t in takes],
         "characters": chars["characters"],
         "history": hist,
-        "published": sorted(p.name for p in shot.folder.glob(f"{shot.stem}.publish.v*.usd*")),
+        "published": sorted(p.name for p in shot.folder.glob(f"{glob.escape(shot.stem)}.publish.v*.usd*")),
     }

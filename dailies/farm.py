@@ -9,6 +9,7 @@ embedded one, whose jobs end with it) there is nothing to list, and the page say
 
 from __future__ import annotations
 
+import glob
 import os
 import re
 import time
@@ -145,7 +146,7 @@ def render(roots: list[Path], shot, version: int, unrendered: list[int]) -> dict
 
     if not unrendered:
         raise TweenError(f"{shot.stem} v{version:03d}: every take is rendered already")
-    review = sorted(shot.folder.glob(f"{shot.stem}.review.v{version:03d}.usd*"))
+    review = sorted(shot.folder.glob(f"{glob.escape(shot.stem)}.review.v{version:03d}.usd*"))
     if not review:
         raise TweenError(
             f"{shot.stem} v{version:03d}: its review layer is gone; fill the shot again to render it"

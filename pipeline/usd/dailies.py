@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import datetime
 import getpass
+import glob
 import os
 import re
 from pathlib import Path
@@ -125,6 +126,7 @@ def _latest(shot: str, out: Path, stem: str) -> tuple[int, Path]:
     versions = _fill_layers(out, stem) if out.is_dir() else {}
     if not versions:
         raise ShotError(shot, f"no fill yet: no {stem}.tween.vNNN layer in {out} (run tween fill first)")
+    write.check_series(shot, out, stem)  # another shot's fills: approve and publish took them
     n = max(versions)
     return n, versions[n]
 
@@ -232,7 +234,9 @@ def _taken(out: Path, stem: str) -> set[int]:
     """Versions in use: fill layers and review layers (as write.write allocates them)."""
     review = re.compile(rf"^{re.escape(stem)}\.review\.v(\d+)\.usd[ac]?$")
     used = set(_fill_layers(out, stem))
-    used |= {int(m[1]) for p in out.glob(f"{stem}.review.v*.usd*") if (m := review.match(p.name))}
+    used |= {
+        int(m[1]) for p in out.glob(f"{glob.escape(stem)}.review.v*.usd*") if (m := review.match(p.name))
+    }
     return used
 
 

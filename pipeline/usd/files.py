@@ -142,7 +142,7 @@ def discard(tmp: Path) -> None:
     tmp.unlink(missing_ok=True)
     stem = tmp.name[: -len(tmp.suffix)] if tmp.suffix else tmp.name
     try:
-        for p in tmp.parent.glob(f"{stem}.*"):
+        for p in tmp.parent.glob(f"{glob.escape(stem)}.*"):
             if p.name != tmp.name and _TEMP_RE.match(p.name):
                 p.unlink(missing_ok=True)
     except OSError:

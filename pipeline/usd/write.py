@@ -11,6 +11,7 @@ the variants, so no local opinion of the animator's layers can hide them).
 from __future__ import annotations
 
 import datetime
+import glob
 import json
 import os
 import re
@@ -58,7 +59,7 @@ def versions(out_dir: Path, stem: str) -> dict[int, Path]:
     """The shot's fill layers in ``out_dir`` by version number."""
     pat = re.compile(rf"^{re.escape(stem)}\.tween\.v(\d+)\.usd[ac]?$")
     out = {}
-    for p in out_dir.glob(f"{stem}.tween.v*.usd*"):
+    for p in out_dir.glob(f"{glob.escape(stem)}.tween.v*.usd*"):  # a name may hold [ or *
         m = pat.match(p.name)
         if m:
             out[int(m.group(1))] = p
@@ -74,6 +75,7 @@ def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
     found_versions = versions(out, shot_stem(shot)) if out.is_dir() else {}
     if not found_versions:
         return None
+    check_series(shot, out, shot_stem(shot))  # not another shot's fill as this one's
     return review_of(found_versions[max(found_versions)])
 
 
@@ -401,7 +403,7 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
     for _ in range(1000):
         taken = set(versions(out, stem)) | {
             int(m.group(1))
-            for p in out.glob(f"{stem}.review.v*.usd*")
+            for p in out.glob(f"{glob.escape(stem)}.review.v*.usd*")
             if (m := re.search(r"\.v(\d+)\.", p.name))
         }
         n = max(taken, default=0) + 1
@@ -454,13 +456,16 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
 
 
 def _rel(target: Path, base_dir: Path) -> str:
-    """``target`` relative to ``base_dir`` as given (a symlinked shot stays the link), unless
-    a symlinked folder on the way makes that lexical path lead elsewhere."""
+    """``target`` relative to ``base_dir`` as given (a symlinked shot stays the link), or its
+    absolute path where a symlinked folder on the way makes that relative path lead elsewhere.
+    USD anchors a relative path at the layer's path lexically (``..`` drops a name), while the
+    system follows the link: no relative path reached the shot from both the link's path of
+    the layer (the one printed) and its real one, and the fill composed over nothing."""
     target, base_dir = os.path.abspath(target), os.path.abspath(base_dir)
     rel = os.path.relpath(target, base_dir)
     if os.path.realpath(os.path.join(base_dir, rel)) == os.path.realpath(target):
         return rel
-    return os.path.relpath(os.path.realpath(target), os.path.realpath(base_dir))
+    return target
 
 
 def _open_review_layer(review: Path):

@@ -438,6 +438,25 @@ def test_a_linked_review_layer_is_written_through_its_link_keeping_its_mode(tmp_
     assert subs[0].endswith("sh010.tween.v001.usda") and len(subs) == 2
 
 
+def test_an_output_folder_reached_through_a_link_composes_from_both_paths(tmp_path):
+    """--out-dir through a symbolic link to a folder elsewhere: the review layer named the shot
+    relative to the link's target (``../../../shots/sh010.usda``), and opened at the path
+    printed (through the link) it composed without the shot: no animation, exit 0."""
+    from pxr import Usd, UsdSkel
+
+    shot = bandai_shot(tmp_path / "shots" / "sh010.usda", frames=21, keys_every=10)
+    real = tmp_path / "real" / "deep" / "out"
+    real.mkdir(parents=True)
+    (tmp_path / "shots" / "out").symlink_to(real)
+    res = fill_shot(str(shot), FillOptions(model="interp", out_dir=str(tmp_path / "shots" / "out")))
+    assert res["review"] == str(tmp_path / "shots" / "out" / "sh010.review.v001.usda")
+    for review in (res["review"], str(real / "sh010.review.v001.usda")):
+        stage = Usd.Stage.Open(review)
+        anims = [UsdSkel.Animation(p) for p in stage.Traverse() if p.IsA(UsdSkel.Animation)]
+        assert len(stage.GetLayerStack(False)) == 3, review
+        assert max(len(a.GetRotationsAttr().GetTimeSamples()) for a in anims) == 21, review
+
+
 def test_blend_shape_weights_are_kept(tmp_path):
     from pxr import Sdf, Usd, UsdSkel, Vt
 

@@ -382,3 +382,32 @@ def test_status_line_shows_the_decision(shot, capsys, monkeypatch):
     line = out.strip()
     assert line.startswith(f"J1 {shot}: success, layer {v1}, approved take 1 by alice at ")
     assert line.endswith(f'("nice weight shift") in {shot.parent / "walk.tween.v002.usda"}')
+
+
+def test_approve_publish_and_review_refuse_another_shots_fills(tmp_path, capsys):
+    """sh010.v2.usda, never filled, beside sh010.v1.usda's fills (one series, ``sh010``):
+    approve wrote v1's fill as v2's version and publish published it, exit 0."""
+    v1 = bandai_shot(tmp_path / "sh010.v1.usda", frames=21, keys_every=10)
+    v2 = tmp_path / "sh010.v2.usda"
+    shutil.copy(v1, v2)
+    fill_shot(str(v1), FillOptions(model="interp"))
+    capsys.readouterr()  # the fill's own lines
+    before = tree_hashes(tmp_path)
+    for args in (("approve", v2, "--take", "0"), ("publish", v2), ("review", v2, "--size", "160x90")):
+        code, out, err = tween(capsys, *args)
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (args, err)
+        assert "which hold the fills of sh010.v1.usda" in err, err
+    assert tree_hashes(tmp_path) == before
+
+
+def test_a_shot_named_with_glob_characters_finds_its_versions(tmp_path, capsys):
+    """``sh[0].usda``: its versions were looked up by an unescaped glob pattern, so the second
+    fill found no v001 (and refused its review layer) and approve said "no fill yet"."""
+    shot = bandai_shot(tmp_path / "sh[0].usda", frames=21, keys_every=10)
+    for n in (1, 2):
+        assert fill_shot(str(shot), FillOptions(model="interp"))["version"] == n
+    code, out, err = tween(capsys, "approve", shot, "--take", "0")
+    assert code == 0, err
+    assert (tmp_path / "sh[0].tween.v003.usda").is_file()
+    code, out, err = tween(capsys, "publish", shot)
+    assert code == 0 and out.strip() == str(tmp_path / "sh[0].publish.v003.usda"), err
