@@ -12,6 +12,7 @@ key prefix (``<prefix>rig:``), time limits and visibility timeout.
 from __future__ import annotations
 
 import os
+import threading
 import time
 from contextlib import contextmanager
 
@@ -147,25 +148,66 @@ def connection_error(what: str, url: str, e: BaseException, env: str = "") -> Fa
     )
 
 
-def check_broker(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
-    """Connects to ``celery_app``'s broker once, with a short bounded retry; raises
-    FarmConnectionError naming the URL (password hidden) when it cannot."""
-    url = celery_app.conf.broker_url
-    try:
-        conn = celery_app.connection_for_write(connect_timeout=timeout)
+#: How long a farm command waits for the broker or result backend to answer its first
+#: request, connection included: a server that accepts the connection and never replies (a
+#: stopped or wedged Redis) hung every farm command, the client libraries waiting forever.
+ANSWER_TIMEOUT = 8.0
+
+
+def _answered(what: str, url: str, check, env: str = "", within: float | None = None) -> None:
+    """Runs ``check`` in a daemon thread and waits at most ``within`` (ANSWER_TIMEOUT) s for
+    it: its own error, or FarmConnectionError naming the URL when it did not answer. A thread,
+    because no socket timeout bounds them all (redis-py retries a timeout itself, the backend's
+    client waits 120 s, TLS and AMQP handshakes have their own); a hung one is left behind."""
+    within = ANSWER_TIMEOUT if within is None else within
+    out: list[BaseException | None] = []
+
+    def run() -> None:
         try:
-            conn.ensure_connection(max_retries=2, interval_start=0.2, interval_step=0.5, interval_max=1.0,
-                                   timeout=timeout)  # fmt: skip
-        finally:
-            conn.release()
-    except Exception as e:  # any failure to connect (refused, DNS, auth, unknown transport) is one line
-        raise connection_error("broker", url, e) from None
+            check()
+            out.append(None)
+        except BaseException as e:  # handed to the waiting thread
+            out.append(e)
+
+    t = threading.Thread(target=run, name=f"tween-{what.replace(' ', '-')}-check", daemon=True)
+    t.start()
+    t.join(within)
+    if not out:
+        env = env or ("TWEEN_BROKER_URL" if what == "broker" else "TWEEN_RESULT_BACKEND")
+        raise FarmConnectionError(
+            f"{what} {redact_url(url)}: did not answer within {within:g} s (it accepts the connection "
+            f"but sends nothing back: a stopped, wedged or overloaded server?) (the URL comes from {env} "
+            "or the farm config)"
+        )
+    if out[0] is not None:
+        raise out[0]
 
 
-def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
+def check_broker(celery_app: Celery, timeout: float = CONNECT_TIMEOUT, within: float | None = None) -> None:
+    """Connects to ``celery_app``'s broker once, with a short bounded retry; raises
+    FarmConnectionError naming the URL (password hidden) when it cannot, or when it does not
+    answer within ``within`` s (:func:`_answered`)."""
+    url = celery_app.conf.broker_url
+
+    def check() -> None:
+        try:
+            conn = celery_app.connection_for_write(connect_timeout=timeout)
+            try:
+                conn.ensure_connection(max_retries=2, interval_start=0.2, interval_step=0.5,
+                                       interval_max=1.0, timeout=timeout)  # fmt: skip
+            finally:
+                conn.release()
+        except Exception as e:  # any failure to connect (refused, DNS, auth, unknown transport) is one line
+            raise connection_error("broker", url, e) from None
+
+    _answered("broker", url, check, within=within)
+
+
+def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT, within: float | None = None) -> None:
     """Pings a Redis result backend (with a short bounded retry); of another backend, checks
     that its database can be reached (workers/backends.py: an SQLite file's folder, a
-    server's port) without connecting to it (a database backend would create its tables)."""
+    server's port) without connecting to it (a database backend would create its tables).
+    Either answers within ``within`` s or is one line (:func:`_answered`)."""
     url = celery_app.conf.result_backend
     if not str(url).startswith(("redis://", "rediss://")):
         try:
@@ -173,19 +215,21 @@ def check_backend(celery_app: Celery, timeout: float = CONNECT_TIMEOUT) -> None:
         except OSError as e:
             raise connection_error("result backend", url, e) from None
         return
+    same = url == celery_app.conf.broker_url  # Redis: the backend is the broker by default
+    what, env = ("broker", "TWEEN_BROKER_URL") if same else ("result backend", "")
 
-    deadline = time.monotonic() + timeout / 2  # redis-py retries each ping a few times itself
-    while True:
-        try:
-            client = celery_app.backend.client
-            client.ping()
-            return
-        except Exception as e:
-            if time.monotonic() + 0.3 > deadline:
-                same = url == celery_app.conf.broker_url  # Redis: the backend is the broker by default
-                what, env = ("broker", "TWEEN_BROKER_URL") if same else ("result backend", "")
-                raise connection_error(what, url, e, env) from None
-            time.sleep(0.3)
+    def check() -> None:
+        deadline = time.monotonic() + timeout / 2  # redis-py retries each ping a few times itself
+        while True:
+            try:
+                celery_app.backend.client.ping()  # (the thread's own backend: Celery's is per thread)
+                return
+            except Exception as e:
+                if time.monotonic() + 0.3 > deadline:
+                    raise connection_error(what, url, e, env) from None
+                time.sleep(0.3)
+
+    _answered(what, url, check, env, within)
 
 
 def check_farm(celery_app: Celery, *, broker: bool = True, backend: bool = True) -> None:
@@ -230,9 +274,23 @@ def check_embedded_stores(celery_app: Celery) -> None:
             )
 
 
+def _lost(e: FarmConnectionError, what: str, job_ids: list[str]) -> FarmConnectionError:
+    """The connection error of a command that had sent ``job_ids``: they may still run."""
+    if not job_ids:
+        return e
+    ids = " ".join(job_ids)
+    one = job_ids[0] if len(job_ids) == 1 else "ID"
+    return FarmConnectionError(
+        f"lost the {what} while waiting for job(s) {ids}, which may still run on the farm: "
+        f"`tween status {one}` once the {what} is back, `tween cancel {one}` to stop it; {e}"
+    )
+
+
 @contextmanager
-def farm_errors(celery_app: Celery):
-    """Turns a broker or backend connection lost mid-command into the same one-line error."""
+def farm_errors(celery_app: Celery, job_ids: list[str] | None = None):
+    """Turns a broker or backend connection lost mid-command into the same one-line error;
+    with ``job_ids`` (filled in as the command sends them) the line names those jobs, which
+    the farm may still run (their client only lost sight of them)."""
     from kombu.exceptions import OperationalError
 
     try:
@@ -245,8 +303,10 @@ def farm_errors(celery_app: Celery):
     try:
         yield
     except OperationalError as e:
-        raise connection_error("broker", celery_app.conf.broker_url, e) from None
+        raise _lost(
+            connection_error("broker", celery_app.conf.broker_url, e), "broker", job_ids or []
+        ) from None
     except redis_errors as e:
         url = celery_app.conf.result_backend
-        same = url == celery_app.conf.broker_url
-        raise connection_error("broker" if same else "result backend", url, e) from None
+        what = "broker" if url == celery_app.conf.broker_url else "result backend"
+        raise _lost(connection_error(what, url, e), what, job_ids or []) from None

@@ -23,8 +23,9 @@ from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
+from workers.errors import StoreFullError, disk_full
 from workers.runtime import thread_env
-from workers.settings import load_settings, redact_url
+from workers.settings import cache_dir, load_settings, redact_url
 
 
 def _jobs():
@@ -379,8 +380,20 @@ def _report(states) -> int:
 
 
 def _fill_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, progress: bool) -> int:
-    """``tween fill`` on its own embedded farm: starts the worker, sends and waits; returns
-    the exit code. A worker that dies has its unfinished jobs undone."""
+    """``tween fill`` on its own embedded farm (:func:`_run_embedded`); its SQLite broker or
+    result store on a full disk is one line naming the cache folder (SQLAlchemy's errors
+    and Celery's BackendStoreError were internal errors, or kombu's AttributeError)."""
+    try:
+        return _run_embedded(paths, opts, render, concurrency, progress)
+    except Exception as e:
+        if disk_full(e):
+            raise StoreFullError(cache_dir() / "farm") from None
+        raise
+
+
+def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, progress: bool) -> int:
+    """Starts the embedded worker, sends the jobs and waits; returns the exit code. A worker
+    that dies has its unfinished jobs undone."""
     from workers.embedded import EmbeddedWorker, WorkerDied
 
     jobs = _jobs()
@@ -441,9 +454,10 @@ def fill(
             jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
         check_farm(celery_app)
         # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs.
-        with farm_errors(celery_app), _Interrupts() as intr:
+        ids: list[str] = []  # named by a connection lost while waiting: they may still run
+        with farm_errors(celery_app, ids), _Interrupts() as intr:
             intr.armed = False  # counted, not raised, while the jobs are sent
-            ids = jobs.submit(paths, opts, render=render)
+            ids += jobs.submit(paths, opts, render=render)
             _said(paths, ids, progress)
             code = _run_jobs(ids, intr, progress, idle=_NoWorkerNotice(ids))
         _exit(code)

@@ -16,6 +16,7 @@ import uuid
 
 from pipeline.errors import TweenError
 from workers import runtime
+from workers.errors import disk_full
 from workers.settings import EMBEDDED_QUEUE_PREFIX, cache_dir
 
 
@@ -84,18 +85,22 @@ class EmbeddedWorker:
         try:
             self._stop()
         finally:
-            self._drop_queue()
+            self._drop_queue(quiet=disk_full(exc[1]))
 
-    def _drop_queue(self) -> None:
+    def _drop_queue(self, quiet: bool = False) -> None:
         """This run's private queue leaves the broker with its messages (best effort: a
-        broker that cannot be written now keeps it, as before)."""
+        broker that cannot be written now keeps it, as before). ``quiet``: the run failed
+        for a full disk, which its own error says."""
         from workers.app import app
 
         try:
             with app.connection_for_write() as conn:
                 conn.default_channel.queue_delete(self.queue)
-        except Exception as e:  # the run's own outcome stands; say why the queue stayed
-            print(f"tween: warning: the embedded broker keeps queue {self.queue}: {e}", file=sys.stderr)
+        except Exception as e:  # the run's own outcome stands; say why the queue stayed, in one line
+            if quiet and disk_full(e):
+                return
+            why = "the disk is full" if disk_full(e) else " ".join(str(e).split("\n", 1)[0].split())
+            print(f"tween: warning: the embedded broker keeps queue {self.queue}: {why}", file=sys.stderr)
 
     def _stop(self) -> None:
         if self.proc is None or self.proc.poll() is not None:

@@ -13,6 +13,7 @@ import sys
 import time
 import uuid
 from dataclasses import asdict, dataclass, field, replace
+from datetime import UTC, datetime
 
 from celery import chain, chord, group
 from celery import states as cstates
@@ -290,7 +291,7 @@ def state(job_id: str) -> JobState:
         elif st in (cstates.STARTED, cstates.RETRY):
             js.state, js.stage = "RUNNING", name
         elif st == cstates.FAILURE:
-            failures.append((name, app.backend.exception_to_python(m.get("result"))))
+            failures.append((name, app.backend.exception_to_python(m.get("result")), tid))
     if js.done and js.state == "QUEUED" and js.done < js.total:
         js.state = "RUNNING"
     running = [(n, tid) for n, tid in stages if js.stages[n] in (cstates.STARTED, cstates.RETRY)]
@@ -310,10 +311,29 @@ def state(job_id: str) -> JobState:
         )
     elif failures:
         # A failed take also fails the chord body with a ChordError; report the cause.
-        name, exc = ([f for f in failures if type(f[1]).__name__ != "ChordError"] or failures)[0]
+        name, exc, tid = ([f for f in failures if type(f[1]).__name__ != "ChordError"] or failures)[0]
         js.state, js.stage = "FAILURE", name
-        js.error = failure_message(exc, js.shot, stage=name, work=info.get("work"))
+        silent = _silent_before(tid, metas[tid]) if type(exc).__name__ == "TimeLimitExceeded" else None
+        js.error = failure_message(exc, js.shot, stage=name, work=info.get("work"), silent_s=silent)
     return js
+
+
+def _silent_before(task_id: str, meta: dict) -> float | None:
+    """Seconds between a failed stage's last heartbeat and its failure, when its beats had
+    stopped well before (more than :func:`control.dead_after`), else None: a stage killed at
+    its hard time limit while its beats went on simply ran out of time."""
+    beat = control.record(_meta(control.beat_id(task_id)), control.BEAT_STATE)
+    done = meta.get("date_done")
+    if not beat or beat.get("ended") or not isinstance(beat.get("time"), (int, float)) or not done:
+        return None
+    try:
+        when = done if isinstance(done, datetime) else datetime.fromisoformat(str(done))
+    except ValueError:
+        return None
+    if when.tzinfo is None:  # the database backend stores UTC without a zone
+        when = when.replace(tzinfo=UTC)
+    gap = when.timestamp() - float(beat["time"])
+    return gap if gap > control.dead_after(app.conf.tween, beat) else None
 
 
 def _heartbeats(js: JobState, running: list[tuple[str, str]]) -> None:

@@ -14,6 +14,7 @@ hard limit as ``TimeLimitExceeded(50,)`` stored for the task after its process w
 from __future__ import annotations
 
 import math
+import os
 
 from workers.errors import JobError
 from workers.settings import FarmSettings, config_file
@@ -25,13 +26,22 @@ def _settings() -> FarmSettings:
     return app.conf.tween
 
 
+def _raise_in(variables: str, env=None) -> str:
+    """``in <file> or <variables>``, or ``with <variables>`` when the farm config names no
+    regular file to edit (``TWEEN_FARM_CONFIG=/dev/null``: no settings file at all)."""
+    file = config_file(env)
+    if os.path.exists(file) and not os.path.isfile(file):
+        return f"with {variables}"
+    return f"in {file} or {variables}"
+
+
 def limit_message(shot: str, setting: str, kind: str, settings: FarmSettings | None = None, env=None) -> str:
     """``fill of <shot> hit the farm's <kind> time limit (<setting> = N s); raise it in <file>
     or TWEEN_<SETTING>``, with the limit that has to stay above it."""
     s = _settings() if settings is None else settings
     msg = (
         f"fill of {shot} hit the farm's {kind} time limit ({setting} = {getattr(s, setting)} s); "
-        f"raise it in {config_file(env)} or TWEEN_{setting.upper()}"
+        f"raise it {_raise_in(f'TWEEN_{setting.upper()}', env)}"
     )
     if setting == "fill_soft_time_limit":
         msg += f" (it must stay below fill_time_limit = {s.fill_time_limit} s)"
@@ -64,8 +74,8 @@ def render_limit_message(
     return (
         f"review render of {shot} hit the farm's {kind} time limit of {soft if kind == 'soft' else hard} s "
         f"({base} = {getattr(s, base)} s + render_frame_ms = {s.render_frame_ms} ms × {frames} frames × "
-        f"{takes} take(s)); raise render_frame_ms or {base} in {config_file(env)} or "
-        f"TWEEN_RENDER_FRAME_MS / TWEEN_{base.upper()} where the job is submitted"
+        f"{takes} take(s)); raise render_frame_ms or {base} "
+        f"{_raise_in(f'TWEEN_RENDER_FRAME_MS / TWEEN_{base.upper()}', env)} where the job is submitted"
     )
 
 
@@ -76,11 +86,15 @@ def failure_message(
     env=None,
     stage: str = "",
     work: dict | None = None,
+    silent_s: float | None = None,
 ) -> str:
     """A failed stage's message for ``tween status``: the hard limit's one line for a task
     killed at its hard time limit (the render's, for the ``review`` stage, sized by ``work``:
-    {"frames", "takes"}), else the exception's own text."""
+    {"frames", "takes"}), else the exception's own text. ``silent_s``: the stage's heartbeats
+    had stopped that long before it was killed (:func:`silent_message`)."""
     name = type(exc).__name__
+    if name == "TimeLimitExceeded" and silent_s:
+        return silent_message(shot or "the shot", stage, silent_s)
     if stage == "review" and name in ("TimeLimitExceeded", "SoftTimeLimitExceeded"):
         work = work or {}
         kind = "hard" if name == "TimeLimitExceeded" else "soft"
@@ -94,11 +108,23 @@ def failure_message(
     return str(exc) or name
 
 
+def silent_message(shot: str, stage: str, silent_s: float) -> str:
+    """A stage killed at its hard time limit whose heartbeats (written every few seconds
+    while it runs) had stopped ``silent_s`` before: it did not run out of time, its worker
+    could not reach the result backend (a broker or backend outage), or it hung."""
+    return (
+        f"{stage or 'a stage'} of {shot} was stopped at its hard time limit, but its worker had written no "
+        f"heartbeat for the {silent_s:.0f} s before: it lost the farm's result backend (or broker) while "
+        "the stage ran, or its process hung, so a longer limit would not help; see the worker's log, "
+        "and fill the shot again once the farm answers"
+    )
+
+
 def train_limit_message(what: str, setting: str, settings: FarmSettings | None = None, env=None) -> str:
     """``<what> hit the farm's time limit (<setting> = N s, stopped at 95 %); raise it …``."""
     s = _settings() if settings is None else settings
     return (
         f"{what} hit the farm's time limit ({setting} = {getattr(s, setting)} s; the soft limit is 95 % of "
-        f"it); raise it in {config_file(env)} or TWEEN_{setting.upper()}, with the visibility timeout "
+        f"it); raise it {_raise_in(f'TWEEN_{setting.upper()}', env)}, with the visibility timeout "
         "above it on Redis"
     )

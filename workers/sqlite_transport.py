@@ -6,20 +6,53 @@ transport option to ``create_engine``): a 0.1 s polling interval instead of 1 s,
 four-stage job does not wait seconds between stages; and SQLite connections that are never
 shared across ``fork`` (prefork children publish the next stage of a chain themselves).
 And a deleted queue really goes, with its delivered messages (the embedded farm deletes each
-run's private queue when the run ends).
+run's private queue when the run ends). And a message that cannot be written because the
+disk is full is one error naming the broker's folder (kombu took SQLite's SQLITE_FULL for a
+lost connection, retried on a channel it had closed, and died of an AttributeError).
 """
 
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 
 from kombu.transport import TRANSPORT_ALIASES
 from kombu.transport import sqlalchemy as kombu_sqla
 
+from workers.errors import StoreFullError, disk_full
+
 ALIAS = "tweensqla"
 
 
+def broker_folder(url: str) -> str:
+    """The folder of the SQLite file of a broker URL (``[tweensqla+]sqlite:///PATH``)."""
+    return os.path.dirname(str(url).split(":///", 1)[-1].split("?", 1)[0]) or "."
+
+
 class Channel(kombu_sqla.Channel):
+    @contextmanager
+    def _room(self):
+        """A full disk while publishing is StoreFullError, which kombu does not retry (it
+        took SQLITE_FULL for a lost connection and retried on the channel it had closed)."""
+        try:
+            yield
+        except Exception as e:
+            if not disk_full(e):
+                raise
+            try:
+                self.session.rollback()  # the failed write, so that the session can be closed
+            except Exception:  # the full disk may refuse that too: the error stands
+                pass
+            raise StoreFullError(broker_folder(self.connection.client.hostname)) from None
+
+    def _new_queue(self, queue, **kwargs):
+        with self._room():
+            return super()._new_queue(queue, **kwargs)
+
+    def _put(self, queue, payload, **kwargs):
+        with self._room():
+            return super()._put(queue, payload, **kwargs)
+
     def queue_delete(self, queue, if_unused=False, if_empty=False, **kwargs):
         """Deletes the queue whether or not this process declared it (the stock virtual
         channel deletes only the bindings it knows of)."""

@@ -1,0 +1,278 @@
+"""A farm whose broker misbehaves: one that accepts connections and never answers (a stopped
+Redis) and one that answers slowly, one lost while `tween fill` waits, a stage killed at its
+hard limit after its heartbeats stopped, and the embedded farm's SQLite stores on a full disk.
+Each is one line on stderr and exit status 2."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+
+import pytest
+from redis_server import REPO, configure_app, start_redis
+
+
+def _tween(*args, env: dict, timeout: float = 60) -> subprocess.CompletedProcess:
+    full = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    full.update(env, TWEEN_FARM_CONFIG=os.devnull)
+    if "TWEEN_DATA" in os.environ:
+        full["TWEEN_DATA"] = os.environ["TWEEN_DATA"]
+    cmd = [sys.executable, "-m", "pipeline.cli", *map(str, args)]
+    return subprocess.run(cmd, env=full, cwd=REPO, capture_output=True, text=True, timeout=timeout)
+
+
+class _Server:
+    """A TCP server on a free port: ``silent`` accepts and never replies; otherwise it relays
+    to ``upstream`` (host, port), holding every reply ``delay`` s."""
+
+    def __init__(self, upstream=None, delay: float = 0.0):
+        self.upstream, self.delay, self.socks = upstream, delay, []
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.sock.accept()
+            except OSError:
+                return
+            self.socks.append(client)  # held open, never answered when silent
+            if self.upstream:
+                up = socket.create_connection(self.upstream)
+                self.socks.append(up)
+                threading.Thread(target=self._pipe, args=(client, up, 0.0), daemon=True).start()
+                threading.Thread(target=self._pipe, args=(up, client, self.delay), daemon=True).start()
+
+    @staticmethod
+    def _pipe(src, dst, delay: float) -> None:
+        try:
+            while data := src.recv(65536):
+                time.sleep(delay)
+                dst.sendall(data)
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        for s in [self.sock, *self.socks]:
+            s.close()
+
+
+@pytest.fixture
+def silent():
+    s = _Server()
+    yield s
+    s.close()
+
+
+def _lines(r: subprocess.CompletedProcess) -> list[str]:
+    return [ln for ln in r.stderr.replace("\r", "\n").splitlines() if ln.strip()]
+
+
+def test_a_broker_that_never_answers_is_one_line_in_seconds(silent):
+    url = f"redis://127.0.0.1:{silent.port}/0"
+    t0 = time.monotonic()
+    r = _tween("status", "abc", env={"TWEEN_BROKER_URL": url}, timeout=40)
+    took = time.monotonic() - t0
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert _lines(r) == [
+        f"tween: error: broker {url}: did not answer within 8 s (it accepts the connection but sends "
+        "nothing back: a stopped, wedged or overloaded server?) (the URL comes from TWEEN_BROKER_URL or "
+        "the farm config)"
+    ]
+    assert took < 20
+
+
+@pytest.mark.parametrize("check", ["check_broker", "check_backend"])
+def test_the_checks_give_up_on_a_silent_server(silent, check):
+    from celery import Celery
+
+    import workers.app as wa
+    from workers.errors import FarmConnectionError
+    from workers.settings import load_settings
+
+    url = f"redis://127.0.0.1:{silent.port}/0"
+    s = load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": url})
+    app = wa.configure(Celery("tween-silent", set_as_current=False), s)
+    t0 = time.monotonic()
+    with pytest.raises(FarmConnectionError, match=r"did not answer within 1\.5 s"):
+        getattr(wa, check)(app, within=1.5)
+    assert time.monotonic() - t0 < 5
+
+
+def test_a_slow_broker_that_answers_still_works():
+    """Every reply held 0.5 s (the first request, the check's, included): slow, not dead."""
+    server = start_redis()
+    host, port = server.url.split("//")[1].split("/")[0].split(":")
+    slow = _Server((host, int(port)), delay=0.5)
+    try:
+        url = f"redis://127.0.0.1:{slow.port}/0"
+        env = {"TWEEN_BROKER_URL": url, "TWEEN_KEY_PREFIX": server.prefix}
+        r = _tween("status", "nosuchjob", env=env, timeout=60)
+    finally:
+        slow.close()
+        server.cleanup()
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert _lines(r) == ["tween: error: nosuchjob: no such job (unknown id, or its record expired)"]
+
+
+def _redis_server(port: int, folder) -> subprocess.Popen:
+    exe = shutil.which("redis-server")
+    if exe is None:
+        pytest.skip("no redis-server")
+    cmd = [exe, "--port", str(port), "--bind", "127.0.0.1", "--save", "", "--dir", str(folder)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(100):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return proc
+        except OSError:
+            time.sleep(0.05)
+    proc.kill()
+    pytest.skip("redis-server did not start")
+
+
+def test_a_fill_that_loses_its_broker_names_its_job(tmp_path):
+    """A private Redis stopped while `tween fill` waits on its queued job (no worker)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    shot = tmp_path / "sh010.usda"
+    shutil.copyfile(REPO / "examples" / "sh010_walk.usda", shot)
+    proc = _redis_server(port, tmp_path)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    env.update(TWEEN_FARM_CONFIG=os.devnull, TWEEN_BROKER_URL=f"redis://127.0.0.1:{port}/0",
+               TWEEN_SHOT_ROOTS=str(tmp_path), TWEEN_QUEUE=f"q-{uuid.uuid4().hex[:8]}")  # fmt: skip
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "interp"]
+    fill = subprocess.Popen(
+        cmd, env=env, cwd=REPO, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True
+    )
+    try:
+        first = fill.stderr.readline()  # "tween: job ID submitted (...)"
+        assert "submitted" in first, first
+        job = first.split()[2]
+    finally:
+        proc.kill()
+        proc.wait()
+    err = first + fill.stderr.read()
+    assert fill.wait(timeout=60) == 2, err
+    last = [ln for ln in err.replace("\r", "\n").splitlines() if ln.strip()][-1]
+    assert last.startswith(
+        f"tween: error: lost the broker while waiting for job(s) {job}, which may still run"
+    ), last
+    assert f"`tween status {job}` once the broker is back, `tween cancel {job}` to stop it" in last
+
+
+def test_limit_advice_names_no_config_file_that_is_not_one():
+    from celery.exceptions import TimeLimitExceeded
+
+    from workers.limits import failure_message
+    from workers.settings import load_settings
+
+    env = {"TWEEN_FARM_CONFIG": os.devnull}
+    msg = failure_message(TimeLimitExceeded(50), "sh.usda", load_settings(env), env, stage="validate")
+    assert msg.startswith("fill of sh.usda hit the farm's hard time limit (fill_time_limit = 50 s); ")
+    assert "raise it with TWEEN_FILL_TIME_LIMIT" in msg and os.devnull not in msg
+
+
+@pytest.fixture
+def embedded_app(tmp_path):
+    """The fill app on an embedded (SQLite) result store under ``tmp_path``."""
+    from workers.app import app
+    from workers.settings import load_settings
+
+    old = app.conf.tween
+    configure_app(app, load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_CACHE": str(tmp_path)}))
+    try:
+        yield app
+    finally:
+        configure_app(app, old)
+
+
+@pytest.mark.parametrize("silent_s", [60, 0])
+def test_a_stage_killed_after_its_heartbeats_stopped_says_so(embedded_app, silent_s):
+    """The validate stage's last heartbeat 60 s before it was killed at its hard limit: the
+    worker lost the backend (the limit is not the cause); beats to the end: the limit is."""
+    from celery.exceptions import TimeLimitExceeded
+
+    from workers import control, jobs
+    from workers.app import SUBMITTED
+
+    job = uuid.uuid4().hex
+    tid = f"{job}.validate"
+    embedded_app.backend.store_result(job, {"shot": "/s/sh.usda", "takes": 1, "render": False}, SUBMITTED)
+    beat = {
+        "time": time.time() - silent_s,
+        "ended": False,
+        "interval": 2,
+        "worker": "w",
+        "pid": 1,
+        "host": "h",
+    }
+    embedded_app.backend.store_result(control.beat_id(tid), beat, control.BEAT_STATE)
+    embedded_app.backend.mark_as_failure(tid, TimeLimitExceeded(50))
+    s = jobs.state(job)
+    assert s.state == "FAILURE" and s.stage == "validate"
+    if silent_s:
+        assert s.error.startswith("validate of /s/sh.usda was stopped at its hard time limit, but its worker "
+                                  "had written no heartbeat for the 60 s before: it lost the farm's result "
+                                  "backend (or broker)"), s.error  # fmt: skip
+    else:
+        assert s.error.startswith("fill of /s/sh.usda hit the farm's hard time limit"), s.error
+
+
+def test_embedded_publish_on_a_full_disk_is_one_error(tmp_path):
+    """SQLite's own SQLITE_FULL (``PRAGMA max_page_count`` at the file's size: it cannot grow)
+    while the embedded broker publishes: StoreFullError naming its folder, not kombu's retry
+    on a closed channel (AttributeError)."""
+    from kombu import Connection
+    from sqlalchemy import event
+    from sqlalchemy.engine import Engine
+
+    from workers import sqlite_transport  # registers the embedded transport
+
+    url = f"tweensqla+sqlite:///{tmp_path / 'broker.sqlite'}"
+    with Connection(url) as conn:
+        conn.SimpleQueue("q").put({"n": 0})  # the tables and the queue exist
+
+        def full(dbapi_conn, _):
+            dbapi_conn.execute("PRAGMA max_page_count = 1")  # clamped to the current size
+
+        event.listen(Engine, "connect", full)
+        try:
+            for engine, _ in sqlite_transport.kombu_sqla.Channel._engines.values():
+                engine.dispose()  # new connections, which get the pragma
+            with pytest.raises(Exception) as e, Connection(url) as c2:
+                c2.SimpleQueue("q").put({"n": "x" * 200_000})
+        finally:
+            event.remove(Engine, "connect", full)
+    assert type(e.value).__name__ == "StoreFullError", repr(e.value)
+    assert str(e.value).startswith(f"{tmp_path}: the disk is full")
+
+
+def test_embedded_fill_on_a_full_disk_is_one_line(tmp_path):
+    """Every SQLite file of the run (the client's and its worker's) unable to grow, as on a
+    full disk: `tween fill` says so in one line naming the cache folder, exit status 2."""
+    hooks = tmp_path / "hooks"
+    hooks.mkdir()
+    (hooks / "sitecustomize.py").write_text(
+        "from sqlalchemy import event\nfrom sqlalchemy.engine import Engine\n\n\n"
+        "@event.listens_for(Engine, 'connect')\ndef _full(dbapi_conn, _):\n"
+        "    dbapi_conn.execute('PRAGMA max_page_count = 1')\n"
+    )
+    shot = tmp_path / "sh010.usda"
+    shutil.copyfile(REPO / "examples" / "sh010_walk.usda", shot)
+    cache = tmp_path / "cache"
+    env = {"TWEEN_CACHE": str(cache), "PYTHONPATH": os.pathsep.join([str(hooks), str(REPO)])}
+    r = _tween("fill", shot, "--model", "interp", "--no-progress", env=env, timeout=120)
+    assert r.returncode == 2, r.stderr[-3000:]
+    assert _lines(r) == [
+        f"tween: error: {cache / 'farm'}: the disk is full (the embedded farm's broker and result store "
+        "live in this cache folder, TWEEN_CACHE); free space there or set TWEEN_CACHE to another folder"
+    ]
