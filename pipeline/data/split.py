@@ -6,6 +6,8 @@ import os
 import re
 from pathlib import Path
 
+from pipeline.errors import TweenError
+
 _TAKE = re.compile(r"_(\d+)\.bvh(\.gz)?$")
 
 
@@ -39,6 +41,11 @@ def list_clips(split: str, root: Path | None = None) -> list[Path]:
         raise ValueError(f"split must be train or eval, not {split!r}")
     root = root or bandai_dir()
     files = sorted(p for p in root.glob("dataset-*/*.bvh*") if p.name.endswith((".bvh", ".bvh.gz")))
-    if not files:
-        raise FileNotFoundError(f"{root}: no Bandai Namco clips found (set TWEEN_DATA?)")
+    if not files:  # a user's setting, not a bug: one line (it was an internal error, exit 1)
+        where = (
+            f"TWEEN_DATA {os.environ['TWEEN_DATA']}" if os.environ.get("TWEEN_DATA") else "the shared data"
+        )
+        raise TweenError(
+            f"{root}: no Bandai Namco clips (dataset-*/*.bvh[.gz]) there; {where} is not the data folder"
+        )
     return [p for p in files if is_eval(p) == (split == "eval")]

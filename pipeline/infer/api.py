@@ -17,6 +17,8 @@ written before kinds had names, is the same family). See docs/models.md.
 from __future__ import annotations
 
 import json
+import os
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
@@ -25,6 +27,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from pipeline.errors import TweenError
 from pipeline.infer.folder import ModelFolderError, models_root, read_model_json
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
@@ -262,9 +265,21 @@ def load_model(name_or_folder: str | Path = "default") -> Inbetweener:
         if broken is not None:  # its ONNX files are there, model.json is not: a broken model
             read_model_json(broken)  # ModelFolderError: "<folder>/model.json: missing (...)"
         if name == "default":
+            _say_no_default(os.environ.get("TWEEN_MODELS"))
             return load_model("interpolation")
         raise FileNotFoundError(f"{name}: no such model (expected a folder with model.json)")
     return load_folder(*found)
+
+
+def _say_no_default(env: str | None) -> None:
+    """A TWEEN_MODELS with no default model: a typo there silently swapped the shipped network
+    for interpolation. Not a folder: refused; a folder (of rig models, say): said on stderr."""
+    if not env:
+        return
+    if not Path(env).is_dir():
+        raise TweenError(f"TWEEN_MODELS {env}: not a folder of models; unset it to use the shipped ones")
+    print(f"tween: warning: TWEEN_MODELS {env} holds no default model (a folder 'default' with model.json): "
+          "human characters are filled by interpolation", file=sys.stderr)  # fmt: skip
 
 
 #: The name callers used before the registry; the same function.

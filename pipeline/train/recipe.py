@@ -200,7 +200,7 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
     from pipeline.train.generator_training import train as train_generator
     from pipeline.train.path_training import train_path
 
-    made = not out.exists()
+    made = [p for p in (out, *out.parents) if not p.exists()]  # removed again if left empty
 
     def busy() -> TweenError:
         return TweenError(
@@ -214,8 +214,9 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
                 train_path(path_cfg, out)
             return train_generator(cfg, out)
     finally:
-        if made and out.is_dir() and not any(out.iterdir()):  # refused before it wrote anything
-            out.rmdir()
+        for d in made:  # refused before it wrote anything: its folders go, innermost first
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
 
 
 def check_run(out: Path, cfg) -> None:

@@ -344,3 +344,20 @@ def test_experimental_models_are_said_at_every_fill_and_keep_their_hash(tmp_path
         f"tween: warning: --model cmu-s123 is experimental ({experimental('cmu-s123')}); not for production shots"
     ]
     assert json.loads(r.stdout)["experimental"] == experimental("cmu-s123")
+
+
+def test_a_models_setting_without_the_default_is_said_not_silent(tmp_path, monkeypatch, capsys):
+    """A TWEEN_MODELS typo swapped the shipped network for interpolation with nothing said:
+    not a folder is refused naming the setting; a folder without ``default`` (rig models
+    only, say) fills humans by interpolation and says so."""
+    monkeypatch.setenv("TWEEN_MODELS", str(tmp_path / "modles"))
+    with pytest.raises(TweenError, match=r"TWEEN_MODELS .*modles: not a folder of models"):
+        load_model("default")
+    (tmp_path / "rigs").mkdir()
+    monkeypatch.setenv("TWEEN_MODELS", str(tmp_path / "rigs"))
+    assert isinstance(load_model("default"), InterpolationInbetweener)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"tween: warning: TWEEN_MODELS {tmp_path / 'rigs'} holds no default model (a folder "
+                   "'default' with model.json): human characters are filled by interpolation"]  # fmt: skip
+    monkeypatch.delenv("TWEEN_MODELS")
+    assert isinstance(load_model("default"), OnnxInbetweener)  # the shipped one

@@ -108,6 +108,15 @@ def test_train_refuses_an_empty_or_read_only_run_folder_before_it_writes(tmp_pat
         ro.chmod(0o755)
 
 
+def test_a_data_folder_without_the_capture_is_one_line_and_leaves_no_folders(tmp_path, capsys, monkeypatch):
+    """TWEEN_DATA naming a folder without the Bandai capture was an internal error (exit 1,
+    FileNotFoundError), and the run folder's parent it had made stayed."""
+    monkeypatch.setenv("TWEEN_DATA", str(tmp_path / "nodata"))
+    line = refused(["train", "--out", tmp_path / "runs" / "r1", *TINY], capsys, tmp_path)
+    assert f"TWEEN_DATA {tmp_path / 'nodata'} is not the data folder" in line
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_init_whose_weights_are_damaged_is_refused_before_the_run_folder_is_made(tmp_path, capsys):
     """Was an internal error with an empty run folder left (a state_dict mismatch, a negative
     width), or a run of NaN losses with exit 0 (NaN weights)."""
