@@ -8,6 +8,7 @@ stops the worker. The worker's shot roots are the folders of the shots on the co
 from __future__ import annotations
 
 import functools
+import json
 import os
 import signal
 import subprocess
@@ -38,7 +39,7 @@ class EmbeddedWorker:
 
     def __enter__(self) -> EmbeddedWorker:
         self.log.parent.mkdir(parents=True, exist_ok=True)
-        env = dict(os.environ, TWEEN_SHOT_ROOTS=os.pathsep.join(self.roots))
+        env = dict(os.environ, TWEEN_SHOT_ROOTS=json.dumps(list(self.roots)))  # a root may hold ":"
         # The worker dies with this client, even on SIGKILL: PR_SET_PDEATHSIG on Linux (set in
         # the child before exec; its pool children set theirs), and a watchdog thread in the
         # worker that kills its process group once this pid is no longer its parent.

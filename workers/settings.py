@@ -9,6 +9,7 @@ backend on SQLite files under the cache folder, so nothing needs a server.
 from __future__ import annotations
 
 import difflib
+import json
 import os
 import re
 import tomllib
@@ -284,9 +285,19 @@ def _given(env, data: dict, key: str, file: Path) -> tuple[object, str] | None:
 
 
 def _env_roots(roots: str) -> tuple[str, ...]:
-    """The folders of ``TWEEN_SHOT_ROOTS`` (separated by ``os.pathsep``); a blank one is
-    refused, as the file's ``shot_roots = [""]`` is (" " was taken for a folder named so)."""
-    entries = roots.split(os.pathsep)
+    """The folders of ``TWEEN_SHOT_ROOTS``: separated by ``os.pathsep``, or a JSON list (for a
+    folder whose name holds one: the embedded farm's were cut there, and a shot under
+    ``sq:010`` refused as outside its roots); a blank one is refused, as the file's
+    ``shot_roots = [""]`` is (" " was taken for a folder named so)."""
+    if roots.lstrip().startswith("["):
+        try:
+            entries = json.loads(roots)
+        except ValueError as e:
+            raise FarmConfigError(f"TWEEN_SHOT_ROOTS={roots!r}: not a JSON list of folders: {e}") from None
+        if not isinstance(entries, list) or not all(isinstance(r, str) for r in entries):
+            raise FarmConfigError(f"TWEEN_SHOT_ROOTS={roots!r}: not a JSON list of folders")
+    else:
+        entries = roots.split(os.pathsep)
     if not all(r.strip() for r in entries):
         raise FarmConfigError(
             f"TWEEN_SHOT_ROOTS={roots!r}: an empty folder path in {entries!r} (folders separated by {os.pathsep!r})"

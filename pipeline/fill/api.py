@@ -277,6 +277,9 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     missing under ``missing_assets``."""
 
     opts.check()  # before any model is loaded
+    from pipeline.infer.folder import ort_threads
+
+    ort_threads()  # a bad TWEEN_ORT_THREADS before the plan is said (one line on a refusal)
     human = _human(opts)
     plan = _plan(shot, opts, human, say=False)
     write.check_review_layer(shot, plan.shot.stage, opts.review_layer)

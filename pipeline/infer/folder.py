@@ -16,6 +16,23 @@ def models_root() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[2] / "models"
 
 
+#: The most intra-op threads TWEEN_ORT_THREADS may ask for (a farm host's cores, and then some).
+MAX_ORT_THREADS = 1024
+
+
+def ort_threads() -> int:
+    """``TWEEN_ORT_THREADS`` (default 1), a whole number from 1 to MAX_ORT_THREADS; TweenError
+    naming the setting otherwise (a bad one was blamed on the model file onnxruntime loaded,
+    and 0 or -1 were taken)."""
+    text = os.environ.get("TWEEN_ORT_THREADS", "1")
+    value = int(text.strip()) if text.strip().isascii() and text.strip().isdigit() else 0
+    if not 1 <= value <= MAX_ORT_THREADS:
+        raise TweenError(
+            f"TWEEN_ORT_THREADS={text!r}: must be a whole number of threads from 1 to {MAX_ORT_THREADS:,}"
+        )
+    return value
+
+
 def find_model(name: str) -> Path | None:
     p = Path(name)
     if (p / "model.json").exists():

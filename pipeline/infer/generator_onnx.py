@@ -5,7 +5,6 @@ No torch here. Sessions are created lazily, once per process (after a Celery for
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     find_model,
     model_hash,
     models_root,
+    ort_threads,
     read_model_json,
     shipped_library,
 )
@@ -57,7 +57,7 @@ def ort_session(path: str | Path):
     import onnxruntime as ort
 
     opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(os.environ.get("TWEEN_ORT_THREADS", "1"))
+    opts.intra_op_num_threads = ort_threads()
     opts.inter_op_num_threads = 1
     opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     graph = path if isinstance(path, bytes) else str(path)
@@ -146,6 +146,7 @@ class OnnxInbetweener:
     def session(self, which: str):
         if which not in self._sessions:
             path = self.folder / self.meta["files"][which]
+            ort_threads()  # the setting's own error, not the model file's
             try:
                 sess = ort_session(path)
             except Exception as e:  # onnxruntime's errors are RuntimeError subclasses of its own

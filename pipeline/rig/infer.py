@@ -139,9 +139,10 @@ class RigInbetweener:
     # -- the networks ------------------------------------------------------------------
     def _session(self, i: int):
         if i not in self._sessions:
-            from pipeline.infer.generator_onnx import ort_session
+            from pipeline.infer.generator_onnx import ort_session, ort_threads
 
             path = self.folder / self.files[i]
+            ort_threads()  # the setting's own error, not the model file's
             try:
                 sess = ort_session(path)
             except Exception as e:  # onnxruntime's own errors: a file it cannot load

@@ -361,3 +361,30 @@ def test_a_models_setting_without_the_default_is_said_not_silent(tmp_path, monke
                    "'default' with model.json): human characters are filled by interpolation"]  # fmt: skip
     monkeypatch.delenv("TWEEN_MODELS")
     assert isinstance(load_model("default"), OnnxInbetweener)  # the shipped one
+
+
+@pytest.mark.parametrize("value", ["abc", "", "1.5", "0", "-1", "99999999999999999999", "٣"])
+def test_a_bad_ort_threads_setting_is_named_not_the_model_file(value, monkeypatch, tmp_path, capsys):
+    """TWEEN_ORT_THREADS=abc was said as "generator.onnx: onnxruntime cannot load it", and 0
+    or -1 were taken."""
+    from usd_fixtures import bandai_shot
+
+    from pipeline.cli import main
+
+    monkeypatch.setenv("TWEEN_ORT_THREADS", value)
+    shot = bandai_shot(tmp_path / "s.usda", frames=21, keys_every=10)
+    with pytest.raises(SystemExit) as e:
+        main(["fill-local", str(shot), "--out-dir", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        e.value.code == 2
+        and len(err) == 1
+        and f"TWEEN_ORT_THREADS={value!r}: must be a whole number" in err[0]
+    )
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_empty_cache_setting_is_the_default_not_the_working_folder():
+    from pipeline.data.cache_paths import cache_root
+
+    assert cache_root({"TWEEN_CACHE": ""}) == cache_root({}) != Path("")

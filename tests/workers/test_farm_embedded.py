@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from cli_timing import cli_floor
 from redis_server import REPO, copy_shot, example_shot, layer_samples
 
@@ -230,3 +231,24 @@ def test_a_shot_linked_from_another_folder_is_filled_where_it_is_given(tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     assert res.stdout.startswith(f"{links / real.name}: layer {links / 'linked.tween.v001.usda'}")
     assert sorted(p.name for p in (tmp_path / "real").iterdir()) == ["linked.usda"]
+
+
+def test_a_shot_in_a_folder_named_with_a_colon_is_filled(tmp_path):
+    """The embedded farm gave its worker the shot roots joined by ':' (os.pathsep), so a
+    root ``sq:010`` came back as ``sq`` and ``010`` and the shot was refused as outside them."""
+    shot = copy_shot(example_shot(), tmp_path / "sq:010", "demo")
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "interp", "--no-progress"]
+    res = subprocess.run(cmd, env=_env(tmp_path), cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert (shot.parent / "demo.tween.v001.usda").is_file()
+
+
+def test_shot_roots_as_a_json_list_keep_a_colon(tmp_path):
+    from workers.settings import FarmConfigError, load_settings
+
+    env = {"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": "redis://h"}
+    roots = [str(tmp_path / "sq:010"), str(tmp_path / "b")]
+    assert load_settings({**env, "TWEEN_SHOT_ROOTS": json.dumps(roots)}).shot_roots == tuple(roots)
+    for bad in ("[", '["a", 1]', '[""]'):
+        with pytest.raises(FarmConfigError, match="TWEEN_SHOT_ROOTS="):
+            load_settings({**env, "TWEEN_SHOT_ROOTS": bad})
