@@ -28,6 +28,7 @@ from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
 
 VARIANT_SET = tokens.TAKE_VARIANT_SET
+NAME_MAX = 255  # bytes in a file name (Linux, macOS, Windows' NTFS in UTF-16 units)
 
 
 def shot_stem(shot: str) -> str:
@@ -53,6 +54,15 @@ def check_shot_name(shot: str) -> None:
         raise ShotError(
             shot, f"is {made}, not a shot: give the shot it was made from ({shot_stem(shot)}.usd*)"
         )
+    # The longest name written for it is a take's temp, ".<stem>.take000.<hash>.npz.<pid@host>.<rand>.tmp"
+    # (44 bytes and the owner over the stem; 16 spare): a 250-byte name failed there, named instead.
+    room = NAME_MAX - len(files.owner_tag().encode()) - 60
+    stem = shot_stem(shot).encode("utf-8", "surrogateescape")
+    if len(stem) > room:
+        raise ShotError(
+            shot, f"the part of its name before the first dot is {len(stem)} bytes, and its layers' names "
+            f"add to it (a file name holds {NAME_MAX}): at most {room} here; give it a shorter name",
+        )  # fmt: skip
 
 
 def versions(out_dir: Path, stem: str) -> dict[int, Path]:

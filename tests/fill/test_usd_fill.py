@@ -457,6 +457,20 @@ def test_an_output_folder_reached_through_a_link_composes_from_both_paths(tmp_pa
         assert max(len(a.GetRotationsAttr().GetTimeSamples()) for a in anims) == 21, review
 
 
+def test_a_shot_name_too_long_for_its_layers_is_refused_and_the_longest_fills(tmp_path):
+    """A 250-byte shot name failed on a take's temp file ("File name too long", naming the
+    temp); the refusal says how long a name may be here, and a name that long fills."""
+    from pipeline.usd import files
+
+    room = 255 - len(files.owner_tag().encode()) - 60
+    long = bandai_shot(tmp_path / ("s" * (room + 1) + ".usda"), frames=21, keys_every=10)
+    with pytest.raises(TweenError, match=f"is {room + 1} bytes.* at most {room} here"):
+        fill_shot(str(long), FillOptions(model="interp"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [long.name]
+    ok = bandai_shot(tmp_path / ("s" * room + ".usda"), frames=21, keys_every=10)
+    assert fill_shot(str(ok), FillOptions(model="interp", takes=2))["version"] == 1
+
+
 def test_blend_shape_weights_are_kept(tmp_path):
     from pxr import Sdf, Usd, UsdSkel, Vt
 
