@@ -16,8 +16,6 @@ import secrets
 from http.cookies import SimpleCookie
 from urllib.parse import parse_qsl, quote, urlencode
 
-from starlette.exceptions import HTTPException
-
 SAFE = ("GET", "HEAD", "OPTIONS")
 CSRF_HEADER = b"x-csrf-token"
 #: The largest request body read (a decision's JSON, its note at most 10,000 characters, is
@@ -125,6 +123,8 @@ def _counted(receive):
     """``receive``, refusing a body past MAX_BODY as it arrives: one sent in chunks has no
     Content-Length to refuse it by up front (a chunked 100 MB body was read whole). FastAPI
     answers the HTTPException raised while it reads the body with its 413."""
+    from starlette.exceptions import HTTPException  # here: `tween --help` imports no web stack
+
     seen = 0
 
     async def counted():

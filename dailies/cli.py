@@ -16,6 +16,9 @@ from pathlib import Path
 import typer
 
 from dailies.auth import Login, new_token
+from dailies.shots import listing
+from dailies.tracker import approved_of, read_mapping, send_take
+from dailies.trackers import make
 from pipeline.errors import TweenError
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
@@ -80,8 +83,6 @@ def bind(host: str, port: int) -> socket.socket:
 
 
 def _warm(roots: list[Path]) -> None:
-    from dailies.shots import listing
-
     try:
         listing(roots)
     except Exception:  # a cache warm-up only: the page reports what it finds itself
@@ -94,9 +95,6 @@ TRACKER_MAP_HELP = "JSON {shot file stem: {sequence, shot}} (default: SEQ_SHOT f
 def _tracker(name: str | None, mapping_file: Path | None):
     """(the tracker ``name`` made from its settings or None, the mapping read from
     ``mapping_file`` or None): every --tracker/--tracker-map mistake is one line here."""
-    from dailies.tracker import read_mapping
-    from dailies.trackers import make
-
     if mapping_file is not None and name is None:
         raise TweenError("--tracker-map: give --tracker too")
     mapping = read_mapping(mapping_file)
@@ -205,8 +203,6 @@ def publish(
         print(f"tween: published take {r['take']} of {r['of']}", file=sys.stderr)
         typer.echo(r["layer"])
     if sink is not None:
-        from dailies.tracker import send_take
-
         sent = send_take(sink, approved)
         print(f"tween: sent take {sent['take']} to {sent['tracker']}: {sent['sequence']}/{sent['shot']}"
               f", status {sent.get('status')}", file=sys.stderr)  # fmt: skip
@@ -216,7 +212,6 @@ def _approved(shot: Path, out_dir: Path | None, mapping: dict | None):
     """The approved take of ``shot``'s latest fill with its MP4 (in ``review/`` beside the
     fills, where the farm renders it), as a tracker is sent it; one line saying what is
     missing."""
-    from dailies.tracker import approved_of
     from pipeline.usd.write import default_out_dir, shot_stem
 
     folder = Path(out_dir) if out_dir else default_out_dir(str(shot))

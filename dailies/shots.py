@@ -1,6 +1,7 @@
 """The shots under the review roots: every folder's fill layers ``<stem>.tween.vNNN``, grouped
 by shot, with the latest version's decision. Reads layer metadata only, cached by file
-stamp, so listing many shots stays cheap."""
+stamp, so listing many shots stays cheap. A listing reads each folder once, however many
+shots share it (a sequence filled into one ``--out-dir``)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,6 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-
-from pipeline.usd.dailies import decision
 
 FILL = re.compile(r"^(?P<stem>[^.]+)\.tween\.v(?P<n>\d+)\.usd[ac]?$")
 #: Folders never holding a shot's fills: the farm's work folders, review media.
@@ -159,12 +158,59 @@ def shot_file(shot: Shot) -> Path | None:
     return None
 
 
-def summary(shot: Shot) -> dict:
-    """What the list shows of a shot: its latest version, status, model, time."""
+def folder_names(folder: Path) -> dict[str, list[str]]:
+    """The names in ``folder`` (one listing), by the part before their first dot: a shot's
+    stem has no dot, so every layer of the shot ``stem`` is under ``stem``. Empty when the
+    folder cannot be listed."""
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return {}
+    by_stem: dict[str, list[str]] = {}
+    for name in names:
+        by_stem.setdefault(name.partition(".")[0], []).append(name)
+    return by_stem
+
+
+def _approval(info: dict) -> dict | None:
+    appr = dict(info.get("approval", {}))
+    return {k: appr.get(k) for k in ("status", "take", "by", "at", "note")} if appr.get("status") else None
+
+
+def _decision(shot: Shot, info: dict, names: dict[str, list[str]]) -> dict | None:
+    """What ``pipeline.usd.dailies.decision`` says of the shot's latest fill (less its
+    ``layer``), from the folder's ``names`` rather than a glob of the folder per shot: the
+    layer's own approval, else one written from it in a later fill version (the walk is up
+    to ``SCAN_AGE`` old), newest first. Only regular files are read: a pipe named like a
+    layer would hold the request."""
     n, path = shot.latest
-    d = cached(path, decision)
+    if not info:  # unreadable or gone
+        return None
+    own = _approval(info)
+    if own:
+        return own
+    pattern = re.compile(rf"^{re.escape(shot.stem)}\.tween\.v(\d+)\.usd[ac]?$")
+    later = {}
+    for name in names.get(shot.stem, []):
+        if (m := pattern.match(name)) and int(m[1]) > n:
+            later[int(m[1])] = shot.folder / name
+    for _, p in sorted(later.items(), reverse=True):
+        cand = cached(p, layer_info) if p.is_file() else None
+        d = _approval(cand or {})
+        if d and dict(cand["approval"]).get("of") == path.name:
+            return d
+    return None
+
+
+def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
+    """What the list shows of a shot: its latest version, status, model, time. ``names``:
+    :func:`folder_names` of its folder (listed here when not given)."""
+    n, path = shot.latest
+    names = folder_names(shot.folder) if names is None else names
     info = cached(path, layer_info) or {}
-    published = any(shot.folder.glob(f"{shot.stem}.publish.v{n:03d}.usd*"))
+    d = _decision(shot, info, names)
+    publish = f"{shot.stem}.publish.v{n:03d}.usd"  # any such name, as a glob of ``publish*``
+    published = any(name.startswith(publish) for name in names.get(shot.stem, []))
     try:
         mtime = path.stat().st_mtime
     except OSError:
@@ -176,7 +222,7 @@ def summary(shot: Shot) -> dict:
         "version": n,
         "versions": len(shot.versions),
         "status": (d or {}).get("status") or "pending",
-        "decision": {k: v for k, v in (d or {}).items() if k != "layer"} or None,
+        "decision": d,
         "published": published,
         "model": str(info.get("model", "")),
         "takes": int(info.get("takes", 1) or 1),
@@ -186,7 +232,14 @@ def summary(shot: Shot) -> dict:
 
 
 def listing(roots: list[Path]) -> list[dict]:
-    """Every shot's summary, newest first: those waiting for a decision, then the decided."""
-    rows = [summary(s) for s in scan(roots)]
+    """Every shot's summary, newest first: those waiting for a decision, then the decided.
+    Each folder is listed once for all its shots (a glob per shot made a folder of N shots
+    cost N listings of N names)."""
+    names: dict[Path, dict[str, list[str]]] = {}
+    rows = []
+    for s in scan(roots):
+        if s.folder not in names:
+            names[s.folder] = folder_names(s.folder)
+        rows.append(summary(s, names[s.folder]))
     rows.sort(key=lambda r: (r["status"] != "pending", -r["mtime"], r["key"]))
     return rows
