@@ -304,7 +304,7 @@ class Writer:
         self.folder, self.manifest = folder, manifest
         folder.mkdir(parents=True, exist_ok=True)
         frames = int(manifest["frames"])
-        self.files, self.sizes = {}, {}
+        self.files, self.sizes, self.committed = {}, {}, False
         for name, (dtype, shape) in ARRAYS.items():
             f = folder / f"{name}.bin"
             self.sizes[name] = frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
@@ -341,6 +341,7 @@ class Writer:
                 os.fsync(h.fileno())
         # Written whole or not at all, once the arrays it describes are on disk.
         write_bytes(self.folder / MANIFEST, json.dumps(self.manifest, indent=1).encode("utf-8"))
+        self.committed = True  # the manifest holds the new frames: nothing is cut back now
 
     def close(self) -> None:
         for h in self.files.values():
@@ -349,13 +350,14 @@ class Writer:
     def discard(self) -> None:
         """After a failed add: the files closed, what could not be written dropped, and each
         cut back to the frames the manifest on disk holds, so the library is byte for byte as
-        it was (a full disk had left the takes' bytes past its frames)."""
+        it was (a full disk had left the takes' bytes past its frames). After :meth:`commit`
+        (an interrupt that came later) the arrays are the manifest's, and stay."""
         for h in self.files.values():
             try:
                 h.close()
             except OSError:  # the buffered bytes it could not write (a full disk): dropped
                 pass
-        for name, size in self.sizes.items():
+        for name, size in self.sizes.items() if not self.committed else ():
             try:
                 os.truncate(self.folder / f"{name}.bin", size)
             except OSError:  # (a file removed meanwhile): the next --add cuts it

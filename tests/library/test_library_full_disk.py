@@ -55,3 +55,33 @@ def test_a_first_build_on_a_full_disk_leaves_nothing(data_dir, tmp_path):
     out = tmp_path / "libs" / "studio"
     _full(_build([takes, "--out", out], 64 * 1024, tmp_path), out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["takes"]  # not even the folders above it
+
+
+def test_an_add_interrupted_after_its_manifest_keeps_what_it_wrote(library, data_dir, tmp_path):
+    """An interrupt after the manifest was written (the farm's last progress call) must not cut
+    the arrays back to their sizes before the add: the manifest would name frames they lack."""
+    import numpy as np
+    import pytest
+
+    from pipeline.library.build import build
+    from pipeline.library.store import ARRAYS, open_library, verify
+
+    lib = tmp_path / "lib"
+    shutil.copytree(library, lib)
+    new = tmp_path / "new"
+    new.mkdir()
+    shutil.copy(data_dir / "bandai_namco" / "dataset-2" / HELD_OUT, new / HELD_OUT)
+
+    def progress(done, total, name):
+        if done == total and not name:  # the call after the commit
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        build(new, lib, add=True, progress=False, on_progress=progress)
+    opened = open_library(lib)
+    verify(opened)
+    frames = opened.manifest["frames"]
+    for name, (dtype, shape) in ARRAYS.items():
+        size = (lib / f"{name}.bin").stat().st_size
+        assert size == frames * int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize, name
+    assert any(t["file"].endswith(HELD_OUT) for t in opened.manifest["takes"])
