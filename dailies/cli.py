@@ -7,6 +7,7 @@ from __future__ import annotations
 import ipaddress
 import json
 import os
+import re
 import socket
 import ssl
 import sys
@@ -124,7 +125,11 @@ def dailies(
     roots = check_roots(roots)
     check_tls(certfile, keyfile)
     if token is not None and len(token) < 16:
-        raise TweenError("--token: at least 16 characters (it is the only login)")
+        raise TweenError("--token (or TWEEN_DAILIES_TOKEN): at least 16 characters (it is the only login)")
+    if token is not None and not re.fullmatch(r"[A-Za-z0-9._~-]+", token):  # spaces were taken
+        raise TweenError(
+            "--token (or TWEEN_DAILIES_TOKEN): letters, digits and . _ ~ - only (it goes in the URL as it is)"
+        )
     sink, mapping = _tracker(tracker, tracker_map)  # its settings checked now, not at the first click
     import uvicorn
 

@@ -54,6 +54,10 @@ def check_shot_name(shot: str) -> None:
         raise ShotError(
             shot, f"is {made}, not a shot: give the shot it was made from ({shot_stem(shot)}.usd*)"
         )
+    if not shot_stem(shot):  # ".sh.usda": hidden layers, one series for every such shot there
+        raise ShotError(
+            shot, "its name starts with a dot: its layers are named after the part before the first dot"
+        )
     # The longest name written for it is a take's temp, ".<stem>.take000.<hash>.npz.<pid@host>.<rand>.tmp"
     # (44 bytes and the owner over the stem; 16 spare): a 250-byte name failed there, named instead.
     room = NAME_MAX - len(files.owner_tag().encode()) - 60

@@ -37,6 +37,8 @@ def test_bad_input_is_one_line(tmp_path):
     )
     _one_error(_run(tmp_path, "--port", "70000"), "--port 70000")
     _one_error(_run(tmp_path, "--token", "short"), "--token")
+    for token in (" " * 20, "é" * 20, "a b" * 8):  # taken, and printed unencoded in the URL
+        _one_error(_run(tmp_path, "--token", token), "--token (or TWEEN_DAILIES_TOKEN): letters, digits")
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen(1)

@@ -471,6 +471,15 @@ def test_a_shot_name_too_long_for_its_layers_is_refused_and_the_longest_fills(tm
     assert fill_shot(str(ok), FillOptions(model="interp", takes=2))["version"] == 1
 
 
+def test_a_shot_named_with_a_leading_dot_is_refused(tmp_path):
+    """``..sh.usda`` had no part before its first dot: its layers were hidden
+    (``.tween.v001.usda``), one series for every such shot in the folder."""
+    shot = bandai_shot(tmp_path / "..sh.usda", frames=21, keys_every=10)
+    with pytest.raises(TweenError, match="its name starts with a dot"):
+        fill_shot(str(shot), FillOptions(model="interp"))
+    assert [p.name for p in tmp_path.iterdir()] == ["..sh.usda"]
+
+
 def test_blend_shape_weights_are_kept(tmp_path):
     from pxr import Sdf, Usd, UsdSkel, Vt
 
