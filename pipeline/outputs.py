@@ -37,3 +37,23 @@ def refuse_read_only(path: str | Path, option: str = "--out", folder: str | Path
     if not writable(probe):
         where = "is" if probe == Path(os.path.abspath(path)) else f"is in {probe}, which is"
         raise TweenError(f"{path}: {option} {where} read-only; give a folder you can write")
+
+
+def missing_folders(path: str | Path) -> list[Path]:
+    """``path`` and the folders above it that do not exist yet, outermost first: what making
+    ``path`` makes, and what :func:`remove_created` takes back when the write fails."""
+    missing, p = [], Path(path)
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    return missing[::-1]
+
+
+def remove_created(created: list[Path]) -> None:
+    """Undoes making the folders ``created`` (outermost first) after a failure: each one still
+    empty goes, innermost first; one that holds anything stays."""
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from pipeline.atomic import naming, replacing, writable
 from pipeline.errors import TweenError
+from pipeline.outputs import missing_folders, remove_created
 
 #: The files each kind of ``tween bench`` writes in --out (cli.MODES' keys).
 OUTPUTS = {
@@ -79,7 +80,7 @@ def write_outputs(out: Path, texts: dict[str, str]) -> None:
     an OSError naming the file; the earlier files stay as they were, the temporaries go, and
     so do the folders made here."""
     out = Path(out)
-    made = [p for p in (out, *out.parents) if not p.exists()]
+    made = missing_folders(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
         with ExitStack() as renames:  # leaving it renames each temporary, or removes them all
@@ -88,9 +89,5 @@ def write_outputs(out: Path, texts: dict[str, str]) -> None:
                     tmp = renames.enter_context(replacing(out / name))
                     tmp.write_text(text, encoding="utf-8")
     except BaseException:
-        for p in made:  # (``out`` first: a folder the user had stays)
-            try:
-                p.rmdir()
-            except OSError:
-                break
+        remove_created(made)  # (a folder the user had stays)
         raise

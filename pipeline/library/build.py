@@ -33,9 +33,8 @@ from pipeline.library.store import (
     open_library,
 )
 from pipeline.motion.bvh import gzipped, is_bvh
-from pipeline.outputs import refuse_read_only
+from pipeline.outputs import missing_folders, refuse_read_only, remove_created
 from pipeline.progress import interval
-from pipeline.usd.files import remove_created
 
 FPS = 30.0
 
@@ -203,9 +202,9 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     made = []  # the folders the lock made (``out`` and any above it)
 
     def make() -> None:
-        missing = [p for p in (out, *out.parents) if not p.exists()]
+        missing = missing_folders(out)
         out.mkdir(parents=True, exist_ok=True)
-        made.extend(p for p in reversed(missing) if p not in made)
+        made.extend(p for p in missing if p not in made)
 
     def waiting() -> None:
         print(f"tween: {out}: another build is writing this library; waiting for it", file=sys.stderr)

@@ -56,7 +56,7 @@ import typer
 from pipeline.atomic import holding
 from pipeline.errors import TweenError
 from pipeline.options import names_a_glob
-from pipeline.outputs import given_path, refuse_read_only
+from pipeline.outputs import given_path, missing_folders, refuse_read_only, remove_created
 from pipeline.rig.options import check_device
 from pipeline.staging import refuse_model
 from pipeline.train.commands import export_command
@@ -200,7 +200,7 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
     from pipeline.train.generator_training import train as train_generator
     from pipeline.train.path_training import train_path
 
-    made = [p for p in (out, *out.parents) if not p.exists()]  # removed again if left empty
+    made = missing_folders(out)  # removed again if left empty
 
     def busy() -> TweenError:
         return TweenError(
@@ -214,9 +214,7 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
                 train_path(path_cfg, out)
             return train_generator(cfg, out)
     finally:
-        for d in made:  # refused before it wrote anything: its folders go, innermost first
-            if d.is_dir() and not any(d.iterdir()):
-                d.rmdir()
+        remove_created(made)  # refused before it wrote anything: its folders go
 
 
 def check_run(out: Path, cfg) -> None:

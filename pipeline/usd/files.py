@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pipeline.atomic import locked
 from pipeline.errors import ShotError, TweenError
+from pipeline.outputs import missing_folders
 
 # Every temp file (or take folder) this package writes is named ``.<base>.<pid>@<host>[.<rand>]
 # .tmp[.<ext>]`` (a take folder: ``tween-take.<pid>@<host>.<rand>.tmp``), so the next run into
@@ -182,13 +183,9 @@ def link_new(tmp: Path, final: Path) -> bool:
 
 
 def make_dirs(shot: str, out: Path, created: list[Path]) -> None:
-    """Creates ``out`` and its missing parents, recording those this call made."""
-    missing = []
-    p = out
-    while not p.exists() and p != p.parent:
-        missing.append(p)
-        p = p.parent
-    for d in reversed(missing):
+    """Creates ``out`` and its missing parents, recording those this call made (undone by
+    :func:`pipeline.outputs.remove_created`)."""
+    for d in missing_folders(out):
         try:
             d.mkdir()
             created.append(d)
@@ -198,15 +195,6 @@ def make_dirs(shot: str, out: Path, created: list[Path]) -> None:
             raise write_error(d, e) or ShotError(
                 shot, f"cannot create output folder {out}: {e.strerror}"
             ) from None
-
-
-def remove_created(created: list[Path]) -> None:
-    """Undoes :func:`make_dirs` after a failure: the folders it made, if still empty."""
-    for d in reversed(created):
-        try:
-            d.rmdir()
-        except OSError:
-            pass
 
 
 @contextmanager

@@ -23,6 +23,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401
 from pipeline.atomic import locked, writable
 from pipeline.errors import ShotError, TweenError
+from pipeline.outputs import remove_created
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
 from usd_schemas import tokens
@@ -405,7 +406,7 @@ def write(shot: str, stage, takes: list[dict], meta: dict, out_dir: str | None, 
             check_series(shot, out, stem)
             return _write_locked(shot, stage, takes, meta, out, stem, fmt, review_layer)
     except BaseException:
-        files.remove_created(created)
+        remove_created(created)
         raise
 
 
