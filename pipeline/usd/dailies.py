@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import datetime
 import getpass
-import glob
 import os
 import re
 from pathlib import Path
@@ -230,16 +229,6 @@ def _check_approvable(layer, path: Path, take: int) -> None:
         )
 
 
-def _taken(out: Path, stem: str) -> set[int]:
-    """Versions in use: fill layers and review layers (as write.write allocates them)."""
-    review = re.compile(rf"^{re.escape(stem)}\.review\.v(\d+)\.usd[ac]?$")
-    used = set(_fill_layers(out, stem))
-    used |= {
-        int(m[1]) for p in out.glob(f"{glob.escape(stem)}.review.v*.usd*") if (m := review.match(p.name))
-    }
-    return used
-
-
 def _author_decision(layer, take: int, d: dict) -> None:
     from pxr import Sdf
 
@@ -309,7 +298,7 @@ def approve(
             _check_approvable(src, path, take)
         d = {"status": "approved", "take": int(take), "by": by.strip() if by else _who(),
              "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "note": note or ""}  # fmt: skip
-        n = max(_taken(out, stem)) + 1
+        n = max(write.taken_versions(out, stem)) + 1
         fmt = path.suffix.lstrip(".")
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
         review = files.review_path(out, stem, n)

@@ -81,6 +81,18 @@ def versions(out_dir: Path, stem: str) -> dict[int, Path]:
     return out
 
 
+def taken_versions(out_dir: Path, stem: str) -> set[int]:
+    """The version numbers in use in ``out_dir``: fill layers, and review layers (a dead
+    writer's review of no fill keeps its number until it is cleaned up). A new version, of
+    a fill or an approval, takes the next one."""
+    review = re.compile(rf"^{re.escape(stem)}\.review\.v(\d+)\.usd[ac]?$")
+    used = set(versions(out_dir, stem))
+    used |= {
+        int(m[1]) for p in out_dir.glob(f"{glob.escape(stem)}.review.v*.usd*") if (m := review.match(p.name))
+    }
+    return used
+
+
 def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
     """The review layer of the shot's latest fill (``<stem>.review.vNNN``, beside its fill
     layer in ``out_dir`` or the default folder), or None when the shot has no fill there.
@@ -416,12 +428,7 @@ def _write_locked(shot, stage, takes, meta, out: Path, stem: str, fmt: str, revi
     src_root = stage.GetRootLayer()
     meta = dict(meta, created_at=meta.get("created_at") or datetime.datetime.now(datetime.UTC).isoformat())
     for _ in range(1000):
-        taken = set(versions(out, stem)) | {
-            int(m.group(1))
-            for p in out.glob(f"{glob.escape(stem)}.review.v*.usd*")
-            if (m := re.search(r"\.v(\d+)\.", p.name))
-        }
-        n = max(taken, default=0) + 1
+        n = max(taken_versions(out, stem), default=0) + 1
         final = out / f"{stem}.tween.v{n:03d}.{fmt}"
         review = Path(review_layer) if review_layer else files.review_path(out, stem, n)
         tmp = files.temp_path(final)
