@@ -73,7 +73,8 @@ def write_whole(path: str, data: bytes, what: str) -> None:
     """Writes ``data`` to ``path`` whole or not at all (a temporary beside it, then renamed): a
     full disk is a RenderError naming ``path``. OIIO's PNG writer and OTIO's ``write_to_file``
     said nothing when the disk filled, and a truncated contact sheet or an empty timeline was
-    the review's output, with exit 0."""
+    the review's output, with exit 0. Not ``pipeline.atomic.write_bytes``: the frame writer's
+    threads call this for every frame, and its temporary sets the process's umask to read it."""
     tmp = f"{path}.tmp{os.getpid()}{Path(path).suffix}"
     try:
         with open(tmp, "wb") as f:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.atomic import file_above
 from pipeline.errors import TweenError
 from pipeline.progress import interval
 from pipeline.usd.files import clean_dead_temps, owner_tag
@@ -311,8 +312,8 @@ def _scratch(out: Path, job: str):
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:  # said "Not a directory" where a folder above it is a file
-        above = next((p for p in out.parents if p.exists()), out)
-        why = f"{above} is a file, not a folder" if not above.is_dir() else e.strerror
+        above = file_above(out)
+        why = f"{above} is a file, not a folder" if above is not None else e.strerror
         raise TweenError(f"{out}: cannot make the folder for the review's media: {why}") from None
     clean_dead_temps(out, quiet=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
