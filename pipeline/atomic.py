@@ -40,16 +40,6 @@ def replacing(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
         raise
 
 
-def file_above(path: str | Path) -> Path | None:
-    """The file (not a folder) nearest above ``path`` where a folder would have to be made
-    for it, or ``None``: what making ``path``'s folders would fail on with "Not a directory"
-    naming a path of its own."""
-    probe = Path(os.path.abspath(path)).parent
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    return None if probe.is_dir() else probe
-
-
 @contextmanager
 def naming(path: str | Path) -> Iterator[None]:
     """An OSError of the block, which writes the file ``path``, names ``path``: a write that

@@ -57,3 +57,21 @@ def remove_created(created: list[Path]) -> None:
             d.rmdir()
         except OSError:
             pass
+
+
+def file_above(path: str | Path) -> Path | None:
+    """The file (not a folder) nearest above ``path`` where a folder would have to be made
+    for it, or ``None``: what making ``path``'s folders would fail on with "Not a directory"
+    naming a path of its own."""
+    probe = Path(os.path.abspath(path)).parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return None if probe.is_dir() else probe
+
+
+def refuse_under_a_file(out: str | Path, option: str = "--out") -> None:
+    """TweenError where a file stands where a folder above ``out`` would be made (making it
+    said "Not a directory", naming a hidden folder of its own)."""
+    above = file_above(out)
+    if above is not None:
+        raise TweenError(f"{out}: {option} is inside {above}, which is a file, not a folder")

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.atomic import file_above
 from pipeline.errors import TweenError
+from pipeline.outputs import file_above
 from pipeline.progress import interval
 from pipeline.usd.files import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path

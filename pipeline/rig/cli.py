@@ -9,9 +9,10 @@ from pathlib import Path
 import typer
 
 from pipeline import command
-from pipeline.atomic import file_above, naming, replacing
+from pipeline.atomic import naming, replacing
 from pipeline.data.cache_paths import cache_root
 from pipeline.errors import TweenError
+from pipeline.outputs import refuse_under_a_file
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.rig.progress import JsonLinesWriter, ProgressBar
 from pipeline.staging import StagedFolder, refuse_read_only
@@ -44,8 +45,7 @@ def train_rig(
     from pipeline.rig.train import TrainConfig
 
     o = opts.check()
-    if file_above(out):  # else "Not a directory" naming the hidden folder the model is made in
-        raise TweenError(f"{out}: --out is inside {file_above(out)}, which is a file, not a folder")
+    refuse_under_a_file(out)
     # Refuses a finished model in --out before anything is read or written; the new
     # model is made beside it and moved into place when complete (pipeline.staging).
     stage = StagedFolder(out, o.force, what="rig model")

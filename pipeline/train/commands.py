@@ -6,9 +6,9 @@ from pathlib import Path
 
 import typer
 
-from pipeline.atomic import file_above
 from pipeline.errors import TweenError
 from pipeline.options import path_like
+from pipeline.outputs import refuse_under_a_file
 from pipeline.staging import StagedFolder
 
 
@@ -56,8 +56,7 @@ def export(
     _check_options(root, pad, pad_tail, min_window, name)
     if not (run / "generator.pt").is_file():
         raise TweenError(f"{run}: no generator.pt here (give the run folder that `tween train --out` wrote)")
-    if file_above(out):  # else "Not a directory" naming the hidden folder the model is made in
-        raise TweenError(f"{out}: --out is inside {file_above(out)}, which is a file, not a folder")
+    refuse_under_a_file(out)
     stage = StagedFolder(out, force)  # a finished model in --out is refused before anything is written
 
     settings = {
