@@ -9,7 +9,6 @@ one line that says so and names the log file holding the traceback, exit status 
 from __future__ import annotations
 
 import datetime
-import errno
 import os
 import signal
 import sys
@@ -25,7 +24,7 @@ try:  # typer 0.2x carries its own copy of click
 except ImportError:  # older typer uses click itself
     from click.exceptions import BadParameter, ClickException, UsageError
 
-from pipeline.errors import TweenError, printable
+from pipeline.errors import DISK_FULL, TweenError, printable
 
 
 def _usage_line(e: ClickException) -> str:
@@ -39,14 +38,11 @@ def _usage_line(e: ClickException) -> str:
     return msg
 
 
-_DISK_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
-
-
 def _os_error_line(e: OSError) -> str | None:
     """An operating-system error on a file as one line naming it (``None``: no file named,
     so not something this handler can word; the caller treats it as a bug)."""
     if not e.filename:
-        if e.errno in _DISK_ERRNOS:  # a write that ran out of room names no file
+        if e.errno in DISK_FULL:  # a write that ran out of room names no file
             return f"{e.strerror}: the disk (or the file-size limit) is full; free space and run again"
         return None
     where = f"{e.filename} -> {e.filename2}" if e.filename2 else str(e.filename)

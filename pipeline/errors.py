@@ -1,5 +1,10 @@
 """Errors the user can act on: one line naming the file (and line or prim) and the problem."""
 
+import errno
+
+#: errnos of a write that ran out of room: the disk, a quota, a file-size limit.
+DISK_FULL = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
+
 
 def printable(text) -> str:
     """``text`` as one printable line: control characters (a newline or an escape code in a

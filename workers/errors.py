@@ -1,8 +1,6 @@
 """The two ways a farm task fails. Both take one message so they survive JSON results."""
 
-import errno
-
-from pipeline.errors import TweenError
+from pipeline.errors import DISK_FULL, TweenError
 
 
 class JobError(TweenError):
@@ -17,8 +15,6 @@ class FarmConnectionError(TweenError):
     """The CLI cannot reach the broker or the result backend (one line, password hidden)."""
 
 
-#: errnos of a write that ran out of room (a quota, a file-size limit).
-_FULL_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
 #: SQLite's SQLITE_FULL: "database or disk is full".
 _SQLITE_FULL = 13
 
@@ -28,7 +24,7 @@ def disk_full(e: BaseException | None) -> bool:
     write that found the disk full: an OSError, or SQLite's SQLITE_FULL."""
     seen = 0
     while e is not None and seen < 20:
-        if isinstance(e, StoreFullError) or (isinstance(e, OSError) and e.errno in _FULL_ERRNOS):
+        if isinstance(e, StoreFullError) or (isinstance(e, OSError) and e.errno in DISK_FULL):
             return True
         if getattr(e, "sqlite_errorcode", None) == _SQLITE_FULL or "database or disk is full" in str(e):
             return True
