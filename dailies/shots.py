@@ -8,10 +8,13 @@ from __future__ import annotations
 import glob
 import os
 import re
+import stat
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from pipeline.usd.dailies import fill_decision
 
 FILL = re.compile(r"^(?P<stem>[^.]+)\.tween\.v(?P<n>\d+)\.usd[ac]?$")
 #: Folders never holding a shot's fills: the farm's work folders, review media.
@@ -39,10 +42,13 @@ _cache_lock = threading.Lock()
 
 def cached(path: Path, fn):
     """``fn(path)``, remembered while the file's size and modification time stay the same
-    (layers are never rewritten in place, so a stamp names one content)."""
+    (layers are never rewritten in place, so a stamp names one content); None for a file
+    not there or not a regular one (a pipe named like a layer would hold the request)."""
     try:
         st = path.stat()
     except OSError:
+        return None
+    if not stat.S_ISREG(st.st_mode):
         return None
     key = (fn.__qualname__, str(path), st.st_mtime_ns, st.st_size)
     with _cache_lock:
@@ -56,16 +62,17 @@ def cached(path: Path, fn):
     return value
 
 
-def layer_info(path: Path) -> dict:
-    """The layer's ``customLayerData["tween"]`` and sublayers (metadata only)."""
+def layer_info(path: Path) -> dict | None:
+    """The layer's ``customLayerData["tween"]`` and sublayers (metadata only); None when
+    unreadable."""
     from pxr import Sdf, Tf
 
     try:
         layer = Sdf.Layer.OpenAsAnonymous(str(path), True)
     except Tf.ErrorException:
-        return {}
+        return None
     if layer is None:
-        return {}
+        return None
     info = dict(layer.customLayerData.get("tween", {}))
     info["_sublayers"] = list(layer.subLayerPaths)
     return info
@@ -172,34 +179,20 @@ def folder_names(folder: Path) -> dict[str, list[str]]:
     return by_stem
 
 
-def _approval(info: dict) -> dict | None:
-    appr = dict(info.get("approval", {}))
-    return {k: appr.get(k) for k in ("status", "take", "by", "at", "note")} if appr.get("status") else None
+def _read(path: Path) -> dict | None:
+    """:func:`layer_info` as ``fill_decision`` reads a layer: cached; None when unreadable or
+    not a regular file."""
+    return cached(path, layer_info)
 
 
-def _decision(shot: Shot, info: dict, names: dict[str, list[str]]) -> dict | None:
-    """What ``pipeline.usd.dailies.decision`` says of the shot's latest fill (less its
-    ``layer``), from the folder's ``names`` rather than a glob of the folder per shot: the
-    layer's own approval, else one written from it in a later fill version (the walk is up
-    to ``SCAN_AGE`` old), newest first. Only regular files are read: a pipe named like a
-    layer would hold the request."""
-    n, path = shot.latest
-    if not info:  # unreadable or gone
-        return None
-    own = _approval(info)
-    if own:
-        return own
-    pattern = re.compile(rf"^{re.escape(shot.stem)}\.tween\.v(\d+)\.usd[ac]?$")
-    later = {}
-    for name in names.get(shot.stem, []):
-        if (m := pattern.match(name)) and int(m[1]) > n:
-            later[int(m[1])] = shot.folder / name
-    for _, p in sorted(later.items(), reverse=True):
-        cand = cached(p, layer_info) if p.is_file() else None
-        d = _approval(cand or {})
-        if d and dict(cand["approval"]).get("of") == path.name:
-            return d
-    return None
+def _decision(shot: Shot, names: dict[str, list[str]]) -> dict | None:
+    """``pipeline.usd.dailies.fill_decision`` of the shot's latest fill (less its ``layer``),
+    from the folder's ``names`` rather than a listing of the folder per shot; it also sees
+    an approval written since the walk (up to ``SCAN_AGE`` old)."""
+    d = fill_decision(shot.latest[1], names.get(shot.stem, []), _read)
+    if d:
+        del d["layer"]
+    return d
 
 
 def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
@@ -208,7 +201,7 @@ def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
     n, path = shot.latest
     names = folder_names(shot.folder) if names is None else names
     info = cached(path, layer_info) or {}
-    d = _decision(shot, info, names)
+    d = _decision(shot, names)
     publish = f"{shot.stem}.publish.v{n:03d}.usd"  # any such name, as a glob of ``publish*``
     published = any(name.startswith(publish) for name in names.get(shot.stem, []))
     try:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import queue
+import re
 import shutil
 import sys
 import tempfile
@@ -26,7 +28,16 @@ from render.gl import RenderError
 from render.output import Movie, contact_sheet, frame_metadata, png_rows, thumbnail, write_frame, write_png
 from render.overlays import BurnIn
 from render.raster import BLOCKING_CLAY, CLAY, Renderer
-from render.scene import SUMMARY_FACTS, Shot, evaluate, frame_times, open_shot, shot_timing
+from render.scene import (
+    SUMMARY_FACTS,
+    Shot,
+    evaluate,
+    frame_times,
+    open_shot,
+    shot_label,
+    shot_timing,
+    take_names,
+)
 from render.timeline import folder_lock, take_track, update_timeline
 
 MAX_GHOSTS = 8
@@ -383,6 +394,37 @@ def _move_in(tmp: Path, out: Path) -> None:
         raise
 
 
+def media_stem(shot_name: str, take: str | None) -> str:
+    """The review media's names start with this: ``sh010_v001_take1`` (``.mp4``, ``_contact.png``,
+    ``.1001.png``)."""
+    return shot_name.replace(" ", "_") + (f"_{take}" if take else "")
+
+
+def earlier_media(stage_path: str, out_dir: str, takes: list[int | None], exr: bool = False,
+                  write_frames: bool = True) -> Path | None:  # fmt: skip
+    """The first file in ``out_dir`` a review of ``takes`` would replace (a take's MP4, then its
+    contact sheet, then with ``write_frames`` a numbered frame of it), or None. The stage is
+    opened (for its takes' names) only when a file there is named like the shot's media."""
+    out = Path(out_dir)
+    try:
+        names = set(os.listdir(out))
+    except OSError:  # not there yet (or not a folder: rendering says so)
+        return None
+    label = shot_label(stage_path)
+    if not any(n.startswith(media_stem(label, None)) for n in names):
+        return None
+    ext = "exr" if exr else "png"
+    for take in take_names(stage_path, takes):
+        stem = media_stem(label, take)
+        frame = re.compile(rf"^{re.escape(stem)}\.-?\d+\.{ext}$")
+        frames = sorted(n for n in names if write_frames and frame.match(n))
+        for name in [f"{stem}.mp4", f"{stem}_contact.png", *frames]:
+            # A folder there is not replaced, with --force either: moving the media in names it.
+            if name in names and ((out / name).is_symlink() or not (out / name).is_dir()):
+                return out / name
+    return None
+
+
 def render_review(
     stage_path: str,
     out_dir: str,
@@ -427,7 +469,7 @@ def render_review(
     t_scene = time.perf_counter() - t0
 
     out = Path(out_dir)
-    stem = shot.name.replace(" ", "_") + (f"_{shot.take}" if shot.take else "")
+    stem = media_stem(shot.name, shot.take)
     with _scratch(out, job) as tmp:
         renderer = Renderer((w, h), panels=len(plan.panels))
         sets = []

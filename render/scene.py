@@ -271,6 +271,16 @@ def _select_take(stage, path: str, take: int | None) -> str | None:
     return name
 
 
+def take_names(stage_path: str, takes: list[int | None]) -> list[str | None]:
+    """The take name each of ``takes`` renders as (``takeN``; for None the stage's own
+    selection, None without takes): what ``open_shot`` calls it, from one opening of the
+    stage. ShotError, as ``open_shot``'s, for a take the stage does not hold."""
+    stage = _open_stage(stage_path)
+    # None reads the stage's selection: before a take number selects another in the session layer
+    names = {t: _select_take(stage, stage_path, t) for t in sorted(set(takes), key=lambda t: t is not None)}
+    return [names[t] for t in takes]
+
+
 def _stage_to_metres_yup(stage) -> np.ndarray:
     from pxr import UsdGeom
 

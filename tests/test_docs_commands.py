@@ -150,10 +150,10 @@ RUN = [
     "[--takes 2 --seed 0] [--model default|interp|DIR] [--out DIR] [--format usdc] "
     "[--mapping joints.json] [--review-layer dailies.usda] [--job-id ID]",
     "tween review sh010.review.v001.usda --take 1",
-    "tween review sh010.usda --take 1",
+    "tween review sh010.usda --take 1 --force",
     "tween review sh010.review.v001.usda --all-takes --side-by-side -o dailies/sh010",
     "tween review sh010.usda --size 1920x1080 --camera front --ghosts --exr --frames 1001:1048",
-    "tween review sh010.review.v001.usda --camera fixed",
+    "tween review sh010.review.v001.usda --camera fixed --force",
     'tween approve sh010.usda --take 1 --note "good arc on the turn"',
     "tween publish sh010.usda",
     "tween library build /shows/takes --out /shows/library",
@@ -222,6 +222,10 @@ BY_TEST = {
     ),
     "tween fill-local sh010.usda --library /shows/library --model runs/studio/model": (
         "tests/library/test_library_fill.py::test_a_library_fill_probes_the_network_model_names"
+    ),
+    # the README's quick start: the docs' RUN lines render take 1 into ./review/sh010/ before it
+    "tween review sh010.usda --take 1": (
+        "tests/render/test_review_latest.py::test_an_earlier_review_is_replaced_only_with_force"
     ),
     # dailies and the schema
     'tween approve sh010.usda --take 1 [--note "good arc on the turn"] [--out-dir DIR]': (

@@ -20,6 +20,7 @@ import datetime
 import getpass
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
 
 import pipeline.usd  # noqa: F401  (the TweenAPI plugin before any stage)
@@ -173,35 +174,72 @@ def _metadata(path: Path):
         return None
 
 
-def _approval(layer) -> dict | None:
-    appr = dict(dict(layer.customLayerData.get("tween", {})).get("approval", {}))
+def tween_info(path: Path) -> dict | None:
+    """The layer's ``customLayerData["tween"]`` (metadata only); None when unreadable or not
+    a regular file (a pipe named like a layer would hold the caller)."""
+    layer = _metadata(path) if Path(path).is_file() else None
+    return None if layer is None else dict(layer.customLayerData.get("tween", {}))
+
+
+def _approval(info: dict) -> dict | None:
+    appr = dict(info.get("approval", {}))
     return {k: appr.get(k) for k in _KEYS} if appr.get("status") else None
+
+
+def fill_decision(path, names: Iterable[str] | None = None, read=tween_info) -> dict | None:
+    """The decision for the fill layer ``path``: its own approval, else the newest later
+    version of its stem approving it (``"of"`` names it); None while pending or unreadable.
+
+    ``names``: the names in its folder, default one listing of it (the dailies list passes
+    the listing it shares among the folder's shots). ``read(path)``: the layer's tween
+    data, None when unreadable or not a regular file, as :func:`tween_info` (the dailies
+    list passes a cached one).
+    """
+    path = Path(path)
+    info = read(path)
+    if info is None:
+        return None
+    if d := _approval(info):
+        return {**d, "layer": str(path)}
+    m = _FILL_NAME.match(path.name)
+    if not m:
+        return None
+    if names is None:
+        try:
+            names = os.listdir(path.parent)
+        except OSError:
+            return None
+    # One pattern for every stem: a pattern per stem missed re's cache on a list of 1,000 shots.
+    later = {
+        int(k["n"]): name
+        for name in names
+        if (k := _FILL_NAME.match(name)) and k["stem"] == m["stem"] and int(k["n"]) > int(m["n"])
+    }
+    for _, name in sorted(later.items(), reverse=True):
+        cand = read(path.parent / name)
+        d = _approval(cand or {})
+        if d and dict(cand["approval"]).get("of") == path.name:
+            return {**d, "layer": str(path.parent / name)}
+    return None
 
 
 def decision(layer_path, _depth: int = 0) -> dict | None:
     """The dailies decision for a layer, or None (pending, not a tween layer, unreadable).
 
-    ``layer_path`` may be a fill layer (a pending one reports the approval layer written
-    from it, if any), a review root layer (its strongest fill layer decides) or a published
-    layer. Returns ``{"status", "take", "by", "at", "note", "layer"}``, ``layer`` being the
-    file that records the decision. Reads layer metadata only (cheap).
+    ``layer_path`` may be a fill layer (:func:`fill_decision`: a pending one reports the
+    approval layer written from it, if any), a review root layer (its strongest fill layer
+    decides) or a published layer. Returns ``{"status", "take", "by", "at", "note",
+    "layer"}``, ``layer`` being the file that records the decision. Reads layer metadata
+    only (cheap).
     """
     path = Path(layer_path)
+    if _FILL_NAME.match(path.name):
+        return fill_decision(path)
     layer = _metadata(path) if path.is_file() else None
     if layer is None:
         return None
-    d = _approval(layer)
-    if d:
+    if d := _approval(dict(layer.customLayerData.get("tween", {}))):
         return {**d, "layer": str(path)}
-    m = _FILL_NAME.match(path.name)
-    if m:  # a pending fill: the approval written from it, newest first
-        later = {k: p for k, p in _fill_layers(path.parent, m["stem"]).items() if k > int(m["n"])}
-        for _, p in sorted(later.items(), reverse=True):
-            cand = _metadata(p)
-            d = _approval(cand) if cand is not None else None
-            if d and dict(cand.customLayerData["tween"]["approval"]).get("of") == path.name:
-                return {**d, "layer": str(p)}
-        return None
     if _depth < 4:  # a root layer: its strongest fill layer decides
         for sub in layer.subLayerPaths:
             p = Path(sub) if os.path.isabs(sub) else path.parent / sub

@@ -126,3 +126,51 @@ def test_a_pipe_named_like_a_later_version_holds_no_first_listing(tmp_path):
         t.join(10)
     assert not held, "the listing opened the pipe"
     assert {r["key"]: r["version"] for r in done[0]} == {"0/seq/sh0000": 2, "0/seq/sh0001": 1}
+
+
+def test_the_list_decides_by_tween_decision_itself(tmp_path, monkeypatch):
+    """The list's decision is ``pipeline.usd.dailies``'s own (one function, given the folder's
+    listing): approved, rejected, a newer pending fill, an approval of an older version all
+    read as ``decision`` reads them, and a change to its rule shows in the list."""
+    from pipeline.usd import dailies
+
+    _sequence(tmp_path / "seq", 4)
+    seq = tmp_path / "seq"
+    _layer(seq / "sh0001.tween.v002.usda", approval_of="sh0001")
+    text = (seq / "sh0001.tween.v002.usda").read_text().replace('"approved"', '"rejected"')
+    (seq / "sh0001.tween.v002.usda").write_text(text)
+    _layer(seq / "sh0003.tween.v003.usda")  # newer than sh0003's approval: pending again
+    rows = {r["key"]: r for r in shots.listing([tmp_path])}
+    assert {k: r["status"] for k, r in rows.items()} == {
+        "0/seq/sh0000": "approved", "0/seq/sh0001": "rejected", "0/seq/sh0002": "pending",
+        "0/seq/sh0003": "pending",
+    }  # fmt: skip
+    for key, row in rows.items():
+        d = dailies.decision(seq / f"{row['stem']}.tween.v{row['version']:03d}.usda")
+        assert row["decision"] == ({k: v for k, v in d.items() if k != "layer"} if d else None), key
+    real = dailies._approval
+    monkeypatch.setattr(dailies, "_approval", lambda info: (d := real(info)) and {**d, "by": d["by"].upper()})
+    assert {r["key"]: r for r in shots.listing([tmp_path])}["0/seq/sh0000"]["decision"]["by"] == "REV"
+
+
+def test_a_pipe_named_like_a_later_version_holds_no_decision(tmp_path):
+    """``tween``'s own ``decision`` of a pending fill skips a FIFO named like a later version
+    (as the list always did): it opened it and hung."""
+    from pipeline.usd import dailies
+
+    _sequence(tmp_path / "seq", 2)
+    fifo = tmp_path / "seq" / "sh0001.tween.v009.usda"
+    os.mkfifo(fifo)
+    done = []
+    t = threading.Thread(
+        target=lambda: done.append(dailies.decision(fifo.with_name("sh0001.tween.v001.usda")))
+    )
+    t.daemon = True
+    t.start()
+    t.join(10)
+    held = not done
+    if held:
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        t.join(10)
+    assert not held, "decision opened the pipe"
+    assert done == [None]

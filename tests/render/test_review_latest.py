@@ -9,6 +9,7 @@ import pytest
 from usd_fixtures import bandai_shot, tree_hashes
 
 from pipeline.fill.api import FillOptions, fill_shot
+from pipeline.usd.files import owner_tag
 
 
 def _review(cwd, *args):
@@ -111,7 +112,7 @@ def test_a_single_take_fill_is_its_take_and_refusals_are_one_line(tmp_path):
     r = _review(tmp_path, shot, "--take", 0, "--out", tmp_path / "media")
     assert r.returncode == 0, r.stderr
     assert "--take 1 given but its fill is take 0 alone" in _refused(tmp_path, shot, "--take", 1)
-    assert "is outside the shot" in _refused(tmp_path, shot, "--frames", "5:9")
+    assert "is outside the shot" in _refused(tmp_path, shot, "--frames", "5:9", "--force")
     (tmp_path / "afile").write_text("")
     r = _review(tmp_path, shot, "--out", tmp_path / "afile")
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
@@ -172,3 +173,46 @@ def test_move_in_puts_back_what_it_replaced_when_a_move_fails(tmp_path, monkeypa
         rv._move_in(tmp, out)
     assert sorted(p.name for p in out.iterdir() if p.is_file()) == ["a.mp4", "b.otio"]
     assert (out / "a.mp4").read_text() == "old a" and (out / "b.otio").read_text() == "old b"
+
+
+def test_a_latest_fill_deleted_by_hand_is_refused_not_its_predecessor_rendered(tmp_path):
+    """The latest fill layer removed by hand (its review layer left): ``tween review SHOT``
+    rendered the fill before it as "its latest fill" (exit 0). Refused naming the missing
+    layer; the earlier fill is still reviewed by its layer, and a writer's unfinished version
+    (its temp there) is not taken for a deleted one."""
+    shot, layer, review = _filled(tmp_path, takes=1)
+    newer = fill_shot(str(shot), FillOptions(model="interp"))
+    Path(newer["layer"]).unlink()
+    err = _refused(tmp_path, shot)
+    assert err.startswith(f"tween: error: {newer['layer']}: the latest fill of {shot} is not there"), err
+    assert f"run tween fill again, or review an earlier fill by its layer: tween review {review}" in err
+    temp = tmp_path / f".sh070.tween.v002.{owner_tag()}.tmp.usda"
+    temp.write_text("")  # a live writer's (this process): its version is not finished
+    r = _review(tmp_path, shot, "--out", tmp_path / "media")
+    assert r.returncode == 0 and f"its latest fill, {review}" in r.stderr, r.stderr
+    temp.unlink()
+    layer.unlink()  # no fill left at all: not the shot rendered unfilled either
+    assert "run tween fill again\n" in _refused(tmp_path, shot)
+
+
+def test_an_earlier_review_is_replaced_only_with_force(tmp_path):
+    """Nothing the user has is replaced without --force (the README): a second review of the
+    same version and take re-rendered its MP4 over the first, exit 0. Refused naming it; with
+    --all-takes no take renders; --force replaces the media."""
+    shot, _, _ = _filled(tmp_path)
+    media = tmp_path / "media"
+    r = _review(tmp_path, shot, "--take", 1, "--out", media)
+    assert r.returncode == 0, r.stderr
+    mp4 = media / "sh070_v001_take1.mp4"
+    first = mp4.stat().st_ino
+    err = _refused(tmp_path, shot, "--take", 1)
+    assert (
+        err
+        == f"tween: error: {mp4}: --out holds an earlier review of this take; give --force to replace its media, or another --out\n"
+    )
+    assert str(mp4) in _refused(tmp_path, shot, "--all-takes")  # take 0 not rendered either
+    r = _review(tmp_path, shot, "--take", 1, "--out", media, "--force")
+    assert r.returncode == 0, r.stderr
+    assert mp4.stat().st_ino != first and sorted(p.name for p in media.iterdir() if p.suffix == ".mp4") == [
+        mp4.name
+    ]
