@@ -9,8 +9,9 @@ import fcntl
 import io
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 
@@ -76,17 +77,22 @@ def locked(
     waiting: Callable[[], None] | None = None,
     failed: Callable[[OSError], BaseException] | None = None,
     busy: Callable[[], BaseException] | None = None,
+    timeout: float | None = None,
+    timed_out: Callable[[], BaseException] | None = None,
 ) -> Iterator[None]:
     """Holds an exclusive lock (flock) on the file ``lock`` for the block, then removes it.
 
     ``make()`` runs before each try (it makes the lock's folder); ``waiting()`` once, when
     another process holds the lock (to say so before blocking); ``failed(e)`` turns an error
     opening the lock file into the caller's; ``busy()``, where given, is raised instead of
-    waiting for another holder. A waiter that then holds the lock of a file its
-    holder removed sees the inode gone and locks the new file instead. A killed holder's
-    lock is released by the kernel, so a lock file left behind never blocks anyone.
+    waiting for another holder. With ``timeout`` (seconds), the wait ends there and
+    ``timed_out()`` (default a TimeoutError naming the file) is raised; without it the wait
+    has no end. A waiter that then holds the lock of a file its holder removed sees the inode
+    gone and locks the new file instead. A killed holder's lock is released by the kernel, so
+    a lock file left behind never blocks anyone.
     """
     lock, told = Path(lock), False
+    deadline = None if timeout is None else time.monotonic() + timeout
     while True:
         if make is not None:
             make()
@@ -109,13 +115,9 @@ def locked(
                 if waiting is not None and not told:
                     waiting()
                     told = True
-                fcntl.flock(fd, fcntl.LOCK_EX)
-            st = os.fstat(fd)
-            try:
-                cur = os.stat(lock)
-                same = (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
-            except FileNotFoundError:
-                same = False
+                if not _flock_by(fd, deadline):
+                    raise (timed_out() if timed_out else TimeoutError(f"{lock}: still locked")) from None
+            same = _names(lock, fd)
         except BaseException:
             os.close(fd)
             raise
@@ -125,11 +127,39 @@ def locked(
     try:
         yield
     finally:
-        try:
+        with suppress(OSError):
             os.unlink(lock)
-        except OSError:
-            pass
         os.close(fd)
+
+
+def _names(lock: Path, fd: int) -> bool:
+    """Whether the path ``lock`` still names the file open as ``fd`` (a holder removes it)."""
+    st = os.fstat(fd)
+    try:
+        cur = os.stat(lock)
+    except FileNotFoundError:
+        return False
+    return (cur.st_dev, cur.st_ino) == (st.st_dev, st.st_ino)
+
+
+def _flock_by(fd: int, deadline: float | None) -> bool:
+    """Takes the exclusive flock on ``fd`` before ``time.monotonic()`` reaches ``deadline``
+    (None: however long it takes); False when another still holds it then. Polled: flock has
+    no timeout of its own, and an alarm signal would work in the main thread only."""
+    if deadline is None:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        return True
+    pause = 0.01
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            time.sleep(min(pause, left))
+            pause = min(2 * pause, 0.5)
 
 
 @contextmanager

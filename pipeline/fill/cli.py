@@ -20,6 +20,7 @@ from pipeline.atomic import writable
 from pipeline.errors import TweenError
 from pipeline.fill.api import fill_shot
 from pipeline.fill.options import FillOptions, with_fill_options
+from pipeline.usd.write import check_shot_name
 
 
 def _number(opt: str, text: str) -> float:
@@ -77,6 +78,9 @@ def _check_shot_path(out: Path, force: bool, source: Path | None = None) -> None
         raise TweenError(f"{out}: the path is not UTF-8 text, which USD cannot write; rename it") from None
     if out.suffix.lower() not in (".usda", ".usdc", ".usd"):  # USD reads the extension in any case
         raise TweenError(f"{out}: the shot must end in .usda, .usdc or .usd")
+    # A name `tween fill` refuses (a newline, a leading dot, too long, a fill layer's) is
+    # refused here by the fill's own check: a shot no fill can be made of is not written.
+    check_shot_name(str(out), new=True)
     if not out.parent.is_dir():
         raise TweenError(f"{out}: the folder {out.parent} does not exist")
     # The mode bits too, as the fill's layers: a read-only (published) folder stays untouched even for root.

@@ -11,8 +11,12 @@ the takes the library does not hold yet (by resolved path) and keeps the rest as
 from __future__ import annotations
 
 import gzip
+import os
 import shutil
+import socket
 import sys
+import time
+from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,6 +27,7 @@ from pipeline.atomic import locked
 from pipeline.data.skeletons import bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError, printable
 from pipeline.library.match_features import contacts, frame_features
+from pipeline.library.options import LOCK_WAIT_S
 from pipeline.library.store import (
     ARRAYS,
     MANIFEST,
@@ -88,6 +93,28 @@ def _skipped(line: str) -> None:
 #: arrays and each wrote its own manifest, which lost the other's takes and left arrays
 #: longer than the manifest says. Removed when released; not counted as the folder's content.
 LOCK = ".library.lock"
+
+
+def _mark_holder(lock: Path) -> None:
+    """Writes who holds ``lock`` into it (``<pid>@<host>``), for a build that waits in vain
+    to name; the lock works without it, so a write that fails is let be."""
+    with suppress(OSError), open(lock, "w") as f:
+        f.write(f"{os.getpid()}@{socket.gethostname()}")
+
+
+def _lock_timed_out(lock: Path, waited: float) -> LibraryError:
+    """The line a build that waited ``waited`` seconds for ``lock`` gives up with: the
+    holder's ``<pid>@<host>`` and since when, where it wrote them."""
+    try:
+        holder = printable(lock.read_text(errors="replace")[:200].strip())
+        since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(lock.stat().st_mtime))
+    except OSError:  # released meanwhile, or unreadable
+        holder = since = ""
+    who = f"process {holder}, since {since}" if holder else "a process that did not say who it is"
+    return LibraryError(
+        f"{lock}: another build still holds this library's lock after {waited:g} s ({who}); "
+        "run again once it is done, or wait longer with --lock-wait SECONDS"
+    )
 
 
 def _contents(out: Path) -> list[Path]:
@@ -189,11 +216,12 @@ def _add_takes(writer: Writer, bar, n: int, manifest: dict, licence, mirror: boo
 
 def build(folder, out, include: str | None = None, licence: str | None = None, name: str | None = None,
           add: bool = False, files=None, progress: bool = True, mirror: bool = False,
-          on_progress=None) -> dict:  # fmt: skip
+          on_progress=None, lock_wait: float = LOCK_WAIT_S) -> dict:  # fmt: skip
     """Reads the takes under ``folder`` (or the paths in ``files``) into the library ``out``;
     returns {"library", "added", "skipped", "failed", "frames", "hours", "hash"}. Without
     ``add`` an existing library at ``out`` is refused (build into a new folder, or add).
-    ``on_progress(done, total, name)`` is called after each take (the farm's progress)."""
+    ``on_progress(done, total, name)`` is called after each take (the farm's progress);
+    ``lock_wait``: seconds to wait for another build of ``out`` (then a LibraryError)."""
     from pipeline.usd.take import take_files
 
     out = Path(out)
@@ -207,10 +235,14 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
         made.extend(p for p in missing if p not in made)
 
     def waiting() -> None:
-        print(f"tween: {out}: another build is writing this library; waiting for it", file=sys.stderr)
+        print(f"tween: {out}: another build is writing this library; waiting for it (at most {lock_wait:g} s)",
+              file=sys.stderr)  # fmt: skip
 
+    lock = out / LOCK
     try:
-        with locked(out / LOCK, make=make, waiting=waiting):
+        with locked(lock, make=make, waiting=waiting, timeout=lock_wait,
+                    timed_out=lambda: _lock_timed_out(lock, lock_wait)):  # fmt: skip
+            _mark_holder(lock)
             return _build_locked(folder if files is None else out, out, paths, licence, name, add, progress, mirror, on_progress,
                                  out in made)  # fmt: skip
     finally:

@@ -10,7 +10,7 @@ from pathlib import Path
 import typer
 
 from pipeline.errors import printable
-from pipeline.library.options import LibraryBuildOptions, with_library_options
+from pipeline.library.options import LOCK_WAIT_S, LibraryBuildOptions, check_lock_wait, with_library_options
 from pipeline.library.store import open_library, verify
 
 
@@ -30,15 +30,19 @@ def build_command(
         help="Progress as 'tween: library progress D/T' lines on stderr "
         "(the farm's channel), at most two a second.",
     ),
+    lock_wait: float = typer.Option(
+        LOCK_WAIT_S, "--lock-wait", help="Seconds to wait for another build of the library (then exit 2)."
+    ),
     opts: LibraryBuildOptions = None,
 ):
     """Read a studio's takes into a motion library for `tween fill --library`."""
     from pipeline.library.build import build
 
     opts.check()
+    check_lock_wait(lock_wait)
     res = build(folder, out, include=opts.include, licence=opts.licence, name=opts.name, add=opts.add,
                 progress=progress, mirror=opts.mirror,
-                on_progress=_progress_lines() if progress_lines else None)  # fmt: skip
+                on_progress=_progress_lines() if progress_lines else None, lock_wait=lock_wait)  # fmt: skip
     typer.echo(json.dumps(res, indent=1))
 
 

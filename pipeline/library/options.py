@@ -10,6 +10,20 @@ from dataclasses import asdict, dataclass
 from pipeline.errors import TweenError
 from pipeline.options import MAX_TEXT, flags_of, job_args, names_a_glob, one_line, option, with_options
 
+#: Seconds a build waits for another build of the library to release its lock
+#: (pipeline.library.build.LOCK) before it gives up, exit 2 naming the lock and its holder:
+#: one that hung (a stopped process, a dead mount) held every later build for ever.
+#: ``tween library build --lock-wait SECONDS`` sets it, from 0 to MAX_LOCK_WAIT_S.
+LOCK_WAIT_S = 300.0
+MAX_LOCK_WAIT_S = 24 * 3600.0
+
+
+def check_lock_wait(seconds: float) -> float:
+    """``seconds`` when it is a wait ``--lock-wait`` takes; TweenError naming the option."""
+    if not 0 <= seconds <= MAX_LOCK_WAIT_S:  # NaN too
+        raise TweenError(f"--lock-wait {seconds:g}: must be from 0 to {MAX_LOCK_WAIT_S:g} seconds")
+    return seconds
+
 
 @dataclass
 class LibraryBuildOptions:

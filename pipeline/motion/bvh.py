@@ -38,18 +38,17 @@ ROOT_POSITION_RULES = ("replace", "add")
 _VALID_CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
 
 
-def _root_rule(joints: list[BvhJoint], trans: np.ndarray, rots: np.ndarray) -> str:
-    """The root rule a file's content asks for, given its transforms read as "replace": "add"
-    where adding the root's OFFSET to its position channels brings the take's lowest point
-    (every joint, a frame in up to 200) nearer the ground than reading them as replacements,
-    as for the CMU/iClone rig (about 96 cm below the ground otherwise, whatever the file is
-    called); else "replace". Told by content, so a copied or renamed take reads the same."""
+def _root_rule(joints: list[BvhJoint], data: np.ndarray) -> str:
+    """The root rule a file's content (its channel values ``data``) asks for: "add" where
+    adding the root's OFFSET to its position channels brings the take's lowest point (every
+    joint, a frame in up to 200) nearer the ground than reading them as replacements, as for
+    the CMU/iClone rig (about 96 cm below the ground otherwise, whatever the file is called);
+    else "replace". Told by content, so a copied or renamed take reads the same."""
     root = joints[0]
     lift = root.offset[1] if "Yposition" in root.channels else 0.0
     if not lift:
         return "replace"  # both rules read the same heights
-    frames = slice(None, None, max(1, len(trans) // 200))
-    t, r = trans[frames], rots[frames]
+    t, r = _joint_transforms(joints, data[:: max(1, len(data) // 200)], "replace")
     pos = np.empty(t.shape)
     world = np.empty(r.shape)
     with np.errstate(all="ignore"):  # values too large for the model are refused after, in one line
@@ -380,8 +379,16 @@ def _is_float(v: str) -> bool:
         return False
 
 
+#: Joint-frames whose float64 transforms are made at a time (56 bytes each: 3.7 MB). A take's
+#: were all made at once beside its values, then cast to float32: 20,640 frames of the
+#: 101-joint CMU rig took 142 MiB over its values, 39 MiB so (the float32 result's 32). Each
+#: frame is computed on its own, so a block's values are the whole take's, bit for bit.
+_BLOCK_JOINT_FRAMES = 1 << 16
+
+
 def _joint_transforms(joints: list[BvhJoint], data: np.ndarray, rule: str) -> tuple[np.ndarray, np.ndarray]:
-    """Each joint's local translation (T, J, 3) and rotation (T, J, 4) from its channels."""
+    """Each joint's local translation (T, J, 3) and rotation (T, J, 4) from its channels
+    (the frames of ``data``, (T, channels), however many)."""
     T, J = data.shape[0], len(joints)
     trans = np.empty((T, J, 3))
     rots = np.empty((T, J, 4))
@@ -415,8 +422,9 @@ def _container_root(joints: list[BvhJoint], parents: list[int]) -> bool:
     )
 
 
-def _rest_offsets(path: Path, joints: list[BvhJoint], trans: np.ndarray) -> np.ndarray:
-    """Each joint's bone (J, 3) float32, the root's its first-frame height."""
+def _rest_offsets(path: Path, joints: list[BvhJoint], first: np.ndarray) -> np.ndarray:
+    """Each joint's bone (J, 3) float32, the root's its first-frame height; ``first``: the
+    first frame's local translations (J, 3)."""
     offsets = np.array([jt.offset for jt in joints], np.float64)
     # Position channels below the root replace the OFFSET: their first frame is the bone
     # (exporters that write 6 channels everywhere may leave OFFSET at zero). A joint's
@@ -424,11 +432,11 @@ def _rest_offsets(path: Path, joints: list[BvhJoint], trans: np.ndarray) -> np.n
     # within 1e-4 of the OFFSET keep the OFFSET (Bandai writes the same numbers twice).
     for j, jt in enumerate(joints):
         if j and any(c.endswith("position") for c in jt.channels):
-            if np.abs(trans[0, j] - offsets[j]).max() > 1e-4:
-                offsets[j] = trans[0, j]
+            if np.abs(first[j] - offsets[j]).max() > 1e-4:
+                offsets[j] = first[j]
     # The root's rest position: its first-frame height above the origin (its OFFSET may be
     # meaningless, as in Bandai); every other joint keeps its bone from above.
-    offsets[0] = (0.0, trans[0, 0, 1], 0.0)
+    offsets[0] = (0.0, first[0, 1], 0.0)
     return offsets.astype(np.float32)  # every value within MAX_VALUE: the cast cannot overflow
 
 
@@ -452,30 +460,44 @@ def read_bvh(
     n_channels = sum(len(j.channels) for j in joints)
     data, fps, _ = _parse_motion(path, lines, i, n_channels)
     del lines  # the text: as large as the values, and not needed again
-    trans, rots = _joint_transforms(joints, data, root_position or "replace")
-    if root_position is None and _root_rule(joints, trans, rots) == "add":
-        del trans, rots  # not held beside their replacement
-        trans, rots = _joint_transforms(joints, data, "add")
-    del data
-
+    rule = root_position or _root_rule(joints, data)
     names = [jt.name for jt in joints]
     parents = [jt.parent for jt in joints]
-    if fold_root and _container_root(joints, parents):
-        # Compose the root's transform into its only child (index 1 in file order).
-        r0, t0 = rots[:, 0], trans[:, 0]
-        trans[:, 1] = t0 + quat_apply(r0, trans[:, 1])
-        rots[:, 1] = quat_mul(r0, rots[:, 1])
-        trans, rots = trans[:, 1:], rots[:, 1:]
+    fold = fold_root and _container_root(joints, parents)
+    rots, root, first = _motion_arrays(joints, data, rule, fold)
+    del data
+    if fold:
         joints = joints[1:]
         names = names[1:]
         parents = [max(p - 1, -1) for p in parents[1:]]
         parents[0] = -1
 
-    offsets = _rest_offsets(path, joints, trans)
+    offsets = _rest_offsets(path, joints, first)
     end_sites = {k: jt.end_site.astype(np.float32) for k, jt in enumerate(joints) if jt.end_site is not None}
     skel = Skeleton(tuple(names), np.array(parents), offsets, "Y", 0.01, end_sites)
     name = re.sub(r"(\.bvh)?(\.gz)?$", "", path.name, flags=re.IGNORECASE) or path.name
-    return Motion(skel, rots.astype(np.float32), trans[:, 0].astype(np.float32), fps, name)
+    return Motion(skel, rots, root, fps, name)
+
+
+def _motion_arrays(joints: list[BvhJoint], data: np.ndarray, rule: str, fold: bool):
+    """The take's local rotations (T, J, 4) and root positions (T, 3), float32, and its first
+    frame's local translations (J, 3) float64; with ``fold``, the root composed into its
+    only child (index 1 in file order), which takes its place. Made a block of frames at a
+    time (_BLOCK_JOINT_FRAMES), each cast as soon as it is made."""
+    T, J = len(data), len(joints) - int(fold)
+    rots, root = np.empty((T, J, 4), np.float32), np.empty((T, 3), np.float32)
+    first = None
+    step = max(1, _BLOCK_JOINT_FRAMES // len(joints))
+    for a in range(0, T, step):
+        trans, r = _joint_transforms(joints, data[a : a + step], rule)
+        if fold:
+            trans[:, 1] = trans[:, 0] + quat_apply(r[:, 0], trans[:, 1])
+            r[:, 1] = quat_mul(r[:, 0], r[:, 1])
+            trans, r = trans[:, 1:], r[:, 1:]
+        if first is None:
+            first = trans[0].copy()
+        rots[a : a + step], root[a : a + step] = r, trans[:, 0]
+    return rots, root, first
 
 
 def write_bvh(motion: Motion, path: str | Path, order: str = "ZXY") -> None:

@@ -16,6 +16,7 @@ import json
 import os
 import re
 import stat
+import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -47,13 +48,27 @@ def made_layer(path: str | Path) -> str | None:
     return _MADE_KINDS[m.group("kind").lower()] if m else None
 
 
-def check_shot_name(shot: str) -> None:
-    """ShotError when ``shot`` is a layer usd-tween made rather than a shot: its versions
-    would be looked for under its own name, and its review would chain over it."""
+def check_shot_name(shot: str, new: bool = False) -> None:
+    """ShotError when ``shot`` is named so that no fill can be made of it: a layer usd-tween
+    made (its versions would be looked for under its own name, and its review would chain
+    over it), a name starting with a dot or too long for its layers' names, a path holding a
+    control character. ``new``: ``shot`` is about to be written (``tween convert``); the
+    same names are refused, a layer's name said as such."""
     made = made_layer(shot)
+    if made and new:
+        kind = _MADE.match(Path(shot).name)["kind"].lower()
+        raise ShotError(shot, f"is named like {made} (<stem>.{kind}.vNNN.usd*), which `tween fill` "
+                        "refuses as a shot; give the shot another name")  # fmt: skip
     if made:
         raise ShotError(
             shot, f"is {made}, not a shot: give the shot it was made from ({shot_stem(shot)}.usd*)"
+        )
+    # USD refuses an asset path holding one (C0, DEL, C1: category Cc), and fills open the shot by it.
+    bad = next((c for c in str(shot) if unicodedata.category(c) == "Cc"), None)
+    if bad is not None:
+        raise ShotError(
+            shot,
+            f"its path holds the control character {bad!r}, which USD refuses in a layer's path; rename it",
         )
     if not shot_stem(shot):  # ".sh.usda": hidden layers, one series for every such shot there
         raise ShotError(

@@ -602,3 +602,38 @@ def test_builds_of_one_library_at_once_take_turns_and_lose_no_take(takes, tmp_pa
         == f"tween: error: {new}: a library; use --add to append takes, or a new folder"
     )
     assert len(open_library(new).manifest["takes"]) == 1
+
+
+def test_a_build_behind_a_hung_one_gives_up_naming_the_lock_and_its_holder(library, takes, tmp_path, capsys):
+    """A `library build --add` behind a build that hung holding the library's lock waited for
+    ever. It waits `--lock-wait` seconds, then exits 2 in one line naming the lock and the
+    holder its lock file names; the library is as it was."""
+    import fcntl
+    import os
+    import time
+
+    from cli_contract import failed, refused, snapshot
+
+    from pipeline.library.build import LOCK
+
+    out = tmp_path / "lib"
+    shutil.copytree(library, out)
+    lock = out / LOCK
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)  # the hung build: its own open file, locked
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os.write(fd, b"4242@farm07")
+        before = snapshot(out)
+        t0 = time.monotonic()
+        line = failed(["library", "build", takes, "--out", out, "--add", "--no-progress", "--lock-wait", "0.5"],
+                      capsys)  # fmt: skip
+        assert 0.5 <= time.monotonic() - t0 < 60
+        assert snapshot(out) == before
+    finally:
+        os.close(fd)
+    assert line.startswith(f"tween: error: {lock}: another build still holds this library's lock after 0.5 s "
+                           "(process 4242@farm07, since "), line  # fmt: skip
+    assert line.endswith("or wait longer with --lock-wait SECONDS"), line
+    for bad in ("-1", "nan", "1e9"):
+        assert "--lock-wait" in refused(["library", "build", takes, "--out", out, "--add", "--lock-wait", bad],
+                                        capsys, out)  # fmt: skip

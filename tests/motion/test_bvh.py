@@ -454,3 +454,79 @@ def test_a_line_of_too_many_values_is_counted_without_splitting_it_at_once(tmp_p
     with pytest.raises(MotionFormatError) as err:
         read_bvh(p)
     assert str(err.value) == f"{p}:20: frame 1 has 10000 values, expected 9"
+
+
+def _all_at_once(path, root_position=None, fold_root=True):
+    """The take's rotations and root positions as read_bvh made them before it worked a block
+    of frames at a time: every frame's float64 transforms at once, the root rule from a frame
+    in up to 200 of them, the root folded, then cast to float32."""
+    from pipeline.motion import bvh
+    from pipeline.motion.rotations import quat_apply, quat_mul
+
+    lines = bvh._open_text(path)
+    joints, i = bvh._parse_hierarchy(path, lines)
+    data = bvh._parse_motion(path, lines, i, sum(len(j.channels) for j in joints))[0]
+    trans, rots = bvh._joint_transforms(joints, data, root_position or "replace")
+    if root_position is None and "Yposition" in joints[0].channels and joints[0].offset[1]:
+        t, r = trans[:: max(1, len(trans) // 200)], rots[:: max(1, len(trans) // 200)]
+        pos, world = np.empty(t.shape), np.empty(r.shape)
+        for j, jt in enumerate(joints):
+            if jt.parent < 0:
+                pos[:, j], world[:, j] = t[:, j], r[:, j]
+            else:
+                pos[:, j] = pos[:, jt.parent] + quat_apply(world[:, jt.parent], t[:, j])
+                world[:, j] = quat_mul(world[:, jt.parent], r[:, j])
+        low = pos[..., 1].min()
+        if abs(low + joints[0].offset[1]) < abs(low):
+            trans, rots = bvh._joint_transforms(joints, data, "add")
+    if fold_root and bvh._container_root(joints, [jt.parent for jt in joints]):
+        trans[:, 1] = trans[:, 0] + quat_apply(rots[:, 0], trans[:, 1])
+        rots[:, 1] = quat_mul(rots[:, 0], rots[:, 1])
+        trans, rots, joints = trans[:, 1:], rots[:, 1:], joints[1:]
+    offsets = bvh._rest_offsets(path, joints, trans[0])  # it reads the first frame only
+    return rots.astype(np.float32), trans[:, 0].astype(np.float32), offsets
+
+
+def test_a_take_read_a_block_of_frames_at_a_time_is_bit_for_bit_the_same(data_dir, monkeypatch):
+    """read_bvh made every frame's float64 transforms at once, then cast them: 56 bytes a
+    joint-frame beside the values. Made a block at a time (small blocks here: a take spans
+    many, the last one short), the rotations, root positions and bones are the same bits: a
+    CMU take (root added, RL_BoneRoot folded) read every way, a Bandai take (joint_Root folded)."""
+    from pipeline.motion import bvh
+
+    monkeypatch.setattr(bvh, "_BLOCK_JOINT_FRAMES", 1 << 12, raising=False)
+    cmu = data_dir / "cmu_iclone" / "001_01.bvh.gz"
+    bandai = data_dir / "bandai_namco" / "dataset-2" / "dataset-2_walk_active_001.bvh.gz"
+    for path, kw in [(cmu, {}), (cmu, {"fold_root": False}), (bandai, {})]:
+        m = read_bvh(path, **kw)
+        rots, root, offsets = _all_at_once(path, **kw)
+        assert m.rotations.dtype == np.float32 and m.root_positions.dtype == np.float32
+        assert m.rotations.tobytes() == rots.tobytes(), (path.name, kw)
+        assert m.root_positions.tobytes() == root.tobytes(), (path.name, kw)
+        assert m.skeleton.offsets.tobytes() == offsets.tobytes(), (path.name, kw)
+
+
+def test_a_wide_take_holds_no_float64_transforms_of_every_frame(data_dir, monkeypatch):
+    """Memory after the values are parsed: all of the take's float64 transforms (56 bytes a
+    joint-frame) were made at once, then cast; now a block at a time (made small here so a
+    real take spans many). What is allocated after parsing stays under half of them."""
+    import tracemalloc
+
+    from pipeline.motion import bvh
+
+    monkeypatch.setattr(bvh, "_BLOCK_JOINT_FRAMES", 1 << 12, raising=False)
+    parse = bvh._parse_motion
+
+    def parsed_then_traced(*a):
+        out = parse(*a)
+        tracemalloc.start()
+        return out
+
+    monkeypatch.setattr(bvh, "_parse_motion", parsed_then_traced)
+    try:
+        m = read_bvh(data_dir / "cmu_iclone" / "001_01.bvh.gz")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    T, J = m.rotations.shape[:2]
+    assert peak < 0.5 * 56 * T * (J + 1), (peak, 56 * T * (J + 1))

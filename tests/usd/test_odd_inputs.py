@@ -116,6 +116,32 @@ def test_convert_never_writes_over_its_input(tmp_path, monkeypatch, capsys):
     assert clip.read_bytes() == before
 
 
+@pytest.mark.parametrize(
+    "name, says",
+    [
+        ("sh\n010.usda", "control character '\\n'"),
+        ("sh\x7f010.usda", "control character '\\x7f'"),
+        ("sh\x85010.usda", "control character '\\x85'"),
+        (".sh010.usda", "its name starts with a dot"),
+        ("a" * 240 + ".usda", "give it a shorter name"),
+        ("sh010.tween.v001.usda", "is named like a fill layer"),
+        ("sh010.review.v002.usdc", "is named like a review layer"),
+    ],
+)
+def test_convert_refuses_a_shot_name_the_fill_refuses(tmp_path, monkeypatch, capsys, name, says):
+    """Convert wrote these shots (exit 0), then `tween fill` refused them (a newline: a USD
+    error after the plan was said). Refused up front by the fill's own check, nothing written."""
+    from pipeline.errors import ShotError, printable
+    from pipeline.usd.write import check_shot_name
+
+    out = tmp_path / name
+    rc, err = tween(monkeypatch, capsys, "convert", BANDAI_CLIP, out)
+    _one_error(rc, err, f"tween: error: {printable(out)}: ", says)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ShotError, match="control character|starts with a dot|shorter name|not a shot"):
+        check_shot_name(str(out))  # the fill refuses the same name
+
+
 def test_convert_leaves_a_read_only_folder_alone_even_for_root(tmp_path, monkeypatch, capsys):
     """As the fill's layers: the mode bits say read-only (a published folder), whoever runs it."""
     ro = tmp_path / "published"
