@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import glob
 import json
 import math
 import re
@@ -13,17 +12,11 @@ import typer
 
 from pipeline.errors import TweenError
 from pipeline.outputs import refuse_read_only
-from pipeline.usd.files import review_path
 from pipeline.usd.write import (
     check_review,
-    check_series,
-    default_out_dir,
     latest_review,
     made_layer,
     review_of,
-    shot_stem,
-    taken_versions,
-    versions,
 )
 from render.review import earlier_media, render_review
 from render.scene import list_takes
@@ -73,48 +66,6 @@ def _check_options(take: int | None, turns: float) -> None:
         raise TweenError(f"--turns {turns:g}: must be from -{MAX_TURNS:g} to {MAX_TURNS:g}")
 
 
-def _stacked_fill(review: Path, name: str) -> str:
-    """The file name of the fill layer ``name`` (``<stem>.tween.vNNN``) as ``review`` stacks
-    it (a fill may be .usdc); ``name.usda`` when the layer does not say."""
-    from pxr import Sdf, Tf
-
-    try:
-        layer = Sdf.Layer.OpenAsAnonymous(str(review), True)
-    except Tf.ErrorException:
-        layer = None
-    subs = [Path(s).name for s in layer.subLayerPaths] if layer is not None else []
-    return next((s for s in subs if s.rsplit(".", 1)[0] == name), f"{name}.usda")
-
-
-def _check_latest_not_deleted(shot: str, fills: str | None) -> None:
-    """TweenError when the shot's newest version is a review layer whose fill layer is gone
-    (deleted by hand) and no writer's temp of it is there: the highest fill left is an older
-    one, and rendering it as "its latest fill" showed the animator a fill they had replaced.
-    A writer still writing, or killed, has its temp there (its review layer is written first)."""
-    out = Path(fills) if fills else default_out_dir(shot)
-    if not out.is_dir():
-        return
-    stem = shot_stem(shot)
-    fills_there = versions(out, stem)
-    newest = max(taken_versions(out, stem), default=0)
-    if newest <= max(fills_there, default=0):
-        return
-    if list(out.glob(f".{glob.escape(stem)}.tween.v{newest:03d}.*.tmp.usd*")):
-        return  # a writer's version, not finished (or its writer died: the next write cleans it)
-    check_series(shot, out, stem)  # another shot's fills are refused as that
-    review = review_path(out, stem, newest)
-    missing = out / _stacked_fill(review, f"{stem}.tween.v{newest:03d}")
-    earlier = (
-        f", or review an earlier fill by its layer: tween review {review_path(out, stem, max(fills_there))}"
-        if fills_there
-        else ""
-    )
-    raise TweenError(
-        f"{missing}: the latest fill of {shot} is not there (its review layer "
-        f"{review.name} is); run tween fill again{earlier}"
-    )
-
-
 def _latest_fill(shot: str, fills: str | None) -> tuple[str, str | None]:
     """The stage to render for ``shot``, and the line to say once it rendered: a review layer
     itself (every layer it stacks there); a fill layer's review layer; for a plain shot, the
@@ -135,7 +86,6 @@ def _latest_fill(shot: str, fills: str | None) -> tuple[str, str | None]:
         raise TweenError(f"--fills {fills!r}: empty; leave it out for the folder beside the shot")
     if fills is not None and not Path(fills).is_dir():  # a typo would render the unfilled shot
         raise TweenError(f"--fills {fills}: no such folder")
-    _check_latest_not_deleted(shot, fills)
     found = latest_review(shot, fills)
     if found is None:
         return shot, f"tween: review: {shot}: no fill of it yet; rendered the shot as it is"

@@ -127,6 +127,7 @@ def _latest(shot: str, out: Path, stem: str) -> tuple[int, Path]:
     if not versions:
         raise ShotError(shot, f"no fill yet: no {stem}.tween.vNNN layer in {out} (run tween fill first)")
     write.check_series(shot, out, stem)  # another shot's fills: approve and publish took them
+    write.check_latest_there(shot, out, stem)  # a fill deleted by hand: not the one before it
     n = max(versions)
     return n, versions[n]
 

@@ -115,10 +115,54 @@ def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
     older fill, or of the shot alone, would pass for this one)."""
     out = Path(out_dir) if out_dir else default_out_dir(shot)
     found_versions = versions(out, shot_stem(shot)) if out.is_dir() else {}
+    check_latest_there(shot, out, shot_stem(shot), review_hint=True)
     if not found_versions:
         return None
     check_series(shot, out, shot_stem(shot))  # not another shot's fill as this one's
     return review_of(found_versions[max(found_versions)])
+
+
+def _stacked_fill(review: Path, name: str) -> str:
+    """The file name of the fill layer ``name`` (``<stem>.tween.vNNN``) as ``review`` stacks
+    it (a fill may be .usdc); ``name.usda`` when the layer does not say."""
+    from pxr import Sdf, Tf
+
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(review), True)
+    except Tf.ErrorException:
+        layer = None
+    subs = [Path(s).name for s in layer.subLayerPaths] if layer is not None else []
+    return next((s for s in subs if s.rsplit(".", 1)[0] == name), f"{name}.usda")
+
+
+def check_latest_there(shot: str, out: Path, stem: str, review_hint: bool = False) -> None:
+    """ShotError when the shot's newest version in ``out`` is a review layer whose fill layer
+    is gone (deleted by hand) and no writer's temp of it is there: the highest fill left is
+    an older one, which review, approve and publish would take for "the latest fill" (an
+    approval of it would be recorded as the replaced fill's). A writer still writing, or
+    killed, has its temp there (its review layer is written first). ``review_hint``: say how
+    to review the fill before it (``tween review`` takes a review layer)."""
+    if not out.is_dir():
+        return
+    fills_there = versions(out, stem)
+    newest = max(taken_versions(out, stem), default=0)
+    if newest <= max(fills_there, default=0):
+        return
+    if list(out.glob(f".{glob.escape(stem)}.tween.v{newest:03d}.*.tmp.usd*")):
+        return  # a writer's version, not finished (or its writer died: the next write cleans it)
+    check_series(shot, out, stem)  # another shot's fills are refused as that
+    review = files.review_path(out, stem, newest)
+    missing = out / _stacked_fill(review, f"{stem}.tween.v{newest:03d}")
+    earlier = (
+        f", or review an earlier fill by its layer: tween review {files.review_path(out, stem, max(fills_there))}"
+        if fills_there and review_hint
+        else ""
+    )
+    raise ShotError(
+        str(missing),
+        f"the latest fill of {shot} is not there (its review layer {review.name} is); "
+        f"run tween fill again{earlier}",
+    )
 
 
 def review_of(fill: str | Path) -> Path:

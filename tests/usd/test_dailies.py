@@ -411,3 +411,23 @@ def test_a_shot_named_with_glob_characters_finds_its_versions(tmp_path, capsys):
     assert (tmp_path / "sh[0].tween.v003.usda").is_file()
     code, out, err = tween(capsys, "publish", shot)
     assert code == 0 and out.strip() == str(tmp_path / "sh[0].publish.v003.usda"), err
+
+
+def test_approve_and_publish_refuse_a_latest_fill_deleted_by_hand(tmp_path, capsys):
+    """v002's fill layer deleted by hand, its review layer left: approve took v001 for the
+    latest fill and wrote its approval as v003, publish published v001, exit 0."""
+    shot = bandai_shot(tmp_path / "sh020.usda", frames=21, keys_every=10)
+    for n in (1, 2):
+        assert fill_shot(str(shot), FillOptions(model="interp"))["version"] == n
+    (tmp_path / "sh020.tween.v002.usda").unlink()
+    capsys.readouterr()  # the fills' own lines
+    before = tree_hashes(tmp_path)
+    for args in (("approve", shot, "--take", "0"), ("publish", shot)):
+        code, out, err = tween(capsys, *args)
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (args, err)
+        assert err.startswith(f"tween: error: {tmp_path / 'sh020.tween.v002.usda'}: the latest fill of"), err
+        assert "sh020.review.v002.usda is); run tween fill again" in err, err
+    assert tree_hashes(tmp_path) == before
+    assert fill_shot(str(shot), FillOptions(model="interp"))["version"] == 3  # a new fill mends it
+    code, out, err = tween(capsys, "approve", shot, "--take", "0")
+    assert code == 0, err
