@@ -36,16 +36,56 @@ def _transport_options(s: FarmSettings, visibility_timeout: int, prefix: str) ->
             "unacked_restore_interval": s.restore_interval,
             "unacked_restore_throttle": 1,
             "global_keyprefix": prefix,
+            # kombu waits for ever for a reply by default: a Redis that stops answering after
+            # the start-up check hung `tween submit`'s publish for good.
+            "socket_timeout": s.reply_timeout,
+            "socket_connect_timeout": s.reply_timeout,
         }
     if s.broker_url.startswith(("amqp://", "amqps://", "pyamqp://")):
-        return {"confirm_publish": True}
+        # The same for py-amqp's socket (a publish waits for its confirm); the worker's event
+        # loop reads only what has arrived, so an idle worker never times out.
+        return {"confirm_publish": True, "read_timeout": s.reply_timeout, "write_timeout": s.reply_timeout}
     return {}
+
+
+#: A farm client does not retry a publish or a result write (Celery: 3 and 20 times): the
+#: start-up check has just reached the server, so a failure now is a server that went down
+#: or silent, and each retry, its reconnection included, waited ``reply_timeout`` again (a
+#: silent Redis held `tween submit` 30 s with one retry). A worker keeps Celery's policies
+#: (:func:`for_worker`): it rides out a broker or backend restart.
+CLIENT_PUBLISH_RETRY = {"max_retries": 0}
+CLIENT_BACKEND_RETRY = {"max_retries": 0}
 
 
 def _backend_options(s: FarmSettings, prefix: str) -> dict:
     if s.result_backend.startswith(("redis://", "rediss://")):
-        return {"global_keyprefix": prefix}
+        return {"global_keyprefix": prefix, "retry_policy": dict(CLIENT_BACKEND_RETRY)}
     return {}
+
+
+def _reply_limits(s: FarmSettings) -> dict:
+    """Celery's settings that bound a client's wait on the broker and the Redis result
+    backend (the transport options bound the broker's socket): no publish retried, and
+    the backend's reply wait (Celery's: 120 s, then 20 retries)."""
+    return {
+        "task_publish_retry_policy": dict(CLIENT_PUBLISH_RETRY),
+        "redis_socket_timeout": s.reply_timeout,
+        "redis_socket_connect_timeout": s.reply_timeout,
+    }
+
+
+def for_worker(celery_app: Celery) -> Celery:
+    """Gives the app a worker's retry policies, Celery's defaults, before it starts: a worker
+    waits out a broker or backend restart, where a client gives up within seconds."""
+    from celery.app.defaults import DEFAULTS
+
+    opts = dict(celery_app.conf.result_backend_transport_options or {})
+    opts.pop("retry_policy", None)
+    celery_app.conf.update(
+        task_publish_retry_policy=dict(DEFAULTS["task_publish_retry_policy"]),
+        result_backend_transport_options=opts,
+    )
+    return celery_app
 
 
 def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = False) -> Celery:
@@ -74,6 +114,7 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = 
         broker_transport_options=_transport_options(s, vt, prefix),
         result_backend_transport_options=_backend_options(s, prefix),
         broker_connection_retry_on_startup=True,
+        **_reply_limits(s),
         # JSON only: a message can never execute code when it is decoded.
         task_serializer="json",
         result_serializer="json",
@@ -157,8 +198,8 @@ ANSWER_TIMEOUT = 8.0
 def _answered(what: str, url: str, check, env: str = "", within: float | None = None) -> None:
     """Runs ``check`` in a daemon thread and waits at most ``within`` (ANSWER_TIMEOUT) s for
     it: its own error, or FarmConnectionError naming the URL when it did not answer. A thread,
-    because no socket timeout bounds them all (redis-py retries a timeout itself, the backend's
-    client waits 120 s, TLS and AMQP handshakes have their own); a hung one is left behind."""
+    because no socket timeout bounds them all (redis-py retries a timeout itself, TLS and
+    AMQP handshakes have their own); a hung one is left behind."""
     within = ANSWER_TIMEOUT if within is None else within
     out: list[BaseException | None] = []
 
@@ -274,6 +315,31 @@ def check_embedded_stores(celery_app: Celery) -> None:
             )
 
 
+def _no_reply(e: BaseException | None) -> bool:
+    """Whether ``e``, or an error it was raised from (kombu wraps the client's), is a reply
+    that did not come within the socket timeout: redis-py's TimeoutError or a socket's."""
+    seen = 0
+    while e is not None and seen < 10:
+        if isinstance(e, TimeoutError) or (
+            type(e).__name__ == "TimeoutError" and "redis" in type(e).__module__
+        ):
+            return True
+        e, seen = e.__cause__ or e.__context__, seen + 1
+    return False
+
+
+def _mid_command(what: str, url: str, e: BaseException, s: FarmSettings) -> FarmConnectionError:
+    """The one-line error of a broker or result backend lost after the start-up check: one
+    that stopped answering says so, with the setting that bounds the wait."""
+    if not _no_reply(e):
+        return connection_error(what, url, e)
+    env = "TWEEN_BROKER_URL" if what == "broker" else "TWEEN_RESULT_BACKEND"
+    return FarmConnectionError(
+        f"{what} {redact_url(url)}: stopped answering (no reply within reply_timeout, {s.reply_timeout} s: a "
+        f"stopped, wedged or overloaded server?) (the URL comes from {env} or the farm config)"
+    )
+
+
 def _lost(e: FarmConnectionError, what: str, job_ids: list[str]) -> FarmConnectionError:
     """The connection error of a command that had sent ``job_ids``: they may still run."""
     if not job_ids:
@@ -303,10 +369,9 @@ def farm_errors(celery_app: Celery, job_ids: list[str] | None = None):
     try:
         yield
     except OperationalError as e:
-        raise _lost(
-            connection_error("broker", celery_app.conf.broker_url, e), "broker", job_ids or []
-        ) from None
+        err = _mid_command("broker", celery_app.conf.broker_url, e, celery_app.conf.tween)
+        raise _lost(err, "broker", job_ids or []) from None
     except redis_errors as e:
         url = celery_app.conf.result_backend
         what = "broker" if url == celery_app.conf.broker_url else "result backend"
-        raise _lost(connection_error(what, url, e), what, job_ids or []) from None
+        raise _lost(_mid_command(what, url, e, celery_app.conf.tween), what, job_ids or []) from None

@@ -23,7 +23,7 @@ from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
 from workers import paths as jobpaths
-from workers.errors import StoreFullError, disk_full
+from workers.errors import StoreFullError, store_full
 from workers.runtime import thread_env
 from workers.settings import cache_dir, load_settings, redact_url
 
@@ -386,7 +386,7 @@ def _fill_embedded(paths: list[str], opts: dict, render: bool, concurrency: int,
     try:
         return _run_embedded(paths, opts, render, concurrency, progress)
     except Exception as e:
-        if disk_full(e):
+        if store_full(e, cache_dir() / "farm"):
             raise StoreFullError(cache_dir() / "farm") from None
         raise
 
@@ -394,7 +394,7 @@ def _fill_embedded(paths: list[str], opts: dict, render: bool, concurrency: int,
 def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, progress: bool) -> int:
     """Starts the embedded worker, sends the jobs and waits; returns the exit code. A worker
     that dies has its unfinished jobs undone."""
-    from workers.embedded import EmbeddedWorker, WorkerDied
+    from workers.embedded import EmbeddedWorker, WorkerDied, WorkerStoreFull
 
     jobs = _jobs()
     # The shots' folders, as given and where their links lead (checked with symlinks followed).
@@ -412,6 +412,9 @@ def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, 
                 _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress, alive=w.alive)
                 w.cold = code == EXIT_CANCELLED
+        except WorkerStoreFull:  # its stores are full: its jobs' files go, unrecorded
+            jobs.undo_orphaned(ids, why="its embedded worker's stores are full")
+            raise StoreFullError(cache_dir() / "farm") from None
         except WorkerDied as e:  # stopped now (the with block): nothing of its jobs runs
             undone = jobs.undo_orphaned(ids, why="its embedded worker died")
             raise TweenError(f"{e}; {undone} unfinished job(s) cancelled, nothing of them kept") from None
@@ -658,7 +661,7 @@ def worker(
         from workers.app import train_app as celery_app
     else:
         from workers.app import app as celery_app
-    from workers.app import check_farm
+    from workers.app import check_farm, for_worker
 
     s = celery_app.conf.tween
     q = queue or (s.train_rig_queue if train_rig else s.train_queue if train else s.queue)
@@ -673,7 +676,7 @@ def worker(
     if include:  # Celery keeps the last -I only: every module in one comma-separated list
         argv += ["-I", ",".join(include)]
     print(f"tween worker: {redact_url(s.broker_url)} queue {q}, {n} processes", file=sys.stderr)
-    celery_app.worker_main(argv)
+    for_worker(celery_app).worker_main(argv)
 
 
 def _check_rig_job(source: Path, o: TrainRigOptions) -> None:

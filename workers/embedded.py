@@ -17,12 +17,16 @@ import uuid
 
 from pipeline.errors import TweenError
 from workers import runtime
-from workers.errors import disk_full
+from workers.errors import STORE_FULL_EXIT, StoreFullError, store_full
 from workers.settings import EMBEDDED_QUEUE_PREFIX, cache_dir
 
 
 class WorkerDied(TweenError):
     """The embedded worker exited while its jobs ran."""
+
+
+class WorkerStoreFull(WorkerDied):
+    """The embedded worker ended because its broker or result store cannot grow."""
 
 
 class EmbeddedWorker:
@@ -33,7 +37,8 @@ class EmbeddedWorker:
         self.roots = sorted({os.path.realpath(r) for r in roots})
         self.concurrency = concurrency
         self.extra_args = list(extra_args or [])
-        self.log = cache_dir() / "farm" / "logs" / f"{self.queue}.log"
+        self.folder = cache_dir() / "farm"  # its broker and result store, and its log
+        self.log = self.folder / "logs" / f"{self.queue}.log"
         self.proc: subprocess.Popen | None = None
         self.cold = False  # set once its jobs were cancelled and have stopped
 
@@ -79,6 +84,8 @@ class EmbeddedWorker:
         hang); one line, naming its log (its last lines were a page of Celery's output)."""
         if self.proc is not None and self.proc.poll() is not None:
             rc = self.proc.returncode
+            if rc == STORE_FULL_EXIT:  # its own log could not be written either
+                raise WorkerStoreFull(str(StoreFullError(self.folder)))
             how = f"was killed (signal {-rc})" if rc < 0 else f"exited with code {rc}"
             raise WorkerDied(f"the embedded worker {how}; its log: {self.log}")
 
@@ -86,7 +93,7 @@ class EmbeddedWorker:
         try:
             self._stop()
         finally:
-            self._drop_queue(quiet=disk_full(exc[1]))
+            self._drop_queue(quiet=isinstance(exc[1], WorkerStoreFull) or store_full(exc[1], self.folder))
 
     def _drop_queue(self, quiet: bool = False) -> None:
         """This run's private queue leaves the broker with its messages (best effort: a
@@ -98,9 +105,10 @@ class EmbeddedWorker:
             with app.connection_for_write() as conn:
                 conn.default_channel.queue_delete(self.queue)
         except Exception as e:  # the run's own outcome stands; say why the queue stayed, in one line
-            if quiet and disk_full(e):
+            full = store_full(e, self.folder)
+            if quiet and full:
                 return
-            why = "the disk is full" if disk_full(e) else " ".join(str(e).split("\n", 1)[0].split())
+            why = "the disk is full" if full else " ".join(str(e).split("\n", 1)[0].split())
             print(f"tween: warning: the embedded broker keeps queue {self.queue}: {why}", file=sys.stderr)
 
     def _stop(self) -> None:

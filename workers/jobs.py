@@ -27,8 +27,10 @@ from render.scene import list_takes
 from workers import cleanup, control
 from workers import paths as jobpaths
 from workers.app import SUBMITTED, app, rig_app, train_app
+from workers.errors import store_full
 from workers.limits import failure_message, render_limits, train_limit_message
 from workers.settings import EMBEDDED_QUEUE_PREFIX
+from workers.sqlite_transport import broker_folder
 
 
 @dataclass
@@ -390,7 +392,11 @@ def undo_orphaned(job_ids: list[str], why: str) -> int:
         js = state(j)
         if js.finished or not js.record:
             continue
-        control.request_cancel(app, j, why)
+        try:
+            control.request_cancel(app, j, why)
+        except Exception as e:  # a full store keeps no cancel record; the files go all the same
+            if not store_full(e, broker_folder(app.conf.broker_url)):
+                raise
         undo_cancelled(replace(js, state="CANCELLED"))
         n += 1
     return n

@@ -92,6 +92,9 @@ class FarmSettings:
     library: str = ""
     max_retries: int = 4
     retry_backoff_max: int = 30
+    # How long a farm client waits for one reply of the broker or result backend once the
+    # start-up check has passed (a server that goes silent mid-command hung it for good).
+    reply_timeout: int = 10
     # A secured farm (workers/security.py): the CA that verifies the broker's and backend's
     # TLS certificates, and the key, certificate and trusted certificates of signed jobs.
     tls_ca_file: str = ""
@@ -129,6 +132,7 @@ _INT_KEYS = (
     "train_rig_visibility_timeout",
     "max_retries",
     "retry_backoff_max",
+    "reply_timeout",
 )
 _STR_KEYS = (
     "broker_url",

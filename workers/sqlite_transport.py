@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from kombu.transport import TRANSPORT_ALIASES
 from kombu.transport import sqlalchemy as kombu_sqla
 
-from workers.errors import StoreFullError, disk_full
+from workers.errors import StoreFullError, end_for_full_store, store_full
 
 ALIAS = "tweensqla"
 
@@ -32,18 +32,21 @@ def broker_folder(url: str) -> str:
 class Channel(kombu_sqla.Channel):
     @contextmanager
     def _room(self):
-        """A full disk while publishing is StoreFullError, which kombu does not retry (it
-        took SQLITE_FULL for a lost connection and retried on the channel it had closed)."""
+        """A full disk while publishing, or taking a message (which marks it taken), is
+        StoreFullError, which kombu does not retry (it took SQLITE_FULL for a lost connection
+        and retried on the channel it had closed); an embedded worker then ends."""
+        folder = broker_folder(self.connection.client.hostname)
         try:
             yield
         except Exception as e:
-            if not disk_full(e):
+            if not store_full(e, folder):
                 raise
             try:
                 self.session.rollback()  # the failed write, so that the session can be closed
             except Exception:  # the full disk may refuse that too: the error stands
                 pass
-            raise StoreFullError(broker_folder(self.connection.client.hostname)) from None
+            end_for_full_store()
+            raise StoreFullError(folder) from None
 
     def _new_queue(self, queue, **kwargs):
         with self._room():
@@ -52,6 +55,10 @@ class Channel(kombu_sqla.Channel):
     def _put(self, queue, payload, **kwargs):
         with self._room():
             return super()._put(queue, payload, **kwargs)
+
+    def _get(self, queue):
+        with self._room():
+            return super()._get(queue)
 
     def queue_delete(self, queue, if_unused=False, if_empty=False, **kwargs):
         """Deletes the queue whether or not this process declared it (the stock virtual

@@ -25,18 +25,20 @@ from contextlib import contextmanager
 
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
-from celery.signals import worker_init, worker_process_init
+from celery.signals import task_internal_error, worker_init, worker_process_init
 
 from pipeline.errors import TweenError
 from pipeline.fill import api as fill
 from pipeline.fill.api import FillOptions
 from pipeline.fill.options import MAX_TAKES
+from pipeline.usd.write import check_out_dir
 from render.scene import list_takes
 from workers import cleanup, control, runtime
 from workers import paths as jobpaths
 from workers.app import app
-from workers.errors import JobError, TransientError
+from workers.errors import JobError, TransientError, end_for_full_store, exit_on_full_store, store_full
 from workers.limits import render_limit_message, soft_limit_error
+from workers.sqlite_transport import broker_folder
 
 # errnos that mean "try again later" on shared storage (NFS, SMB) or a busy host; anything
 # else, FileNotFoundError above all, is the job's own fault and is not retried.
@@ -55,16 +57,50 @@ TRANSIENT_ERRNOS = {
 }
 
 
+#: errnos of a write the folder itself refuses: a read-only mount, a folder (an ACL, a
+#: root-squashed NFS export) this user may not write.
+UNWRITABLE_ERRNOS = {errno.EROFS, errno.EACCES, errno.EPERM}
+
+
+def _out_folder(shot: str, opts: dict) -> str:
+    """The folder the job writes its layers (and its ``.tween-work`` temp) in, as the user
+    named it: ``--out-dir``, else the shot's folder."""
+    return os.path.abspath(opts.get("out_dir") or os.path.dirname(os.path.abspath(shot)))
+
+
+def _unwritable(e: OSError, shot: str, out: str | None) -> JobError | None:
+    """The line for a write that the job's output folder ``out`` refused (made read-only
+    after the job was submitted): it names that folder, not the job's temp inside it (the
+    raw error named ``.tween-work``, which the user never made), and what to do."""
+    if out is None or e.errno not in UNWRITABLE_ERRNOS or not e.filename:
+        return None
+    path = os.path.abspath(os.fsdecode(e.filename))
+    # EROFS is only ever a write; a permission error is one where the job makes its temp (a
+    # shot in that folder that cannot be read is another error, said as it is).
+    where = out if e.errno == errno.EROFS else os.path.join(out, ".tween-work")
+    if path != out and os.path.commonpath([path, where]) != where:
+        return None
+    return JobError(
+        f"{shot}: output folder {out} cannot be written ({e.strerror}); make it writable, or run the "
+        "job again with another --out-dir DIR"
+    )
+
+
 class JobCancelledError(JobError):
     """The stage's job was cancelled (``tween cancel``, or its ``tween fill`` interrupted)."""
 
 
 @contextmanager
 def _sorted_errors(
-    shot: str, work_dir: str | None = None, made_dirs: list[str] = (), work: dict | None = None
+    shot: str,
+    work_dir: str | None = None,
+    made_dirs: list[str] = (),
+    work: dict | None = None,
+    out: str | None = None,
 ):
     """Turns exceptions into TransientError (retried) or JobError (final, JSON-safe message).
-    With ``work`` ({"frames", "takes"}) a soft time limit is the review render's."""
+    With ``work`` ({"frames", "takes"}) a soft time limit is the review render's; with
+    ``out`` (the output folder) a write refused there names that folder."""
 
     try:
         yield
@@ -82,7 +118,7 @@ def _sorted_errors(
         if e.errno in TRANSIENT_ERRNOS or isinstance(e, ConnectionError | TimeoutError):
             raise TransientError(f"{shot}: {e}") from e
         _drop(work_dir, made_dirs)
-        raise JobError(f"{shot}: {e}") from None
+        raise _unwritable(e, shot, out) or JobError(f"{shot}: {e}") from None
     except Exception as e:
         _drop(work_dir, made_dirs)
         raise JobError(f"{shot}: {type(e).__name__}: {e}") from e
@@ -208,9 +244,12 @@ def fill_take(self, shot: str, opts: dict, take: int, job: dict) -> str:
 
     with (
         _stage(self, shot, opts, job, f"take {take + 1}"),
-        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())),
+        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ()), out=_out_folder(shot, opts)),
     ):
         _check(shot, opts, job)
+        # Refused as the client refuses it, by mode bits too (a folder published since the
+        # job was submitted stays untouched even by a root worker), before the temp is made.
+        check_out_dir(shot, opts.get("out_dir"))
         os.makedirs(job["work_dir"], exist_ok=True)
         cleanup.note_job(job["work_dir"], shot, opts, job)
         out = str(fill.fill_take(shot, _opts(opts), take, job["work_dir"]))
@@ -223,9 +262,10 @@ def write_layer(self, take_files: list[str], shot: str, opts: dict, job: dict) -
 
     with (
         _stage(self, shot, opts, job, "layer"),
-        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ())),
+        _sorted_errors(shot, job["work_dir"], job.get("made_dirs", ()), out=_out_folder(shot, opts)),
     ):
         _check(shot, opts, job)
+        check_out_dir(shot, opts.get("out_dir"))  # before its lock file is made there
         out = fill.write_layers(shot, _opts(opts), list(take_files), job_id=job["id"])
     return runtime.small_json(out)
 
@@ -300,12 +340,22 @@ _WORKER_PID = None
 
 @worker_init.connect
 def _init_worker(**_):
-    # In the worker's main process: an embedded worker dies with its `tween fill` client.
+    # In the worker's main process: an embedded worker dies with its `tween fill` client, and
+    # ends (its client told why) once its stores are full.
     global _WORKER_PID
     parent = os.environ.get(runtime.PARENT_ENV)
     if parent:
         _WORKER_PID = os.getpid()
         runtime.watch_parent(int(parent))
+        exit_on_full_store()
+
+
+@task_internal_error.connect
+def _internal_error(exception=None, **_):
+    # Celery's own failure to record a stage (its result store full) is logged and dropped:
+    # the stage's client would wait for ever. An embedded worker ends instead.
+    if store_full(exception, broker_folder(app.conf.broker_url)):
+        end_for_full_store()
 
 
 @worker_process_init.connect

@@ -29,10 +29,14 @@ def _tween(*args, env: dict, timeout: float = 60) -> subprocess.CompletedProcess
 
 class _Server:
     """A TCP server on a free port: ``silent`` accepts and never replies; otherwise it relays
-    to ``upstream`` (host, port), holding every reply ``delay`` s."""
+    to ``upstream`` (host, port), holding every reply ``delay`` s. With ``quiet_at`` it goes
+    silent mid-command, on every connection, at the first request holding those bytes (not
+    relayed), or with ``answered`` just after it (relayed and answered)."""
 
-    def __init__(self, upstream=None, delay: float = 0.0):
+    def __init__(self, upstream=None, delay: float = 0.0, quiet_at: bytes = b"", answered: bool = False):
         self.upstream, self.delay, self.socks = upstream, delay, []
+        self.quiet_at, self.answered = quiet_at, answered
+        self.quiet, self.armed = threading.Event(), threading.Event()
         self.sock = socket.create_server(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         threading.Thread(target=self._accept, daemon=True).start()
@@ -47,13 +51,18 @@ class _Server:
             if self.upstream:
                 up = socket.create_connection(self.upstream)
                 self.socks.append(up)
-                threading.Thread(target=self._pipe, args=(client, up, 0.0), daemon=True).start()
+                threading.Thread(target=self._pipe, args=(client, up, 0.0, True), daemon=True).start()
                 threading.Thread(target=self._pipe, args=(up, client, self.delay), daemon=True).start()
 
-    @staticmethod
-    def _pipe(src, dst, delay: float) -> None:
+    def _pipe(self, src, dst, delay: float, request: bool = False) -> None:
         try:
             while data := src.recv(65536):
+                if request and self.armed.is_set():
+                    self.quiet.set()
+                if request and self.quiet_at and self.quiet_at in data:
+                    (self.armed if self.answered else self.quiet).set()
+                if self.quiet.is_set():
+                    continue  # held, never answered
                 time.sleep(delay)
                 dst.sendall(data)
         except OSError:
@@ -120,6 +129,102 @@ def test_a_slow_broker_that_answers_still_works():
         server.cleanup()
     assert r.returncode == 2, r.stderr[-2000:]
     assert _lines(r) == ["tween: error: nosuchjob: no such job (unknown id, or its record expired)"]
+
+
+@pytest.fixture
+def redis_farm(tmp_path):
+    """A real Redis for one test (its own key prefix and queue), and a shot under the roots."""
+    server = start_redis()
+    shot = tmp_path / "sh010.usda"
+    shutil.copyfile(REPO / "examples" / "sh010_walk.usda", shot)
+    env = {"TWEEN_KEY_PREFIX": server.prefix, "TWEEN_QUEUE": f"{server.prefix}fill",
+           "TWEEN_SHOT_ROOTS": str(tmp_path), "TWEEN_REPLY_TIMEOUT": "1"}  # fmt: skip
+    yield server, shot, env
+    server.cleanup()
+
+
+def _relay(server, **kw) -> _Server:
+    host, port = server.url.split("//")[1].split("/")[0].split(":")
+    return _Server((host, int(port)), **kw)
+
+
+def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
+    """The start-up check answered; the publish never is: kombu waited for ever (a hung
+    `tween submit`, deaf to SIGTERM while it sent). Now reply_timeout bounds it."""
+    server, shot, env = redis_farm
+    relay = _relay(server, quiet_at=b"tween.validate")
+    url = f"redis://127.0.0.1:{relay.port}/0"
+    try:
+        t0 = time.monotonic()
+        r = _tween("submit", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        relay.close()
+    assert relay.quiet.is_set()  # it did go silent mid-command, after the check
+    assert r.returncode == 2 and r.stdout == "", r.stderr[-2000:]
+    assert _lines(r) == [
+        f"tween: error: broker {url}: stopped answering (no reply within reply_timeout, 1 s: a stopped, "
+        "wedged or overloaded server?) (the URL comes from TWEEN_BROKER_URL or the farm config)"
+    ]
+    assert took < 20
+
+
+def test_a_fill_whose_broker_goes_silent_while_it_waits_names_its_job(redis_farm):
+    """The job sent and acknowledged, then no reply to the wait's reads: Celery's Redis
+    client waited 120 s a read. Now one line within reply_timeout, naming the job."""
+    server, shot, env = redis_farm
+    relay = _relay(server, quiet_at=b"tween.validate", answered=True)
+    url = f"redis://127.0.0.1:{relay.port}/0"
+    try:
+        t0 = time.monotonic()
+        r = _tween("fill", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        relay.close()
+    assert r.returncode == 2 and r.stdout == "", r.stderr[-2000:]
+    errors = [ln for ln in _lines(r) if ln.startswith("tween: error:")]
+    job = _lines(r)[0].split()[2]  # "tween: job ID submitted (...)"
+    assert errors == [
+        f"tween: error: lost the broker while waiting for job(s) {job}, which may still run on the farm: "
+        f"`tween status {job}` once the broker is back, `tween cancel {job}` to stop it; broker {url}: "
+        "stopped answering (no reply within reply_timeout, 1 s: a stopped, wedged or overloaded server?) "
+        "(the URL comes from TWEEN_BROKER_URL or the farm config)"
+    ], r.stderr[-2000:]
+    assert took < 20
+
+
+def test_a_slow_broker_that_answers_within_reply_timeout_takes_a_submit(redis_farm):
+    """Every reply held 0.1 s, reply_timeout 1 s: the timeout bounds each reply, not the
+    command, so a slow broker still works."""
+    server, shot, env = redis_farm
+    relay = _relay(server, delay=0.1)
+    try:
+        url = f"redis://127.0.0.1:{relay.port}/0"
+        r = _tween("submit", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
+    finally:
+        relay.close()
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert len(r.stdout.split()) == 1 and _lines(r) == []
+
+
+def test_a_worker_keeps_celery_retry_policies_a_client_does_not():
+    """A client gives up at the first failed publish or result write (each retry waited
+    reply_timeout again); a worker still rides out a restart with Celery's retries."""
+    from celery import Celery
+    from celery.app.defaults import DEFAULTS
+
+    import workers.app as wa
+    from workers.settings import load_settings
+
+    s = load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": "redis://127.0.0.1:1/0"})
+    client = wa.configure(Celery("tween-client", set_as_current=False), s)
+    assert client.conf.task_publish_retry_policy == {"max_retries": 0}
+    assert client.backend.retry_policy["max_retries"] == 0
+    assert client.conf.broker_transport_options["socket_timeout"] == s.reply_timeout == 10
+    worker = wa.for_worker(wa.configure(Celery("tween-worker", set_as_current=False), s))
+    assert worker.conf.task_publish_retry_policy == DEFAULTS["task_publish_retry_policy"]
+    assert worker.backend.retry_policy["max_retries"] == 20
+    assert worker.conf.result_backend_transport_options["global_keyprefix"] == s.key_prefix
 
 
 def _redis_server(port: int, folder) -> subprocess.Popen:
@@ -276,3 +381,72 @@ def test_embedded_fill_on_a_full_disk_is_one_line(tmp_path):
         f"tween: error: {cache / 'farm'}: the disk is full (the embedded farm's broker and result store "
         "live in this cache folder, TWEEN_CACHE); free space there or set TWEEN_CACHE to another folder"
     ]
+
+
+def _embedded_fill(
+    tmp_path, fsize: int | None = None, hook: str = ""
+) -> tuple[subprocess.CompletedProcess, float]:
+    """`tween fill` on the embedded farm under ``tmp_path``: with ``fsize`` every process of
+    the run (client, worker, pool) may write files of at most that many bytes (a full disk,
+    as tests/test_full_disk.py makes one); ``hook`` is a sitecustomize for every process."""
+    import resource
+    import signal
+
+    shot = tmp_path / "shots" / "sh010.usda"
+    shot.parent.mkdir()
+    shutil.copyfile(REPO / "examples" / "sh010_walk.usda", shot)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("TWEEN_")}
+    env.update(TWEEN_FARM_CONFIG=os.devnull, TWEEN_CACHE=str(tmp_path / "cache"))
+    if "TWEEN_DATA" in os.environ:
+        env["TWEEN_DATA"] = os.environ["TWEEN_DATA"]
+    if hook:
+        (tmp_path / "hooks").mkdir()
+        (tmp_path / "hooks" / "sitecustomize.py").write_text(hook)
+        env["PYTHONPATH"] = os.pathsep.join([str(tmp_path / "hooks"), str(REPO)])
+
+    def small_disk():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+        resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+
+    cmd = [sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--model", "interp", "--no-progress"]
+    t0 = time.monotonic()
+    r = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=60,
+                       preexec_fn=small_disk if fsize else None)  # fmt: skip
+    assert sorted(p.name for p in shot.parent.iterdir()) == ["sh010.usda"]  # nothing of the job left
+    return r, time.monotonic() - t0
+
+
+def _store_full_line(tmp_path) -> list[str]:
+    return [
+        f"tween: error: {tmp_path / 'cache' / 'farm'}: the disk is full (the embedded farm's broker and result "
+        "store live in this cache folder, TWEEN_CACHE); free space there or set TWEEN_CACHE to another folder"
+    ]
+
+
+def test_embedded_cache_disk_filling_mid_job_is_one_line(tmp_path):
+    """Files of at most 44 kB: the job starts (the shot's own files are smaller), then the
+    worker's broker file cannot grow. It was SQLite's two-line "disk I/O error", or the worker
+    retried the broker for 40 s and "exited with code 0"; now one line, in seconds."""
+    r, took = _embedded_fill(tmp_path, fsize=44_000)
+    assert r.returncode == 2 and r.stdout == "", r.stderr[-3000:]
+    assert _lines(r) == _store_full_line(tmp_path)
+    assert took < 30
+
+
+def test_an_embedded_worker_that_cannot_store_its_results_ends_the_fill(tmp_path):
+    """The worker's result store cannot grow (its broker can): Celery logged each stage's
+    result it could not store and ran on, and `tween fill` waited for ever."""
+    hook = (
+        "import sys\n"
+        "if 'worker' in sys.argv:\n"
+        "    from sqlalchemy import event\n"
+        "    from sqlalchemy.engine import Engine\n\n"
+        "    @event.listens_for(Engine, 'connect')\n"
+        "    def _full(dbapi_conn, _):\n"
+        "        if any(str(r[2]).endswith('results.sqlite') for r in dbapi_conn.execute('PRAGMA database_list')):\n"
+        "            dbapi_conn.execute('PRAGMA max_page_count = 1')\n"
+    )
+    r, took = _embedded_fill(tmp_path, hook=hook)
+    assert r.returncode == 2 and r.stdout == "", r.stderr[-3000:]
+    assert _lines(r) == _store_full_line(tmp_path)
+    assert took < 30
