@@ -6,20 +6,23 @@ import json
 import math
 import re
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
 
 from pipeline.errors import TweenError
-from pipeline.outputs import refuse_read_only
+from pipeline.outputs import missing_folders, refuse_read_only, remove_created
 from pipeline.usd.write import (
     check_review,
     latest_review,
     made_layer,
     review_of,
 )
+from render.output import write_whole
 from render.review import earlier_media, render_review
 from render.scene import list_takes
+from render.timeline import folder_lock
 
 #: Frame sides: H.264 (yuv420p) needs even sides, the renderer at least 16; 7680 is 8K UHD.
 MIN_SIDE, MAX_SIDE = 16, 7680
@@ -92,6 +95,34 @@ def _latest_fill(shot: str, fills: str | None) -> tuple[str, str | None]:
     return str(found), f"tween: review: {shot}: its latest fill, {found}"
 
 
+@contextmanager
+def _all_or_none(out_dir: str, force: bool):
+    """Yields a list for the results of the takes rendered so far. Without ``--force``, a
+    review of several takes stopped after some had rendered (Ctrl-C, SIGTERM, an error) takes
+    back what they moved into ``out_dir`` (their media, the timeline as it was, the folders it
+    made): their media made the same command refuse ("an earlier review of this take"). With
+    ``--force`` the media they replaced are gone, and theirs stay (the timeline names them)."""
+    out = Path(out_dir)
+    created = missing_folders(out)
+    timelines = {} if created else {t: t.read_bytes() for t in out.glob("*.otio")}
+    done: list[dict] = []
+    try:
+        yield done
+    except BaseException:
+        if done and not force:
+            with folder_lock(out):
+                for r in done:
+                    for f in (r["mp4"], r["contact_sheet"], *r["frames"]):
+                        Path(f).unlink(missing_ok=True)
+                    t = Path(r["timeline"])
+                    if t in timelines:
+                        write_whole(str(t), timelines[t], "the timeline as it was")
+                    else:
+                        t.unlink(missing_ok=True)
+            remove_created(created)
+        raise
+
+
 def review(
     shot: str = typer.Argument(
         ..., help="Review stage (.usd/.usda/.usdc/.usdz): the shot with its fill layer."
@@ -158,15 +189,18 @@ def review(
             f"{there}: --out holds an earlier review of this take; give --force to replace its media, or another --out"
         )
     summaries = []
-    for t in takes:
-        result = render_review(
-            shot, out_dir, take=t, size=(w, h), side_by_side=side_by_side, exr=exr, camera=camera, turns=turns,
-            ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True, framing=framing,
-        )  # fmt: skip
-        summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers", "timecodes")}
-        summary["frame_count"] = len(result["frame_numbers"])
-        summary["frames_dir"] = out_dir if result["frames"] else None
-        summaries.append(summary)
+    with _all_or_none(out_dir, force) as done:
+        for t in takes:
+            result = render_review(
+                shot, out_dir, take=t, size=(w, h), side_by_side=side_by_side, exr=exr, camera=camera,
+                turns=turns, ghosts=ghosts, write_frames=not no_frames, frame_range=fr, progress=True,
+                framing=framing,
+            )  # fmt: skip
+            done.append(result)
+            summary = {k: v for k, v in result.items() if k not in ("frames", "frame_numbers", "timecodes")}
+            summary["frame_count"] = len(result["frame_numbers"])
+            summary["frames_dir"] = out_dir if result["frames"] else None
+            summaries.append(summary)
     if said and (shot != given or not any(sm.get("model") for sm in summaries)):
         print(said, file=sys.stderr)  # once it rendered: a refusal stays the only line
     typer.echo(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))

@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline.errors import TweenError
-from pipeline.outputs import file_above
+from pipeline.outputs import file_above, missing_folders, remove_created
 from pipeline.progress import interval
 from pipeline.usd.files import clean_dead_temps, owner_tag
 from render.camera import FRAMINGS, VIEWS, Camera, follow_path
@@ -302,10 +302,12 @@ def _render_frames(
                     i, [cam] * len(plan.panels), sets, colors, bool(is_key[i]), ghost_set, out=buf
                 )
                 writer.put(i, buf)
+            # Inside: Ctrl-C while close() waits for the writer thread closed the movie under
+            # the thread still encoding the last frames into it (a segmentation fault).
+            writer.close()
         except BaseException:
-            writer.abort()
+            writer.abort()  # the thread stopped before the movie is closed
             raise
-        writer.close()
         movie.close()
     except BaseException:
         movie.abort()
@@ -316,8 +318,9 @@ def _render_frames(
 @contextmanager
 def _scratch(out: Path, job: str):
     """A scratch folder in ``out`` (made if missing) for a review's media, removed when done;
-    on failure ``out`` too is removed if this made it."""
-    created = not out.exists()
+    on failure ``out`` too is removed if this made it, and the folders above it this made
+    (the default ``review/<shot>``: an interrupted first review left an empty ``review``)."""
+    created = missing_folders(out)
     if not created and not out.is_dir():
         raise TweenError(f"{out}: is a file, not a folder for the review's media")
     try:
@@ -334,6 +337,7 @@ def _scratch(out: Path, job: str):
         shutil.rmtree(tmp, ignore_errors=True)
         if created:
             shutil.rmtree(out, ignore_errors=True)
+            remove_created(created)
         raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

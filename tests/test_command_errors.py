@@ -171,6 +171,31 @@ def test_an_interrupt_while_the_command_line_loads_is_one_line(tmp_path):
     assert proc.returncode == 130 and proc.stderr == "tween: interrupted\n" and proc.stdout == "", proc.stderr
 
 
+def test_a_signal_as_the_finished_command_shuts_down_leaves_its_status(tmp_path):
+    """SIGTERM or Ctrl-C as Python tore its modules down, after the command had written
+    everything and said so (a publish, a library build, a review), killed the process by the
+    signal: status -15 or -2, no line, the finished output looking interrupted. The signal
+    comes from an object of the script torn down with it, after Python resets its handlers."""
+    import subprocess
+    import sys
+
+    entry = (
+        "import os, signal, sys, time\n"
+        "sys.argv[0] = 'tween'\n"
+        "class Late:\n"
+        "    def __del__(self):\n"
+        "        os.kill(os.getpid(), signal.{})\n"
+        "        time.sleep(0.3)\n"
+        "late = Late()\n"
+        "from pipeline.entry import main\n"
+        "main()\n"
+    )
+    for sig in ("SIGTERM", "SIGINT"):
+        proc = subprocess.run([sys.executable, "-c", entry.format(sig), "--help"], cwd=ROOT, capture_output=True,
+                              text=True, timeout=60)  # fmt: skip
+        assert proc.returncode == 0 and "Usage" in proc.stdout and proc.stderr == "", (sig, proc.returncode)
+
+
 # ------------------------------------------------------------------------------- hints
 
 

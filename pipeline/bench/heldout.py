@@ -9,11 +9,11 @@ mapped onto the model's, which is what a studio's shots look like to the model.
 from __future__ import annotations
 
 import errno
-import os
 import sys
 
 import numpy as np
 
+from pipeline.atomic import replacing
 from pipeline.data.cache import cache_dir
 from pipeline.data.protocol import TEST_STRIDE, TEST_WINDOW, normalize_windows, windows_of
 from pipeline.data.split import shared_data_dir
@@ -87,7 +87,6 @@ def cmu_windows(
 
     rots, roots = windows_of(takes(), TEST_WINDOW, TEST_STRIDE)
     rots, roots = normalize_windows(rots.astype(np.float32), roots.astype(np.float32))
-    tmp = cache.with_suffix(f".{os.getpid()}.tmp.npz")
-    np.savez(tmp, rots=rots, roots=roots)
-    tmp.replace(cache)
+    with replacing(cache, suffix=".npz") as tmp:  # removed when interrupted
+        np.savez(tmp, rots=rots, roots=roots)
     return rots, roots

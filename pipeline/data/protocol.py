@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.atomic import replacing
 from pipeline.data.cache import ClipSet, cache_dir
 from pipeline.data.skeletons import bandai_skeleton
 from pipeline.motion.fk import fk
@@ -99,7 +99,6 @@ def position_stats(train: ClipSet, skeleton=None) -> tuple[np.ndarray, np.ndarra
     flat = np.concatenate(chunks)
     mean, std = flat.mean(0), flat.std(0)
     # Written aside and renamed: two processes (test workers, farm workers) may ask at once.
-    tmp = key.with_suffix(f".{os.getpid()}.tmp.npz")
-    np.savez(tmp, mean=mean, std=std)
-    os.replace(tmp, key)
+    with replacing(key, suffix=".npz") as tmp:  # removed when interrupted
+        np.savez(tmp, mean=mean, std=std)
     return mean, std

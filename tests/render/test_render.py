@@ -294,3 +294,89 @@ def test_a_playback_rate_no_review_plays_is_refused_up_front(tmp_path, fps, tcps
     with pytest.raises(ShotError, match="a review plays at most"):
         render_review(str(shot), str(tmp_path / "o"))
     assert not (tmp_path / "o").exists()
+
+
+def test_an_interrupted_first_review_leaves_no_folder_it_made(tmp_path, monkeypatch):
+    """Ctrl-C or SIGTERM during the first `tween review` of a shot took back its media folder,
+    ``review/<shot>``, but left the ``review`` folder made with it, empty, where none was."""
+    import render.review as review_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(review_module, "_render_frames", interrupted)
+    shot = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
+    (tmp_path / "kept").mkdir()
+    for out in (tmp_path / "review" / "sh010_walk", tmp_path / "kept" / "a" / "b"):
+        with pytest.raises(KeyboardInterrupt):
+            render_review(str(shot), str(out), size=(160, 90), frame_range=(1001, 1002))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"] and not any((tmp_path / "kept").iterdir())
+
+
+def test_an_interrupted_review_of_every_take_keeps_none_of_them(review, tmp_path):
+    """Ctrl-C while `tween review --all-takes` rendered its second take left the first take's
+    movie, frames, contact sheet and timeline: the same command then refused ("--out holds an
+    earlier review of this take; give --force"). Interrupted here as the second take starts."""
+    hook = (
+        "import sys\n"
+        "import render.cli as cli\n"
+        "real, calls = cli.render_review, []\n"
+        "def render_review(*a, **k):\n"
+        "    calls.append(1)\n"
+        "    if len(calls) == 2:\n"
+        "        raise KeyboardInterrupt\n"
+        "    return real(*a, **k)\n"
+        "cli.render_review = render_review\n"
+        "from pipeline.cli import main\n"
+        "main(sys.argv[1:])\n"
+    )
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    (kept / "sh010_v001.otio").write_text("an earlier timeline")  # its media removed since
+    (kept / "notes.txt").write_text("mine")
+    for out in (tmp_path / "new" / "sh010", kept):
+        args = ["review", review["stage"], "--all-takes", "--size", "160x90", "--frames", "1001:1002",
+                "-o", str(out)]  # fmt: skip
+        r = subprocess.run([sys.executable, "-c", hook, *args], capture_output=True, text=True)
+        assert r.returncode == 130 and r.stderr.splitlines()[-1] == "tween: interrupted", r.stderr
+    assert not (tmp_path / "new").exists()
+    assert sorted(p.name for p in kept.iterdir()) == ["notes.txt", "sh010_v001.otio"]
+    assert (kept / "sh010_v001.otio").read_text() == "an earlier timeline"
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True)
+    assert r.returncode == 0 and len(list(kept.glob("*.mp4"))) == 2, r.stderr
+
+
+def test_an_interrupt_as_the_last_frames_are_encoded_stops_the_writer_before_the_movie(tmp_path, monkeypatch):
+    """Ctrl-C while the review waited for its writer thread to encode the last frames closed
+    the movie under that thread: a segmentation fault (status -11; about 1 in 20 Ctrl-Cs in the
+    last quarter second of `tween review --all-takes`), leaving the scratch and the first
+    take's media. Here the signal lands as close() waits, the thread slowed to be still busy."""
+    import time
+
+    import render.review as review_module
+    from render.output import Movie
+
+    writers, alive = [], []
+    real_add, real_abort = Movie.add, Movie.abort
+
+    def slow_add(self, rgb):
+        time.sleep(0.2)
+        real_add(self, rgb)
+
+    def close_interrupted(self):
+        writers.append(self)
+        self.todo.put(None)
+        raise KeyboardInterrupt
+
+    def abort(self):
+        alive.append(writers[0].thread.is_alive())
+        writers[0].thread.join()  # so that the old order fails here, not in a crash
+        real_abort(self)
+
+    monkeypatch.setattr(Movie, "add", slow_add)
+    monkeypatch.setattr(Movie, "abort", abort)
+    monkeypatch.setattr(review_module.FrameWriter, "close", close_interrupted)
+    shot = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
+    with pytest.raises(KeyboardInterrupt):
+        render_review(str(shot), str(tmp_path / "o"), size=(160, 90), frame_range=(1001, 1003))
+    assert alive == [False] and not (tmp_path / "o").exists()
