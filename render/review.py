@@ -323,24 +323,27 @@ def _scratch(out: Path, job: str):
     created = missing_folders(out)
     if not created and not out.is_dir():
         raise TweenError(f"{out}: is a file, not a folder for the review's media")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:  # said "Not a directory" where a folder above it is a file
-        above = file_above(out)
-        why = f"{above} is a file, not a folder" if above is not None else e.strerror
-        raise TweenError(f"{out}: cannot make the folder for the review's media: {why}") from None
-    clean_dead_temps(out, quiet=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
-    try:
+    tmp = None
+    try:  # from the mkdir on: an interrupt lands just after a call that made a folder
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:  # said "Not a directory" where a folder above it is a file
+            above = file_above(out)
+            why = f"{above} is a file, not a folder" if above is not None else e.strerror
+            raise TweenError(f"{out}: cannot make the folder for the review's media: {why}") from None
+        clean_dead_temps(out, quiet=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
         yield tmp
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
         if created:
             shutil.rmtree(out, ignore_errors=True)
             remove_created(created)
         raise
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _write_sheet_and_timeline(

@@ -207,8 +207,10 @@ def train_run(out: Path, cfg, path_cfg) -> Path:
             f"{out}: another `tween train` is writing this run folder; wait for it, or give another --out"
         )
 
-    out.mkdir(parents=True, exist_ok=True)
     try:  # one run a folder: two wrote the same checkpoints and logs
+        # Made inside: an interrupt re-sent while torch imported (pipeline.command) landed
+        # just after the mkdir, before the try, and left the run folder, empty.
+        out.mkdir(parents=True, exist_ok=True)
         with holding(out, busy):
             if path_cfg.steps:
                 train_path(path_cfg, out)

@@ -296,15 +296,17 @@ def test_a_playback_rate_no_review_plays_is_refused_up_front(tmp_path, fps, tcps
     assert not (tmp_path / "o").exists()
 
 
-def test_an_interrupted_first_review_leaves_no_folder_it_made(tmp_path, monkeypatch):
+@pytest.mark.parametrize("stage", ["_render_frames", "clean_dead_temps"])
+def test_an_interrupted_first_review_leaves_no_folder_it_made(tmp_path, monkeypatch, stage):
     """Ctrl-C or SIGTERM during the first `tween review` of a shot took back its media folder,
-    ``review/<shot>``, but left the ``review`` folder made with it, empty, where none was."""
+    ``review/<shot>``, but left the ``review`` folder made with it, empty, where none was; and
+    one landing just after the folder was made (before the scratch) left both."""
     import render.review as review_module
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(review_module, "_render_frames", interrupted)
+    monkeypatch.setattr(review_module, stage, interrupted)
     shot = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
     (tmp_path / "kept").mkdir()
     for out in (tmp_path / "review" / "sh010_walk", tmp_path / "kept" / "a" / "b"):
