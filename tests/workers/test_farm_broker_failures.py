@@ -118,8 +118,7 @@ def test_the_checks_give_up_on_a_silent_server(silent, check):
 def test_a_slow_broker_that_answers_still_works():
     """Every reply held 0.5 s (the first request, the check's, included): slow, not dead."""
     server = start_redis()
-    host, port = server.url.split("//")[1].split("/")[0].split(":")
-    slow = _Server((host, int(port)), delay=0.5)
+    slow = _relay(server, delay=0.5)
     try:
         url = f"redis://127.0.0.1:{slow.port}/0"
         env = {"TWEEN_BROKER_URL": url, "TWEEN_KEY_PREFIX": server.prefix}
@@ -148,18 +147,25 @@ def _relay(server, **kw) -> _Server:
     return _Server((host, int(port)), **kw)
 
 
-def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
-    """The start-up check answered; the publish never is: kombu waited for ever (a hung
-    `tween submit`, deaf to SIGTERM while it sent). Now reply_timeout bounds it."""
+def _through_relay(redis_farm, command: str, **kw):
+    """``tween COMMAND SHOT --model interp`` with the broker behind a relay (``_Server``'s
+    ``kw``): the result, the relay's URL, the seconds it took, and the (closed) relay."""
     server, shot, env = redis_farm
-    relay = _relay(server, quiet_at=b"tween.validate")
+    relay = _relay(server, **kw)
     url = f"redis://127.0.0.1:{relay.port}/0"
     try:
         t0 = time.monotonic()
-        r = _tween("submit", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
+        r = _tween(command, shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
         took = time.monotonic() - t0
     finally:
         relay.close()
+    return r, url, took, relay
+
+
+def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
+    """The start-up check answered; the publish never is: kombu waited for ever (a hung
+    `tween submit`, deaf to SIGTERM while it sent). Now reply_timeout bounds it."""
+    r, url, took, relay = _through_relay(redis_farm, "submit", quiet_at=b"tween.validate")
     assert relay.quiet.is_set()  # it did go silent mid-command, after the check
     assert r.returncode == 2 and r.stdout == "", r.stderr[-2000:]
     assert _lines(r) == [
@@ -172,15 +178,7 @@ def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
 def test_a_fill_whose_broker_goes_silent_while_it_waits_names_its_job(redis_farm):
     """The job sent and acknowledged, then no reply to the wait's reads: Celery's Redis
     client waited 120 s a read. Now one line within reply_timeout, naming the job."""
-    server, shot, env = redis_farm
-    relay = _relay(server, quiet_at=b"tween.validate", answered=True)
-    url = f"redis://127.0.0.1:{relay.port}/0"
-    try:
-        t0 = time.monotonic()
-        r = _tween("fill", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
-        took = time.monotonic() - t0
-    finally:
-        relay.close()
+    r, url, took, _ = _through_relay(redis_farm, "fill", quiet_at=b"tween.validate", answered=True)
     assert r.returncode == 2 and r.stdout == "", r.stderr[-2000:]
     errors = [ln for ln in _lines(r) if ln.startswith("tween: error:")]
     job = _lines(r)[0].split()[2]  # "tween: job ID submitted (...)"
@@ -196,13 +194,7 @@ def test_a_fill_whose_broker_goes_silent_while_it_waits_names_its_job(redis_farm
 def test_a_slow_broker_that_answers_within_reply_timeout_takes_a_submit(redis_farm):
     """Every reply held 0.1 s, reply_timeout 1 s: the timeout bounds each reply, not the
     command, so a slow broker still works."""
-    server, shot, env = redis_farm
-    relay = _relay(server, delay=0.1)
-    try:
-        url = f"redis://127.0.0.1:{relay.port}/0"
-        r = _tween("submit", shot, "--model", "interp", env={**env, "TWEEN_BROKER_URL": url}, timeout=60)
-    finally:
-        relay.close()
+    r, *_ = _through_relay(redis_farm, "submit", delay=0.1)
     assert r.returncode == 0, r.stderr[-2000:]
     assert len(r.stdout.split()) == 1 and _lines(r) == []
 
