@@ -20,7 +20,7 @@ from celery import Celery
 
 import workers.sqlite_transport  # noqa: F401  (registers the embedded transport alias)
 from workers import backends, security
-from workers.errors import FarmConnectionError
+from workers.errors import FarmConnectionError, raised_from
 from workers.settings import FarmConfigError, FarmSettings, load_settings, redact_url, url_passwords
 
 #: Celery's own states plus the one the job record is stored under.
@@ -318,14 +318,10 @@ def check_embedded_stores(celery_app: Celery) -> None:
 def _no_reply(e: BaseException | None) -> bool:
     """Whether ``e``, or an error it was raised from (kombu wraps the client's), is a reply
     that did not come within the socket timeout: redis-py's TimeoutError or a socket's."""
-    seen = 0
-    while e is not None and seen < 10:
-        if isinstance(e, TimeoutError) or (
-            type(e).__name__ == "TimeoutError" and "redis" in type(e).__module__
-        ):
-            return True
-        e, seen = e.__cause__ or e.__context__, seen + 1
-    return False
+    return any(
+        isinstance(x, TimeoutError) or (type(x).__name__ == "TimeoutError" and "redis" in type(x).__module__)
+        for x in raised_from(e)
+    )
 
 
 def _mid_command(what: str, url: str, e: BaseException, s: FarmSettings) -> FarmConnectionError:

@@ -34,7 +34,7 @@ STORE_FULL_EXIT = 74
 _WORKER_MAIN: int | None = None
 
 
-def _chain(e: BaseException | None):
+def raised_from(e: BaseException | None):
     """``e`` and the errors it was raised from (an SQLAlchemy error's ``orig`` first)."""
     seen = 0
     while e is not None and seen < 20:
@@ -50,7 +50,7 @@ def _sqlite_code(e: BaseException) -> int | None:
 def disk_full(e: BaseException | None) -> bool:
     """Whether ``e``, or an error it was raised from (an SQLAlchemy error's ``orig``), is a
     write that found the disk full: an OSError, or SQLite's SQLITE_FULL."""
-    for x in _chain(e):
+    for x in raised_from(e):
         if isinstance(x, StoreFullError) or (isinstance(x, OSError) and x.errno in DISK_FULL):
             return True
         if _sqlite_code(x) == _SQLITE_FULL or "database or disk is full" in str(x):
@@ -82,7 +82,7 @@ def store_full(e: BaseException | None, folder) -> bool:
     disk: it was an internal error, or a traceback's two lines)."""
     if disk_full(e):
         return True
-    io = any(_sqlite_code(x) == _SQLITE_IOERR or "disk I/O error" in str(x) for x in _chain(e))
+    io = any(_sqlite_code(x) == _SQLITE_IOERR or "disk I/O error" in str(x) for x in raised_from(e))
     return io and no_room(folder)
 
 

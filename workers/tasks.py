@@ -31,7 +31,7 @@ from pipeline.errors import TweenError
 from pipeline.fill import api as fill
 from pipeline.fill.api import FillOptions
 from pipeline.fill.options import MAX_TAKES
-from pipeline.usd.write import check_out_dir
+from pipeline.usd.write import check_out_dir, default_out_dir
 from render.scene import list_takes
 from workers import cleanup, control, runtime
 from workers import paths as jobpaths
@@ -65,7 +65,7 @@ UNWRITABLE_ERRNOS = {errno.EROFS, errno.EACCES, errno.EPERM}
 def _out_folder(shot: str, opts: dict) -> str:
     """The folder the job writes its layers (and its ``.tween-work`` temp) in, as the user
     named it: ``--out-dir``, else the shot's folder."""
-    return os.path.abspath(opts.get("out_dir") or os.path.dirname(os.path.abspath(shot)))
+    return os.path.abspath(opts["out_dir"]) if opts.get("out_dir") else str(default_out_dir(shot))
 
 
 def _unwritable(e: OSError, shot: str, out: str | None) -> JobError | None:
