@@ -11,9 +11,7 @@ the takes the library does not hold yet (by resolved path) and keeps the rest as
 from __future__ import annotations
 
 import gzip
-import os
 import shutil
-import socket
 import sys
 import time
 from contextlib import suppress
@@ -98,8 +96,10 @@ LOCK = ".library.lock"
 def _mark_holder(lock: Path) -> None:
     """Writes who holds ``lock`` into it (``<pid>@<host>``), for a build that waits in vain
     to name; the lock works without it, so a write that fails is let be."""
+    from pipeline.usd.files import owner_tag  # the name a writer's temps carry
+
     with suppress(OSError), open(lock, "w") as f:
-        f.write(f"{os.getpid()}@{socket.gethostname()}")
+        f.write(owner_tag())
 
 
 def _lock_timed_out(lock: Path, waited: float) -> LibraryError:
