@@ -335,13 +335,11 @@ def _scratch(out: Path, job: str):
         tmp = Path(tempfile.mkdtemp(prefix=f".tween-review-{job}.{owner_tag()}.", suffix=".tmp", dir=out))
         yield tmp
     except BaseException:
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
         if created:
             shutil.rmtree(out, ignore_errors=True)
             remove_created(created)
         raise
-    finally:
+    finally:  # on failure too: the scratch goes before the error leaves
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
 
