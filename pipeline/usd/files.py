@@ -88,6 +88,11 @@ def review_path(folder: str | Path, stem: str, n: int) -> Path:
 _FILL_TEMP = re.compile(r"^\.(?P<stem>.+?)\.tween\.v(?P<n>\d+)\..+\.tmp\.usd[ac]?$")
 
 
+def fill_temps(folder: str | Path, stem: str, n: int) -> list[Path]:
+    """The temps of writers of ``stem``'s fill version ``n`` in ``folder`` (:data:`_FILL_TEMP`)."""
+    return list(Path(folder).glob(f".{glob.escape(stem)}.tween.v{n:03d}.*.tmp.usd*"))
+
+
 def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
     """Removes the temp files and take folders of dead writers in ``folder``, and the review
     layer a dead writer made for the version its temp was to become, where no fill layer of

@@ -148,7 +148,7 @@ def check_latest_there(shot: str, out: Path, stem: str, review_hint: bool = Fals
     newest = max(taken_versions(out, stem), default=0)
     if newest <= max(fills_there, default=0):
         return
-    if list(out.glob(f".{glob.escape(stem)}.tween.v{newest:03d}.*.tmp.usd*")):
+    if files.fill_temps(out, stem, newest):
         return  # a writer's version, not finished (or its writer died: the next write cleans it)
     check_series(shot, out, stem)  # another shot's fills are refused as that
     review = files.review_path(out, stem, newest)
