@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.usd.dailies import fill_decision
+from pipeline.usd.files import review_path
+from pipeline.usd.write import missing_fill, missing_latest
 
 FILL = re.compile(r"^(?P<stem>[^.]+)\.tween\.v(?P<n>\d+)\.usd[ac]?$")
 #: Folders never holding a shot's fills: the farm's work folders, review media.
@@ -195,11 +197,47 @@ def _decision(shot: Shot, names: dict[str, list[str]]) -> dict | None:
     return d
 
 
+#: The status of a shot whose latest fill layer was deleted by hand, its review layer left.
+MISSING = "latest fill missing"
+
+
+def _missing(shot: Shot, n: int, names: dict[str, list[str]]) -> dict:
+    """What the list shows of a shot whose latest fill, version ``n``, is gone (its review
+    layer left): that version, the layer missing (``missing``), none of the fill before it
+    (``tween review``, approve and publish refuse to take it for the latest either)."""
+    review = review_path(shot.folder, shot.stem, n)
+    publish = f"{shot.stem}.publish.v{n:03d}.usd"
+    try:
+        mtime = review.stat().st_mtime
+    except OSError:
+        mtime = 0.0
+    return {
+        "key": shot.key,
+        "stem": shot.stem,
+        "folder": str(shot.folder),
+        "version": n,
+        "versions": len(shot.versions),
+        "status": MISSING,
+        "missing": missing_fill(shot.folder, shot.stem, n).name,
+        "decision": None,
+        "published": any(name.startswith(publish) for name in names.get(shot.stem, [])),
+        "model": "",
+        "takes": 0,
+        "created": "",
+        "mtime": mtime,
+    }
+
+
 def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
     """What the list shows of a shot: its latest version, status, model, time. ``names``:
-    :func:`folder_names` of its folder (listed here when not given)."""
+    :func:`folder_names` of its folder (listed here when not given). A shot whose latest fill
+    was deleted by hand is shown as that (:data:`MISSING`), not by the fill before it."""
     n, path = shot.latest
     names = folder_names(shot.folder) if names is None else names
+    # A writer's temps are hidden (``.<stem>...``): listed under the empty stem.
+    gone = missing_latest(shot.stem, names.get(shot.stem, []) + names.get("", []))
+    if gone is not None:
+        return _missing(shot, gone, names)
     info = cached(path, layer_info) or {}
     d = _decision(shot, names)
     publish = f"{shot.stem}.publish.v{n:03d}.usd"  # any such name, as a glob of ``publish*``

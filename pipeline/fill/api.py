@@ -37,7 +37,7 @@ from pipeline.fill.options import (  # noqa: F401
 from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
-from pipeline.usd.files import clean_dead_temps, owner_tag, write_error
+from pipeline.usd.files import clean_dead_temps, owner_tag, temp_full, write_error
 from pipeline.usd.write import check_out_dir, check_shot_name
 
 _MODELS: dict[tuple[int, str], object] = {}
@@ -552,7 +552,8 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     except OSError as e:
         raise write_error(base, e) or e from None
     try:
-        files = [fill_take(shot, opts, t, work) for t in range(opts.takes)]
+        with temp_full(f"filling the takes of {shot}"):  # not the layers: a full shot folder is its own line
+            files = [fill_take(shot, opts, t, work) for t in range(opts.takes)]
         result = write_layers(shot, opts, files, job_id)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -13,11 +13,14 @@ import re
 import shutil
 import socket
 import sys
-from contextlib import contextmanager
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 from pipeline.atomic import locked
-from pipeline.errors import ShotError, TweenError
+from pipeline.errors import ShotError, TweenError, printable
 from pipeline.outputs import missing_folders
 
 # Every temp file (or take folder) this package writes is named ``.<base>.<pid>@<host>[.<rand>]
@@ -40,9 +43,38 @@ _FULL = {
 }
 
 
+#: Seconds a writer waits for a lock another process holds: the lock of a shot's folder
+#: (:func:`folder_lock`) or of a ``--review-layer`` (pipeline.usd.write.write_review). Each is
+#: held for the moment of one write, so one held this long is a hung writer's: the wait ends
+#: in one line naming the lock and its holder (:func:`lock_timed_out`), not in a wait for ever.
+LOCK_WAIT_S = 300.0
+
+
 def owner_tag() -> str:
     """``<pid>@<host>``: who writes a temp file."""
     return f"{os.getpid()}@{HOST}"
+
+
+def mark_holder(lock: Path) -> None:
+    """Writes who holds ``lock`` into it (:func:`owner_tag`), for a writer that waits in vain
+    to name; the lock works without it, so a write that fails is let be."""
+    with suppress(OSError), open(lock, "w") as f:
+        f.write(owner_tag())
+
+
+def lock_timed_out(lock: Path, waited: float, other: str) -> TweenError:
+    """The line a writer that waited ``waited`` seconds for ``lock`` (held by ``other``, as
+    the line words it) gives up with: the holder's ``<pid>@<host>`` and since when, where it
+    wrote them (:func:`mark_holder`), as ``tween library build`` words its own lock's."""
+    try:
+        holder = printable(lock.read_text(errors="replace")[:200].strip())
+        since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(lock.stat().st_mtime))
+    except OSError:  # released meanwhile, or unreadable
+        holder = since = ""
+    who = f"process {holder}, since {since}" if holder else "a process that did not say who it is"
+    return TweenError(
+        f"{lock}: {other} still holds this lock after {waited:g} s ({who}); run again once it is done"
+    )
 
 
 def temp_path(final: Path) -> Path:
@@ -85,12 +117,7 @@ def review_path(folder: str | Path, stem: str, n: int) -> Path:
 
 
 #: A fill layer's temp (:func:`temp_path`): ``.<stem>.tween.v<NNN>.<owner>.tmp.usd[ac]``.
-_FILL_TEMP = re.compile(r"^\.(?P<stem>.+?)\.tween\.v(?P<n>\d+)\..+\.tmp\.usd[ac]?$")
-
-
-def fill_temps(folder: str | Path, stem: str, n: int) -> list[Path]:
-    """The temps of writers of ``stem``'s fill version ``n`` in ``folder`` (:data:`_FILL_TEMP`)."""
-    return list(Path(folder).glob(f".{glob.escape(stem)}.tween.v{n:03d}.*.tmp.usd*"))
+FILL_TEMP = re.compile(r"^\.(?P<stem>.+?)\.tween\.v(?P<n>\d+)\..+\.tmp\.usd[ac]?$")
 
 
 def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
@@ -116,7 +143,7 @@ def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
         except OSError:
             continue
         removed.append(e.path)
-        m = _FILL_TEMP.match(e.name)
+        m = FILL_TEMP.match(e.name)
         if m and not list(Path(folder).glob(f"{glob.escape(m['stem'])}.tween.v{m['n']}.usd*")):
             review = review_path(folder, m["stem"], int(m["n"]))
             if review.is_file():
@@ -130,16 +157,50 @@ def clean_dead_temps(folder: str | Path, quiet: bool = False) -> list[str]:
     return removed
 
 
+class DiskFull(TweenError):
+    """A write that ran out of room (:func:`write_error`); ``reason`` says how ("no space left
+    on device", "file too large", "disk quota exceeded")."""
+
+    reason = ""
+    path = ""
+
+
+def _full(path, reason: str) -> DiskFull:
+    err = DiskFull(f"{path}: {reason}")
+    err.reason, err.path = reason, str(path)
+    return err
+
+
 def write_error(path, exc: BaseException) -> TweenError | None:
     """One-line error for a full disk / too large file while writing ``path``, else None."""
     no = getattr(exc, "errno", None)
     if no in _FULL:
-        return TweenError(f"{path}: {_FULL[no]}")
+        return _full(path, _FULL[no])
     text = str(exc)
     for no, msg in _FULL.items():
         if os.strerror(no) in text:
-            return TweenError(f"{path}: {msg}")
+            return _full(path, msg)
     return None
+
+
+@contextmanager
+def temp_full(what: str) -> Iterator[None]:
+    """Around writes into the system temp folder (``tempfile.gettempdir()``, TMPDIR): a full
+    disk there is one line naming that folder, saying it is full, and what was being done
+    (``what``). The file the write named was in a folder of a random name under it, gone by
+    then, and the line said nothing of which disk to free or of TMPDIR. A full disk elsewhere
+    (a cache, the shot's folder) keeps its own line."""
+    try:
+        yield
+    except (OSError, DiskFull) as e:
+        reason, path = (e.reason, e.path) if isinstance(e, DiskFull) else (_FULL.get(e.errno), e.filename)
+        base = tempfile.gettempdir()
+        if not reason or not path or not Path(os.path.abspath(path)).is_relative_to(os.path.abspath(base)):
+            raise
+        raise TweenError(
+            f"{base}: the system temp folder is full ({reason}) while {what}; "
+            "free space there, or set TMPDIR to a folder with room, and run again"
+        ) from None
 
 
 def discard(tmp: Path) -> None:
@@ -207,12 +268,21 @@ def folder_lock(shot: str, out: Path, stem: str, created: list[Path]):
     """Exclusive lock (flock) on ``out/.<stem>.tween.lock``, creating ``out`` when needed.
 
     Serialises the job-id check and the version allocation of every writer of ``stem`` into
-    ``out`` (:func:`pipeline.atomic.locked`: the lock file is removed when released).
+    ``out`` (:func:`pipeline.atomic.locked`: the lock file is removed when released). Another
+    holder is waited for :data:`LOCK_WAIT_S` seconds at most (then a TweenError naming it).
     """
     lock = out / f".{stem}.tween.lock"
 
     def failed(e: OSError) -> BaseException:
         return write_error(lock, e) or ShotError(shot, f"cannot lock {lock}: {e.strerror}")
 
-    with locked(lock, make=lambda: make_dirs(shot, out, created), failed=failed):
+    wait = LOCK_WAIT_S
+
+    def timed_out() -> BaseException:
+        return lock_timed_out(lock, wait, f"another writer of {shot}'s fills")
+
+    with locked(
+        lock, make=lambda: make_dirs(shot, out, created), failed=failed, timeout=wait, timed_out=timed_out
+    ):
+        mark_holder(lock)
         yield

@@ -22,6 +22,7 @@ from pipeline.errors import ShotError
 from pipeline.inputs import not_a_file
 from pipeline.motion.bvh import is_bvh
 from pipeline.motion.clip import Motion
+from pipeline.usd.files import owner_tag, temp_full
 
 
 def _usd_take(path: Path, fps: float, name: str, source: Path | None = None, override=None) -> Motion:
@@ -65,7 +66,12 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
             m = read_bvh(path)
         except (ValueError, IndexError, OSError) as e:
             raise ShotError(path, f"cannot read the BVH: {e}") from None
-        with tempfile.TemporaryDirectory() as tmp:
+        # Named as the fill's take folders, so that a killed run's goes when a fill cleans the
+        # system temp folder (pipeline.usd.files.clean_dead_temps).
+        with (
+            temp_full(f"converting the take {path}"),
+            tempfile.TemporaryDirectory(prefix=f"tween-take.{owner_tag()}.", suffix=".tmp") as tmp,
+        ):
             return _usd_take(
                 write_shot(m, Path(tmp) / "take.usda", start=0, fps=fps), fps, m.name, path, override
             )

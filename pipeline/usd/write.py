@@ -135,24 +135,51 @@ def _stacked_fill(review: Path, name: str) -> str:
     return next((s for s in subs if s.rsplit(".", 1)[0] == name), f"{name}.usda")
 
 
+#: A fill or review layer of any shot, by name (one pattern for every stem: the dailies list
+#: reads a folder of many shots with it).
+_VERSION_LAYER = re.compile(r"^(?P<stem>[^.]+)\.(?P<kind>tween|review)\.v(?P<n>\d+)\.usd[ac]?$")
+
+
+def missing_latest(stem: str, names) -> int | None:
+    """The version of the shot ``stem``'s newest layer among ``names`` (one listing of its
+    folder) where that is a review layer whose fill layer is not there (deleted by hand) and
+    no writer's temp of it is (:func:`check_latest_there`'s case); None otherwise. A writer
+    still writing, or killed, has its temp there (its review layer is written first)."""
+    fills, reviews, temps = set(), set(), set()
+    for name in names:
+        if (m := _VERSION_LAYER.match(name)) and m["stem"] == stem:
+            (fills if m["kind"] == "tween" else reviews).add(int(m["n"]))
+        elif (m := files.FILL_TEMP.match(name)) and m["stem"] == stem:
+            temps.add(int(m["n"]))
+    newest = max(reviews, default=0)
+    if newest <= max(fills, default=0) or newest in temps:
+        return None
+    return newest
+
+
+def missing_fill(out: Path, stem: str, n: int) -> Path:
+    """The fill layer of version ``n`` that :func:`missing_latest` found gone, as its review
+    layer stacks it (a fill may be .usdc)."""
+    return out / _stacked_fill(files.review_path(out, stem, n), f"{stem}.tween.v{n:03d}")
+
+
 def check_latest_there(shot: str, out: Path, stem: str, review_hint: bool = False) -> None:
     """ShotError when the shot's newest version in ``out`` is a review layer whose fill layer
-    is gone (deleted by hand) and no writer's temp of it is there: the highest fill left is
-    an older one, which review, approve and publish would take for "the latest fill" (an
-    approval of it would be recorded as the replaced fill's). A writer still writing, or
-    killed, has its temp there (its review layer is written first). ``review_hint``: say how
-    to review the fill before it (``tween review`` takes a review layer)."""
-    if not out.is_dir():
+    is gone (deleted by hand) and no writer's temp of it is there (:func:`missing_latest`):
+    the highest fill left is an older one, which review, approve and publish would take for
+    "the latest fill" (an approval of it would be recorded as the replaced fill's).
+    ``review_hint``: say how to review the fill before it (``tween review`` takes a review
+    layer)."""
+    try:
+        newest = missing_latest(stem, os.listdir(out))
+    except OSError:  # no folder (no fill yet), or one that cannot be listed
         return
-    fills_there = versions(out, stem)
-    newest = max(taken_versions(out, stem), default=0)
-    if newest <= max(fills_there, default=0):
+    if newest is None:
         return
-    if files.fill_temps(out, stem, newest):
-        return  # a writer's version, not finished (or its writer died: the next write cleans it)
     check_series(shot, out, stem)  # another shot's fills are refused as that
     review = files.review_path(out, stem, newest)
-    missing = out / _stacked_fill(review, f"{stem}.tween.v{newest:03d}")
+    missing = missing_fill(out, stem, newest)
+    fills_there = versions(out, stem)
     earlier = (
         f", or review an earlier fill by its layer: tween review {files.review_path(out, stem, max(fills_there))}"
         if fills_there and review_hint
@@ -630,7 +657,13 @@ def write_review(shot: str, src_root, fill: Path, review: Path, existing: bool) 
         # fill and wrote it back, and one fill was gone from it.
         real = Path(os.path.realpath(review))
         tmp = files.temp_path(real)
-        with locked(real.parent / f".{real.name}.lock"):
+        lock, wait = real.parent / f".{real.name}.lock", files.LOCK_WAIT_S
+        with locked(
+            lock,
+            timeout=wait,
+            timed_out=lambda: files.lock_timed_out(lock, wait, f"another fill into {review}"),
+        ):
+            files.mark_holder(lock)
             layer, text = _open_review_layer(review)
             layer.Reload()  # the layer as the last writer left it, not as USD's registry holds it
             text.TransferContent(layer)
