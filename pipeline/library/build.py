@@ -230,9 +230,9 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
     made = []  # the folders the lock made (``out`` and any above it)
 
     def make() -> None:
-        missing = missing_folders(out)
+        # Noted before they are made: an interrupt just after the mkdir left them, empty.
+        made.extend(p for p in missing_folders(out) if p not in made)
         out.mkdir(parents=True, exist_ok=True)
-        made.extend(p for p in missing if p not in made)
 
     def waiting() -> None:
         print(f"tween: {out}: another build is writing this library; waiting for it (at most {lock_wait:g} s)",
@@ -246,8 +246,9 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
             return _build_locked(folder if files is None else out, out, paths, licence, name, add, progress, mirror, on_progress,
                                  out in made)  # fmt: skip
     finally:
-        if not out.exists():  # a build that failed removed ``out``: the folders it made above it go too
-            remove_created(made)
+        # What it made and left empty goes: ``out`` where it stopped before a file was written
+        # in it (a failed build removed its files), and the folders above it.
+        remove_created(made)
 
 
 def _build_locked(where, out: Path, paths: list[Path], licence, name, add: bool, progress: bool, mirror: bool,

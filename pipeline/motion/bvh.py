@@ -92,6 +92,8 @@ MAX_DEPTH = 256
 #: The most lines a BVH file may have: a take's frames, and a hierarchy of up to a million
 #: lines (ten thousand joints take a tenth of it).
 MAX_LINES = 2 * MAX_FRAMES
+#: How much of a file's text :func:`_open_text` reads at a time (bytes).
+_READ_CHUNK = 1 << 24
 
 
 def is_bvh(path: str | Path) -> bool:
@@ -115,8 +117,12 @@ def _open_text(path: Path) -> list[str]:
         zipped = gzipped(path)
         if path.name.lower().endswith(".gz") and not zipped:
             raise MotionFormatError(path, None, "cannot read: named .gz, but not gzip data")
+        raw = bytearray()
         with gzip.open(path, "rb") if zipped else open(path, "rb") as f:
-            raw = f.read(MAX_BYTES + 1)  # bounded: a gzip bomb stops here
+            # A chunk at a time, to the bound (a gzip bomb stops there): f.read(MAX_BYTES + 1)
+            # asked for 1 GiB at once, for any file, refused where memory is not overcommitted.
+            while len(raw) <= MAX_BYTES and (chunk := f.read(min(_READ_CHUNK, MAX_BYTES + 1 - len(raw)))):
+                raw += chunk
         if len(raw) > MAX_BYTES:
             raise MotionFormatError(path, None, f"more than {MAX_BYTES >> 30} GiB of text: not a BVH take")
     except FileNotFoundError:

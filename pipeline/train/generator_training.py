@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from pipeline.atomic import save_torch
+from pipeline.atomic import save_torch, write_bytes
 from pipeline.data.cache import load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
@@ -50,6 +50,7 @@ from pipeline.usd.take import load_takes
 
 OFFSET_SHARE = 0.5  # windows given --joint-offsets: the other half keeps the capture's own poses
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
+LOG_EVERY = 25  # steps between the lines of a run's log (train_log.jsonl, path_log.jsonl)
 
 
 def _knob(default, help: str, **meta):
@@ -774,6 +775,29 @@ def _step(cfg: TrainConfig, model, opt, sched, gan, b: dict, skel, pos_w, dev):
     return loss, losses
 
 
+def resumed_log(path: Path, step: int):
+    """The run's log ``path`` (a JSON line every LOG_EVERY steps) open to append to, the run
+    starting at ``step``: the lines of later steps, which a stopped run wrote after its last
+    checkpoint and this one logs again (they were in the log twice), are dropped first, the
+    log rewritten whole or not at all; so is a line that is not a whole record (one a killed
+    run was writing)."""
+    if path.exists():
+        lines = path.read_bytes().splitlines(keepends=True)
+        keep = [line for line in lines if (s := _logged_step(line)) is not None and s <= step]
+        if len(keep) < len(lines):
+            write_bytes(path, b"".join(keep))
+    return path.open("a")
+
+
+def _logged_step(line: bytes) -> int | None:
+    """The step a line of a run's log records; None for a line that is not a whole record."""
+    try:
+        step = json.loads(line)["step"]
+    except (ValueError, TypeError, KeyError):
+        return None
+    return step if isinstance(step, int) and line.endswith(b"\n") else None
+
+
 def _log_line(log, bar, step: int, loss, losses: dict, max_gap, seconds: float) -> None:
     """A line of train_log.jsonl (the step's losses), and the progress bar's figures."""
     parts = ("rot", "pos", "root", "vel", "contact", "br", "adv", "dna")
@@ -787,7 +811,7 @@ def _log_line(log, bar, step: int, loss, losses: dict, max_gap, seconds: float) 
 def train(cfg: TrainConfig, out_dir: Path) -> Path:
     """Train the generator (``cfg``) into ``out_dir`` (generator.pt, train_log.jsonl),
     resuming its checkpoint there; returns the checkpoint. The loop: a batch, the supervised
-    losses, from ``--adv-start`` the LSGAN step, a log line every 25 steps, a checkpoint
+    losses, from ``--adv-start`` the LSGAN step, a log line every LOG_EVERY steps, a checkpoint
     every ``--checkpoint-minutes``."""
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -802,7 +826,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
     ckpt = out_dir / "generator.pt"
     step, elapsed, disc, d_opt = _start(cfg, model, opt, sched, init, ckpt, dev)
     pos_w = _position_weights(cfg, clips, skel, dev)
-    log = (out_dir / "train_log.jsonl").open("a")
+    log = resumed_log(out_dir / "train_log.jsonl", step)
     t_start, t_ckpt = time.time() - elapsed, time.time()
 
     def save(path=ckpt):
@@ -835,7 +859,7 @@ def train(cfg: TrainConfig, out_dir: Path) -> Path:
         )
         step += 1
         bar.update(1)
-        if step % 25 == 0:
+        if step % LOG_EVERY == 0:
             _log_line(log, bar, step, loss, losses, b["max_gap"], time.time() - t_start)
         if time.time() - t_ckpt > cfg.checkpoint_minutes * 60:
             save()

@@ -20,7 +20,7 @@ from pipeline.motion.fk import fk
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.progress import interval
 from pipeline.train.batches import sample_batch
-from pipeline.train.generator_training import read_checkpoint, refuse_short
+from pipeline.train.generator_training import LOG_EVERY, read_checkpoint, refuse_short, resumed_log
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
@@ -104,7 +104,7 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         step = state["step"]
-    log = (out_dir / "path_log.jsonl").open("a")
+    log = resumed_log(out_dir / "path_log.jsonl", step)
     t0 = t_ckpt = time.time()
 
     def save() -> None:  # whole or not at all: a run killed while saving resumes from the last one
@@ -129,7 +129,7 @@ def train_path(cfg: PathTrainConfig, out_dir: Path) -> Path:
         sched.step()
         step += 1
         bar.update(1)
-        if step % 25 == 0:
+        if step % LOG_EVERY == 0:
             log.write(json.dumps({"step": step, "loss": loss.item(), "t": time.time() - t0}) + "\n")
             log.flush()
             bar.set_postfix(loss=f"{loss.item():.5f}")

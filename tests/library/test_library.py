@@ -507,6 +507,28 @@ def test_what_a_killed_first_build_left_is_removed_and_the_build_goes_on(takes, 
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt", "rotations.bin"]
 
 
+@pytest.mark.parametrize("where", ["mkdir", "lock"])
+def test_an_interrupt_just_after_the_library_folder_is_made_leaves_none(tmp_path, monkeypatch, where):
+    """Ctrl-C just after the build made --out (and the folders above it), before its clean-up
+    noted them, or once it held the lock, before a file was written: ``out`` was left,
+    empty (as `tween train` left its run folder)."""
+    from interrupt_fixtures import interrupt_after_mkdir
+
+    from pipeline.library import build as build_module
+
+    if where == "mkdir":
+        interrupt_after_mkdir(monkeypatch)
+    else:
+
+        def interrupted(lock):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(build_module, "_mark_holder", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        build(None, tmp_path / "libs" / "lib", files=[], progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_file_given_as_a_library_folder_says_so(tmp_path):
     """`library info FILE` said "no such library folder", `library build --out FILE` "not
     empty": the file is there, so the line says what it is."""

@@ -353,6 +353,53 @@ def test_a_gzip_of_line_breaks_is_refused_before_it_is_split(tmp_path):
             assert "lines" not in str(err.value) and str(bomb) in str(err.value)
 
 
+# Run in a child process: its address space bounded a little above what it holds after its
+# imports, as a host that does not overcommit memory bounds it.
+SMALL_ADDRESS_SPACE = """
+import resource, sys
+from pathlib import Path
+from pipeline.motion import bvh
+held = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmSize:")) << 10
+room = held + (256 << 20)
+resource.setrlimit(resource.RLIMIT_AS, (room, room))
+for p in sys.argv[1:]:
+    print(len(bvh._open_text(Path(p))))
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="VmSize is read from /proc")
+def test_a_small_take_reads_where_memory_is_not_overcommitted(tmp_path, monkeypatch):
+    """The text was read with f.read(MAX_BYTES + 1), which reserves 1 GiB first, for any
+    file: a 20-line take was a MemoryError where memory is not overcommitted
+    (vm.overcommit_memory=2), here an address space 256 MiB above the child's imports. Now
+    it is read a chunk at a time, to the same bound, into the same lines."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pipeline.motion import bvh
+
+    plain = write(tmp_path, GOOD, "small.bvh")
+    zipped = tmp_path / "small.bvh.gz"
+    zipped.write_bytes(gzip.compress(GOOD.encode()))
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2]), "OPENBLAS_NUM_THREADS": "1"}
+    res = subprocess.run(
+        [sys.executable, "-c", SMALL_ADDRESS_SPACE, plain, zipped], env=env, capture_output=True, text=True
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["20", "20"]
+    lines = GOOD.splitlines()
+    for chunk in (1, 7, 1 << 24):  # chunks of any size read the lines the whole text was
+        monkeypatch.setattr(bvh, "_READ_CHUNK", chunk)
+        assert bvh._open_text(plain) == bvh._open_text(zipped) == lines
+        monkeypatch.setattr(bvh, "MAX_BYTES", len(GOOD))  # the bound is the file's size: read
+        assert bvh._open_text(zipped) == lines
+        monkeypatch.setattr(bvh, "MAX_BYTES", len(GOOD) - 1)  # a byte over the bound: refused
+        with pytest.raises(MotionFormatError, match="GiB of text: not a BVH take"):
+            bvh._open_text(zipped)
+        monkeypatch.undo()
+
+
 def test_a_header_declaring_fewer_or_more_frames_than_held_reads_as_before(tmp_path):
     """Fewer: the frames after the count are not read; more, up to the cap: truncated."""
     assert len(read_bvh(write(tmp_path, GOOD.replace("Frames: 2", "Frames: 1"), "few.bvh"))) == 1

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import json
 import shutil
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -300,6 +302,73 @@ def test_a_run_folder_resumes_only_its_own_training(tmp_path, capsys, monkeypatc
     succeeded(["train", "--out", out, *TINY, "--threads", "1"], capsys)  # how it runs may change
 
 
+class _Hours:
+    """A clock each reading of which is an hour after the last: a checkpoint every step."""
+
+    now = 0.0
+
+    def time(self) -> float:
+        self.now += 3600.0
+        return self.now
+
+
+@pytest.mark.parametrize("which", ["generator", "path"])
+def test_a_resumed_run_logs_each_step_once(tmp_path, monkeypatch, which):
+    """A run resumed from its last checkpoint logs again the steps it logged after it:
+    train_log.jsonl (path_log.jsonl) held them twice. Here a line and a checkpoint every
+    step, the run interrupted while it saved step 3's: it resumes from step 2's."""
+    from pipeline.train import generator_training, path_training
+
+    if which == "generator":
+        module, log = generator_training, tmp_path / "train_log.jsonl"
+        small = generator_training.GeneratorConfig(width=16, levels=(16, 16))
+        cfg = generator_training.TrainConfig(steps=4, batch=2, lengths=(64,), limit_clips=1, model=small)
+        run = partial(generator_training.train, cfg, tmp_path)
+    else:
+        module, log = path_training, tmp_path / "path_log.jsonl"
+        run = partial(path_training.train_path, path_training.PathTrainConfig(steps=4, batch=2, threads=1, limit_clips=1), tmp_path)  # fmt: skip
+    save = module.save_torch
+
+    def interrupted_at_step_3(state, path):
+        if state["step"] == 3:
+            raise KeyboardInterrupt
+        save(state, path)
+
+    monkeypatch.setattr(module, "LOG_EVERY", 1)
+    with monkeypatch.context() as m:
+        m.setattr(module, "save_torch", interrupted_at_step_3)
+        m.setattr(module, "time", _Hours())
+        with pytest.raises(KeyboardInterrupt):
+            run()
+    assert [json.loads(line)["step"] for line in log.read_text().splitlines()] == [1, 2, 3]
+    run()
+    assert [json.loads(line)["step"] for line in log.read_text().splitlines()] == [1, 2, 3, 4]
+
+
+def test_a_log_is_cut_back_whole_or_not_at_all(tmp_path, monkeypatch):
+    """The lines after the checkpoint's step go, and a line a killed run left half-written;
+    interrupted as it replaces the log, the log stays as it was, with no temporary beside it."""
+    import os
+
+    from pipeline.train.generator_training import resumed_log
+
+    log = tmp_path / "train_log.jsonl"
+    text = '{"step": 25}\n{"step": 50}\n{"step": 75}\n{"step": 10'
+    log.write_text(text)
+
+    def interrupted(src, dst):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(os, "replace", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            resumed_log(log, 50)
+    assert log.read_text() == text and os.listdir(tmp_path) == [log.name]
+    with resumed_log(log, 50) as f:
+        f.write('{"step": 75}\n')
+    assert log.read_text() == '{"step": 25}\n{"step": 50}\n{"step": 75}\n'
+
+
 def test_a_run_folder_another_training_holds_is_refused(tmp_path, capsys):
     """Two `tween train` into one --out wrote the same checkpoint's temporary name: one died
     with "generator.tmp -> generator.pt: No such file or directory" (exit 2, as bad input)."""
@@ -366,15 +435,11 @@ def test_an_interrupt_just_after_the_run_folder_is_made_leaves_none(tmp_path, mo
     """Ctrl-C while torch imported is sent again until it lands outside the import
     (pipeline.command); one landed just after train_run made the run folder, before its
     cleanup began, and left ``--out`` empty (1 in 20 Ctrl-Cs 0.5-0.9 s into `tween train`)."""
+    from interrupt_fixtures import interrupt_after_mkdir
+
     from pipeline.train.recipe import train_run
 
-    real = Path.mkdir
-
-    def made_then_interrupted(self, *args, **kwargs):
-        real(self, *args, **kwargs)
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(Path, "mkdir", made_then_interrupted)
+    interrupt_after_mkdir(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         train_run(tmp_path / "runs" / "r1", None, None)
     assert list(tmp_path.iterdir()) == []
