@@ -12,9 +12,11 @@ key prefix (``<prefix>rig:``), time limits and visibility timeout.
 from __future__ import annotations
 
 import os
+import sys
 import threading
 import time
 from contextlib import contextmanager
+from urllib.parse import parse_qs, urlsplit
 
 from celery import Celery
 
@@ -66,12 +68,52 @@ def _backend_options(s: FarmSettings, prefix: str) -> dict:
 def _reply_limits(s: FarmSettings) -> dict:
     """Celery's settings that bound a client's wait on the broker and the Redis result
     backend (the transport options bound the broker's socket): no publish retried, and
-    the backend's reply wait (Celery's: 120 s, then 20 retries)."""
+    the backend's reply wait (Celery's: 120 s, then 20 retries); no database backend's
+    operation retried either (Celery's: 3 times, each waiting its own connect timeout), but
+    on the embedded farm's own SQLite files (Celery's 3 kept)."""
     return {
         "task_publish_retry_policy": dict(CLIENT_PUBLISH_RETRY),
         "redis_socket_timeout": s.reply_timeout,
         "redis_socket_connect_timeout": s.reply_timeout,
+        "result_backend_max_retries": DATABASE_RETRIES if s.embedded else 0,
     }
+
+
+#: Celery's retries of a database backend's operation, where none are set.
+DATABASE_RETRIES = 3
+
+
+#: The PostgreSQL drivers that take libpq's connection parameters (SQLAlchemy's default first).
+LIBPQ_DRIVERS = ("", "psycopg2", "psycopg", "psycopg2cffi")
+
+
+def _database_options(s: FarmSettings) -> dict:
+    """Celery's ``database_engine_options``: the embedded farm's SQLite busy timeout; for a
+    PostgreSQL result backend, bounds of reply_timeout on its waits for the server, which
+    were unbounded (Redis and AMQP have their socket timeouts). With libpq: the connection
+    (connect_timeout: a client connects for each operation), a host or network gone (TCP
+    keepalives, tcp_user_timeout) and a statement the server does not finish
+    (statement_timeout); with pg8000, its socket timeout. What the URL sets stands.
+
+    A server that stops answering while its host still acknowledges the traffic (a stopped
+    postgres process) in the middle of a statement is bounded by pg8000 only: libpq has no
+    read timeout, and its keepalives are answered."""
+    if s.embedded:
+        return {"connect_args": {"timeout": 30}}
+    url = s.result_backend.removeprefix("db+").removeprefix("database+")
+    dialect, _, driver = url.split("://", 1)[0].partition("+")
+    if dialect != "postgresql" or driver not in (*LIBPQ_DRIVERS, "pg8000"):
+        return {}
+    t = s.reply_timeout
+    if driver == "pg8000":
+        args: dict = {"timeout": t}
+    else:
+        args = {"connect_timeout": t, "keepalives": 1, "keepalives_idle": t, "keepalives_interval": 1,
+                "keepalives_count": 3, "tcp_user_timeout": t * 1000, "options": f"-c statement_timeout={t * 1000}"}  # fmt: skip
+    given = parse_qs(urlsplit(url).query)
+    if "options" in given and "options" in args:  # its own options after (a later -c wins)
+        args["options"] += " " + given["options"][-1]
+    return {"connect_args": {k: v for k, v in args.items() if k == "options" or k not in given}}
 
 
 def for_worker(celery_app: Celery) -> Celery:
@@ -85,6 +127,7 @@ def for_worker(celery_app: Celery) -> Celery:
         task_publish_retry_policy=dict(DEFAULTS["task_publish_retry_policy"]),
         result_backend_transport_options=opts,
     )
+    celery_app.conf.pop("result_backend_max_retries", None)  # unset: each backend's own default
     return celery_app
 
 
@@ -137,7 +180,7 @@ def configure(app: Celery, s: FarmSettings, *, train: bool = False, rig: bool = 
         worker_max_tasks_per_child=200,
         worker_send_task_events=False,
         worker_hijack_root_logger=False,
-        database_engine_options={"connect_args": {"timeout": 30}} if s.embedded else {},
+        database_engine_options=_database_options(s),
         database_create_tables_at_setup=True,
         # The SQLite broker has no broadcast; remote control only makes sense on a real farm.
         worker_enable_remote_control=not s.embedded,
@@ -315,13 +358,49 @@ def check_embedded_stores(celery_app: Celery) -> None:
             )
 
 
+#: SQLSTATE query_canceled: PostgreSQL ended a statement at its statement_timeout.
+PG_QUERY_CANCELED = "57014"
+
+
 def _no_reply(e: BaseException | None) -> bool:
     """Whether ``e``, or an error it was raised from (kombu wraps the client's), is a reply
-    that did not come within the socket timeout: redis-py's TimeoutError or a socket's."""
+    that did not come within the socket timeout: redis-py's TimeoutError or a socket's; or
+    a PostgreSQL backend's bound (:func:`_database_options`): libpq's connect_timeout ("timeout
+    expired"), its connection timed out, or the statement_timeout."""
     return any(
-        isinstance(x, TimeoutError) or (type(x).__name__ == "TimeoutError" and "redis" in type(x).__module__)
+        isinstance(x, TimeoutError)
+        or (type(x).__name__ == "TimeoutError" and "redis" in type(x).__module__)
+        or PG_QUERY_CANCELED in (getattr(x, "pgcode", None), getattr(x, "sqlstate", None))
+        or any(words in str(x) for words in ("timeout expired", "Connection timed out"))
         for x in raised_from(e)
     )
+
+
+def _raised_in(e: BaseException, modules: tuple[str, ...]) -> bool:
+    """Whether ``e`` was raised from inside one of ``modules`` (or their submodules)."""
+    tb = e.__traceback__
+    while tb is not None:
+        if tb.tb_frame.f_globals.get("__name__", "").startswith(modules):
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def _database_error(celery_app: Celery, e: BaseException) -> BaseException | None:
+    """The error of a farm's database result backend that could not be used that ``e`` is,
+    or was raised from (Celery raises its own after its retries): SQLAlchemy's, or a socket's
+    that the driver let through (pg8000's timeout as it connects). None for any other error,
+    and on the embedded farm (its stores' errors are said elsewhere)."""
+    exc = sys.modules.get("sqlalchemy.exc")  # not imported: no database was used
+    url = str(celery_app.conf.result_backend)
+    if exc is None or celery_app.conf.tween.embedded or not url.startswith(("db+", "database+")):
+        return None
+    for x in raised_from(e):
+        if isinstance(x, (exc.OperationalError, exc.InterfaceError)):
+            return getattr(x, "orig", None) or x  # the driver's own line, without SQLAlchemy's link
+        if isinstance(x, OSError) and _raised_in(x, ("sqlalchemy.", "celery.backends.database")):
+            return x
+    return None
 
 
 def _mid_command(what: str, url: str, e: BaseException, s: FarmSettings) -> FarmConnectionError:
@@ -371,3 +450,9 @@ def farm_errors(celery_app: Celery, job_ids: list[str] | None = None):
         url = celery_app.conf.result_backend
         what = "broker" if url == celery_app.conf.broker_url else "result backend"
         raise _lost(_mid_command(what, url, e, celery_app.conf.tween), what, job_ids or []) from None
+    except Exception as e:
+        db = _database_error(celery_app, e)
+        if db is None:
+            raise
+        err = _mid_command("result backend", celery_app.conf.result_backend, db, celery_app.conf.tween)
+        raise _lost(err, "result backend", job_ids or []) from None

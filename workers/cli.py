@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -280,16 +281,33 @@ def _run_jobs(ids: list[str], intr: _Interrupts, progress: bool, alive=None, idl
     return code
 
 
+#: Said by a fill interrupted once every job had ended on its own: its exit status is the
+#: jobs' own.
+NOTHING_CANCELLED = (
+    "tween: interrupted, but every job had ended before the cancel reached it: nothing cancelled"
+)
+
+
 def _cancel(jobs, ids: list[str], intr: _Interrupts, alive) -> int:
     """Cancels the interrupted fill's jobs, waits until they have stopped and undone their
-    work, says how each ended and returns 130."""
-    print(f"tween: interrupted: cancelling {len(ids)} job(s) ({', '.join(ids)})", file=sys.stderr)
-    jobs.cancel(ids, why="tween fill interrupted")
-    for s in _settle(ids, intr, alive):
-        if s.state == "SUCCESS":  # it finished before the cancel reached it
-            _report([s])
-        elif s.state == "CANCELLED":
+    work, says how each ended and returns 130. Where the interrupt cancelled nothing (it came
+    in the wait's last poll, or each job ended before the cancel reached it) each job is
+    reported as it ended, kept, and the status is theirs: a fill that kept its version and
+    exited 130 had a script that retries on failure make a second one."""
+    before = jobs.cancel(ids, why="tween fill interrupted")  # a finished job is left as it is
+    live = [j for j in ids if not before[j].finished]
+    if live:
+        print(f"tween: interrupted: cancelling {len(live)} job(s) ({', '.join(live)})", file=sys.stderr)
+    states = _settle(ids, intr, alive)
+    if all(s.finished and s.state != "CANCELLED" for s in states):
+        code = _report(states)
+        print(NOTHING_CANCELLED, file=sys.stderr)
+        return code
+    for s in states:
+        if s.state == "CANCELLED":
             print(_cancelled_line(s), file=sys.stderr)
+        elif s.finished:  # it ended before the cancel reached it
+            _report([s])
         else:
             print(f"tween: {s.shot}: job {s.id} is still stopping (`tween status {s.id}`)", file=sys.stderr)
     return EXIT_CANCELLED
@@ -402,16 +420,19 @@ def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, 
     for key, role in PATH_FIELDS.items():  # every path option's folder is a root of this farm
         if opts.get(key):
             roots.append(opts[key] if role == "dir" else os.path.dirname(opts[key]))
-    # Interrupted while the worker starts: it is stopped, nothing was sent.
+    # Interrupted while the worker starts: it is stopped, nothing was sent. Interrupted once
+    # the jobs are reported, while it stops: it is killed at once (its warm stop took seconds,
+    # the signal ignored), the jobs are kept, and the status is theirs.
     ids: list[str] = []
+    seen = 0
     with _Interrupts() as intr:
         try:
-            with EmbeddedWorker(roots, concurrency=concurrency) as w:
+            with EmbeddedWorker(roots, concurrency=concurrency, hurry=lambda: intr.count > 0) as w:
                 intr.armed = False
                 ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
                 _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress, alive=w.alive)
-                w.cold = code == EXIT_CANCELLED
+                w.cold, seen = code == EXIT_CANCELLED, intr.count
         except WorkerStoreFull:  # its stores are full: its jobs' files go, unrecorded
             jobs.undo_orphaned(ids, why="its embedded worker's stores are full")
             raise StoreFullError(cache_dir() / "farm") from None
@@ -423,6 +444,9 @@ def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, 
                 raise
             print("tween: interrupted", file=sys.stderr)  # before anything was sent
             code = EXIT_CANCELLED
+    if intr.count > seen and code != EXIT_CANCELLED:
+        print("tween: interrupted while the embedded worker stopped, after the fill had finished: "
+              "nothing cancelled", file=sys.stderr)  # fmt: skip
     return code
 
 
@@ -491,18 +515,90 @@ def submit(
         if celery_app.conf.tween.shot_roots:  # before the broker is contacted
             jobpaths.check_job(os.path.abspath(p), opts, celery_app.conf.tween.shot_roots)
     check_farm(celery_app)
-    # A signal while the jobs are sent is counted, not raised (a job half sent, its record
-    # without its message, stayed "queued" forever): then every job sent is cancelled.
-    with farm_errors(celery_app), _Interrupts() as intr:
+    # A signal while the jobs are sent ends the sending at once, even a publish that waits on
+    # a broker gone silent (:func:`_until_signal`); then every job begun is cancelled
+    # (:func:`_cancel_sent`). Raised where it landed, it left a job half sent, its record
+    # without its message, "queued" forever; counted, it waited out the broker's reply.
+    sending = _Sending()
+    with _Interrupts() as intr:
         intr.armed = False
-        ids = jobs.submit(paths, opts, render=render)
-        if intr.count:
-            jobs.cancel(ids, why="tween submit interrupted")
-            print(f"tween: interrupted: cancelled the {len(ids)} job(s) it had sent ({', '.join(ids)})",
-                  file=sys.stderr)  # fmt: skip
-            _exit(EXIT_CANCELLED)
+        with farm_errors(celery_app):
+            ids = _until_signal(intr, lambda: jobs.submit(paths, opts, render=render, sending=sending.begin))
+        if ids is _SIGNALLED or intr.count:
+            _cancel_sent(celery_app, sending.stop(), intr)
     for job_id in ids:
         typer.echo(job_id)
+
+
+class _Sending:
+    """The jobs a command sends from a thread: :meth:`begin` (jobs.submit's ``sending``) is
+    told each job before anything of it is sent, and refuses once :meth:`stop` is called,
+    which returns every job begun: none is begun after it."""
+
+    def __init__(self):
+        self.lock, self.begun, self.stopped = threading.Lock(), [], False
+
+    def begin(self, job_id: str) -> bool:
+        with self.lock:
+            if not self.stopped:
+                self.begun.append(job_id)
+            return not self.stopped
+
+    def stop(self) -> list[str]:
+        with self.lock:
+            self.stopped = True
+            return list(self.begun)
+
+
+#: What :func:`_until_signal` returns when the signal came first.
+_SIGNALLED = object()
+
+
+def _until_signal(intr: _Interrupts, fn):
+    """Runs ``fn`` in a daemon thread and waits for it or for SIGINT or SIGTERM (one more
+    than ``intr`` has counted): ``fn``'s result (its error raised here, unless the signal
+    came too), or _SIGNALLED; the thread is then left to end with the process. A publish or
+    a result write waits for the server's reply inside the farm client's library, up to
+    reply_timeout where the server went silent, and a signal raised there would leave the
+    library's connection half used."""
+    seen, out = intr.count, []
+
+    def run() -> None:
+        try:
+            out.append((fn(), None))
+        except BaseException as e:  # handed to the waiting thread
+            out.append((None, e))
+
+    t = threading.Thread(target=run, name="tween-send", daemon=True)
+    t.start()
+    while not out and intr.count == seen:
+        t.join(0.05)
+    if not out or (intr.count != seen and out[0][1] is not None):
+        return _SIGNALLED
+    value, error = out[0]
+    if error is not None:
+        raise error
+    return value
+
+
+def _cancel_sent(celery_app, begun: list[str], intr: _Interrupts) -> None:
+    """Cancels the jobs an interrupted `tween submit` had begun to send, whatever reached the
+    farm of the last (jobs.cancel_sent), says so and exits 130. A second signal while the
+    cancel waits on a silent server stops the wait: the jobs are named, not cancelled."""
+    from workers.app import farm_errors
+
+    ids = ", ".join(begun)
+    if not begun:
+        print("tween: interrupted: no job was sent", file=sys.stderr)
+        _exit(EXIT_CANCELLED)
+    with farm_errors(celery_app, begun):
+        done = _until_signal(intr, lambda: _jobs().cancel_sent(begun, why="tween submit interrupted"))
+    if done is _SIGNALLED:
+        print(f"tween: interrupted again: the {len(begun)} job(s) it had sent ({ids}) are not cancelled: "
+              f"`tween cancel` them once the farm answers", file=sys.stderr)  # fmt: skip
+    else:
+        print(f"tween: interrupted: cancelled the {len(begun)} job(s) it had sent ({ids})", file=sys.stderr)
+    _exit(EXIT_CANCELLED)
 
 
 def status(

@@ -13,12 +13,16 @@ import os
 import signal
 import subprocess
 import sys
+import time
 import uuid
 
 from pipeline.errors import TweenError
 from workers import runtime
 from workers.errors import STORE_FULL_EXIT, StoreFullError, store_full
 from workers.settings import EMBEDDED_QUEUE_PREFIX, cache_dir
+
+#: How long the embedded worker is given to stop warm (it stops its pool) before it is killed.
+WARM_STOP_S = 20.0
 
 
 class WorkerDied(TweenError):
@@ -32,7 +36,9 @@ class WorkerStoreFull(WorkerDied):
 class EmbeddedWorker:
     """Context manager: a ``tween worker`` subprocess (own session) on a private queue."""
 
-    def __init__(self, roots: list[str], concurrency: int = 2, extra_args: list[str] | None = None):
+    def __init__(
+        self, roots: list[str], concurrency: int = 2, extra_args: list[str] | None = None, hurry=None
+    ):
         self.queue = f"{EMBEDDED_QUEUE_PREFIX}{uuid.uuid4().hex[:12]}"
         self.roots = sorted({os.path.realpath(r) for r in roots})
         self.concurrency = concurrency
@@ -41,6 +47,9 @@ class EmbeddedWorker:
         self.log = self.folder / "logs" / f"{self.queue}.log"
         self.proc: subprocess.Popen | None = None
         self.cold = False  # set once its jobs were cancelled and have stopped
+        # Polled while it stops: true once its client was told to stop (SIGINT, SIGTERM), which
+        # then ends the worker at once rather than wait for its warm shutdown (seconds).
+        self.hurry = hurry or (lambda: False)
 
     def __enter__(self) -> EmbeddedWorker:
         self.log.parent.mkdir(parents=True, exist_ok=True)
@@ -114,16 +123,20 @@ class EmbeddedWorker:
     def _stop(self) -> None:
         if self.proc is None or self.proc.poll() is not None:
             return
-        try:
-            if self.cold:  # its jobs were cancelled and have stopped: nothing is left to finish
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-                return
+        if not (self.cold or self.hurry()):
             # Warm shutdown of the main process (it stops its pool); nothing is running now.
             self.proc.send_signal(signal.SIGTERM)
-            self.proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
+            deadline = time.monotonic() + WARM_STOP_S
+            while time.monotonic() < deadline and not self.hurry():
+                try:
+                    self.proc.wait(timeout=0.1)
+                    return
+                except subprocess.TimeoutExpired:
+                    pass
+        # Its jobs were cancelled and have stopped, or its client is told to stop: nothing is
+        # left to finish (or its warm shutdown hung).
+        try:
             os.killpg(self.proc.pid, signal.SIGKILL)
-            self.proc.wait()
         except ProcessLookupError:
             pass
+        self.proc.wait()

@@ -151,9 +151,17 @@ def make_opts(**kw) -> dict:
 
 
 def submit(
-    shots: list[str], opts: dict, *, render: bool = False, roots=None, queue: str | None = None
+    shots: list[str],
+    opts: dict,
+    *,
+    render: bool = False,
+    roots=None,
+    queue: str | None = None,
+    sending=None,
 ) -> list[str]:
-    """Sends one job per shot; returns the job ids at once. Refuses paths outside ``roots``."""
+    """Sends one job per shot; returns the job ids at once. Refuses paths outside ``roots``.
+    ``sending`` is called with each job's id before anything of it is sent; once it returns
+    false no more job is sent, and the ids returned are those sent."""
     roots = app.conf.tween.shot_roots if roots is None else roots
     queue = queue or app.conf.task_default_queue
     owner = None
@@ -177,8 +185,12 @@ def submit(
     if owner:
         for shot, _ in planned:
             clean_dead_work(shot, opts)
+    sent = []
     try:
         for shot, job in planned:
+            if sending is not None and not sending(job["id"]):
+                break
+            sent.append(job["id"])
             rec = {
                 "shot": shot,
                 "takes": job["takes"],
@@ -195,7 +207,7 @@ def submit(
             build(shot, opts, job, queue).apply_async()
     finally:
         _drop_result_subscriptions()
-    return [job["id"] for _, job in planned]
+    return sent
 
 
 def submit_review(review: str, *, roots=None, queue: str | None = None) -> str:
@@ -370,6 +382,15 @@ def cancel(job_ids: list[str], why: str = "") -> dict[str, JobState]:
             control.request_cancel(app, j, why)
         out[j] = js
     return out
+
+
+def cancel_sent(job_ids: list[str], why: str = "") -> None:
+    """Writes each job's cancel record, whatever its state (:func:`cancel` leaves a job it
+    does not find): for the jobs a client was interrupted while sending, the last of which
+    may be half sent, its record or its message still on the way, so that none of them runs
+    whatever of it reaches the farm (its first stage reads the cancel record)."""
+    for j in job_ids:
+        control.request_cancel(app, j, why)
 
 
 def undo_cancelled(js: JobState) -> list[str]:

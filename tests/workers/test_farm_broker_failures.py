@@ -175,6 +175,52 @@ def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
     assert took < 20
 
 
+def test_a_signal_while_submit_waits_on_a_silent_broker_ends_it_at_once(redis_farm):
+    """The broker went silent at the publish, its result backend answering: SIGINT (or
+    SIGTERM) was counted, not acted on, and `tween submit` waited out reply_timeout, then
+    failed, the job's record left "queued" for ever. Now the signal ends it at once, exit
+    130, and the job it had begun to send is cancelled (whatever of it reaches the farm)."""
+    import signal
+
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app as cli
+    from workers import jobs
+    from workers.app import app
+    from workers.settings import load_settings
+
+    server, shot, env = redis_farm
+    relay = _relay(server, quiet_at=b"tween.validate")
+    env = {**env, "TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": f"redis://127.0.0.1:{relay.port}/0",
+           "TWEEN_RESULT_BACKEND": server.url, "TWEEN_REPLY_TIMEOUT": "8"}  # fmt: skip
+    old, running = app.conf.tween, threading.Event()
+
+    def interrupt_once_silent():
+        if relay.quiet.wait(30) and running.is_set():
+            time.sleep(0.1)
+            os.kill(os.getpid(), signal.SIGINT)
+
+    before = signal.signal(signal.SIGINT, lambda *_: None)  # one that came late is lost, not pytest's
+    configure_app(app, load_settings(env))
+    try:
+        threading.Thread(target=interrupt_once_silent, daemon=True).start()
+        running.set()
+        t0 = time.monotonic()
+        res = CliRunner().invoke(cli, ["submit", str(shot), "--model", "interp"])
+        took = time.monotonic() - t0
+        running.clear()
+        assert res.exit_code == 130 and res.stdout == "", res.output
+        (line,) = res.stderr.splitlines()
+        assert line.startswith("tween: interrupted: cancelled the 1 job(s) it had sent ("), line
+        job = line.rsplit("(", 1)[1].rstrip(")")
+        assert jobs.state(job).state == "CANCELLED"  # its record is there, and its cancel
+        assert took < 5  # reply_timeout is 8 s
+    finally:
+        relay.close()
+        configure_app(app, old)
+        signal.signal(signal.SIGINT, before)
+
+
 def test_a_fill_whose_broker_goes_silent_while_it_waits_names_its_job(redis_farm):
     """The job sent and acknowledged, then no reply to the wait's reads: Celery's Redis
     client waited 120 s a read. Now one line within reply_timeout, naming the job."""
@@ -217,6 +263,120 @@ def test_a_worker_keeps_celery_retry_policies_a_client_does_not():
     assert worker.conf.task_publish_retry_policy == DEFAULTS["task_publish_retry_policy"]
     assert worker.backend.retry_policy["max_retries"] == 20
     assert worker.conf.result_backend_transport_options["global_keyprefix"] == s.key_prefix
+
+
+def _database_farm(tmp_path, backend: str = ""):
+    """A client's fill app whose result backend is a database: an SQLite file under
+    ``tmp_path``, or (settings only: no PostgreSQL driver needs to be installed) ``backend``."""
+    from dataclasses import replace
+
+    from celery import Celery
+
+    import workers.app as wa
+    from workers.settings import load_settings
+
+    env = {"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": "redis://127.0.0.1:1/0",
+           "TWEEN_RESULT_BACKEND": f"db+sqlite:///{tmp_path / 'results.sqlite'}"}  # fmt: skip
+    s = load_settings(env)
+    return wa.configure(
+        Celery("tween-db", set_as_current=False), replace(s, result_backend=backend) if backend else s
+    )
+
+
+def test_a_postgresql_backend_waits_on_its_server_at_most_reply_timeout(tmp_path):
+    """Redis and RabbitMQ had their socket timeouts; a PostgreSQL result backend none: a
+    server gone silent held every farm command for ever. libpq's bounds (psycopg, psycopg2),
+    pg8000's socket timeout; what the URL sets itself stands."""
+    t = 10
+    opts = _database_farm(tmp_path, "db+postgresql://farm:pw@db.studio/farm").conf.database_engine_options
+    assert opts == {"connect_args": {"connect_timeout": t, "keepalives": 1, "keepalives_idle": t,
+                                     "keepalives_interval": 1, "keepalives_count": 3, "tcp_user_timeout": t * 1000,
+                                     "options": f"-c statement_timeout={t * 1000}"}}  # fmt: skip
+    url = "db+postgresql+psycopg2://farm@db.studio/farm?connect_timeout=3&options=-c%20search_path%3Dtween"
+    args = _database_farm(tmp_path, url).conf.database_engine_options["connect_args"]
+    assert (
+        "connect_timeout" not in args
+        and args["options"] == f"-c statement_timeout={t * 1000} -c search_path=tween"
+    )
+    pg8000 = _database_farm(tmp_path, "db+postgresql+pg8000://farm@db.studio/farm")
+    assert pg8000.conf.database_engine_options == {"connect_args": {"timeout": t}}
+    assert _database_farm(tmp_path, "db+mysql://farm@db.studio/farm").conf.database_engine_options == {}
+
+
+class _DriverError(Exception):
+    """A PostgreSQL driver's error, as psycopg2 raises it."""
+
+    def __init__(self, text: str, pgcode: str | None = None):
+        super().__init__(text)
+        self.pgcode = pgcode
+
+
+def _raised_inside_sqlalchemy(error: BaseException):
+    """Raises ``error`` from code of a module named sqlalchemy.pool (as pg8000's socket
+    timeout comes through SQLAlchemy's connect)."""
+    exec("def connect(e):\n    raise e\n", scope := {"__name__": "sqlalchemy.pool.base"})
+    scope["connect"](error)
+
+
+@pytest.mark.parametrize(
+    ("error", "why"),
+    [
+        (_DriverError("canceling statement due to statement timeout", "57014"), "stopped answering"),
+        (_DriverError('connection to server at "db.studio" failed: timeout expired'), "stopped answering"),
+        (_DriverError("could not receive data from server: Connection timed out"), "stopped answering"),
+        (TimeoutError("timed out"), "stopped answering"),
+        (_DriverError('FATAL: password authentication failed for user "farm"'), "cannot connect"),
+    ],
+    ids=["statement_timeout", "connect_timeout", "tcp_user_timeout", "pg8000_timeout", "refused"],
+)
+def test_a_postgresql_backend_lost_mid_command_is_one_line(tmp_path, error, why):
+    """Its errors (Celery's own, raised from SQLAlchemy's, raised from the driver's) were an
+    internal error; now the line the other backends give, naming the jobs that may still run."""
+    import sqlalchemy.exc
+    from celery.exceptions import BackendGetMetaError
+
+    import workers.app as wa
+
+    app = _database_farm(tmp_path, "db+postgresql://farm:secret@db.studio/farm")
+    with pytest.raises(wa.FarmConnectionError) as e, wa.farm_errors(app, ["J1"]):
+        try:
+            if isinstance(error, OSError):  # pg8000's, raised as it is
+                _raised_inside_sqlalchemy(error)
+            raise sqlalchemy.exc.OperationalError("SELECT 1", {}, error)
+        except Exception:
+            raise BackendGetMetaError("failed to get meta", task_id="J1") from None
+    head = ("lost the result backend while waiting for job(s) J1, which may still run on the farm: `tween status "
+            "J1` once the result backend is back, `tween cancel J1` to stop it; result backend "
+            "db+postgresql://farm:***@db.studio/farm: ")  # fmt: skip
+    tail = "(the URL comes from TWEEN_RESULT_BACKEND or the farm config)"
+    if why == "stopped answering":
+        assert str(e.value) == head + ("stopped answering (no reply within reply_timeout, 10 s: a stopped, wedged "
+                                       "or overloaded server?) " + tail)  # fmt: skip
+    else:
+        assert str(e.value) == head + f"cannot connect: {' '.join(str(error).split())} {tail}"
+
+
+def test_a_database_backend_a_client_cannot_use_is_one_line_at_once(tmp_path):
+    """Its SQLite file made unusable after the client's first read: Celery retried 3 times,
+    then an internal error. A client does not retry (each retry waited its connect timeout
+    again); a worker keeps Celery's retries."""
+    import workers.app as wa
+    from workers.errors import FarmConnectionError
+
+    app = _database_farm(tmp_path)
+    assert app.backend.max_retries == 0
+    app.backend.get_task_meta("j0")  # its tables made
+    (tmp_path / "results.sqlite").unlink()
+    (tmp_path / "results.sqlite").mkdir()  # not a database file any more
+    t0 = time.monotonic()
+    with pytest.raises(FarmConnectionError) as e, wa.farm_errors(app):
+        app.backend.get_task_meta("j1")
+    assert time.monotonic() - t0 < 1
+    assert str(e.value) == (f"result backend db+sqlite:///{tmp_path / 'results.sqlite'}: cannot connect: unable "
+                            "to open database file (the URL comes from TWEEN_RESULT_BACKEND or the farm config)")  # fmt: skip
+    (tmp_path / "w").mkdir()
+    worker = wa.for_worker(_database_farm(tmp_path / "w"))
+    assert worker.backend.max_retries == 3  # Celery's, for a database backend
 
 
 def _redis_server(port: int, folder) -> subprocess.Popen:
@@ -276,20 +436,6 @@ def test_limit_advice_names_no_config_file_that_is_not_one():
     msg = failure_message(TimeLimitExceeded(50), "sh.usda", load_settings(env), env, stage="validate")
     assert msg.startswith("fill of sh.usda hit the farm's hard time limit (fill_time_limit = 50 s); ")
     assert "raise it with TWEEN_FILL_TIME_LIMIT" in msg and os.devnull not in msg
-
-
-@pytest.fixture
-def embedded_app(tmp_path):
-    """The fill app on an embedded (SQLite) result store under ``tmp_path``."""
-    from workers.app import app
-    from workers.settings import load_settings
-
-    old = app.conf.tween
-    configure_app(app, load_settings({"TWEEN_FARM_CONFIG": os.devnull, "TWEEN_CACHE": str(tmp_path)}))
-    try:
-        yield app
-    finally:
-        configure_app(app, old)
 
 
 @pytest.mark.parametrize("silent_s", [60, 0])

@@ -12,6 +12,8 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -335,6 +337,20 @@ def test_cancel_of_a_finished_job_is_one_line(farm, monkeypatch):
     assert jobs.control.cancel_record(farm.app, done.id) is None  # nothing was written
 
 
+def _running(ids) -> dict:
+    """A fake ``jobs.cancel``'s answer: each job still ran when it was cancelled."""
+    from workers.jobs import JobState
+
+    return {j: JobState(id=j, shot="/s/sh.usda", state="RUNNING") for j in ids}
+
+
+def _all_cancelled(ids, intr, alive) -> list:
+    """A fake ``_settle``: each job stopped, cancelled."""
+    from workers.jobs import JobState
+
+    return [JobState(id=j, shot="/s/sh.usda", state="CANCELLED") for j in ids]
+
+
 def _closing_turns_it_into(error: Exception):
     """What SQLAlchemy did when the interrupt landed inside its connection close: a cleanup
     that fails while the interrupt is being raised, so the interrupt is the error's context."""
@@ -356,10 +372,10 @@ def test_an_interrupt_a_library_turns_into_its_own_error_still_cancels(monkeypat
     calls = []
     jobs = SimpleNamespace(
         wait=_closing_turns_it_into(AssertionError()),
-        cancel=lambda ids, why: calls.append(("cancel", tuple(ids), why)),
+        cancel=lambda ids, why: calls.append(("cancel", tuple(ids), why)) or _running(ids),
     )
     monkeypatch.setattr(fill_cli, "_jobs", lambda: jobs)
-    monkeypatch.setattr(fill_cli, "_settle", lambda ids, intr, alive: [])
+    monkeypatch.setattr(fill_cli, "_settle", _all_cancelled)
     intr = fill_cli._Interrupts()
     assert fill_cli._run_jobs(["j1"], intr, progress=False) == fill_cli.EXIT_CANCELLED
     assert calls == [("cancel", ("j1",), "tween fill interrupted")] and not intr.armed
@@ -385,9 +401,9 @@ def test_an_interrupt_while_waiting_is_raised_by_the_next_poll_not_where_it_land
             alive()
         return []
 
-    jobs = SimpleNamespace(wait=wait, cancel=lambda ids, why: calls.append(tuple(ids)))
+    jobs = SimpleNamespace(wait=wait, cancel=lambda ids, why: calls.append(tuple(ids)) or _running(ids))
     monkeypatch.setattr(fill_cli, "_jobs", lambda: jobs)
-    monkeypatch.setattr(fill_cli, "_settle", lambda ids, intr, alive: [])
+    monkeypatch.setattr(fill_cli, "_settle", _all_cancelled)
     intr = fill_cli._Interrupts()
     assert fill_cli._run_jobs(["j1"], intr, progress=False) == fill_cli.EXIT_CANCELLED
     assert calls == [("j1",)] and len(polls) == 1
@@ -402,6 +418,153 @@ def test_an_interrupt_while_waiting_is_raised_by_the_next_poll_not_where_it_land
     intr = fill_cli._Interrupts()
     assert fill_cli._run_jobs(["j2"], intr, progress=False) == fill_cli.EXIT_CANCELLED
     assert calls[-1] == ("j2",)
+
+
+def _job_at_review(app, tmp_path) -> tuple[str, str, Path]:
+    """A one-take job on ``app``'s result store whose stages have run up to its review,
+    which runs; its layer written. Returns the job id, its shot and its layer."""
+    from workers import jobs
+    from workers.app import SUBMITTED
+
+    shot, layer = tmp_path / "sh.usda", tmp_path / "sh.tween.v001.usda"
+    shot.write_text("#usda 1.0\n")
+    layer.write_text("#usda 1.0\n")
+    job = uuid.uuid4().hex
+    rec = {"shot": str(shot), "takes": 1, "render": False, "out_dir": "", "made_dirs": [],
+           "work_dir": str(tmp_path / ".tween-work" / job)}  # fmt: skip
+    app.backend.store_result(job, rec, SUBMITTED)
+    for _, tid in jobs.stage_ids(job, 1)[:-1]:
+        app.backend.store_result(tid, {}, "SUCCESS")
+    app.backend.store_result(f"{job}.review", None, "STARTED")
+    return job, str(shot), layer
+
+
+def _review_ends(app, job: str, layer: Path, how: str) -> None:
+    """The job's review stage ends, as its worker ends it: done, or cancelled (undone)."""
+    if how == "SUCCESS":
+        app.backend.store_result(f"{job}.review", {"layer": str(layer)}, "SUCCESS")
+    else:
+        layer.unlink()
+        app.backend.mark_as_failure(f"{job}.review", RuntimeError("cancelled"))
+
+
+def test_an_interrupt_once_the_fill_has_finished_cancels_nothing_and_exits_0(embedded_app, tmp_path, monkeypatch,
+                                                                             capsys):  # fmt: skip
+    """SIGINT in the wait's last poll, every job done: the fill said "interrupted: cancelling",
+    reported the job, kept its version and exited 130, so a script that retries on failure
+    made a v002. Nothing was cancelled: the job is reported and the status is its own, 0."""
+    from workers import control, jobs
+
+    job, shot, layer = _job_at_review(embedded_app, tmp_path)
+    _review_ends(embedded_app, job, layer, "SUCCESS")
+    real_wait = jobs.wait
+
+    def wait(ids, progress, alive):
+        states = real_wait(ids, progress=progress, alive=alive)
+        intr._handler(signal.SIGINT, None)  # it lands as the last poll returns
+        return states
+
+    monkeypatch.setattr(jobs, "wait", wait)
+    intr = fill_cli._Interrupts()
+    assert fill_cli._run_jobs([job], intr, progress=False) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith(f"{shot}: layer {layer}") and layer.is_file()
+    assert err.splitlines()[-1] == fill_cli.NOTHING_CANCELLED and "cancelling" not in err
+    assert control.cancel_record(embedded_app, job) is None
+
+
+@pytest.mark.parametrize(("how", "code"), [("SUCCESS", 0), ("CANCELLED", 130)])
+def test_an_interrupt_whose_cancel_comes_too_late_exits_0(
+    embedded_app, tmp_path, monkeypatch, capsys, how, code
+):
+    """The cancel written while the job's last stage ran, which then ended before it read it:
+    the version is kept and reported, so the fill exits 0 (it was 130). Cancelled in time,
+    nothing is kept and it is 130, as ever."""
+    from workers import control, jobs
+
+    job, shot, layer = _job_at_review(embedded_app, tmp_path)
+    real_cancel = jobs.cancel
+
+    def wait(ids, progress, alive):
+        intr._handler(signal.SIGTERM, None)
+        alive()  # raises the interrupt, between two reads
+
+    def cancel(ids, why):
+        before = real_cancel(ids, why)  # the review still runs: its cancel record is written
+        _review_ends(embedded_app, job, layer, how)
+        return before
+
+    monkeypatch.setattr(jobs, "wait", wait)
+    monkeypatch.setattr(jobs, "cancel", cancel)
+    intr = fill_cli._Interrupts()
+    assert fill_cli._run_jobs([job], intr, progress=False) == code
+    out, err = capsys.readouterr()
+    assert f"tween: interrupted: cancelling 1 job(s) ({job})" in err
+    assert control.cancel_record(embedded_app, job) is not None
+    if how == "SUCCESS":
+        assert out.startswith(f"{shot}: layer {layer}") and layer.is_file()
+        assert err.splitlines()[-1] == fill_cli.NOTHING_CANCELLED
+    else:
+        assert out == "" and f"tween: {shot}: job {job} cancelled by " in err
+        assert "nothing cancelled" not in err
+
+
+def test_a_signal_while_the_embedded_worker_stops_ends_it_at_once(tmp_path, monkeypatch, capsys):
+    """The jobs reported, the embedded worker stopping (warm: it took about 6 s): SIGINT then
+    was counted and ignored, and the fill exited when the stop was done. Now the signal kills
+    the worker's process group at once; the jobs are kept, the status is theirs."""
+    from workers import embedded
+    from workers.jobs import JobState
+
+    shot = str(tmp_path / "sh.usda")
+    worker = []
+
+    def enter(self):  # a worker whose warm stop takes 3 s
+        script = "trap 'sleep 3; exit 0' TERM; echo ready; while :; do sleep 0.05; done"
+        self.proc = subprocess.Popen(["sh", "-c", script], start_new_session=True, stdout=subprocess.PIPE)
+        worker.append(self.proc)
+        assert self.proc.stdout.readline() == b"ready\n"
+        real_wait = self.proc.wait
+
+        def wait(timeout=None):
+            if timeout is not None and not intr_seen:  # while it stops: Ctrl-C
+                intr_seen.append(os.kill(os.getpid(), signal.SIGINT))
+                time.sleep(0.01)
+            return real_wait(timeout)
+
+        self.proc.wait = wait
+        return self
+
+    intr_seen: list = []
+    done = JobState(id="j1", shot=shot, state="SUCCESS", result={"layer": f"{shot}.v001"})
+    jobs = SimpleNamespace(submit=lambda *a, **k: ["j1"], wait=lambda ids, progress, alive: [done])
+    monkeypatch.setattr(fill_cli, "_jobs", lambda: jobs)
+    monkeypatch.setattr(embedded.EmbeddedWorker, "__enter__", enter)
+    monkeypatch.setattr(embedded.EmbeddedWorker, "_drop_queue", lambda self, quiet=False: None)
+    t0 = time.monotonic()
+    assert fill_cli._run_embedded([shot], {}, False, 1, False) == 0
+    took = time.monotonic() - t0
+    out, err = capsys.readouterr()
+    assert intr_seen and out.startswith(f"{shot}: layer {shot}.v001")
+    assert err.splitlines()[-1] == ("tween: interrupted while the embedded worker stopped, after the fill had "
+                                    "finished: nothing cancelled")  # fmt: skip
+    assert took < 1.5, took
+    (proc,) = worker
+    assert proc.returncode == -signal.SIGKILL and not _group_members(proc.pid)  # nothing of it left
+
+
+def _group_members(pgid: int) -> list[int]:
+    """The live (not zombie) processes of process group ``pgid``."""
+    out = []
+    for d in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()  # state, ppid, pgrp, …
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            out.append(int(d))
+    return out
 
 
 def test_a_worker_names_the_queues_it_takes(farm):
