@@ -175,6 +175,13 @@ def train_case(draw, ws: Path, a: Assets):
     from pipeline.train.generator_training import _RANGES
 
     out = ws / "run"
+    if draw(st.integers(0, 3)) == 0:  # refused before the path predictor's default 2000 steps
+        from test_pack_damaged import tiny_clips
+
+        from pipeline.data.pack import pack
+
+        good = pack(tiny_clips(), ws / "good.pack")
+        return ["train", "--out", out, "--data-pack", draw(bad_file(ws, ".pack", good))]
     if draw(st.booleans()):
         takes = ws / "takes"
         takes.mkdir()

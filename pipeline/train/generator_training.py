@@ -473,7 +473,13 @@ def training_clips(cfg: TrainConfig):
     if cfg.data_pack:
         from pipeline.data.pack import load_pack
 
-        clips = load_pack(cfg.data_pack)
+        clips = load_pack(cfg.data_pack, "--data-pack")
+        joints = len(bandai_skeleton())
+        if clips.rotations.shape[1] != joints:  # another skeleton's clips: a shape error in training
+            raise TweenError(
+                f"{cfg.data_pack}: --data-pack: its clips have {clips.rotations.shape[1]} joints, "
+                f"the model skeleton {joints}"
+            )
     elif cfg.corpus:
         from pipeline.train.corpus import corpus_clips
 

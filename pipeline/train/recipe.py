@@ -235,9 +235,11 @@ def check_run(out: Path, cfg) -> None:
     check_data(cfg)
 
 
-def check_data(cfg) -> None:
-    """The takes folder holds takes, and every source of a corpus has takes as long as
-    --lengths: for `tween train`, and for every stage of a recipe before its first trains."""
+def check_data(cfg, pack_made_later: bool = False) -> None:
+    """The takes folder holds takes, every source of a corpus has takes as long as --lengths,
+    and --data-pack is a whole pack (unless ``pack_made_later``: a recipe's runner packs
+    OUT/train.pack before the first stage that reads it): for `tween train`, and for every
+    stage of a recipe before its first trains."""
     from pipeline.usd.take import take_files
 
     if cfg.data_include is not None and not names_a_glob(cfg.data_include):  # as library build's
@@ -245,12 +247,14 @@ def check_data(cfg) -> None:
                          "leave it out for every take")  # fmt: skip
     if cfg.data and not cfg.data_pack:
         take_files(cfg.data, cfg.data_include)
-    if cfg.corpus:
+    if cfg.corpus or (cfg.data_pack and not pack_made_later):
         from pipeline.train.generator_training import training_clips
 
         # Loaded (its description refused as load_corpus refuses it), prepared or read (memory
         # maps) here, not first by the path predictor's stage: a source with no take as long
-        # as --lengths is named before anything trains.
+        # as --lengths is named before anything trains. A pack is decoded whole (seconds), not
+        # first by the generator's stage after the path predictor's minutes: one cut short,
+        # damaged or no pack at all is named before anything trains.
         training_clips(cfg)
 
 
@@ -684,8 +688,8 @@ def _finished_stages(rec: Recipe, configs_: list, out: Path, start: int) -> set[
         runs.add(s.name)
         if cfg.init is not None and s.init not in runs and not Path(cfg.init).exists():
             raise RecipeError(f"{rec.source}: stage {s.name!r}: its --init {cfg.init} does not exist")
-        try:  # a later stage's takes or corpus refused now, not after the stages before it trained
-            check_data(cfg)
+        try:  # a later stage's takes, corpus or pack refused now, not after the stages before it trained
+            check_data(cfg, pack_made_later=s.packed and not Path(cfg.data_pack).exists())
         except TweenError as e:
             raise RecipeError(f"{rec.source}: stage {s.name!r}: {e}") from None
     return done

@@ -457,3 +457,78 @@ def test_an_out_inside_a_file_is_named_as_the_user_gave_it(tmp_path, capsys, ban
         assert (
             line == f"tween: error: {afile / 'model'}: --out is inside {afile}, which is a file, not a folder"
         )
+
+
+class _Trained(Exception):
+    """Raised where a stage would have begun training (train_run, or the path predictor)."""
+
+
+def test_a_damaged_pack_is_refused_before_the_path_predictor_trains(tmp_path, capsys, monkeypatch):
+    """`tween train --data-pack` read the pack only when the generator's training began: after
+    the path predictor's 2000 default steps (minutes on the train split), a pack cut short or
+    no pack at all was an internal error (MemoryError, JSONDecodeError, LZMAError), exit 1."""
+    import time
+
+    from test_pack_damaged import tiny_clips
+
+    import pipeline.train.path_training as path_training
+    from pipeline.data.pack import pack
+
+    def trained(*a, **k):
+        raise _Trained("the path predictor trained before the pack was checked")
+
+    monkeypatch.setattr(path_training, "train_path", trained)
+    good = pack(tiny_clips(), tmp_path / "good.pack").read_bytes()
+    pack(tiny_clips(joints=5), tmp_path / "five.pack")
+    cases = {
+        "huge.pack": (b'{"rot_bytes": 99999999999, "root_bytes": 1}\nxx', "its header has no names"),
+        "garbage.pack": (b"garbage\n", "its first line is no JSON header"),
+        "cut.pack": (good[:-100], "bytes of data after it, the file holds"),
+        "empty.pack": (b"", "cut short in its header"),
+        "missing.pack": (None, "cannot read it: No such file or directory"),
+        "five.pack": (None, "its clips have 5 joints, the model skeleton 21"),  # (packed above)
+    }
+    out = tmp_path / "run"
+    for name, (data, why) in cases.items():
+        if isinstance(data, bytes):
+            (tmp_path / name).write_bytes(data)
+        t0 = time.monotonic()
+        line = refused(["train", "--out", out, "--data-pack", tmp_path / name], capsys, tmp_path)
+        assert line.startswith(f"tween: error: {tmp_path / name}: --data-pack: ") and why in line, line
+        assert time.monotonic() - t0 < 20
+    assert not out.exists()
+
+
+PACKED_RECIPE = """name = "packed"
+[[stage]]
+name = "s1"
+args = "--path-steps 0 --steps 4 --batch 2 --lengths 64"
+[[stage]]
+name = "s2"
+init = "s1"
+packed = true
+args = "--path-steps 0 --steps 4 --batch 2 --lengths 64"
+"""
+
+
+def test_a_recipe_refuses_its_damaged_pack_before_its_first_stage_trains(tmp_path, capsys, monkeypatch):
+    """A packed stage's OUT/train.pack, cut short, was read when that stage began: after the
+    stages before it had trained. One the runner has yet to make is no refusal."""
+    import pipeline.train.recipe as recipe
+
+    def train_run(run, cfg, path_cfg):
+        raise _Trained(run.name)
+
+    monkeypatch.setattr(recipe, "train_run", train_run)
+    (tmp_path / "packed.toml").write_text(PACKED_RECIPE)
+    out = tmp_path / "runs"
+    out.mkdir()
+    (out / "train.pack").write_bytes(b'{"names": ["a"], "lengths": [2]')
+    line = refused(["train", "--recipe", tmp_path / "packed.toml", "--out", out], capsys, tmp_path)
+    assert line == (
+        f"tween: error: {tmp_path / 'packed.toml'}: stage 's2': {out / 'train.pack'}: --data-pack: not a "
+        "training pack written by python -m pipeline.data.pack (cut short in its header); pack the split again"
+    )
+    (out / "train.pack").unlink()  # made by the runner before s2 trains
+    with pytest.raises(_Trained, match="s1"):
+        recipe.run_recipe(recipe.load_recipe(tmp_path / "packed.toml"), out)
