@@ -201,65 +201,47 @@ def _decision(shot: Shot, names: dict[str, list[str]]) -> dict | None:
 MISSING = "latest fill missing"
 
 
-def _missing(shot: Shot, n: int, names: dict[str, list[str]]) -> dict:
-    """What the list shows of a shot whose latest fill, version ``n``, is gone (its review
-    layer left): that version, the layer missing (``missing``), none of the fill before it
-    (``tween review``, approve and publish refuse to take it for the latest either)."""
-    review = review_path(shot.folder, shot.stem, n)
-    publish = f"{shot.stem}.publish.v{n:03d}.usd"
+def _row(shot: Shot, n: int, layer: Path, names: dict[str, list[str]], **fields) -> dict:
+    """A row of the list: the shot, version ``n`` (its time: ``layer``'s), whether it is
+    published, and ``fields`` (status, decision, model, takes, created, ...)."""
+    publish = f"{shot.stem}.publish.v{n:03d}.usd"  # any such name, as a glob of ``publish*``
     try:
-        mtime = review.stat().st_mtime
+        mtime = layer.stat().st_mtime
     except OSError:
         mtime = 0.0
-    return {
+    row = {
         "key": shot.key,
         "stem": shot.stem,
         "folder": str(shot.folder),
         "version": n,
         "versions": len(shot.versions),
-        "status": MISSING,
-        "missing": missing_fill(shot.folder, shot.stem, n).name,
-        "decision": None,
-        "published": any(name.startswith(publish) for name in names.get(shot.stem, [])),
-        "model": "",
-        "takes": 0,
-        "created": "",
-        "mtime": mtime,
     }
+    for k, v in fields.items():  # "published" after "decision": the API's order of fields
+        row[k] = v
+        if k == "decision":
+            row["published"] = any(name.startswith(publish) for name in names.get(shot.stem, []))
+    return row | {"mtime": mtime}
 
 
 def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
     """What the list shows of a shot: its latest version, status, model, time. ``names``:
     :func:`folder_names` of its folder (listed here when not given). A shot whose latest fill
-    was deleted by hand is shown as that (:data:`MISSING`), not by the fill before it."""
+    was deleted by hand (its review layer left) is shown as that (:data:`MISSING`, the layer
+    named in ``missing``), not by the fill before it, which `tween review`, approve and
+    publish refuse to take for the latest too."""
     n, path = shot.latest
     names = folder_names(shot.folder) if names is None else names
     # A writer's temps are hidden (``.<stem>...``): listed under the empty stem.
     gone = missing_latest(shot.stem, names.get(shot.stem, []) + names.get("", []))
     if gone is not None:
-        return _missing(shot, gone, names)
+        return _row(shot, gone, review_path(shot.folder, shot.stem, gone), names, status=MISSING,
+                    missing=missing_fill(shot.folder, shot.stem, gone).name, decision=None, model="", takes=0,
+                    created="")  # fmt: skip
     info = cached(path, layer_info) or {}
     d = _decision(shot, names)
-    publish = f"{shot.stem}.publish.v{n:03d}.usd"  # any such name, as a glob of ``publish*``
-    published = any(name.startswith(publish) for name in names.get(shot.stem, []))
-    try:
-        mtime = path.stat().st_mtime
-    except OSError:
-        mtime = 0.0
-    return {
-        "key": shot.key,
-        "stem": shot.stem,
-        "folder": str(shot.folder),
-        "version": n,
-        "versions": len(shot.versions),
-        "status": (d or {}).get("status") or "pending",
-        "decision": d,
-        "published": published,
-        "model": str(info.get("model", "")),
-        "takes": int(info.get("takes", 1) or 1),
-        "created": str(info.get("createdAt") or ""),
-        "mtime": mtime,
-    }
+    return _row(shot, n, path, names, status=(d or {}).get("status") or "pending", decision=d,
+                model=str(info.get("model", "")), takes=int(info.get("takes", 1) or 1),
+                created=str(info.get("createdAt") or ""))  # fmt: skip
 
 
 def listing(roots: list[Path]) -> list[dict]:

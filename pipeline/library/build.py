@@ -13,8 +13,6 @@ from __future__ import annotations
 import gzip
 import shutil
 import sys
-import time
-from contextlib import suppress
 from dataclasses import replace
 from pathlib import Path
 
@@ -93,26 +91,13 @@ def _skipped(line: str) -> None:
 LOCK = ".library.lock"
 
 
-def _mark_holder(lock: Path) -> None:
-    """Writes who holds ``lock`` into it (``<pid>@<host>``), for a build that waits in vain
-    to name; the lock works without it, so a write that fails is let be."""
-    from pipeline.usd.files import owner_tag  # the name a writer's temps carry
-
-    with suppress(OSError), open(lock, "w") as f:
-        f.write(owner_tag())
-
-
 def _lock_timed_out(lock: Path, waited: float) -> LibraryError:
-    """The line a build that waited ``waited`` seconds for ``lock`` gives up with: the
-    holder's ``<pid>@<host>`` and since when, where it wrote them."""
-    try:
-        holder = printable(lock.read_text(errors="replace")[:200].strip())
-        since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(lock.stat().st_mtime))
-    except OSError:  # released meanwhile, or unreadable
-        holder = since = ""
-    who = f"process {holder}, since {since}" if holder else "a process that did not say who it is"
+    """The line a build that waited ``waited`` seconds for ``lock`` gives up with: who holds
+    it (``pipeline.usd.files.lock_holder``, as the fill's own locks say it)."""
+    from pipeline.usd.files import lock_holder
+
     return LibraryError(
-        f"{lock}: another build still holds this library's lock after {waited:g} s ({who}); "
+        f"{lock}: another build still holds this library's lock after {waited:g} s ({lock_holder(lock)}); "
         "run again once it is done, or wait longer with --lock-wait SECONDS"
     )
 
@@ -238,11 +223,13 @@ def build(folder, out, include: str | None = None, licence: str | None = None, n
         print(f"tween: {out}: another build is writing this library; waiting for it (at most {lock_wait:g} s)",
               file=sys.stderr)  # fmt: skip
 
+    from pipeline.usd.files import mark_holder  # who holds it, as every writer's temps name it
+
     lock = out / LOCK
     try:
         with locked(lock, make=make, waiting=waiting, timeout=lock_wait,
                     timed_out=lambda: _lock_timed_out(lock, lock_wait)):  # fmt: skip
-            _mark_holder(lock)
+            mark_holder(lock)
             return _build_locked(folder if files is None else out, out, paths, licence, name, add, progress, mirror, on_progress,
                                  out in made)  # fmt: skip
     finally:

@@ -62,18 +62,23 @@ def mark_holder(lock: Path) -> None:
         f.write(owner_tag())
 
 
-def lock_timed_out(lock: Path, waited: float, other: str) -> TweenError:
-    """The line a writer that waited ``waited`` seconds for ``lock`` (held by ``other``, as
-    the line words it) gives up with: the holder's ``<pid>@<host>`` and since when, where it
-    wrote them (:func:`mark_holder`), as ``tween library build`` words its own lock's."""
+def lock_holder(lock: Path) -> str:
+    """Who holds ``lock``, as a line that gives up waiting for it says: the ``<pid>@<host>``
+    and since when, where the holder wrote them (:func:`mark_holder`)."""
     try:
         holder = printable(lock.read_text(errors="replace")[:200].strip())
         since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(lock.stat().st_mtime))
     except OSError:  # released meanwhile, or unreadable
         holder = since = ""
-    who = f"process {holder}, since {since}" if holder else "a process that did not say who it is"
+    return f"process {holder}, since {since}" if holder else "a process that did not say who it is"
+
+
+def lock_timed_out(lock: Path, waited: float, other: str) -> TweenError:
+    """The line a writer that waited ``waited`` seconds for ``lock`` (held by ``other``, as
+    the line words it) gives up with (:func:`lock_holder`)."""
     return TweenError(
-        f"{lock}: {other} still holds this lock after {waited:g} s ({who}); run again once it is done"
+        f"{lock}: {other} still holds this lock after {waited:g} s ({lock_holder(lock)}); "
+        "run again once it is done"
     )
 
 

@@ -514,7 +514,7 @@ def test_an_interrupt_just_after_the_library_folder_is_made_leaves_none(tmp_path
     empty (as `tween train` left its run folder)."""
     from interrupt_fixtures import interrupt_after_mkdir
 
-    from pipeline.library import build as build_module
+    from pipeline.usd import files
 
     if where == "mkdir":
         interrupt_after_mkdir(monkeypatch)
@@ -523,7 +523,7 @@ def test_an_interrupt_just_after_the_library_folder_is_made_leaves_none(tmp_path
         def interrupted(lock):
             raise KeyboardInterrupt
 
-        monkeypatch.setattr(build_module, "_mark_holder", interrupted)
+        monkeypatch.setattr(files, "mark_holder", interrupted)
     with pytest.raises(KeyboardInterrupt):
         build(None, tmp_path / "libs" / "lib", files=[], progress=False)
     assert list(tmp_path.iterdir()) == []
