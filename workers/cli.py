@@ -432,7 +432,7 @@ def _run_embedded(paths: list[str], opts: dict, render: bool, concurrency: int, 
                 ids = jobs.submit(paths, opts, render=render, roots=w.roots, queue=w.queue)
                 _said(paths, ids, progress)
                 code = _run_jobs(ids, intr, progress, alive=w.alive)
-                w.cold, seen = code == EXIT_CANCELLED, intr.count
+                w.cold, seen = True, intr.count  # every job has ended: the worker is idle
         except WorkerStoreFull:  # its stores are full: its jobs' files go, unrecorded
             jobs.undo_orphaned(ids, why="its embedded worker's stores are full")
             raise StoreFullError(cache_dir() / "farm") from None

@@ -46,7 +46,10 @@ class EmbeddedWorker:
         self.folder = cache_dir() / "farm"  # its broker and result store, and its log
         self.log = self.folder / "logs" / f"{self.queue}.log"
         self.proc: subprocess.Popen | None = None
-        self.cold = False  # set once its jobs were cancelled and have stopped
+        # Set once every job it was given has ended (reported, or cancelled and stopped): it is
+        # idle and is killed, not stopped warm, which took 4-6 s of Celery's pool and thread
+        # joins after the fill's results were out, and its messages are gone with its queue.
+        self.cold = False
         # Polled while it stops: true once its client was told to stop (SIGINT, SIGTERM), which
         # then ends the worker at once rather than wait for its warm shutdown (seconds).
         self.hurry = hurry or (lambda: False)
@@ -124,7 +127,8 @@ class EmbeddedWorker:
         if self.proc is None or self.proc.poll() is not None:
             return
         if not (self.cold or self.hurry()):
-            # Warm shutdown of the main process (it stops its pool); nothing is running now.
+            # Warm shutdown of the main process (it stops its pool): a client that stops while
+            # jobs may still run (an error in its wait) lets them end.
             self.proc.send_signal(signal.SIGTERM)
             deadline = time.monotonic() + WARM_STOP_S
             while time.monotonic() < deadline and not self.hurry():
@@ -133,8 +137,8 @@ class EmbeddedWorker:
                     return
                 except subprocess.TimeoutExpired:
                     pass
-        # Its jobs were cancelled and have stopped, or its client is told to stop: nothing is
-        # left to finish (or its warm shutdown hung).
+        # Its jobs have ended, or its client is told to stop: nothing is left to finish (or its
+        # warm shutdown hung).
         try:
             os.killpg(self.proc.pid, signal.SIGKILL)
         except ProcessLookupError:
