@@ -126,14 +126,19 @@ class Worker:
         os.killpg(self.pgid, signal.SIGKILL)
         self.proc.wait(timeout=10)
 
-    def stop(self) -> None:
+    def stop(self, deadline: float | None = None) -> None:
+        """Warm shutdown (SIGTERM), killed if it has not ended by ``deadline`` (monotonic;
+        15 s from now by default)."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.pgid, signal.SIGKILL)
-                self.proc.wait()
+        self.wait_stopped(time.monotonic() + 15 if deadline is None else deadline)
+
+    def wait_stopped(self, deadline: float) -> None:
+        try:
+            self.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            os.killpg(self.pgid, signal.SIGKILL)
+            self.proc.wait()
 
     def log_text(self) -> str:
         return self.log.read_text(errors="replace") if self.log.exists() else ""
@@ -177,8 +182,13 @@ class WorkerPool:
                 time.sleep(0.1)
 
     def stop_all(self) -> None:
+        """Every worker told to stop at once, then waited for: each warm stop takes seconds."""
         for w in self.workers:
-            w.stop()
+            if w.proc.poll() is None:
+                w.proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + 15
+        for w in self.workers:
+            w.wait_stopped(deadline)
 
 
 # --- shots -------------------------------------------------------------------------------
