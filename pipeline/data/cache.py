@@ -73,10 +73,9 @@ def load_files(files: list[Path], split: str, read=None) -> ClipSet:
     key = hashlib.sha1((ident + f"v{CACHE_VERSION}").encode()).hexdigest()[:12]
     path = cache_dir() / f"clips-{split}-{len(files)}-{key}.npz"
     if path.exists():
-        z = np.load(path, allow_pickle=False)
-        return ClipSet(
-            list(z["names"]), z["starts"], z["lengths"], z["rotations"], z["roots"], float(z["fps"])
-        )
+        cached = _read_cache(path)
+        if cached is not None:
+            return cached
     rots, roots, names, lengths = [], [], [], []
     fps = None
     for f in tqdm(
@@ -109,3 +108,32 @@ def load_files(files: list[Path], split: str, read=None) -> ClipSet:
             fps=fps,
         )
     return cs
+
+
+def _read_cache(path: Path) -> ClipSet | None:
+    """The clip set cached at ``path``; None (with a warning: it is read again from the
+    clips) where the file is damaged (cut short, not an .npz) or its arrays disagree."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            names, starts, lengths = list(z["names"]), z["starts"], z["lengths"]
+            cs = ClipSet(names, starts, lengths, z["rotations"], z["roots"], float(z["fps"]))
+        ends = np.cumsum(lengths)
+        ok = (
+            len(names) == len(starts) == len(lengths) > 0
+            and lengths.dtype.kind in "iu"
+            and starts.dtype.kind in "iu"
+            and (lengths >= 0).all()
+            and (starts == ends - lengths).all()
+            and cs.rotations.ndim == 3
+            and cs.rotations.shape[-1] == 4
+            and cs.roots.shape == (int(ends[-1]), 3)
+            and len(cs.rotations) == int(ends[-1])
+            and np.isfinite(cs.fps)
+            and cs.fps > 0
+        )
+    except Exception:  # a cut or foreign file: zip, zlib, EOF, key and value errors alike
+        ok = False
+    if ok:
+        return cs
+    print(f"tween: warning: {path}: damaged clip cache; reading the clips again", file=sys.stderr)
+    return None

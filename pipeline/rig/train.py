@@ -349,7 +349,8 @@ class Trainer:
         import torch
 
         try:
-            state = torch.load(path, map_location=self.device, weights_only=False)
+            # weights_only: tensors and plain values only; a crafted state.pt runs no code.
+            state = torch.load(path, map_location=self.device, weights_only=True)
         except OSError as e:
             raise TrainError(f"{path}: cannot read the checkpoint: {e.strerror or e}") from None
         except Exception:  # torch.load's errors for a cut, empty or foreign file are many kinds

@@ -247,8 +247,8 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", c
     ``role`` (``--init``, the run's own) when it is not one: an ONNX export, a truncated or
     foreign file."""
     what = "an ONNX export" if path.suffix == ".onnx" else "not a checkpoint that `tween train` wrote"
-    try:
-        state = torch.load(path, weights_only=False, map_location=map_location)
+    try:  # weights_only: a checkpoint holds tensors and plain values; a crafted one runs no code
+        state = torch.load(path, weights_only=True, map_location=map_location)
     except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
         raise TweenError(f"{path}: {role}: {what} ({type(e).__name__}){hint}") from None
     if (
@@ -563,6 +563,7 @@ def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
         cfg = replace(cfg, model=inherit_model(cfg.model, saved))
         if cfg.model.delta and not saved.get("delta", False):
             init = to_delta_inputs(init, cfg.model.n_joints)
+        _check_size(cfg.model, init, where)  # before a network of the config's size is made
         net = Generator(cfg.model)
         net.load_state_dict({**net.state_dict(), **init})
     except (TypeError, ValueError, KeyError, RuntimeError, AttributeError) as e:
@@ -573,6 +574,28 @@ def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
         ) from None
     check_partial(cfg)
     return cfg, init
+
+
+#: Bounds on the network an --init config describes: checked before any weight is allocated.
+MAX_LAYERS = 32
+MAX_WEIGHTS = 500_000_000  # ~2 GB of float32; the shipped models have a few million
+
+
+def _check_size(model: GeneratorConfig, weights: dict, where: str) -> None:
+    """The network ``model`` describes, built on the meta device (no memory) and given
+    ``weights``: their shapes must be its own (ValueError, RuntimeError as when loaded), and
+    it must be of a reasonable size (TweenError naming ``where``): a config of width 10**6
+    would otherwise allocate gigabytes before the weights were compared."""
+    if len(model.levels) + len(model.bottleneck_dilations) > MAX_LAYERS:
+        raise TweenError(f"{where}: its config describes a network of over {MAX_LAYERS} layers")
+    with torch.device("meta"):
+        net = Generator(model)
+    net.load_state_dict({**net.state_dict(), **weights}, assign=True)
+    n = sum(p.numel() for p in net.parameters())
+    if n > MAX_WEIGHTS:
+        raise TweenError(
+            f"{where}: its config describes a network of {n:,} weights (at most {MAX_WEIGHTS:,})"
+        )
 
 
 def _optimiser(cfg: TrainConfig, model: Generator, init: dict | None):
@@ -799,9 +822,10 @@ def _logged_step(line: bytes) -> int | None:
     """The step a line of a run's log records; None for a line that is not a whole record."""
     try:
         step = json.loads(line)["step"]
-    except (ValueError, TypeError, KeyError):
+    except (ValueError, TypeError, KeyError, RecursionError):  # (a damaged line: "[[[[...")
         return None
-    return step if isinstance(step, int) and line.endswith(b"\n") else None
+    ok = isinstance(step, int) and not isinstance(step, bool) and line.endswith(b"\n")
+    return step if ok else None
 
 
 def _log_line(log, bar, step: int, loss, losses: dict, max_gap, seconds: float) -> None:
