@@ -140,13 +140,16 @@ def run_bench(
     posture: float = 0.0,
     source: str = "eval",
 ) -> dict:
+    # Every method loaded (its model folder checked) before the data: a damaged model was
+    # refused only after the windows were read and the methods before it had run.
+    loaded = {name: resolve(name) for name in methods}
     print("loading train statistics and the bench windows…", file=sys.stderr)
     mean, std = position_stats(load_split("train"))
     rots, roots = test_windows(limit, mirrored, posture, source)
     results = {}
     for name in methods:
         print(f"evaluating {name} on {len(rots)} windows…", file=sys.stderr)
-        results[name] = evaluate(resolve(name), rots, roots, mean, std)
+        results[name] = evaluate(loaded[name], rots, roots, mean, std)
     payload = {
         "protocol": "PROTOCOL.md",
         "windows": int(len(rots)),

@@ -32,6 +32,7 @@ from pipeline.library.store import (
     empty_manifest,
     is_library,
     open_library,
+    verify,
 )
 from pipeline.motion.bvh import gzipped, is_bvh
 from pipeline.outputs import missing_folders, refuse_read_only, remove_created
@@ -149,7 +150,9 @@ def _start_manifest(out: Path, add: bool, licence: str | None, name: str | None)
     new one."""
     skel = bandai_skeleton()
     if add and is_library(out):
-        manifest = dict(open_library(out).manifest)
+        lib = open_library(out)
+        verify(lib)  # as `tween library info` checks it: takes added to a damaged library were lost with it
+        manifest = dict(lib.manifest)
         if licence and manifest.get("licence") and licence != manifest["licence"]:
             print(f"tween: {out}: new takes under licence {licence!r}; the library says {manifest['licence']!r}",
                   file=sys.stderr)  # fmt: skip

@@ -144,10 +144,11 @@ def missing_assets(path: str | Path) -> list[str]:
 
 def _not_files(path: str) -> tuple[list[str], list]:
     """The sublayers, references and payloads of the shot's layers (followed as USD follows
-    them, opening regular files only) that are there but no regular file, and the layers to
-    hold while USD follows the shot: those read here, and an empty stand-in named as each
-    such path that USD would open as a layer (its extension names a format), for reading a
-    FIFO blocks and a device can read without end."""
+    them, opening regular files only) that are there but no regular file (a link to nothing
+    or a link loop among them), and the layers to hold while USD follows the shot: those
+    read here, and an empty stand-in named as each such path that USD would open as a layer
+    (its extension names a format), for reading a FIFO blocks and a device can read without
+    end."""
     from pxr import Ar, Sdf, Tf, Usd
 
     def regular(p: str) -> bool | None:  # None: nothing there (USD lists it as unresolved)
@@ -155,6 +156,12 @@ def _not_files(path: str) -> tuple[list[str], list]:
             return Path(p).is_file() if Path(p).exists() else None
         except (OSError, ValueError):
             return None
+
+    def dangling(p: str) -> bool:  # a link to nothing, or a link loop
+        try:
+            return Path(p).is_symlink() and not Path(p).exists()
+        except (OSError, ValueError):
+            return False
 
     if regular(path) is False:
         raise ShotError(path, not_a_file(path, "shot file"))
@@ -169,6 +176,8 @@ def _not_files(path: str) -> tuple[list[str], list]:
                 continue
             seen.add(where)
             kind = regular(str(Ar.GetResolver().Resolve(where)) or where)
+            if kind is None and dangling(where):
+                kind = False  # USD resolves the link, fails to open it and only warns: said, not dropped
             is_layer = Usd.Stage.IsSupportedFile(where)
             if kind is False:
                 odd.append(where)

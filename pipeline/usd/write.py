@@ -24,6 +24,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401
 from pipeline.atomic import locked, writable
 from pipeline.errors import ShotError, TweenError
+from pipeline.inputs import not_a_file
 from pipeline.outputs import remove_created
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -212,6 +213,8 @@ def check_review(review: str | Path) -> None:
     fill with no character under it."""
     from pxr import Sdf, Tf
 
+    if os.path.exists(review) and (why := not_a_file(review, "review layer")) is not None:
+        raise ShotError(str(review), why)  # a pipe would block USD's read for ever
     try:
         with usd_diagnostics(fold=False):
             layer = Sdf.Layer.OpenAsAnonymous(str(review))
@@ -228,9 +231,12 @@ def check_review(review: str | Path) -> None:
 
 
 def _recorded(path: Path) -> dict:
-    """The ``tween`` record of a layer written here ({} for one USD cannot read)."""
+    """The ``tween`` record of a layer written here ({} for one USD cannot read); ShotError
+    naming it when it is not a regular file (a pipe would block USD's read for ever)."""
     from pxr import Sdf, Tf
 
+    if os.path.exists(path) and (why := not_a_file(path, "fill layer")) is not None:
+        raise ShotError(str(path), f"{why}; remove it or use --out-dir")
     try:
         layer = Sdf.Layer.OpenAsAnonymous(str(path))
     except Tf.ErrorException:
