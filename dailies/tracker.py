@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -18,6 +17,7 @@ from dailies.detail import media
 from dailies.shots import Shot, cached, find, layer_info
 from pipeline import jsonfile
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
 
 #: The most a tracker mapping file holds: a stem and two names per shot, for thousands of shots.
 MAPPING_LIMIT = 4 * 1024 * 1024
@@ -69,7 +69,7 @@ def read_mapping(path: str | os.PathLike | None) -> dict | None:
     if not path:
         return None
     try:
-        data = jsonfile.loads(_small_text(path, MAPPING_LIMIT))
+        data = jsonfile.loads(read_small_text(path, MAPPING_LIMIT, "tracker mapping"))
     except OSError as e:
         raise TrackerError(f"{path}: cannot read the tracker mapping: {e.strerror or e}") from None
     except ValueError as e:
@@ -77,26 +77,6 @@ def read_mapping(path: str | os.PathLike | None) -> dict | None:
     if not isinstance(data, dict):
         raise TrackerError(f"{path}: the tracker mapping must be a JSON object keyed by shot file stem")
     return data
-
-
-def _small_text(path: str | os.PathLike, limit: int) -> str:
-    """The UTF-8 text of ``path``, opened without blocking and checked as opened: a pipe
-    (which would block the read for ever), a device or a folder, or a file over ``limit``
-    bytes, is an OSError whose text says which (``strerror`` None)."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    try:
-        mode = os.fstat(fd).st_mode
-        if stat.S_ISDIR(mode):
-            raise OSError("a folder, not a tracker mapping")
-        if not stat.S_ISREG(mode):
-            raise OSError("not a regular file (a pipe, socket or device), not a tracker mapping")
-        with os.fdopen(fd, "rb", closefd=False) as f:
-            data = f.read(limit + 1)
-    finally:
-        os.close(fd)
-    if len(data) > limit:
-        raise OSError(f"larger than {limit:,} bytes, too large for a tracker mapping")
-    return data.decode("utf-8")
 
 
 def approved_take(shot: Shot, mapping: dict | None = None) -> ApprovedTake:

@@ -8,6 +8,7 @@ command: a pipe would block a reader for ever, a device can read without end.
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 
@@ -25,3 +26,32 @@ def not_a_file(path: str | Path, kind: str) -> str | None:
         return "a link to nothing" if os.path.lexists(path) else "file not found"
     except (OSError, ValueError):  # a NUL in the name, a name too long
         return "file not found"
+
+
+class NotReadable(OSError):
+    """A small file a command reads is not a regular file, or is larger than such a file
+    gets: the one phrase saying so (``str(e)``; ``strerror`` is None)."""
+
+
+def read_small_text(path: str | Path, limit: int, kind: str) -> str:
+    """The UTF-8 text of ``path``, a small file (a model's JSON, a recipe's TOML) of at most
+    ``limit`` bytes. Opened without blocking and checked as opened, so a pipe (which would
+    block a reader for ever) or a device (which reads without end) is NotReadable at once,
+    and so is a file over ``limit`` bytes (read no further); FileNotFoundError, other
+    OSErrors and UnicodeDecodeError as reading raises them."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+    except OSError:
+        os.close(fd)
+        raise
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        if stat.S_ISDIR(mode):
+            raise NotReadable(f"a folder, not a {kind}")
+        raise NotReadable(f"not a regular file (a pipe, socket or device), not a {kind}")
+    with os.fdopen(fd, "rb") as f:
+        data = f.read(limit + 1)
+    if len(data) > limit:
+        raise NotReadable(f"larger than {limit:,} bytes, too large for a {kind}")
+    return data.decode("utf-8")

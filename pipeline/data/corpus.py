@@ -54,6 +54,7 @@ from pipeline.data.skeletons import bandai_skeleton
 from pipeline.data.split import is_eval, shared_data_dir
 from pipeline.data.terms import forbids_training
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
 from pipeline.motion.rotations import quat_normalize
 from pipeline.options import MAX_TEXT, one_line
 from pipeline.progress import interval
@@ -144,17 +145,24 @@ def _source(d, i: int, path: Path, base: Path) -> Source:
     return src
 
 
+#: The most bytes a corpus file may hold (a few KB): a pipe or a device in its place blocked
+#: or ate memory (read_small_text).
+TOML_LIMIT = 8 << 20
+
+
 def load_corpus(path: str | Path) -> Corpus:
     """The corpus described in ``path`` (TOML, or JSON for a ``.json`` file); CorpusError in
     one line naming the file and what is wrong."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_small_text(path, TOML_LIMIT, "corpus file")
         d = jsonfile.loads(text) if path.suffix == ".json" else tomllib.loads(text)
     except FileNotFoundError:
         raise CorpusError(f"{path}: no such corpus file") from None
     except (OSError, UnicodeDecodeError, ValueError) as e:
         raise CorpusError(f"{path}: cannot read: {str(e).splitlines()[0]}") from None
+    except RecursionError:  # tomllib's, on arrays nested tens of thousands deep
+        raise CorpusError(f"{path}: cannot read: arrays or tables nested too deeply to read") from None
     if not isinstance(d, dict):
         raise CorpusError(f"{path}: expected a table of name, fps and [[source]]")
     unknown = sorted(set(d) - {"name", "fps", "source"})

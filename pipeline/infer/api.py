@@ -16,7 +16,6 @@ written before kinds had names, is the same family). See docs/models.md.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from collections.abc import Callable
@@ -27,8 +26,10 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from pipeline import jsonfile
 from pipeline.errors import TweenError
-from pipeline.infer.folder import ModelFolderError, models_root, read_model_json
+from pipeline.infer.folder import JSON_LIMIT, ModelFolderError, models_root, read_model_json
+from pipeline.inputs import read_small_text
 from pipeline.motion.clip import Motion
 from pipeline.motion.skeleton import Skeleton
 
@@ -217,12 +218,12 @@ def folder_kind(folder: str | Path, file: str = MODEL_FILE) -> str:
     path = folder / file
     if file == RIG_FILE:  # the rig model's own loader checks the rest of the file
         try:
-            kind = json.loads(path.read_text(encoding="utf-8")).get("kind", "rig")
+            kind = jsonfile.loads(read_small_text(path, JSON_LIMIT, file)).get("kind", "rig")
         except (OSError, UnicodeDecodeError, ValueError, AttributeError) as e:
             raise ModelFolderError(f"{path}: cannot read: {e}") from None
         return kind if isinstance(kind, str) else "rig"
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = jsonfile.loads(read_small_text(path, JSON_LIMIT, file))
     except (OSError, UnicodeDecodeError, ValueError):
         meta = None
     if not isinstance(meta, dict):

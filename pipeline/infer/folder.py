@@ -6,9 +6,19 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
+import zipfile
 from pathlib import Path
 
+import numpy as np
+
+from pipeline import jsonfile
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
+
+#: The most bytes a model folder's JSON file (model.json, rig.json) may hold: a few KB each
+#: shipped; a pipe or a device in its place blocked or ate memory (read_small_text).
+JSON_LIMIT = 8 << 20
 
 
 def models_root() -> Path:
@@ -48,7 +58,9 @@ def experimental(name: str) -> str | None:
     if folder is None:
         return None
     try:
-        why = json.loads((folder / "model.json").read_text()).get("experimental")
+        why = jsonfile.loads(read_small_text(folder / "model.json", JSON_LIMIT, "model.json")).get(
+            "experimental"
+        )
     except (OSError, ValueError, AttributeError):
         return None  # the fill itself says what is wrong with the folder
     return str(why) if why else None
@@ -89,6 +101,9 @@ FORMAT = 1
 #: The most frames ``pad_tail`` and ``min_window`` may ask for: a fill's window grows by them,
 #: and its memory with it (10^8 asked 31 GiB of every fill).
 PAD_MAX = 1024
+#: The largest ``multiple`` (the frames a window is padded to a multiple of: 32 shipped); a
+#: window is padded by up to as many frames (10^9 asked 313 GiB of a fill).
+MULTIPLE_MAX = 1024
 FIXED = {"pad": "hold-key", "root": "generator", "mirror_average": False}
 RETIRED = {"residual": True, "tta": True, "noise_schedule": False, "key_mask": False,
            "full_timing": False, "rotation": "6d"}  # fmt: skip
@@ -126,7 +141,7 @@ def read_model_json(folder: str | Path) -> dict:
     the right type; or ModelFolderError naming the file."""
     path = Path(folder) / "model.json"
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_small_text(path, JSON_LIMIT, "model.json")
     except FileNotFoundError:
         raise ModelFolderError(
             f"{path}: missing (a model folder holds model.json beside its .onnx files)"
@@ -134,11 +149,13 @@ def read_model_json(folder: str | Path) -> dict:
     except (OSError, UnicodeDecodeError) as e:
         raise ModelFolderError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
     try:
-        meta = json.loads(text)
+        meta = jsonfile.loads(text)
     except json.JSONDecodeError as e:
         raise ModelFolderError(
             f"{path}: not valid JSON (line {e.lineno}, column {e.colno}: {e.msg})"
         ) from None
+    except ValueError as e:  # nested too deeply, a key given twice
+        raise ModelFolderError(f"{path}: {e}") from None
     if not isinstance(meta, dict):
         raise ModelFolderError(f"{path}: expected a JSON object, found {_json_type(meta)}")
     missing = [k for k in _REQUIRED if k not in meta]
@@ -157,6 +174,10 @@ def read_model_json(folder: str | Path) -> dict:
     for key in ("pad_tail", "min_window"):
         if not 0 <= meta.get(key, 0) <= PAD_MAX:
             raise ModelFolderError(f"{path}: {key!r} must be 0 to {PAD_MAX} frames, not {meta[key]!r}")
+    if meta["multiple"] > MULTIPLE_MAX:
+        raise ModelFolderError(
+            f"{path}: 'multiple' must be 1 to {MULTIPLE_MAX} frames, not {meta['multiple']!r}"
+        )
     files = meta["files"]
     if not isinstance(files.get("generator"), str) or not files["generator"]:
         raise ModelFolderError(f"{path}: 'files' must name the generator's ONNX file ('generator': \"...\")")
@@ -180,7 +201,12 @@ def check_onnx_file(path: Path) -> None:
     graph. Cheap (it seeks over the graph), so a truncated or empty file is named at load
     time instead of failing inside onnxruntime on the first fill."""
     try:
-        size = path.stat().st_size
+        st = path.stat()
+        size = st.st_size
+        if not stat.S_ISREG(st.st_mode):  # a pipe blocks the open for ever, a device reads without end
+            raise ModelFolderError(
+                f"{path}: not a regular file (a folder, pipe, socket or device), not an ONNX model"
+            )
         f = path.open("rb")
     except FileNotFoundError:
         raise ModelFolderError(f"{path}: missing (named in model.json's 'files')") from None
@@ -294,3 +320,32 @@ def beside_models(folder: str | Path, meta: dict) -> tuple[Path, ...]:
             raise ModelFolderError(f"{path}: 'beside' names {name!r}, which holds no model.json")
         out.append(other)
     return tuple(out)
+
+
+#: The most poses a model's pose bank may hold (4,096 shipped): the bank is read whole, as
+#: float32, at every load (a 1.2 MB file of compressed zeros declaring 10^7 poses took 3.8 GB).
+POSE_BANK_MAX = 1_000_000
+
+
+def check_pose_bank(path: Path, joints: int) -> None:
+    """ModelFolderError unless the ``poses`` array of the pose bank ``path`` declares (in its
+    .npy header, read before any data) a real float (P, ``joints``, 3) of 1 to
+    POSE_BANK_MAX poses: numpy allocates an array as its header declares."""
+    fmt = np.lib.format
+    try:
+        with zipfile.ZipFile(path) as z, z.open("poses.npy") as f:
+            version = fmt.read_magic(f)
+            if version not in ((1, 0), (2, 0)):
+                raise ValueError(f".npy format {version[0]}.{version[1]}")
+            read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+            shape, _, dtype = read(f)
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        why = " ".join(str(e).split()) or type(e).__name__
+        raise ModelFolderError(f"{path}: not a pose bank ({why})") from None
+    if len(shape) == 3 and shape[1] != joints:
+        raise ModelFolderError(f"{path}: a pose bank of {shape[1]} joints for a model of {joints}")
+    if dtype.kind != "f" or len(shape) != 3 or shape[2] != 3 or not 1 <= shape[0] <= POSE_BANK_MAX:
+        raise ModelFolderError(
+            f"{path}: not a pose bank of 1 to {POSE_BANK_MAX:,} poses of {joints} joints "
+            f"(poses of shape {shape}, type {dtype})"
+        )

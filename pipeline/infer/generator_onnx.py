@@ -30,6 +30,7 @@ from pipeline.infer.folder import (  # noqa: F401  (the model folder's API, wher
     beside_models,
     check_hash,
     check_onnx_file,
+    check_pose_bank,
     find_model,
     model_hash,
     models_root,
@@ -278,6 +279,7 @@ class OnnxInbetweener:
         path = self.folder / name
         if not path.is_file():
             raise ModelFolderError(f"{path}: the pose bank model.json names is missing")
+        check_pose_bank(path, len(self.skeleton))  # its header, before numpy allocates the poses
         try:
             bank = posebank.load(path)
         except ValueError as e:

@@ -27,8 +27,12 @@ import numpy as np
 from pipeline import jsonfile
 from pipeline.atomic import naming, write_bytes
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
 
 MANIFEST = "library.json"
+#: The most bytes library.json may hold (a take is a few hundred bytes of it): a pipe or a
+#: device in its place blocked or ate memory (read_small_text).
+MANIFEST_LIMIT = 64 << 20
 KIND = "tween-library"
 VERSION = 1
 #: name → (dtype, shape of one frame's entry).
@@ -161,7 +165,7 @@ def open_library(folder: str | Path) -> Library:
         what = "a file, not a library folder" if folder.exists() else "no such library folder"
         raise LibraryError(f"{folder}: {what} (make one with `tween library build`)")
     try:
-        manifest = jsonfile.loads(path.read_text(encoding="utf-8"))
+        manifest = jsonfile.loads(read_small_text(path, MANIFEST_LIMIT, MANIFEST))
     except FileNotFoundError:
         raise LibraryError(
             f"{folder}: not a library (no {MANIFEST}; make one with `tween library build`)"

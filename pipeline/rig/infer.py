@@ -16,17 +16,18 @@ No torch here. Filling (see docs/rig.md):
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from pipeline import jsonfile
 from pipeline.errors import TweenError
 from pipeline.infer.api import Capabilities, refuse_extras
-from pipeline.infer.folder import check_hash, check_onnx_file, files_hash
+from pipeline.infer.folder import JSON_LIMIT, check_hash, check_onnx_file, files_hash
 from pipeline.infer.interp import interpolate_keys
 from pipeline.infer.post import lock_feet, match_keys
+from pipeline.inputs import read_small_text
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_continuity
 from pipeline.motion.skeleton import Skeleton
@@ -35,6 +36,9 @@ from pipeline.rig.represent import RigSpec, encode, from_yup, resample_linear, t
 MIN_FRAMES = 8  # spans shorter than this are interpolated (every level needs > 2 frames)
 #: The kinds of this family in rig.json: the name, and the spelling of earlier rig.json files.
 KINDS = ("rig-ganimator-onnx", "rig")
+#: The most frames a level's ``train_length`` may say (756 at the elephant's finest): a fill
+#: of n frames runs its coarse levels at n times their length over the last's.
+MAX_TRAIN_LENGTH = 1_000_000
 
 
 class RigModelError(TweenError):
@@ -81,11 +85,12 @@ class RigInbetweener:
         if not path.is_file():
             raise RigModelError(self.folder, "no rig.json (not a rig model folder)")
         try:
-            self.meta = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
+            self.meta = jsonfile.loads(read_small_text(path, JSON_LIMIT, "rig.json"))
+        except (OSError, ValueError) as e:  # ValueError: not JSON (UTF-8), nested too deeply
             raise RigModelError(path, f"unreadable: {e}") from None
-        if self.meta.get("kind") not in KINDS:
-            raise RigModelError(path, f"kind is {self.meta.get('kind')!r}, not {KINDS[0]!r}")
+        kind = self.meta.get("kind") if isinstance(self.meta, dict) else None
+        if kind not in KINDS:
+            raise RigModelError(path, f"kind is {kind!r}, not {KINDS[0]!r}")
         try:
             self._read_meta(self.meta)
         except (KeyError, TypeError, ValueError, IndexError) as e:
@@ -135,6 +140,12 @@ class RigInbetweener:
             raise ValueError("no levels")
         if not all(n > 0 for n in self.train_lengths) or not all(np.isfinite(a) for a in self.amps):
             raise ValueError("a level's train_length or noise_amplitude is not a usable number")
+        if max(self.train_lengths) > min(self.train_lengths[-1], MAX_TRAIN_LENGTH):
+            # a fill's coarse levels are as many times its length as theirs are the last's
+            raise ValueError(
+                f"a level's train_length is over {MAX_TRAIN_LENGTH:,} frames or the last level's "
+                f"({self.train_lengths})"
+            )
 
     # -- the networks ------------------------------------------------------------------
     def _session(self, i: int):

@@ -24,14 +24,19 @@ the name). No torch and no model loading here: only JSON.
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from pipeline import jsonfile
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
+
+#: The most bytes rig.json may hold (pipeline.infer.folder.JSON_LIMIT, not imported here: the
+#: CLI's start-up reads this module without the in-betweeners).
+JSON_LIMIT = 8 << 20
 
 BONE_RTOL = 0.05  # relative bone-length tolerance
 BONE_FLOOR = 0.05  # bones are compared against at least this fraction of the longest bone
@@ -68,10 +73,10 @@ def read_rig_json(folder: str | Path) -> RigModelInfo:
     """Parses and checks ``folder/rig.json``; RigModelError (one line, naming the file) if bad."""
     path = Path(folder) / "rig.json"
     try:
-        meta = json.loads(path.read_text())
+        meta = jsonfile.loads(read_small_text(path, JSON_LIMIT, "rig.json"))
     except FileNotFoundError:
         raise RigModelError(f"{path}: no such file (a rig model folder holds rig.json)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, ValueError) as e:  # ValueError: not JSON, nested too deeply
         raise RigModelError(f"{path}: cannot read: {e}") from None
     try:
         from pipeline.infer.api import rig_kinds

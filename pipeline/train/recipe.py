@@ -55,6 +55,7 @@ import typer
 
 from pipeline.atomic import holding
 from pipeline.errors import TweenError
+from pipeline.inputs import read_small_text
 from pipeline.options import names_a_glob
 from pipeline.outputs import given_path, missing_folders, refuse_read_only, remove_created
 from pipeline.rig.options import check_device
@@ -508,9 +509,14 @@ def _folder_name(name: str, where: str, what: str) -> None:
         )
 
 
+#: The most bytes a recipe file may hold (a few KB each shipped): a pipe or a device in its
+#: place blocked or ate memory (read_small_text).
+TOML_LIMIT = 8 << 20
+
+
 def _read_toml(path: Path) -> dict:
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = read_small_text(path, TOML_LIMIT, "recipe")
     except UnicodeDecodeError as e:
         raise RecipeError(f"{path}: not UTF-8 text (byte {e.start}); a recipe is a TOML file") from None
     except OSError as e:
@@ -519,6 +525,8 @@ def _read_toml(path: Path) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"{path}: {e}") from None
+    except RecursionError:
+        raise RecipeError(f"{path}: not valid TOML: arrays or tables nested too deeply to read") from None
 
 
 def _missing(name, path: Path) -> str:
