@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+from pipe_guard import within
 
 from pipeline.errors import TweenError
 
@@ -42,25 +42,12 @@ def _replace(path: Path, how: str, payload: str = "") -> None:
 
 def _fails_fast(load, path: Path, seconds: float = 20.0) -> str:
     """The one-line TweenError ``load()`` raises, naming ``path``; fails where it hangs."""
-    box: dict = {}
-
-    def go():
-        try:
-            load()
-        except BaseException as e:  # noqa: BLE001 (what it raised is what the test checks)
-            box["e"] = e
-
-    t = threading.Thread(target=go, daemon=True)
-    t.start()
-    t.join(seconds)
-    if t.is_alive():  # a reader blocked on a pipe: open its other end to let it go
-        try:
-            os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
-        except OSError:
-            pass
-        t.join(5)
-        pytest.fail(f"loading with a damaged {path.name} did not return in {seconds:.0f} s")
-    e = box.get("e")
+    try:
+        within(load, [path], seconds)
+    except BaseException as err:  # noqa: BLE001 (what it raised is what the test checks)
+        e = err
+    else:
+        pytest.fail(f"loading with a damaged {path.name} raised nothing")
     assert isinstance(e, TweenError | ValueError), f"{type(e).__name__}: {e}"
     if not isinstance(e, TweenError):  # RecipeError is a ValueError the CLI reports as one line
         assert type(e).__name__ == "RecipeError", f"{type(e).__name__}: {e}"

@@ -6,10 +6,10 @@ without a word, even under --strict). Each is one line naming the file, at once.
 from __future__ import annotations
 
 import os
-import threading
 from pathlib import Path
 
 import pytest
+from pipe_guard import within
 
 from dailies import tracker
 from dailies.tracker import TrackerError, read_mapping
@@ -20,34 +20,6 @@ from pipeline.usd import write
 from pipeline.usd.read import missing_assets
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
-WAIT_S = 20.0
-
-
-def _within(fn, fifos=()):
-    """What ``fn()`` returned or raised, failing the test if it blocks past WAIT_S: a reader
-    blocked on a FIFO is then let go (a writer opened and closed), so no thread is left."""
-    done: dict = {}
-
-    def run():
-        try:
-            done["value"] = fn()
-        except BaseException as e:  # noqa: BLE001 - handed to the test
-            done["error"] = e
-
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    t.join(WAIT_S)
-    if t.is_alive():
-        for f in fifos:
-            try:
-                os.close(os.open(f, os.O_WRONLY | os.O_NONBLOCK))
-            except OSError:
-                pass
-        t.join(5)
-        pytest.fail(f"blocked for over {WAIT_S:.0f} s reading {', '.join(map(str, fifos))}")
-    if "error" in done:
-        raise done["error"]
-    return done.get("value")
 
 
 @pytest.fixture
@@ -61,18 +33,18 @@ def test_series_fifo_is_refused_naming_it(shot):
     fifo = shot.parent / "s.tween.v001.usda"
     os.mkfifo(fifo)
     with pytest.raises(ShotError) as e:
-        _within(lambda: write.check_series(str(shot), shot.parent, "s"), [fifo])
+        within(lambda: write.check_series(str(shot), shot.parent, "s"), [fifo])
     assert str(fifo) in str(e.value) and "not a regular file" in str(e.value)
     assert "\n" not in str(e.value)
     with pytest.raises(ShotError, match="not a regular file"):
-        _within(lambda: write.find_job(shot.parent, "s", "job-1", str(shot)), [fifo])
+        within(lambda: write.find_job(shot.parent, "s", "job-1", str(shot)), [fifo])
 
 
 def test_review_layer_fifo_is_refused_naming_it(shot):
     fifo = shot.parent / "s.review.v001.usda"
     os.mkfifo(fifo)
     with pytest.raises(ShotError, match="not a regular file") as e:
-        _within(lambda: write.check_review(fifo), [fifo])
+        within(lambda: write.check_review(fifo), [fifo])
     assert str(fifo) in str(e.value)
 
 
@@ -89,7 +61,7 @@ def test_tracker_map_fifo_is_refused(tmp_path):
     fifo = tmp_path / "m.json"
     os.mkfifo(fifo)
     with pytest.raises(TrackerError) as e:
-        _within(lambda: read_mapping(fifo), [fifo])
+        within(lambda: read_mapping(fifo), [fifo])
     assert str(fifo) in str(e.value) and "not a regular file" in str(e.value)
 
 
@@ -120,6 +92,6 @@ def test_sublayer_link_to_nothing_is_a_missing_asset(tmp_path, kind):
     elif kind == "loop":
         q.symlink_to(q.name)
     x = _with_sublayer(tmp_path, "q.usda")
-    assert _within(lambda: missing_assets(x)) == [str(q)]
+    assert within(lambda: missing_assets(x)) == [str(q)]
     with pytest.raises(ShotError, match=r"missing sublayer.*q\.usda.*--strict"):
         composition(str(x), FillOptions(strict=True))
