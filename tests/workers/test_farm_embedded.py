@@ -207,9 +207,11 @@ def test_what_needs_no_farm_is_checked_before_any_farm(tmp_path):
     assert (
         res.returncode == 2 and res.stderr.count("\n") == 1 and "no SkelRoot holds a skeleton" in res.stderr
     )
-    # Reading the shot costs about 1 s over the CLI's start-up; starting the embedded farm ~8 s.
-    assert time.monotonic() - t0 < floor + 4.0
+    # No worker was started (it writes its log first). Reading the shot costs about 1 s over
+    # the CLI's start-up, starting the embedded farm ~8 s more; beside the other test
+    # processes a run was once 4.7 s over the floor, so the bound leaves room for that.
     assert not (tmp_path / "cache" / "farm" / "logs").exists()
+    assert time.monotonic() - t0 < floor + 6.0
     shot = copy_shot(example_shot(), shots, "roots")
     down = dict(env, TWEEN_BROKER_URL="redis://127.0.0.1:1/0", TWEEN_SHOT_ROOTS=str(shots))
     res = subprocess.run([sys.executable, "-m", "pipeline.cli", "fill", str(shot), "--out-dir", str(tmp_path / "x")],
