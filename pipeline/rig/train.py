@@ -26,6 +26,7 @@ import numpy as np
 
 from pipeline.atomic import save_torch, write_bytes
 from pipeline.errors import TweenError
+from pipeline.inputs import not_a_file
 from pipeline.motion.clip import Motion
 from pipeline.rig.options import check_device
 from pipeline.rig.progress import Progress, ProgressBar, ProgressCallback
@@ -348,6 +349,8 @@ class Trainer:
         """``state.pt`` as :meth:`save` wrote it; one line naming it when it is damaged."""
         import torch
 
+        if path.exists() and (odd := not_a_file(path, "checkpoint")) is not None:
+            raise TrainError(f"{path}: cannot read the checkpoint: {odd}")  # a pipe would block torch.load
         try:
             # weights_only: tensors and plain values only; a crafted state.pt runs no code.
             state = torch.load(path, map_location=self.device, weights_only=True)

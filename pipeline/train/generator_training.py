@@ -31,6 +31,7 @@ from pipeline.infer.features import (
     feature_options,
     key_neighbours,
 )
+from pipeline.inputs import not_a_file
 from pipeline.motion.augment import joint_offsets
 from pipeline.motion.fk import fk
 from pipeline.networks.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
@@ -247,6 +248,8 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", c
     ``role`` (``--init``, the run's own) when it is not one: an ONNX export, a truncated or
     foreign file."""
     what = "an ONNX export" if path.suffix == ".onnx" else "not a checkpoint that `tween train` wrote"
+    if os.path.exists(path) and (odd := not_a_file(path, "checkpoint")) is not None:
+        raise TweenError(f"{path}: {role}: {odd}{hint}")  # a pipe would block torch.load for ever
     try:  # weights_only: a checkpoint holds tensors and plain values; a crafted one runs no code
         state = torch.load(path, weights_only=True, map_location=map_location)
     except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
@@ -811,6 +814,8 @@ def resumed_log(path: Path, step: int):
     log rewritten whole or not at all; so is a line that is not a whole record (one a killed
     run was writing)."""
     if path.exists():
+        if (odd := not_a_file(path, "training log")) is not None:  # a pipe would block the read
+            raise TweenError(f"{path}: {odd}; remove it to resume the run")
         lines = path.read_bytes().splitlines(keepends=True)
         keep = [line for line in lines if (s := _logged_step(line)) is not None and s <= step]
         if len(keep) < len(lines):
