@@ -102,7 +102,8 @@ class _Interrupted(KeyboardInterrupt):
 class _Interrupts:
     """SIGINT and SIGTERM handlers for ``tween fill``. While ``armed`` (the embedded worker
     starting, before anything is sent) the handler raises :class:`_Interrupted`. Otherwise it
-    only counts: while the jobs are being sent (a job half sent is never left running), while
+    only counts: while the jobs are sent from a thread (:func:`_until_signal` ends the wait on
+    a new count; a job half sent is never left running: :func:`_cancel_sent`), while
     the fill waits (:meth:`check`, called each poll, raises it there), and while the cancel
     settles (a second one stops the waiting).
 
@@ -480,11 +481,16 @@ def fill(
         for p in paths if s.shot_roots else ():  # before the broker is contacted: named as such
             jobpaths.check_job(os.path.abspath(p), opts, s.shot_roots)
         check_farm(celery_app)
-        # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs.
+        # Ctrl-C (SIGINT) or SIGTERM cancels the jobs on the farm: _run_jobs; while they are
+        # sent it ends the sending at once and cancels every job begun, as `tween submit` does.
         ids: list[str] = []  # named by a connection lost while waiting: they may still run
+        sending = _Sending()
         with farm_errors(celery_app, ids), _Interrupts() as intr:
             intr.armed = False  # counted, not raised, while the jobs are sent
-            ids += jobs.submit(paths, opts, render=render)
+            sent = _until_signal(intr, lambda: jobs.submit(paths, opts, render=render, sending=sending.begin))
+            if sent is _SIGNALLED:
+                _cancel_sent(celery_app, sending.stop(), intr, "tween fill")
+            ids += sent
             _said(paths, ids, progress)
             code = _run_jobs(ids, intr, progress, idle=_NoWorkerNotice(ids))
         _exit(code)
@@ -525,7 +531,7 @@ def submit(
         with farm_errors(celery_app):
             ids = _until_signal(intr, lambda: jobs.submit(paths, opts, render=render, sending=sending.begin))
         if ids is _SIGNALLED or intr.count:
-            _cancel_sent(celery_app, sending.stop(), intr)
+            _cancel_sent(celery_app, sending.stop(), intr, "tween submit")
     for job_id in ids:
         typer.echo(job_id)
 
@@ -581,8 +587,8 @@ def _until_signal(intr: _Interrupts, fn):
     return value
 
 
-def _cancel_sent(celery_app, begun: list[str], intr: _Interrupts) -> None:
-    """Cancels the jobs an interrupted `tween submit` had begun to send, whatever reached the
+def _cancel_sent(celery_app, begun: list[str], intr: _Interrupts, command: str) -> None:
+    """Cancels the jobs an interrupted ``command`` had begun to send, whatever reached the
     farm of the last (jobs.cancel_sent), says so and exits 130. A second signal while the
     cancel waits on a silent server stops the wait: the jobs are named, not cancelled."""
     from workers.app import farm_errors
@@ -592,7 +598,7 @@ def _cancel_sent(celery_app, begun: list[str], intr: _Interrupts) -> None:
         print("tween: interrupted: no job was sent", file=sys.stderr)
         _exit(EXIT_CANCELLED)
     with farm_errors(celery_app, begun):
-        done = _until_signal(intr, lambda: _jobs().cancel_sent(begun, why="tween submit interrupted"))
+        done = _until_signal(intr, lambda: _jobs().cancel_sent(begun, why=f"{command} interrupted"))
     if done is _SIGNALLED:
         print(f"tween: interrupted again: the {len(begun)} job(s) it had sent ({ids}) are not cancelled: "
               f"`tween cancel` them once the farm answers", file=sys.stderr)  # fmt: skip

@@ -544,7 +544,7 @@ def test_the_embedded_worker_of_a_finished_fill_is_killed_not_stopped_warm(tmp_p
     assert out.startswith(f"{shot}: layer {shot}.v001") and "interrupted" not in err
     assert took < 1.5, took
     (proc,) = worker
-    assert proc.returncode == -signal.SIGKILL and not _group_members(proc.pid)  # nothing of it left
+    assert proc.returncode == -signal.SIGKILL and not _group_left(proc.pid)  # nothing of it left
 
 
 def test_a_signal_while_the_embedded_worker_stops_warm_ends_it_at_once(monkeypatch):
@@ -563,7 +563,17 @@ def test_a_signal_while_the_embedded_worker_stops_warm_ends_it_at_once(monkeypat
     took = time.monotonic() - t0
     assert 0.25 < took < 1.5, took
     (proc,) = worker
-    assert proc.returncode == -signal.SIGKILL and not _group_members(proc.pid)
+    assert proc.returncode == -signal.SIGKILL and not _group_left(proc.pid)
+
+
+def _group_left(pgid: int, within: float = 2.0) -> list[int]:
+    """The group's live processes once they have had ``within`` s to die: a SIGKILL to a
+    group ends its other members a moment after the leader is reaped, later on a loaded
+    machine (seen: a member still listed right after, one run in three beside other tests)."""
+    end = time.monotonic() + within
+    while (left := _group_members(pgid)) and time.monotonic() < end:
+        time.sleep(0.02)
+    return left
 
 
 def _group_members(pgid: int) -> list[int]:
