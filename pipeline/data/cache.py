@@ -80,7 +80,7 @@ def load_files(files: list[Path], split: str, read=None) -> ClipSet:
     fps = None
     for f in tqdm(
         files,
-        desc=f"reading {split} clips",
+        desc=f"reading {split} clips" if read is None else f"reading {split}",  # "reading takes"
         file=sys.stderr,
         unit="clip",
         disable=len(files) < (50 if read is None else 2),

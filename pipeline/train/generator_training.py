@@ -20,7 +20,7 @@ import torch
 from tqdm import tqdm
 
 from pipeline.atomic import save_torch, write_bytes
-from pipeline.data.cache import load_split
+from pipeline.data.cache import ClipSet, load_split
 from pipeline.data.skeletons import FOOT_JOINTS, bandai_mirror, bandai_skeleton
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import POSE_SCALE, dna_poses, representative_frames
@@ -47,7 +47,6 @@ from pipeline.train.batches import (
     sample_keys,
 )
 from pipeline.train.keymatch import match_partial_keys, partial_match_weights
-from pipeline.usd.take import load_takes
 
 OFFSET_SHARE = 0.5  # windows given --joint-offsets: the other half keeps the capture's own poses
 POS_SCALE = 10.0  # position losses in decimetres: centimetre errors must weigh against rotations
@@ -188,6 +187,10 @@ class TrainConfig:
                                 ("--limit-clips", self.limit_clips), ("--pos-zscore", self.pos_zscore)) if v]  # fmt: skip
         if self.corpus and given:
             raise ValueError(f"--corpus {self.corpus}: reads its own sources; drop {', '.join(given)}")
+        if self.data_pack and self.data:  # the pack was trained on and --data passed over, unsaid
+            raise ValueError(
+                f"--data-pack {self.data_pack}: holds the clips to train on; drop --data {self.data}"
+            )
         if self.data_pack and self.limit_clips:  # a pack is read whole (its clips are one array)
             raise ValueError(
                 f"--data-pack {self.data_pack}: trains on every clip it holds; drop --limit-clips"
@@ -238,8 +241,10 @@ def init_checkpoint(init: str) -> Path:
             if c.is_file():
                 return c
         raise TweenError(f"{p}: --init folder holds no torch/generator.pt or generator.pt")
-    if not p.is_file():
+    if (why := not_a_file(p, "checkpoint")) == "file not found":
         raise TweenError(f"{p}: --init checkpoint not found")
+    if why is not None:  # a pipe said "not found" (it is there, and would block a read)
+        raise TweenError(f"{p}: --init: {why}")
     return p
 
 
@@ -470,29 +475,51 @@ def batches_from(cfg: TrainConfig, clips, skel, feet, first: int):
     return iter(loader)
 
 
-def training_clips(cfg: TrainConfig):
-    """What a run trains on: a packed split, a studio's takes (``--data``) or the train
-    split; TweenError where no take is long enough for ``--lengths``."""
-    if cfg.data_pack:
-        from pipeline.data.pack import load_pack
+#: The pack decoded last in this process, by (its real path, device, inode, size, mtime) and
+#: (that key, its ClipSet): a run's up-front check, its path predictor and its generator decode
+#: it once between them (seconds each); one pack at a time is kept.
+_PACKED: list = []
 
-        clips = load_pack(cfg.data_pack, "--data-pack")
-        joints = len(bandai_skeleton())
-        if clips.rotations.shape[1] != joints:  # another skeleton's clips: a shape error in training
-            raise TweenError(
-                f"{cfg.data_pack}: --data-pack: its clips have {clips.rotations.shape[1]} joints, "
-                f"the model skeleton {joints}"
-            )
+
+def packed_clips(path: str) -> ClipSet:
+    """The ``--data-pack`` at ``path`` decoded (once while it stays unchanged: ``_PACKED``);
+    TweenError naming it where it is no pack or holds another skeleton's clips."""
+    from pipeline.data.pack import load_pack
+
+    try:
+        st = os.stat(path)
+        key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    except (OSError, ValueError):
+        key = None  # load_pack names what it is instead
+    if key is not None and _PACKED and _PACKED[0] == key:
+        return _PACKED[1]
+    _PACKED.clear()  # the last pack let go before another is decoded
+    clips = load_pack(path, "--data-pack")
+    joints = len(bandai_skeleton())
+    if clips.rotations.shape[1] != joints:  # another skeleton's clips: a shape error in training
+        raise TweenError(
+            f"{path}: --data-pack: its clips have {clips.rotations.shape[1]} joints, the model skeleton {joints}"
+        )
+    if key is not None:
+        _PACKED[:] = [key, clips]
+    return clips
+
+
+def training_clips(cfg: TrainConfig):
+    """What a run trains on: a packed split, a studio's takes (``--data``, each checked before
+    any is read) or the train split; TweenError where no take is long enough for ``--lengths``."""
+    if cfg.data_pack:
+        clips = packed_clips(cfg.data_pack)
     elif cfg.corpus:
         from pipeline.train.corpus import corpus_clips
 
         clips = corpus_clips(cfg.corpus)
+    elif cfg.data:
+        from pipeline.train.corpus import studio_clips
+
+        clips = studio_clips(cfg.data, cfg.data_include, cfg.limit_clips)
     else:
-        clips = (
-            load_takes(cfg.data, cfg.data_include, cfg.limit_clips)
-            if cfg.data
-            else load_split("train", limit=cfg.limit_clips)
-        )
+        clips = load_split("train", limit=cfg.limit_clips)
     n = max(cfg.lengths)
     refuse_short(cfg, clips, n, f"--lengths {n}", "give longer takes or shorter --lengths")
     if cfg.corpus and clips.groups is not None:
@@ -505,7 +532,7 @@ def refuse_short(cfg, clips, n: int, what: str, remedy: str) -> None:
     train split) is ``n`` frames long, the length ``what`` needs (numpy's error at the first
     batch otherwise), naming the longest and ``remedy``."""
     if not (clips.lengths >= n).any():
-        where = cfg.corpus or cfg.data or "the train split"
+        where = cfg.corpus or cfg.data or getattr(cfg, "data_pack", None) or "the train split"
         raise TweenError(
             f"{where}: no take of {n} frames (at 30 fps) for {what}; the longest is {int(clips.lengths.max())}: {remedy}"
         )

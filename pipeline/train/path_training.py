@@ -20,7 +20,13 @@ from pipeline.motion.fk import fk
 from pipeline.networks.path import PathConfig, PathPredictor
 from pipeline.progress import interval
 from pipeline.train.batches import sample_batch
-from pipeline.train.generator_training import LOG_EVERY, read_checkpoint, refuse_short, resumed_log
+from pipeline.train.generator_training import (
+    LOG_EVERY,
+    packed_clips,
+    read_checkpoint,
+    refuse_short,
+    resumed_log,
+)
 
 
 def path_inputs(rot: np.ndarray, root: np.ndarray, skeleton) -> np.ndarray:
@@ -47,6 +53,7 @@ class PathTrainConfig:
     data: str | None = None  # a folder of the studio's own takes instead of the Bandai train split
     data_include: str | None = None  # file-name globs under ``data``
     corpus: str | None = None  # a corpus description (pipeline.data.corpus) instead of either
+    data_pack: str | None = None  # the train split packed by pipeline.data.pack (hosts without ../shared)
     checkpoint_minutes: float = 3.0  # the generator's --checkpoint-minutes: a run resumes from its last one
     model: PathConfig = field(default_factory=PathConfig)
 
@@ -66,16 +73,19 @@ def multiscale_loss(vel: torch.Tensor, root: torch.Tensor, scales) -> torch.Tens
 
 
 def _clips(cfg: PathTrainConfig):
-    """What the path predictor trains on: a corpus, a studio's takes or the train split;
-    TweenError where no take is as long as its windows (else numpy's error, first batch)."""
-    if cfg.corpus:
+    """What the path predictor trains on, as the generator: a packed split, a corpus, a
+    studio's takes (each checked before any is read) or the train split; TweenError where no
+    take is as long as its windows (else numpy's error, first batch)."""
+    if cfg.data_pack:
+        clips = packed_clips(cfg.data_pack)  # decoded once for the run: the generator's too
+    elif cfg.corpus:
         from pipeline.train.corpus import corpus_clips
 
         clips = corpus_clips(cfg.corpus)
     elif cfg.data:
-        from pipeline.usd.take import load_takes
+        from pipeline.train.corpus import studio_clips
 
-        clips = load_takes(cfg.data, cfg.data_include)
+        clips = studio_clips(cfg.data, cfg.data_include)
     else:
         clips = load_split("train", limit=cfg.limit_clips)
     refuse_short(cfg, clips, cfg.length, "the path predictor's windows",

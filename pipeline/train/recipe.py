@@ -189,7 +189,7 @@ def configs(values: dict):
     except ValueError as e:
         raise typer.BadParameter(str(e)) from None
     common = {k: kw[k] for k in ("batch", "seed", "threads", "limit_clips", "data", "data_include", "corpus",
-                                 "checkpoint_minutes")}  # fmt: skip
+                                 "data_pack", "checkpoint_minutes")}  # fmt: skip
     if not 0 <= values["path_steps"] <= 1e9:  # as --steps; 0: no path predictor in this run
         raise typer.BadParameter(f"--path-steps {values['path_steps']}: must be from 0 to 1e+09")
     return cfg, PathTrainConfig(steps=values["path_steps"], **common)
@@ -241,13 +241,13 @@ def check_data(cfg, pack_made_later: bool = False) -> None:
     and --data-pack is a whole pack (unless ``pack_made_later``: a recipe's runner packs
     OUT/train.pack before the first stage that reads it): for `tween train`, and for every
     stage of a recipe before its first trains."""
-    from pipeline.usd.take import take_files
+    from pipeline.train.corpus import check_takes
 
     if cfg.data_include is not None and not names_a_glob(cfg.data_include):  # as library build's
         raise TweenError(f"--data-include {cfg.data_include!r}: names no file-name glob (e.g. '001_*,002_*'); "
                          "leave it out for every take")  # fmt: skip
-    if cfg.data and not cfg.data_pack:
-        take_files(cfg.data, cfg.data_include)
+    if cfg.data and not cfg.data_pack:  # every take checked cheaply, none read yet
+        check_takes(cfg.data, cfg.data_include)
     if cfg.corpus or (cfg.data_pack and not pack_made_later):
         from pipeline.train.generator_training import training_clips
 
