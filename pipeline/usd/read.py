@@ -14,6 +14,8 @@ is not a positive finite span. USD's own warnings while the shot is read are cap
 from __future__ import annotations
 
 import math
+import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +52,10 @@ class Character(Rig):
     rot_times: np.ndarray | None = None  # authored samples of rotations alone
     trans_times: np.ndarray | None = None  # authored samples of translations alone
     keyed_joints: dict[float, tuple[str, ...]] | None = None  # tween:keyedJoints samples
+    # Every joint the animation lists where some are not the skeleton's (UsdSkel ignores
+    # those, and anim_joints leaves them out), and the entry of each anim_joint in its arrays.
+    anim_authored: tuple[str, ...] | None = None
+    anim_slots: np.ndarray | None = None
 
 
 @dataclass
@@ -210,26 +216,34 @@ def _fk_bind(parents, rest_rot, rest_trans):
     return g_rot, g_pos
 
 
+def _not_a_joint_path(token: str) -> str | None:
+    """Why ``token`` names no joint (USD warns ``Ill-formed SdfPath`` of it), or None."""
+    from pxr import Sdf
+
+    try:
+        ok, why = Sdf.Path.IsValidPathString(token)
+    except UnicodeDecodeError:  # USD's reason quotes the name cut inside a character
+        ok, why = False, "a character a prim name cannot hold"
+    if ok and (Sdf.Path(token).IsAbsolutePath() or not Sdf.Path(token).IsPrimPath()):
+        ok, why = False, "expected a relative prim path like Hips/Spine"
+    return None if ok else short(why)
+
+
 def check_topology(shot_path: str, skel_path: str, joints) -> None:
     """Refuses a joint list UsdSkel cannot build a hierarchy from: a token that is not a
     relative prim path (USD warns ``Ill-formed SdfPath`` and drops the joint's parent), a
     joint listed twice, a parent listed after its child (``mis-ordered parent``), several
     root joints."""
-    from pxr import Sdf, UsdSkel, Vt
+    from pxr import UsdSkel, Vt
 
     bad = "skeleton topology is invalid"
     if not joints:
         raise ShotError(shot_path, f"{bad}: the skeleton lists no joints", skel_path)
     seen: dict[str, int] = {}
     for i, t in enumerate(joints):
-        try:
-            ok, why = Sdf.Path.IsValidPathString(t)
-        except UnicodeDecodeError:  # USD's reason quotes the name cut inside a character
-            ok, why = False, "a character a prim name cannot hold"
-        if ok and (Sdf.Path(t).IsAbsolutePath() or not Sdf.Path(t).IsPrimPath()):
-            ok, why = False, "expected a relative prim path like Hips/Spine"
-        if not ok:
-            raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is not a joint path: {short(why)}", skel_path)
+        why = _not_a_joint_path(t)
+        if why:
+            raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is not a joint path: {why}", skel_path)
         if t in seen:
             raise ShotError(shot_path, f"{bad}: joint {i} {t!r} is joint {seen[t]} again", skel_path)
         seen[t] = i
@@ -352,21 +366,56 @@ def _rest_and_bind(shot_path: str, skel, skel_path: str, joints: tuple, parents:
 
 
 def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_path: str) -> tuple:
-    """The joints the animation lists, each one of the skeleton's."""
-    anim_joints = tuple(str(t) for t in (anim.GetJointsAttr().Get() or []))
-    if not anim_joints:
+    """The joints the animation lists (each once), those of them the skeleton has, and a
+    warning to say (once the shot is read) where some are not the skeleton's.
+
+    UsdSkel maps an animation onto its skeleton by joint name and ignores the names the
+    skeleton lacks (an animation of a larger rig, a joint deleted from the skeleton): so does
+    the fill, with one warning; an animation naming none of the skeleton's joints animates
+    nothing and is refused."""
+    authored = tuple(str(t) for t in (anim.GetJointsAttr().Get() or []))
+    if not authored:
         raise ShotError(shot_path, "animation lists no joints", anim_path)
-    known = set(joints)
-    missing = [t for t in anim_joints if t not in known]
-    if missing:
-        raise ShotError(
-            shot_path, f"animation joint {missing[0]!r} is not in the skeleton {skel_path}", anim_path
-        )
     seen: set[str] = set()
-    twice = next((t for t in anim_joints if t in seen or seen.add(t)), None)  # the first repeat
+    twice = next((t for t in authored if t in seen or seen.add(t)), None)  # the first repeat
     if twice is not None:  # UsdSkel would animate it from one entry and leave another joint still
         raise ShotError(shot_path, f"animation lists joint {twice!r} twice", anim_path)
-    return anim_joints
+    known = set(joints)
+    missing = [t for t in authored if t not in known]
+    for t in missing:  # a broken token, not a joint of another rig: refused as the skeleton's are
+        if why := _not_a_joint_path(t):
+            raise ShotError(shot_path, f"animation joint {t!r} is not a joint path: {why}", anim_path)
+    if len(missing) == len(authored):
+        raise ShotError(
+            shot_path,
+            f"animation lists none of the joints of its skeleton {skel_path} (its first is {authored[0]!r})",
+            anim_path,
+        )
+    warning = missing and (
+        f"{len(missing)} of the animation's {len(authored)} joints "
+        f"{'is' if len(missing) == 1 else 'are'} not in the skeleton {skel_path} "
+        f"(the first is {missing[0]!r}); UsdSkel ignores them and so does the fill, "
+        "which keeps their values as authored"
+    )
+    return authored, tuple(t for t in authored if t in known), warning
+
+
+_WARNED: set[tuple] = set()
+
+
+def _warn_once(shot_path: str, prim: str, text: str) -> None:
+    """A warning line on stderr, said once a process for a version of the shot file: a fill
+    reads its shot more than once (its check, then each take)."""
+    try:
+        version = os.stat(shot_path).st_mtime_ns
+    except OSError:
+        version = None
+    said = (os.path.realpath(shot_path), version, prim, text)
+    if said not in _WARNED:
+        if len(_WARNED) > 1000:  # a farm worker lives long: bounded
+            _WARNED.clear()
+        _WARNED.add(said)
+        print(f"tween: warning: {shot_path} {prim}: {text}", file=sys.stderr)
 
 
 def _key_override(shot_path: str, anim_prim, anim_path: str) -> np.ndarray | None:
@@ -403,14 +452,16 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     rest_rot, rest_trans, bind_rot, bind_pos = _rest_and_bind(shot_path, skel, skel_path, joints, parents)
 
     anim = UsdSkel.Animation(anim_prim)
-    anim_joints = _animation_joints(shot_path, anim, anim_path, joints, skel_path)
+    authored, anim_joints, warning = _animation_joints(shot_path, anim, anim_path, joints, skel_path)
     index = {t: i for i, t in enumerate(joints)}
-    check_samples(shot_path, anim, anim_path, anim_joints)
+    slot = {t: i for i, t in enumerate(authored)}
+    # Every value authored is checked (the fill layer copies the extra joints' too).
+    check_samples(shot_path, anim, anim_path, authored)
     rot_times = anim.GetRotationsAttr().GetTimeSamples()
     trans_times = anim.GetTranslationsAttr().GetTimeSamples()
     times = sorted(set(rot_times) | set(trans_times))
     override = _key_override(shot_path, anim_prim, anim_path)
-    keyed = _keyed_joints(anim_prim, anim_joints, shot_path, anim_path)
+    keyed = _keyed_joints(anim_prim, authored, shot_path, anim_path)
     start = stage.GetStartTimeCode()
     xf = UsdGeom.Xformable(skel.GetPrim()).ComputeLocalToWorldTransform(start)
     if not np.isfinite(np.array(xf)).all():
@@ -440,6 +491,9 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         rot_times=np.array(rot_times, np.float64),
         trans_times=np.array(trans_times, np.float64),
         keyed_joints=keyed,
+        anim_authored=None if authored == anim_joints else authored,
+        anim_slots=None if authored == anim_joints else np.array([slot[t] for t in anim_joints], np.int64),
+        extra={"warning": warning} if warning else {},
     )
 
 
@@ -572,6 +626,41 @@ def binding_prim(path: str, skel_prim) -> str:
     return str(inst.GetPath())
 
 
+def _rig_difference(a: Character, b: Character) -> str | None:
+    """How the rig of ``b`` differs from that of ``a`` for the values of an animation, joint
+    by name (UsdSkel maps it so: the joint order may differ): a joint one lacks, another rest
+    pose (the skeletons' places in the world may differ). None where they do not."""
+    if set(a.joints) != set(b.joints):
+        odd = sorted(set(a.joints) ^ set(b.joints))[0]
+        return f"joint {odd!r} is in {a.skel_path if odd in a.joints else b.skel_path} only"
+    # A joint's name is its path from its root: the same names are the same hierarchy.
+    at = {t: i for i, t in enumerate(a.joints)}
+    order = np.array([at[t] for t in b.joints], np.int64)  # a's index of each of b's joints
+    size = max(1.0, float(np.abs(a.rest_trans).max()))
+    bad = ~np.isclose(a.rest_trans[order], b.rest_trans, rtol=1e-5, atol=1e-5 * size).all(1)
+    bad |= np.abs((a.rest_rot[order] * b.rest_rot).sum(1)) < 1 - 1e-6  # q and -q are one rotation
+    if bad.any():
+        return f"the rest pose of joint {b.joints[int(np.flatnonzero(bad)[0])]!r} differs"
+    return None
+
+
+def _check_shared(path: str, chars: list[Character]) -> None:
+    """ShotError where skeletons bound to one animation differ as rigs: the fill fills a
+    shared animation once, on the first skeleton's rig, and binds every one to that fill (a
+    crowd's instances on one cycle); the same values on another rest pose or hierarchy are
+    another motion, which the fill never judged (its feet, its model's retargeting)."""
+    first: dict[str, Character] = {}
+    for c in chars:
+        a = first.setdefault(c.anim_path, c)
+        why = None if a is c else _rig_difference(a, c)
+        if why:
+            raise ShotError(
+                path, f"skeletons {a.skel_path} and {c.skel_path} share this animation but not a rig "
+                f"({why}); the fill fills it once, on one rig: give each skeleton its own SkelAnimation",
+                c.anim_path,
+            )  # fmt: skip
+
+
 def _read_shot(path: str) -> Shot:
     from pxr import UsdGeom
 
@@ -593,6 +682,7 @@ def _read_shot(path: str) -> Shot:
             )  # fmt: skip
         binding_prim(path, b.skeleton.GetPrim())
     chars = [_character(path, stage, b.skeleton, b.query, b.query.GetAnimQuery()) for b in bound]
+    _check_shared(path, chars)
     if not chars:
         raise ShotError(path, "no SkelRoot holds a skeleton with a bound SkelAnimation")
     up = str(UsdGeom.GetStageUpAxis(stage))
@@ -609,6 +699,9 @@ def _read_shot(path: str) -> Shot:
         allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])
         start, end = float(allt.min()), float(allt.max())
         check_span(path, start, end, "the animation's time samples")
+    for c in chars:  # said once the shot is read: a refusal is its one line
+        if c.extra.get("warning"):
+            _warn_once(path, c.anim_path, c.extra["warning"])
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
 
 
@@ -627,6 +720,8 @@ def _anim_values(stage, char: Character, times):
 
     anim = UsdSkel.Animation(stage.GetPrimAtPath(char.anim_path))
     Ja = len(char.anim_joints)
+    listed = len(char.anim_authored or char.anim_joints)  # the entries each authored array holds
+    slots = slice(None) if char.anim_slots is None else char.anim_slots
     T = len(times)
     rot = np.empty((T, Ja, 4), np.float32)
     tr = np.empty((T, Ja, 3), np.float32)
@@ -643,13 +738,13 @@ def _anim_values(stage, char: Character, times):
                 out[i] = fallback
                 continue
             a = np.array(v)
-            if a.shape[0] != Ja:
+            if a.shape[0] != listed:
                 raise ShotError(
                     char.shot,
-                    f"{attr.GetName()} holds {a.shape[0]} values for {Ja} joints at time {t:g}",
+                    f"{attr.GetName()} holds {a.shape[0]} values for {listed} joints at time {t:g}",
                     char.anim_path,
                 )
-            out[i] = a
+            out[i] = a[slots]
     return rot, tr, sc
 
 

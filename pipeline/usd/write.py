@@ -11,6 +11,7 @@ the variants, so no local opinion of the animator's layers can hide them).
 from __future__ import annotations
 
 import datetime
+import errno
 import glob
 import json
 import os
@@ -213,8 +214,9 @@ def check_review(review: str | Path) -> None:
     fill with no character under it."""
     from pxr import Sdf, Tf
 
-    if os.path.exists(review) and (why := not_a_file(review, "review layer")) is not None:
-        raise ShotError(str(review), why)  # a pipe would block USD's read for ever
+    why = not_a_file(review, "review layer") if os.path.exists(review) else _link_loop(review, "review layer")
+    if why is not None:  # a pipe would block USD's read for ever
+        raise ShotError(str(review), why)
     try:
         with usd_diagnostics(fold=False):
             layer = Sdf.Layer.OpenAsAnonymous(str(review))
@@ -230,12 +232,26 @@ def check_review(review: str | Path) -> None:
             )
 
 
+def _link_loop(path: str | Path, kind: str) -> str | None:
+    """The phrase for ``path`` when it is a link loop, else None: inputs.not_a_file says "a
+    link to nothing" of one, and dailies' read of one failed as "permission denied"."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return f"a link loop (it leads back to itself), not a {kind}"
+    except ValueError:  # a NUL in the name
+        pass
+    return None
+
+
 def _recorded(path: Path) -> dict:
     """The ``tween`` record of a layer written here ({} for one USD cannot read); ShotError
     naming it when it is not a regular file (a pipe would block USD's read for ever)."""
     from pxr import Sdf, Tf
 
-    if os.path.exists(path) and (why := not_a_file(path, "fill layer")) is not None:
+    why = not_a_file(path, "fill layer") if os.path.exists(path) else _link_loop(path, "fill layer")
+    if why is not None:  # a link to nothing passes: nothing USD reads, so no record
         raise ShotError(str(path), f"{why}; remove it or use --out-dir")
     try:
         layer = Sdf.Layer.OpenAsAnonymous(str(path))
@@ -305,7 +321,9 @@ def author_attr(spec, name, type_name, value=None, uniform=False):
     return a
 
 
-def _author_samples(layer, spec, data: dict) -> None:
+def _author_samples(layer, spec, data: dict, extra=None) -> None:
+    """Each take's samples of the animation joints; ``extra`` (:func:`_extra_joints`): the
+    values of the joints the animation lists that its skeleton lacks, merged in per frame."""
     from pxr import Sdf, Vt
 
     ra = author_attr(spec, "rotations", Sdf.ValueTypeNames.QuatfArray).path
@@ -315,9 +333,42 @@ def _author_samples(layer, spec, data: dict) -> None:
     tr = np.ascontiguousarray(data["trans"], np.float32)
     sc = np.ascontiguousarray(data["scale"], np.float16)
     for i, t in enumerate(data["times"].tolist()):
-        layer.SetTimeSample(ra, t, Vt.QuatfArray.FromNumpy(rot[i]))
-        layer.SetTimeSample(ta, t, Vt.Vec3fArray.FromNumpy(tr[i]))
-        layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(sc[i]))
+        r, p, s = (rot[i], tr[i], sc[i]) if extra is None else extra(t, rot[i], tr[i], sc[i])
+        layer.SetTimeSample(ra, t, Vt.QuatfArray.FromNumpy(r))
+        layer.SetTimeSample(ta, t, Vt.Vec3fArray.FromNumpy(p))
+        layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(s))
+
+
+#: The value of an attribute an animation never authors, for the joints its skeleton lacks.
+_UNAUTHORED = {"rotations": (0, 0, 0, 1), "translations": (0, 0, 0), "scales": (1, 1, 1)}
+
+
+def _extra_joints(src, joints: list[str]):
+    """(every joint the animation ``src`` lists, a merge) where some are not among the
+    filled ``joints`` (the skeleton lacks them: read.Character.anim_authored), else None.
+    UsdSkel ignores such joints; the filled animation keeps them with the values ``src``
+    gives at each time (authored samples exactly, USD's interpolation between), so that it
+    lists what the animator's does and changes only what the skeleton shows."""
+    authored = [str(t) for t in (src.GetAttribute("joints").Get() or [])] if src else []
+    slot = {t: i for i, t in enumerate(authored)}
+    if authored == list(joints) or any(t not in slot for t in joints):  # nothing to keep
+        return None
+    slots = np.array([slot[t] for t in joints], np.int64)
+    attrs = [(src.GetAttribute(n), n) for n in ("rotations", "translations", "scales")]
+    dtypes = (np.float32, np.float32, np.float16)
+
+    def merge(t: float, *filled):
+        out = []
+        for (attr, name), dtype, values in zip(attrs, dtypes, filled, strict=True):
+            v = attr.Get(t) if attr else None
+            full = np.array(v, dtype) if v is not None and len(v) == len(authored) else None
+            if full is None:
+                full = np.tile(np.array(_UNAUTHORED[name], dtype), (len(authored), 1))
+            full[slots] = values
+            out.append(np.ascontiguousarray(full))
+        return out
+
+    return authored, merge
 
 
 def _author_roots(layer, chars: list[dict], takes: list[dict]) -> None:
@@ -410,7 +461,9 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     spec.specifier = Sdf.SpecifierDef
     spec.typeName = "SkelAnimation"
     apply_api(spec, tokens.API)
-    author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(c["joints"]), uniform=True)
+    extra = _extra_joints(src, c["joints"])
+    joints = c["joints"] if extra is None else extra[0]
+    author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(joints), uniform=True)
     author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))
     _author_provenance(spec, c, meta)
     _copy_blend_shapes(layer, spec, src)
@@ -425,7 +478,7 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
             vspec = spec
         author_attr(vspec, tokens.SEED, Sdf.ValueTypeNames.Int, int(tk["seed"]))
         author_attr(vspec, tokens.TAKE, Sdf.ValueTypeNames.Int, int(tk["take"]))
-        _author_samples(layer, vspec, data)
+        _author_samples(layer, vspec, data, None if extra is None else extra[1])
 
 
 def author_fill_layer(layer, stage, takes: list[dict], meta: dict) -> None:
@@ -604,10 +657,11 @@ def check_review_layer(shot: str, stage, review_layer: str | None) -> None:
     if not review_layer:
         return
     review = Path(review_layer)
-    if not review.is_file():
-        raise TweenError(
-            f"--review-layer {review}: no such file (it adds the fill to an existing root layer)"
-        )
+    why = _link_loop(review, "review layer") or not_a_file(review, "review layer")
+    if why == "file not found":
+        why = "no such file (it adds the fill to an existing root layer)"
+    if why is not None:
+        raise TweenError(f"--review-layer {review}: {why}")
     if os.path.realpath(review) in {os.path.realpath(p) for p in _layer_files(stage)}:
         raise ShotError(
             shot, f"{review} is one of the shot's own layers; the animator's layers are never modified"
