@@ -21,6 +21,7 @@ from dailies.shots import listing
 from dailies.tracker import approved_of, read_mapping, send_take
 from dailies.trackers import make
 from pipeline.errors import TweenError
+from pipeline.inputs import not_a_file
 
 DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8765
 
@@ -51,9 +52,10 @@ def check_tls(certfile: Path | None, keyfile: Path | None) -> None:
         raise TweenError(
             "--certfile and --keyfile: give both (the certificate and its private key) or neither"
         )
-    for opt, p in (("--certfile", certfile), ("--keyfile", keyfile)):
-        if p is not None and not p.is_file():
-            raise TweenError(f"{opt} {p}: no such file")
+    for opt, p, kind in (("--certfile", certfile, "TLS certificate"), ("--keyfile", keyfile, "private key")):
+        why = None if p is None else not_a_file(p, kind)
+        if why is not None:  # a pipe would hold the TLS load for ever
+            raise TweenError(f"{opt} {p}: {'no such file' if why == 'file not found' else why}")
     if certfile is not None:  # a bad pair is one line now, not a traceback once serving
         try:
             ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(str(certfile), str(keyfile))

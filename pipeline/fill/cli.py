@@ -12,6 +12,7 @@ import math
 import os
 import re
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -19,7 +20,8 @@ import typer
 from pipeline.atomic import writable
 from pipeline.errors import TweenError
 from pipeline.fill.api import fill_shot
-from pipeline.fill.options import FillOptions, with_fill_options
+from pipeline.fill.options import NOT_NETWORKS, FillOptions, with_fill_options
+from pipeline.library.store import LibraryError, open_library
 from pipeline.usd.write import check_shot_name
 
 
@@ -132,6 +134,29 @@ def convert(
     typer.echo(path)
 
 
+#: The studio's library, as the farm reads it (workers/settings.py): every fill that names none uses it.
+LIBRARY_VAR = "TWEEN_LIBRARY"
+
+
+def _studio_library(opts: FillOptions) -> FillOptions:
+    """``opts`` with the studio's library (``$TWEEN_LIBRARY``) when it names none, as ``tween
+    fill`` does: an empty variable is none, a fill asking for a curve (--model spline) gets the
+    curve (no network to probe beside it). A blank one, or a folder that is no library, is one
+    line naming the variable and the path."""
+    raw = os.environ.get(LIBRARY_VAR, "")
+    if opts.library or not raw or opts.model in NOT_NETWORKS:
+        return opts
+    if not raw.strip():  # the farm's wording (workers/settings.py)
+        raise TweenError(f"{LIBRARY_VAR}={raw!r}: empty; give library a value, or leave it out")
+    folder = os.path.abspath(os.path.expanduser(raw))  # relative to the working folder, as the farm's
+    try:
+        open_library(folder)
+    except LibraryError as e:
+        why = str(e).removeprefix(f"{folder}: ")
+        raise TweenError(f"{LIBRARY_VAR}={raw}: {why}") from None
+    return replace(opts, library=folder)
+
+
 @with_fill_options
 def fill_local(
     shot: Path = typer.Argument(..., help="USD shot."),
@@ -140,7 +165,7 @@ def fill_local(
 ):
     """Fill a shot in this process and print the result as JSON."""
 
-    result = fill_shot(str(shot), opts, job_id=job_id)
+    result = fill_shot(str(shot), _studio_library(opts), job_id=job_id)
     print(f"tween: filled {shot} -> {result['layer']}", file=sys.stderr)
     typer.echo(json.dumps(result, indent=1))
 

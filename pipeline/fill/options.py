@@ -71,7 +71,8 @@ class FillOptions:
         help="A studio's motion library (`tween library build`): each gap of a human character is "
         "filled from its best-matching takes, fitted to the keys, where they match; the spline elsewhere; "
         "the network --model names (the default's, or a studio's fine-tune) is probed beside it. "
-        "Default: the farm's `library` setting (TWEEN_LIBRARY), else none.",
+        "Default: the studio's library, TWEEN_LIBRARY (`tween fill` and `submit`: the farm's `library` "
+        "setting, the variable or the farm config's), else none; none for --model spline or interp.",
         path="dir",
     )
     strict: bool = _opt(
