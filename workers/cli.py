@@ -47,8 +47,24 @@ def _opts(opts) -> dict:
     default = load_settings().library  # the studio's library, for every job that names none
     # (a job asking for a curve, --model spline or interp, gets the curve: no network to probe)
     if not out.get("library") and default and out.get("model") not in NOT_NETWORKS:
-        out["library"] = os.path.abspath(os.path.expanduser(default))
+        out["library"] = _farm_library(default)
     return out
+
+
+def _farm_library(setting: str) -> str:
+    """The farm's ``library`` setting as a folder, opened here: one that is no library is
+    one line naming the setting (the fill's own line named only a folder the user never gave)."""
+    from pipeline.library.store import LibraryError, open_library
+
+    folder = os.path.abspath(os.path.expanduser(setting))
+    try:
+        open_library(folder)
+    except LibraryError as e:
+        why = str(e).removeprefix(f"{folder}: ")
+        raise TweenError(
+            f"library {setting} (the farm's setting: TWEEN_LIBRARY or the farm config's `library`): {why}"
+        ) from None
+    return folder
 
 
 def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:

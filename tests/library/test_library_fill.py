@@ -236,3 +236,22 @@ def test_a_24_fps_shot_is_filled_on_its_keys_times(library, tmp_path, data_dir):
     )
     miss = np.linalg.norm(review_positions(res["review"], T)[inside] - want[inside], axis=-1).mean()
     assert miss < 1.0, miss
+
+
+def test_a_farm_library_setting_that_is_no_library_names_the_setting(tmp_path, monkeypatch):
+    """`tween fill` said only "/abs/path: no such library folder", a folder the user never
+    typed (it came from TWEEN_LIBRARY or the farm config); now the line names the setting."""
+    from pipeline.errors import TweenError
+    from workers.cli import _opts
+
+    monkeypatch.setenv("TWEEN_FARM_CONFIG", os.devnull)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TWEEN_LIBRARY", "nolib")
+    with pytest.raises(TweenError) as e:
+        _opts(FillOptions())
+    line = str(e.value)
+    assert line.startswith(
+        f"library {tmp_path / 'nolib'} (the farm's setting: TWEEN_LIBRARY or the farm config's `library`): "
+    )
+    assert "no such library folder" in line and "\n" not in line
+    assert not _opts(FillOptions(model="spline")).get("library")  # a curve never opens it
