@@ -20,6 +20,7 @@ from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.inputs import not_a_file
 from pipeline.library.options import LibraryBuildOptions, with_library_options
+from pipeline.library.store import LibraryError, open_library
 from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
@@ -54,8 +55,6 @@ def _opts(opts) -> dict:
 def _farm_library(setting: str) -> str:
     """The farm's ``library`` setting as a folder, opened here: one that is no library is
     one line naming the setting (the fill's own line named only a folder the user never gave)."""
-    from pipeline.library.store import LibraryError, open_library
-
     folder = os.path.abspath(os.path.expanduser(setting))
     try:
         open_library(folder)
