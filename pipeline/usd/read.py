@@ -26,7 +26,7 @@ from pipeline.adapt.rig import Rig
 from pipeline.errors import ShotError
 from pipeline.inputs import not_a_file
 from pipeline.motion.rotations import QUAT_EPS, matrix_to_quat
-from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT, topology_problem
+from pipeline.motion.skeleton import MAX_LENGTH, METERS_PER_UNIT
 from pipeline.usd.diagnostics import error_text, short, usd_diagnostics
 from pipeline.usd.keys import MAX_FRAMES
 from usd_schemas import tokens
@@ -56,6 +56,9 @@ class Character(Rig):
     # those, and anim_joints leaves them out), and the entry of each anim_joint in its arrays.
     anim_authored: tuple[str, ...] | None = None
     anim_slots: np.ndarray | None = None
+    # The skeleton's joints under roots other than the character's (check_topology): left out
+    # of joints and anim_joints as the joints it lacks are, and kept in the fill as authored.
+    other_joints: tuple[str, ...] = ()
 
 
 @dataclass
@@ -229,11 +232,12 @@ def _not_a_joint_path(token: str) -> str | None:
     return None if ok else short(why)
 
 
-def check_topology(shot_path: str, skel_path: str, joints) -> None:
+def check_topology(shot_path: str, skel_path: str, joints) -> np.ndarray | None:
     """Refuses a joint list UsdSkel cannot build a hierarchy from: a token that is not a
     relative prim path (USD warns ``Ill-formed SdfPath`` and drops the joint's parent), a
     joint listed twice, a parent listed after its child (``mis-ordered parent``), several
-    root joints."""
+    root joints where no one hierarchy is the character (:func:`character_joints`).
+    Returns the indices of the character's joints where there are several roots, else None."""
     from pxr import UsdSkel, Vt
 
     bad = "skeleton topology is invalid"
@@ -251,11 +255,55 @@ def check_topology(shot_path: str, skel_path: str, joints) -> None:
     ok, why = topology.Validate()
     if not ok:
         raise ShotError(shot_path, f"{bad}: {short(why) or 'UsdSkel refuses it'}", skel_path)
-    # UsdSkel allows several roots; the fill's own-rig curves and foot cleanup need one
-    # hierarchy (they failed deep inside, exit 1, where the trust chose the spline).
-    why = topology_problem(list(joints), list(topology.GetParentIndices()))
+    main, why = character_joints(list(joints), list(topology.GetParentIndices()))
     if why:
         raise ShotError(shot_path, f"skeleton topology: {why}", skel_path)
+    return main
+
+
+def _listed(names) -> str:
+    """Root joints as topology_problem lists them: the first three, quoted."""
+    return ", ".join(repr(r) for r in names[:3]) + (", ..." if len(names) > 3 else "")
+
+
+def character_joints(joints: list[str], parents) -> tuple[np.ndarray | None, str | None]:
+    """(the indices of the joints under the root holding the most joints, or None for one
+    root; why no hierarchy is the character, or None).
+
+    UsdSkel allows several roots, and real rigs have them (a Blender armature's unparented
+    IK targets and poles, a Maya rig's prop or helper root): the fill takes the largest
+    hierarchy as the character (its own-rig curves, retargeting and foot cleanup need one
+    hierarchy) and the joints under the other roots as joints the skeleton lacks. Refused:
+    two largest hierarchies of one size (neither is the character), and a root or joint
+    under a joint path the skeleton does not list (a joint renamed or removed: the second
+    root would be a piece of the character, left unfilled)."""
+    parents = [int(p) for p in parents]
+    roots = [j for j, p in enumerate(parents) if p < 0]
+    if len(roots) < 2:
+        return None, None
+    head = f"{len(roots)} root joints ({_listed([joints[r] for r in roots])})"
+    listed = set(joints)
+    for t in joints:
+        up = t.rpartition("/")[0]
+        if up and up not in listed:
+            return None, (
+                f"{head}; joint {t!r} is under {up!r}, which the skeleton does not list (a joint "
+                "renamed or removed?): a rig is one hierarchy under one root joint, and several "
+                "roots are filled only as hierarchies of their own"
+            )
+    root_of = list(range(len(parents)))
+    for j, p in enumerate(parents):  # parents come first (UsdSkel validated the order)
+        if p >= 0:
+            root_of[j] = root_of[p]
+    size = {r: root_of.count(r) for r in roots}
+    ranked = sorted(roots, key=lambda r: -size[r])
+    if size[ranked[0]] == size[ranked[1]]:
+        a, b = joints[ranked[0]], joints[ranked[1]]
+        return None, (
+            f"{head}; {a!r} and {b!r} each hold {size[ranked[0]]} joints, so neither is the "
+            "character: the fill fills the hierarchy under the root holding the most joints"
+        )
+    return np.array([j for j in range(len(parents)) if root_of[j] == ranked[0]], np.int64), None
 
 
 def _finite_matrices(shot_path: str, skel_path: str, name: str, mats: np.ndarray, joints) -> None:
@@ -365,14 +413,17 @@ def _rest_and_bind(shot_path: str, skel, skel_path: str, joints: tuple, parents:
     return rest_rot, rest_trans, bind_rot, bind_pos
 
 
-def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_path: str) -> tuple:
-    """The joints the animation lists (each once), those of them the skeleton has, and a
-    warning to say (once the shot is read) where some are not the skeleton's.
+def _animation_joints(
+    shot_path: str, anim, anim_path: str, joints: tuple, skel_path: str, character: set[str]
+) -> tuple:
+    """The joints the animation lists (each once), those of them the fill fills (the
+    ``character``'s: the skeleton's, or its main hierarchy's where it has several roots), and
+    a warning to say (once the shot is read) where some are not the skeleton's.
 
     UsdSkel maps an animation onto its skeleton by joint name and ignores the names the
     skeleton lacks (an animation of a larger rig, a joint deleted from the skeleton): so does
-    the fill, with one warning; an animation naming none of the skeleton's joints animates
-    nothing and is refused."""
+    the fill, with one warning; an animation naming none of the character's joints animates
+    nothing the fill fills and is refused."""
     authored = tuple(str(t) for t in (anim.GetJointsAttr().Get() or []))
     if not authored:
         raise ShotError(shot_path, "animation lists no joints", anim_path)
@@ -385,10 +436,15 @@ def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_
     for t in missing:  # a broken token, not a joint of another rig: refused as the skeleton's are
         if why := _not_a_joint_path(t):
             raise ShotError(shot_path, f"animation joint {t!r} is not a joint path: {why}", anim_path)
-    if len(missing) == len(authored):
+    filled = tuple(t for t in authored if t in character)
+    if not filled:
+        whose = f"its skeleton {skel_path}"
+        if len(character) < len(known):  # it animates only joints under other roots
+            root = next(t for t in character if "/" not in t)  # no gaps: the root's name
+            whose = f"the hierarchy under {root!r} (the character) of its skeleton {skel_path}"
         raise ShotError(
             shot_path,
-            f"animation lists none of the joints of its skeleton {skel_path} (its first is {authored[0]!r})",
+            f"animation lists none of the joints of {whose} (its first is {authored[0]!r})",
             anim_path,
         )
     warning = missing and (
@@ -397,7 +453,7 @@ def _animation_joints(shot_path: str, anim, anim_path: str, joints: tuple, skel_
         f"(the first is {missing[0]!r}); UsdSkel ignores them and so does the fill, "
         "which keeps their values as authored"
     )
-    return authored, tuple(t for t in authored if t in known), warning
+    return authored, filled, warning
 
 
 _WARNED: set[tuple] = set()
@@ -446,13 +502,14 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
     skel_path = str(skel.GetPrim().GetPath())
     anim_prim = animq.GetPrim()
     anim_path = str(anim_prim.GetPath())
-    topo = skelq.GetTopology()
-    joints = tuple(str(t) for t in skelq.GetJointOrder())
-    parents = np.array([topo.GetParent(i) for i in range(len(joints))], np.int64)
-    rest_rot, rest_trans, bind_rot, bind_pos = _rest_and_bind(shot_path, skel, skel_path, joints, parents)
+    every = tuple(str(t) for t in skelq.GetJointOrder())
+    joints, parents, poses, others, roots_note = _skeleton_joints(shot_path, skel, skel_path, skelq)
+    rest_rot, rest_trans, bind_rot, bind_pos = poses
 
     anim = UsdSkel.Animation(anim_prim)
-    authored, anim_joints, warning = _animation_joints(shot_path, anim, anim_path, joints, skel_path)
+    authored, anim_joints, warning = _animation_joints(
+        shot_path, anim, anim_path, every, skel_path, set(joints)
+    )
     index = {t: i for i, t in enumerate(joints)}
     slot = {t: i for i, t in enumerate(authored)}
     # Every value authored is checked (the fill layer copies the extra joints' too).
@@ -493,8 +550,41 @@ def _character(shot_path: str, stage, skel, skelq, animq) -> Character:
         keyed_joints=keyed,
         anim_authored=None if authored == anim_joints else authored,
         anim_slots=None if authored == anim_joints else np.array([slot[t] for t in anim_joints], np.int64),
-        extra={"warning": warning} if warning else {},
+        other_joints=others,
+        extra={k: v for k, v in (("warning", warning), ("roots", roots_note)) if v},
     )
+
+
+def _skeleton_joints(shot_path: str, skel, skel_path: str, skelq) -> tuple:
+    """The character's joints, parents, (rest_rot, rest_trans, bind_rot, bind_pos), the
+    skeleton's joints under other roots and the warning to say of them (None: one root)."""
+    topo = skelq.GetTopology()
+    every = tuple(str(t) for t in skelq.GetJointOrder())
+    parents = np.array([topo.GetParent(i) for i in range(len(every))], np.int64)
+    poses = _rest_and_bind(shot_path, skel, skel_path, every, parents)
+    main = check_topology(shot_path, skel_path, list(every))
+    if main is None:
+        return every, parents, poses, (), None
+    return _one_hierarchy(every, parents, poses, main)  # the character is one hierarchy
+
+
+def _one_hierarchy(every: tuple, parents: np.ndarray, poses: tuple, main: np.ndarray):
+    """The character's hierarchy ``main`` (:func:`character_joints`) of a skeleton of several
+    roots: (its joints, parents renumbered, rest and bind poses, the skeleton's other joints,
+    the warning to say): every user of the character sees one hierarchy under one root."""
+    new = np.full(len(every), -1, np.int64)
+    new[main] = np.arange(len(main))
+    sub = np.where(parents[main] < 0, -1, new[np.maximum(parents[main], 0)])
+    others = tuple(t for i, t in enumerate(every) if new[i] < 0)
+    roots = [every[i] for i in np.flatnonzero(parents < 0)]
+    one = len(others) == 1
+    note = (
+        f"{len(roots)} root joints ({_listed(roots)}): the character is the hierarchy under "
+        f"{every[main[0]]!r} ({len(main)} joints); the {len(others)} joint{'' if one else 's'} under "
+        f"the other roots (the first is {others[0]!r}) {'is' if one else 'are'} not filled and "
+        f"{'keeps' if one else 'keep'} the animation's values as authored"
+    )
+    return tuple(every[i] for i in main), sub, tuple(a[main] for a in poses), others, note
 
 
 def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
@@ -700,6 +790,8 @@ def _read_shot(path: str) -> Shot:
         start, end = float(allt.min()), float(allt.max())
         check_span(path, start, end, "the animation's time samples")
     for c in chars:  # said once the shot is read: a refusal is its one line
+        if c.extra.get("roots"):
+            _warn_once(path, c.skel_path, c.extra["roots"])
         if c.extra.get("warning"):
             _warn_once(path, c.anim_path, c.extra["warning"])
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)

@@ -345,10 +345,11 @@ _UNAUTHORED = {"rotations": (0, 0, 0, 1), "translations": (0, 0, 0), "scales": (
 
 def _extra_joints(src, joints: list[str]):
     """(every joint the animation ``src`` lists, a merge) where some are not among the
-    filled ``joints`` (the skeleton lacks them: read.Character.anim_authored), else None.
-    UsdSkel ignores such joints; the filled animation keeps them with the values ``src``
-    gives at each time (authored samples exactly, USD's interpolation between), so that it
-    lists what the animator's does and changes only what the skeleton shows."""
+    filled ``joints`` (the skeleton lacks them, or they are under a root other than the
+    character's: read.Character.anim_authored, other_joints), else None. The filled
+    animation keeps them with the values ``src`` gives at each time (authored samples
+    exactly, USD's interpolation between), so that it lists what the animator's does and
+    changes only what the fill filled."""
     authored = [str(t) for t in (src.GetAttribute("joints").Get() or [])] if src else []
     slot = {t: i for i, t in enumerate(authored)}
     if authored == list(joints) or any(t not in slot for t in joints):  # nothing to keep
