@@ -223,17 +223,6 @@ def _row(shot: Shot, n: int, layer: Path, names: dict[str, list[str]], **fields)
     return row | {"mtime": mtime}
 
 
-def _missing_name(shot: Shot, n: int) -> str:
-    """The name of the shot's fill layer ``n`` found gone, as its review layer stacks it
-    (``missing_fill``); a review layer that is not a regular file is not read (a pipe held
-    every request), its fill named ``.usda`` as for a review layer USD cannot read."""
-    try:
-        regular = stat.S_ISREG(review_path(shot.folder, shot.stem, n).stat().st_mode)
-    except OSError:  # gone, a link to nothing, a link loop
-        regular = False
-    return missing_fill(shot.folder, shot.stem, n).name if regular else f"{shot.stem}.tween.v{n:03d}.usda"
-
-
 def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
     """What the list shows of a shot: its latest version, status, model, time. ``names``:
     :func:`folder_names` of its folder (listed here when not given). A shot whose latest fill
@@ -246,7 +235,7 @@ def summary(shot: Shot, names: dict[str, list[str]] | None = None) -> dict:
     gone = missing_latest(shot.stem, names.get(shot.stem, []) + names.get("", []))
     if gone is not None:
         return _row(shot, gone, review_path(shot.folder, shot.stem, gone), names, status=MISSING,
-                    missing=_missing_name(shot, gone), decision=None, model="", takes=0, created="")  # fmt: skip
+                    missing=missing_fill(shot.folder, shot.stem, gone).name, decision=None, model="", takes=0, created="")  # fmt: skip
     info = cached(path, layer_info) or {}
     d = _decision(shot, names)
     return _row(shot, n, path, names, status=(d or {}).get("status") or "pending", decision=d,

@@ -126,11 +126,12 @@ def latest_review(shot: str, out_dir: str | Path | None = None) -> Path | None:
 
 def _stacked_fill(review: Path, name: str) -> str:
     """The file name of the fill layer ``name`` (``<stem>.tween.vNNN``) as ``review`` stacks
-    it (a fill may be .usdc); ``name.usda`` when the layer does not say."""
+    it (a fill may be .usdc); ``name.usda`` when the layer does not say, or is not a regular
+    file (a pipe held USD's read for ever: approve, publish and the dailies list hung)."""
     from pxr import Sdf, Tf
 
     try:
-        layer = Sdf.Layer.OpenAsAnonymous(str(review), True)
+        layer = None if not_a_file(review, "review layer") else Sdf.Layer.OpenAsAnonymous(str(review), True)
     except Tf.ErrorException:
         layer = None
     subs = [Path(s).name for s in layer.subLayerPaths] if layer is not None else []
