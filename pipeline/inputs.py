@@ -7,6 +7,8 @@ command: a pipe would block a reader for ever, a device can read without end.
 
 from __future__ import annotations
 
+import errno
+import math
 import os
 import stat
 from pathlib import Path
@@ -55,3 +57,32 @@ def read_small_text(path: str | Path, limit: int, kind: str) -> str:
     if len(data) > limit:
         raise NotReadable(f"larger than {limit:,} bytes, too large for a {kind}")
     return data.decode("utf-8")
+
+
+def broken_link(path: str | Path) -> str | None:
+    """What ``path`` is where it is a link that leads to no file: ``a link loop (it leads
+    back to itself)`` or ``a link to nothing``; None otherwise (a file, a folder, nothing at
+    all). A loop reads as "missing" to ``exists()``, which named the wrong trouble."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return "a link loop (it leads back to itself)"
+        return "a link to nothing" if e.errno == errno.ENOENT and os.path.lexists(path) else None
+    except ValueError:  # a NUL in the name
+        return None
+    return None
+
+
+#: The highest frame rate a file may state (fill --fps, a corpus's fps: 1,000 at most).
+FPS_MAX = 1000
+
+
+def frame_rate_trouble(value) -> str | None:
+    """None where ``value`` (a file's ``fps``) is a number of frames a second above 0 and at
+    most FPS_MAX; else the end of a line saying what it must be. 0 or a negative rate divides
+    by zero in a fill, and 1e308 overflows into warnings and a line about the keys instead."""
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    if number and math.isfinite(value) and 0 < value <= FPS_MAX:
+        return None
+    return f"must be a number of frames a second above 0 and at most {FPS_MAX:,}, not {value!r}"

@@ -34,6 +34,7 @@ from pipeline.fill.options import (  # noqa: F401
     FillOptions,
     check_fill_options,
 )
+from pipeline.inputs import broken_link
 from pipeline.library.store import open_library
 from pipeline.rig.store import is_rig_folder, models_root, read_rig_json
 from pipeline.usd import write
@@ -219,7 +220,7 @@ def composition(shot: str, opts: FillOptions) -> list[str]:
     for asset in missing:
         # A folder, a device or a FIFO is there (missing_assets names those by absolute path).
         there = os.path.isabs(asset) and os.path.lexists(asset) and not os.path.isfile(asset)
-        what = "not a regular file" if there else "not found"
+        what = (broken_link(asset) or "not a regular file") if there else "not found"
         print(f"tween: warning: {shot}: {asset}: {what}; the shot is filled without it", file=sys.stderr)
     return missing
 

@@ -5,10 +5,9 @@ a studio knows, shot by shot, under which terms the in-betweens it ships were ma
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from pipeline.infer.folder import ModelFolderError, find_model
+from pipeline.infer.folder import ModelFolderError, find_model, read_json_object
 
 #: What a folder that states no licence is recorded as (a model exported before licences).
 NOT_STATED = "not stated"
@@ -18,13 +17,10 @@ NO_WEIGHTS = "none (no trained weights)"
 
 def folder_licence(folder: str | Path, file: str = "model.json") -> str:
     """``folder/file``'s ``licence`` (NOT_STATED when it has none); ModelFolderError naming
-    the file when it is not a string."""
+    the file when it is not a string, or the file cannot be read (read_json_object: a file
+    replaced by a pipe after its model was loaded blocked a fill for ever)."""
     path = Path(folder) / file
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return NOT_STATED  # loading the model names what is wrong with the file
-    value = meta.get("licence", NOT_STATED) if isinstance(meta, dict) else NOT_STATED
+    value = read_json_object(path, file).get("licence", NOT_STATED)
     if not isinstance(value, str) or not value.strip():
         raise ModelFolderError(f"{path}: 'licence' must be a non-empty string, not {value!r}")
     return value

@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline import jsonfile
 from pipeline.errors import TweenError
-from pipeline.inputs import read_small_text
+from pipeline.inputs import broken_link, frame_rate_trouble, read_small_text
 
 #: The most bytes a model folder's JSON file (model.json, rig.json) may hold: a few KB each
 #: shipped; a pipe or a device in its place blocked or ate memory (read_small_text).
@@ -136,17 +136,20 @@ def _json_type(v) -> str:
     )
 
 
-def read_model_json(folder: str | Path) -> dict:
-    """``folder``/model.json, checked: readable JSON, an object with every required key of
-    the right type; or ModelFolderError naming the file."""
-    path = Path(folder) / "model.json"
+def read_json_object(path: str | Path, kind: str, missing: str = "missing") -> dict:
+    """``path``, a model folder's JSON file (``kind``: model.json, rig.json), as a JSON object;
+    or ModelFolderError naming it in one line: ``missing`` where it is not there, a broken
+    link, a pipe or device (read_small_text: opened without blocking, at most JSON_LIMIT
+    bytes), not JSON, nested too deeply, or not an object. The one reader of these files,
+    so that a damaged one reads the same, and neither hangs nor eats memory, wherever read."""
+    path = Path(path)
     try:
-        text = read_small_text(path, JSON_LIMIT, "model.json")
+        text = read_small_text(path, JSON_LIMIT, kind)
     except FileNotFoundError:
-        raise ModelFolderError(
-            f"{path}: missing (a model folder holds model.json beside its .onnx files)"
-        ) from None
+        raise ModelFolderError(f"{path}: {broken_link(path) or missing}") from None
     except (OSError, UnicodeDecodeError) as e:
+        if odd := broken_link(path):  # a link loop: named, not "too many levels of symbolic links"
+            raise ModelFolderError(f"{path}: {odd}, not a {kind}") from None
         raise ModelFolderError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
     try:
         meta = jsonfile.loads(text)
@@ -158,6 +161,20 @@ def read_model_json(folder: str | Path) -> dict:
         raise ModelFolderError(f"{path}: {e}") from None
     if not isinstance(meta, dict):
         raise ModelFolderError(f"{path}: expected a JSON object, found {_json_type(meta)}")
+    return meta
+
+
+def read_model_json(folder: str | Path) -> dict:
+    """``folder``/model.json, checked: readable JSON, an object with every required key of
+    the right type; or ModelFolderError naming the file."""
+    path = Path(folder) / "model.json"
+    rig = Path(folder) / "rig.json"
+    if not os.path.lexists(path) and (odd := broken_link(rig)):
+        # A rig model folder whose rig.json is a broken link: that file is what is wrong.
+        raise ModelFolderError(f"{rig}: {odd}, not a rig.json")
+    meta = read_json_object(
+        path, "model.json", "missing (a model folder holds model.json beside its .onnx files)"
+    )
     missing = [k for k in _REQUIRED if k not in meta]
     if missing:
         raise ModelFolderError(f"{path}: missing key(s) {', '.join(repr(k) for k in missing)}")
@@ -168,7 +185,9 @@ def read_model_json(folder: str | Path) -> dict:
         # JSON true/false are not numbers here, and 30.0 is not an integer.
         if (isinstance(v, bool) and want is not bool) or not isinstance(v, want):
             raise ModelFolderError(f"{path}: {key!r} must be {_TYPE_NAMES[want]}, not {_json_type(v)}")
-    for key in ("fps", "multiple", "max_gap", "receptive_field"):
+    if why := frame_rate_trouble(meta["fps"]):  # 1e308 overflowed into warnings in the fill
+        raise ModelFolderError(f"{path}: 'fps' {why}")
+    for key in ("multiple", "max_gap", "receptive_field"):
         if key in meta and not meta[key] > 0:
             raise ModelFolderError(f"{path}: {key!r} must be positive, not {meta[key]!r}")
     for key in ("pad_tail", "min_window"):

@@ -11,7 +11,7 @@ import typer
 
 from pipeline.errors import printable
 from pipeline.library.options import LOCK_WAIT_S, LibraryBuildOptions, check_lock_wait, with_library_options
-from pipeline.library.store import open_library, verify
+from pipeline.library.store import check_fillable, open_library, verify
 
 
 @with_library_options
@@ -63,9 +63,11 @@ def _progress_lines():
 
 
 def info_command(library: Path = typer.Argument(..., help="A library folder.")):
-    """What a library holds: takes, frames, hours, licence and hash; every frame of its arrays
-    checked first (a damaged file is one line naming it, exit 2)."""
+    """What a library holds: takes, frames, hours, licence and hash; its skeleton and frame
+    rate (as the fill checks them) and every frame of its arrays checked first (a damaged file
+    is one line naming it, exit 2)."""
     lib = open_library(library)
+    check_fillable(lib)  # what the fill refuses, refused here too
     verify(lib)  # a TD runs info to check a library: all of it, before a line is printed
     typer.echo(lib.describe())
     for t in lib.manifest["takes"]:  # a file name may hold a newline: one take, one line

@@ -10,10 +10,9 @@ model folder, as :func:`pipeline.infer.folder.shipped_library` checks it), ``lic
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from pipeline.infer.folder import ModelFolderError, shipped_library
+from pipeline.infer.folder import ModelFolderError, read_json_object, shipped_library
 from pipeline.library.infer import LibraryInbetweener
 
 KIND = "motion-library"
@@ -25,11 +24,8 @@ class LibraryModel(LibraryInbetweener):
     def __init__(self, folder: str | Path):
         self.folder = Path(folder)
         path = self.folder / "model.json"
-        try:
-            meta = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as e:
-            raise ModelFolderError(f"{path}: cannot read: {getattr(e, 'strerror', None) or e}") from None
-        if not isinstance(meta, dict) or meta.get("kind") != KIND:
+        meta = read_json_object(path, "model.json")  # a pipe, a device, deep JSON: one line
+        if meta.get("kind") != KIND:
             raise ModelFolderError(f"{path}: not a {KIND} model")
         if not isinstance(meta.get("name"), str) or not meta["name"].strip():
             raise ModelFolderError(f"{path}: 'name' must be a non-empty string")

@@ -284,6 +284,34 @@ def verify(lib: Library) -> None:
                 raise LibraryError(f"{where}, frames {s}-{last}: {why}")
 
 
+#: The frame rate a fill works at, which a library's takes must be at (pipeline.library.infer).
+FILL_FPS = 30.0
+
+
+def check_fillable(lib: Library) -> None:
+    """LibraryError naming the manifest unless a fill can use ``lib``: its ``skeleton`` the
+    model skeleton's joint names, in order, and its frame rate the fill's; what the fill
+    (pipeline.library.infer) refuses, so that `tween library info` passes no library a fill
+    refuses (a manifest that lost a joint name passed it)."""
+    from pipeline.data.skeletons import bandai_skeleton
+
+    path = lib.folder / MANIFEST
+    names = tuple(bandai_skeleton().names)
+    given = tuple(lib.manifest.get("skeleton", ()))
+    if given != names:
+        lost = [n for n in names if n not in given]
+        odd = [n for n in given if n not in names]
+        why = (
+            f"joint {lost[0]!r} and {len(lost) - 1} more missing" if len(lost) > 1
+            else f"joint {lost[0]!r} missing" if lost
+            else f"joint {odd[0]!r} is not the model's" if odd
+            else f"{len(given)} names for the model's {len(names)} joints, or in another order"
+        )  # fmt: skip
+        raise LibraryError(f"{path}: its takes are on another skeleton than the model's ({why}) {REBUILD}")
+    if abs(lib.fps - FILL_FPS) > 1e-6:
+        raise LibraryError(f"{path}: {lib.fps:g} fps, the fill works at {FILL_FPS:g} {REBUILD}")
+
+
 def empty_manifest(name: str, licence: str | None, skeleton_names, fps: float) -> dict:
     return {
         "kind": KIND,

@@ -16,6 +16,7 @@ No torch here. Filling (see docs/rig.md):
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from pipeline.infer.api import Capabilities, refuse_extras
 from pipeline.infer.folder import JSON_LIMIT, check_hash, check_onnx_file, files_hash
 from pipeline.infer.interp import interpolate_keys
 from pipeline.infer.post import lock_feet, match_keys
-from pipeline.inputs import read_small_text
+from pipeline.inputs import FPS_MAX, broken_link, frame_rate_trouble, not_a_file, read_small_text
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import quat_continuity
 from pipeline.motion.skeleton import Skeleton
@@ -82,6 +83,8 @@ class RigInbetweener:
     def __init__(self, folder: str | Path, coarse: str = "keys", feet: bool = True):
         self.folder = Path(folder)
         path = self.folder / "rig.json"
+        if odd := broken_link(path):  # a link loop is no "no rig.json"
+            raise RigModelError(path, odd)
         if not path.is_file():
             raise RigModelError(self.folder, "no rig.json (not a rig model folder)")
         try:
@@ -98,8 +101,10 @@ class RigInbetweener:
             what = f"missing {e}" if isinstance(e, KeyError) and " " not in said else said
             raise RigModelError(path, f"not a rig model: {what}") from None
         for f in self.files:
-            if not (self.folder / f).is_file():
+            if not os.path.lexists(self.folder / f):
                 raise RigModelError(self.folder, f"missing {f} (listed in rig.json)")
+            if odd := not_a_file(self.folder / f, "level's ONNX file"):  # a device is not "missing"
+                raise RigModelError(self.folder / f, f"{odd} (listed in rig.json)")
             check_onnx_file(self.folder / f)  # whole: not onnxruntime's error on the first fill
         check_hash(path, self.model_hash, files_hash(self.folder, self.files))
         self.coarse = coarse
@@ -134,8 +139,10 @@ class RigInbetweener:
         self.files = [lv["file"] for lv in m["levels"]]
         if not (np.isfinite(self.spec.scale) and self.spec.scale > 0 and np.isfinite(float(rep["floor"]))):
             raise ValueError("representation scale must be a positive number and floor finite")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"fps {self.fps} is not a positive number")
+        if frame_rate_trouble(m["fps"]):  # (0 divided by zero; 1e308 overflowed)
+            raise ValueError(
+                f"fps {self.fps!r} is not a positive number of at most {FPS_MAX:,} frames a second"
+            )
         if not self.files:
             raise ValueError("no levels")
         if not all(n > 0 for n in self.train_lengths) or not all(np.isfinite(a) for a in self.amps):

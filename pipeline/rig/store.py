@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline import jsonfile
 from pipeline.errors import TweenError
-from pipeline.inputs import read_small_text
+from pipeline.inputs import broken_link, frame_rate_trouble, read_small_text
 
 #: The most bytes rig.json may hold (pipeline.infer.folder.JSON_LIMIT, not imported here: the
 #: CLI's start-up reads this module without the in-betweeners).
@@ -75,9 +75,10 @@ def read_rig_json(folder: str | Path) -> RigModelInfo:
     try:
         meta = jsonfile.loads(read_small_text(path, JSON_LIMIT, "rig.json"))
     except FileNotFoundError:
-        raise RigModelError(f"{path}: no such file (a rig model folder holds rig.json)") from None
+        what = broken_link(path) or "no such file"
+        raise RigModelError(f"{path}: {what} (a rig model folder holds rig.json)") from None
     except (OSError, UnicodeDecodeError, ValueError) as e:  # ValueError: not JSON, nested too deeply
-        raise RigModelError(f"{path}: cannot read: {e}") from None
+        raise RigModelError(f"{path}: cannot read: {broken_link(path) or e}") from None
     try:
         from pipeline.infer.api import rig_kinds
 
@@ -98,6 +99,8 @@ def read_rig_json(folder: str | Path) -> RigModelInfo:
             raise ValueError(f"up_axis must be Y or Z, not {up!r}")
         if not (mpu > 0 and np.isfinite(mpu)) or not np.isfinite(offsets).all():
             raise ValueError("meters_per_unit or offsets are not finite positive numbers")
+        if why := frame_rate_trouble(meta["fps"]):  # 0 was refused only later, by the shot's keys
+            raise ValueError(f"'fps' {why}")
         return RigModelInfo(
             folder=Path(folder),
             name=str(meta["name"]),

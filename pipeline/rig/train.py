@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import pickle
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -356,6 +357,15 @@ class Trainer:
             state = torch.load(path, map_location=self.device, weights_only=True)
         except OSError as e:
             raise TrainError(f"{path}: cannot read the checkpoint: {e.strerror or e}") from None
+        except pickle.UnpicklingError as e:
+            if "global" not in str(e).lower():  # a cut or foreign pickle: damaged, below
+                state = None
+            else:  # weights_only refused what it names (os.system, a class): not damage, a danger
+                raise TrainError(
+                    f"{path}: the training checkpoint holds something other than tensors and plain "
+                    f"values and was refused for safety (nothing in it was run); remove {self.ckpt_dir} "
+                    "to start this training over"
+                ) from None
         except Exception:  # torch.load's errors for a cut, empty or foreign file are many kinds
             state = None
         if (

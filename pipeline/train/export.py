@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 import warnings
 from dataclasses import asdict
@@ -18,10 +19,10 @@ from pipeline.data.split import list_clips
 from pipeline.data.terms import commercial
 from pipeline.errors import TweenError
 from pipeline.infer.dna_poses import n_dna_channels
-from pipeline.infer.folder import FORMAT, model_hash
+from pipeline.infer.folder import FORMAT, model_hash, read_json_object, read_model_json
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
-from pipeline.train.generator_training import read_checkpoint
+from pipeline.train.generator_training import MAX_WEIGHTS, check_network_size, read_checkpoint
 from pipeline.usd.take import load_takes
 
 
@@ -37,11 +38,15 @@ def _load(cls, cfg_cls, ckpt: Path, key="model"):
     try:
         if cfg_cls is GeneratorConfig:  # (the switches of retired experiments dropped)
             cfg = GeneratorConfig.saved(mcfg, ckpt)
+            # Sized on the meta device first, as `tween train --init` does: a config of width
+            # 10**6 or 1,000 levels allocated gigabytes before its weights were compared.
+            check_network_size(cfg, state[key], f"{ckpt}: the run's checkpoint")
         else:
             cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
+            _check_path_size(cls, cfg, state[key], f"{ckpt}: the run's checkpoint")
         net = cls(cfg)
         net.load_state_dict(state[key])
-    except (TypeError, ValueError, KeyError, RuntimeError) as e:
+    except (TypeError, ValueError, KeyError, RuntimeError, AttributeError) as e:
         lines = [t.strip() for t in str(e).splitlines() if t.strip() and not t.strip().endswith(":")]
         why = lines[0][:160] if lines else type(e).__name__  # torch's first line is only a heading
         raise TweenError(
@@ -57,6 +62,20 @@ def _load(cls, cfg_cls, ckpt: Path, key="model"):
         raise TweenError(f"{ckpt}: the run's checkpoint: {which} not finite numbers (the run diverged)")
     net.eval()
     return net, cfg, state
+
+
+def _check_path_size(cls, cfg, weights: dict, where: str) -> None:
+    """The path predictor ``cfg`` describes, sized as :func:`check_network_size` sizes a generator:
+    built on the meta device (no memory) and given ``weights`` (their shapes must be its own:
+    RuntimeError as when loaded), then TweenError naming ``where`` over MAX_WEIGHTS weights."""
+    with torch.device("meta"):
+        net = cls(cfg)
+    net.load_state_dict({**net.state_dict(), **weights}, assign=True)
+    n = sum(p.numel() for p in net.parameters())
+    if n > MAX_WEIGHTS:
+        raise TweenError(
+            f"{where}: its config describes a network of {n:,} weights (at most {MAX_WEIGHTS:,})"
+        )
 
 
 def macs_per_frame(net: torch.nn.Module, channels: int, frames: int = 256) -> float:
@@ -234,11 +253,13 @@ def data_terms(config: dict) -> dict:
     init = Path(config["init"]) if config.get("init") else None
     folder = init if init is None or init.is_dir() else init.parent.parent  # <model>/torch/generator.pt
     if init is not None:
-        try:
-            given = json.loads((folder / "model.json").read_text())
+        card = folder / "model.json"  # a run folder given as --init holds none: terms not stated
+        # A damaged card (a pipe, /dev/zero, deep JSON) is one line naming it, not a hang.
+        given = read_json_object(card, "model.json") if os.path.lexists(card) else {}
+        if isinstance(given.get("name"), str):
             sources.append({"name": given["name"], "licence": given.get("licence", "not stated"),
                             "use": f"inherited: initialised from {init}"})  # fmt: skip
-        except (OSError, ValueError, KeyError):
+        else:
             sources.append(
                 {"name": str(init), "licence": "not stated", "use": "inherited: initialised from it"}
             )
@@ -297,7 +318,7 @@ def verify(run_dir: Path, model_dir: Path, seed: int = 0) -> float:
     from pipeline.motion.bvh import read_bvh
     from pipeline.train.path_training import path_inputs
 
-    meta = json.loads((model_dir / "model.json").read_text())
+    meta = read_model_json(model_dir)
     gen, gcfg, _ = _load(Generator, GeneratorConfig, run_dir / "generator.pt")
     rng = np.random.default_rng(seed)
     skel = bandai_skeleton()

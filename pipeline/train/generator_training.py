@@ -593,7 +593,7 @@ def _with_init(cfg: TrainConfig, dev) -> tuple[TrainConfig, dict | None]:
         cfg = replace(cfg, model=inherit_model(cfg.model, saved))
         if cfg.model.delta and not saved.get("delta", False):
             init = to_delta_inputs(init, cfg.model.n_joints)
-        _check_size(cfg.model, init, where)  # before a network of the config's size is made
+        check_network_size(cfg.model, init, where)  # before a network of the config's size is made
         net = Generator(cfg.model)
         net.load_state_dict({**net.state_dict(), **init})
     except (TypeError, ValueError, KeyError, RuntimeError, AttributeError) as e:
@@ -611,7 +611,7 @@ MAX_LAYERS = 32
 MAX_WEIGHTS = 500_000_000  # ~2 GB of float32; the shipped models have a few million
 
 
-def _check_size(model: GeneratorConfig, weights: dict, where: str) -> None:
+def check_network_size(model: GeneratorConfig, weights: dict, where: str) -> None:
     """The network ``model`` describes, built on the meta device (no memory) and given
     ``weights``: their shapes must be its own (ValueError, RuntimeError as when loaded), and
     it must be of a reasonable size (TweenError naming ``where``): a config of width 10**6

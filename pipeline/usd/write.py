@@ -11,7 +11,6 @@ the variants, so no local opinion of the animator's layers can hide them).
 from __future__ import annotations
 
 import datetime
-import errno
 import glob
 import json
 import os
@@ -25,7 +24,7 @@ import numpy as np
 import pipeline.usd  # noqa: F401
 from pipeline.atomic import locked, writable
 from pipeline.errors import ShotError, TweenError
-from pipeline.inputs import not_a_file
+from pipeline.inputs import broken_link, not_a_file
 from pipeline.outputs import remove_created
 from pipeline.usd import files
 from pipeline.usd.diagnostics import error_text, usd_diagnostics
@@ -236,14 +235,8 @@ def check_review(review: str | Path) -> None:
 def _link_loop(path: str | Path, kind: str) -> str | None:
     """The phrase for ``path`` when it is a link loop, else None: inputs.not_a_file says "a
     link to nothing" of one, and dailies' read of one failed as "permission denied"."""
-    try:
-        os.stat(path)
-    except OSError as e:
-        if e.errno == errno.ELOOP:
-            return f"a link loop (it leads back to itself), not a {kind}"
-    except ValueError:  # a NUL in the name
-        pass
-    return None
+    why = broken_link(path)
+    return f"{why}, not a {kind}" if why and "loop" in why else None
 
 
 def _recorded(path: Path) -> dict:
