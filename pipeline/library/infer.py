@@ -36,7 +36,7 @@ from pipeline.infer.spline import spline_keys
 from pipeline.infer.trust import CURVE
 from pipeline.library import match
 from pipeline.library.match_features import frame_features
-from pipeline.library.store import Library, LibraryError, open_library
+from pipeline.library.store import FILL_FPS, Library, LibraryError, check_fillable, open_library
 from pipeline.motion.clip import Motion
 from pipeline.motion.rotations import slerp_pairs
 
@@ -98,7 +98,7 @@ def key_bend_cm(feats: np.ndarray, keys: np.ndarray) -> np.ndarray:
 class LibraryInbetweener:
     """Fills the frames between keys from a studio's library (:mod:`pipeline.library`)."""
 
-    fps = 30.0
+    fps = FILL_FPS  # the frame rate a library must be at (store.check_fillable)
     #: ``probe_margin``: the score (mean log error ratio at the probes) by which the network
     #: probed beside the library must beat it to fill the character instead
     #: (pipeline.infer.trust): the probes' holes are twice the shot's gaps, and on the tuning
@@ -109,12 +109,7 @@ class LibraryInbetweener:
     def __init__(self, library: str | Library, feet: bool = True, best: int = match.BEST):
         self.library = library if isinstance(library, Library) else open_library(library)
         self.skeleton = bandai_skeleton()
-        if tuple(self.library.manifest.get("skeleton", ())) != tuple(self.skeleton.names):
-            raise LibraryError(f"{self.library.folder}: its takes are on another skeleton than the model's")
-        if abs(self.library.fps - self.fps) > 1e-6:
-            raise LibraryError(
-                f"{self.library.folder}: {self.library.fps:g} fps, the fill works at {self.fps:g}"
-            )
+        check_fillable(self.library)  # `tween library info` runs the same check
         if self.library.frames < 2:
             raise LibraryError(f"{self.library.folder}: the library holds no motion")
         self.name = f"library:{self.library.name}"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import sys
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -257,6 +258,13 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", c
         raise TweenError(f"{path}: {role}: {odd}{hint}")  # a pipe would block torch.load for ever
     try:  # weights_only: a checkpoint holds tensors and plain values; a crafted one runs no code
         state = torch.load(path, weights_only=True, map_location=map_location)
+    except pickle.UnpicklingError as e:
+        if "global" in str(e).lower():  # weights_only refused what it names (os.system, a class)
+            raise TweenError(
+                f"{path}: {role}: holds something other than tensors and plain values and was "
+                f"refused for safety (nothing in it was run){hint}"
+            ) from None
+        raise TweenError(f"{path}: {role}: {what} ({type(e).__name__}){hint}") from None
     except Exception as e:  # torch raises pickle, zip, EOF and runtime errors alike
         raise TweenError(f"{path}: {role}: {what} ({type(e).__name__}){hint}") from None
     if (

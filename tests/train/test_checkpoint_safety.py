@@ -56,7 +56,9 @@ def test_a_crafted_generator_checkpoint_runs_no_code(tmp_path):
     path, marker = _evil(tmp_path, **_small_checkpoint())
     with pytest.raises(TweenError) as e:
         load_init(str(path))
-    assert str(e.value).startswith(f"{path}: --init: not a checkpoint that `tween train` wrote")
+    assert str(e.value).startswith(
+        f"{path}: --init: holds something other than tensors and plain values and was refused for safety"
+    )
     assert "\n" not in str(e.value)
     with pytest.raises(TweenError, match="the run's checkpoint"):
         read_checkpoint(path, "the run's checkpoint")

@@ -213,6 +213,8 @@ def test_a_mapping_naming_a_joint_under_the_other_root_is_one_line(tmp_path, mon
     assert all(ln.startswith("tween: ") for ln in lines) and "Traceback" not in err, err
     assert str(shot) in errors[0] and SKEL in errors[0], err
     assert "mapping override Foot_L -> 'IK_Foot_L/Pole_L'" in errors[0], err
+    # Named as what it is: a joint of the skeleton, under another root than the character's.
+    assert "a joint under another root joint than the character's 'Hips'" in errors[0], err
     assert _digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
 
 
