@@ -47,3 +47,37 @@ def tree_hashes(folder: Path) -> dict[str, str]:
 def samples(stage, path: str, attr: str = "rotations") -> dict[float, np.ndarray]:
     a = stage.GetPrimAtPath(path).GetAttribute(attr)
     return {t: np.array(a.Get(t)) for t in a.GetTimeSamples()}
+
+
+def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
+    """The `tween` entry point in this process: (exit status, stderr)."""
+    import sys
+
+    import pytest
+
+    from pipeline.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
+    with pytest.raises(SystemExit) as e:
+        main()
+    return e.value.code or 0, capsys.readouterr().err
+
+
+def layer_samples(layer_path: Path, prim: str, attrs) -> tuple[list[str], dict[str, dict[float, np.ndarray]]]:
+    """(the ``joints`` of the SkelAnimation ``prim`` in the layer at ``layer_path``, each of
+    ``attrs``' time samples there by time): what a fill layer itself holds."""
+    from pxr import Sdf
+
+    layer = Sdf.Layer.FindOrOpen(str(layer_path))
+    spec = layer.GetPrimAtPath(prim)
+    joints = list(spec.attributes["joints"].default)
+    out = {}
+    for name in attrs:
+        path = spec.attributes[name].path
+        out[name] = {t: np.array(layer.QueryTimeSample(path, t)) for t in layer.ListTimeSamplesForPath(path)}
+    return joints, out
+
+
+def digest(path: Path) -> str:
+    """The sha256 of one file (the user's shot, unchanged by a fill)."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()

@@ -5,14 +5,11 @@ keep the values the animator's animation gives them at every time the fill layer
 
 from __future__ import annotations
 
-import hashlib
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from pipeline.cli import main
+from usd_fixtures import digest, layer_samples, tween
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
 ANIM = "/World/Walker/Skel/Anim"
@@ -20,13 +17,6 @@ FILLED = "/World/Walker/Skel/Anim_tween"
 EXTRA = "Hips/Tail"  # not a joint of the skeleton
 AT = 3  # where the animation lists it
 ATTRS = ("rotations", "translations", "scales")
-
-
-def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
-    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    return e.value.code or 0, capsys.readouterr().err
 
 
 def _add_joint(shot: Path, name: str, at: int) -> None:
@@ -54,23 +44,6 @@ def _add_joint(shot: Path, name: str, at: int) -> None:
     stage.Save()
 
 
-def _samples(layer_path: Path) -> tuple[list[str], dict[str, dict[float, np.ndarray]]]:
-    from pxr import Sdf
-
-    layer = Sdf.Layer.FindOrOpen(str(layer_path))
-    spec = layer.GetPrimAtPath(FILLED)
-    joints = list(spec.attributes["joints"].default)
-    out = {}
-    for name in ATTRS:
-        path = spec.attributes[name].path
-        out[name] = {t: np.array(layer.QueryTimeSample(path, t)) for t in layer.ListTimeSamplesForPath(path)}
-    return joints, out
-
-
-def _digest(p: Path) -> str:
-    return hashlib.sha256(p.read_bytes()).hexdigest()
-
-
 @pytest.mark.parametrize("model", ["interp", "spline"])
 def test_joints_the_skeleton_lacks_are_ignored_and_kept(tmp_path, monkeypatch, capsys, model):
     from pxr import Usd
@@ -80,7 +53,7 @@ def test_joints_the_skeleton_lacks_are_ignored_and_kept(tmp_path, monkeypatch, c
         p.parent.mkdir()
         p.write_bytes(SHOT.read_bytes())
     _add_joint(odd, EXTRA, AT)
-    before = _digest(odd)
+    before = digest(odd)
 
     rc, err = tween(monkeypatch, capsys, "fill-local", plain, "--model", model)
     assert rc == 0, err
@@ -90,10 +63,10 @@ def test_joints_the_skeleton_lacks_are_ignored_and_kept(tmp_path, monkeypatch, c
     assert len(warnings) == 1, err
     assert warnings[0].startswith("tween: warning: ") and str(odd) in warnings[0]
     assert ANIM in warnings[0] and repr(EXTRA) in warnings[0] and " 1 of " in warnings[0]
-    assert _digest(odd) == before  # the animator's file is never written
+    assert digest(odd) == before  # the animator's file is never written
 
-    joints_p, plain_s = _samples(plain.parent / "sh010.tween.v001.usda")
-    joints_o, odd_s = _samples(odd.parent / "sh010.tween.v001.usda")
+    joints_p, plain_s = layer_samples(plain.parent / "sh010.tween.v001.usda", FILLED, ATTRS)
+    joints_o, odd_s = layer_samples(odd.parent / "sh010.tween.v001.usda", FILLED, ATTRS)
     assert joints_o == joints_p[:AT] + [EXTRA] + joints_p[AT:]  # every joint the animator listed
     keep = [i for i in range(len(joints_o)) if i != AT]
 
@@ -149,10 +122,10 @@ def test_an_animation_of_none_of_the_skeletons_joints_is_one_line(tmp_path, monk
     attr = stage.GetPrimAtPath(ANIM).GetAttribute("joints")
     attr.Set(Vt.TokenArray([f"Other{i}" for i in range(len(attr.Get()))]))
     stage.Save()
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "interp")
     assert rc == 2, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("tween: error: "), err
     assert str(shot) in lines[0] and ANIM in lines[0] and "none of the joints" in lines[0], err
-    assert _digest(shot) == before and sorted(p.name for p in tmp_path.iterdir()) == [shot.name]
+    assert digest(shot) == before and sorted(p.name for p in tmp_path.iterdir()) == [shot.name]

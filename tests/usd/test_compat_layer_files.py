@@ -5,21 +5,12 @@ written. A link loop read as "permission denied", a folder or a pipe as "no such
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
-
-from pipeline.cli import main
+from usd_fixtures import tween
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
-
-
-def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
-    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    return e.value.code or 0, capsys.readouterr().err
 
 
 def _one_error(rc: int, err: str, *words: str) -> None:

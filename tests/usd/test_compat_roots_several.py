@@ -7,15 +7,12 @@ character). Before, any second root was refused ("skeleton topology: 2 root join
 
 from __future__ import annotations
 
-import hashlib
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from pipeline.cli import main
+from usd_fixtures import digest, layer_samples, tween
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
 SKEL = "/World/Walker/Skel"
@@ -24,13 +21,6 @@ FILLED = f"{SKEL}/Anim_tween"
 SECOND = ["IK_Foot_L", "IK_Foot_L/Pole_L"]  # an unparented IK target and its pole
 AT = 2  # where the animation lists them
 ATTRS = ("rotations", "translations", "scales")
-
-
-def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
-    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    return e.value.code or 0, capsys.readouterr().err
 
 
 def _second_root(shot: Path, names=SECOND, at: int = AT, animated: bool = True) -> None:
@@ -70,23 +60,6 @@ def _second_root(shot: Path, names=SECOND, at: int = AT, animated: bool = True) 
     stage.Save()
 
 
-def _samples(layer_path: Path, prim: str = FILLED) -> tuple[list[str], dict[str, dict[float, np.ndarray]]]:
-    from pxr import Sdf
-
-    layer = Sdf.Layer.FindOrOpen(str(layer_path))
-    spec = layer.GetPrimAtPath(prim)
-    joints = list(spec.attributes["joints"].default)
-    out = {}
-    for name in ATTRS:
-        path = spec.attributes[name].path
-        out[name] = {t: np.array(layer.QueryTimeSample(path, t)) for t in layer.ListTimeSamplesForPath(path)}
-    return joints, out
-
-
-def _digest(p: Path) -> str:
-    return hashlib.sha256(p.read_bytes()).hexdigest()
-
-
 def _copy(folder: Path) -> Path:
     folder.mkdir(parents=True)
     shot = folder / "sh010.usda"
@@ -110,16 +83,16 @@ def test_the_largest_hierarchy_is_filled_and_the_other_root_kept(tmp_path, monke
 
     plain, odd = _copy(tmp_path / "plain"), _copy(tmp_path / "odd")
     _second_root(odd)
-    before = _digest(odd)
+    before = digest(odd)
     rc, err = tween(monkeypatch, capsys, "fill-local", plain, "--model", model)
     assert rc == 0, err
     rc, err = tween(monkeypatch, capsys, "fill-local", odd, "--model", model)
     assert rc == 0, err
     _one_warning(err, odd)
-    assert _digest(odd) == before  # the animator's file is never written
+    assert digest(odd) == before  # the animator's file is never written
 
-    joints_p, plain_s = _samples(plain.parent / "sh010.tween.v001.usda")
-    joints_o, odd_s = _samples(odd.parent / "sh010.tween.v001.usda")
+    joints_p, plain_s = layer_samples(plain.parent / "sh010.tween.v001.usda", FILLED, ATTRS)
+    joints_o, odd_s = layer_samples(odd.parent / "sh010.tween.v001.usda", FILLED, ATTRS)
     assert joints_o == joints_p[:AT] + SECOND + joints_p[AT:]  # every joint the animator listed
     other = [AT, AT + 1]
     keep = [i for i in range(len(joints_o)) if i not in other]
@@ -150,11 +123,11 @@ def test_several_takes_of_the_default_model_keep_the_other_root(tmp_path, monkey
 
     shot = _copy(tmp_path / "shot")
     _second_root(shot, at=0)
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--takes", "2")
     assert rc == 0, err
     _one_warning(err, shot)
-    assert _digest(shot) == before
+    assert digest(shot) == before
     stage = Usd.Stage.Open(str(shot.parent / "sh010.review.v001.usda"))
     src = stage.GetPrimAtPath(ANIM)
     keys = src.GetAttribute("rotations").GetTimeSamples()
@@ -187,7 +160,7 @@ def test_two_hierarchies_of_one_size_are_refused_in_one_line(tmp_path, monkeypat
     del stage
     twin = ["Twin" + t[len("Hips") :] for t in hips]  # a second rig of as many joints
     _second_root(shot, names=twin, animated=False)
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "interp")
     assert rc == 2, err
     lines = err.strip().splitlines()
@@ -196,7 +169,7 @@ def test_two_hierarchies_of_one_size_are_refused_in_one_line(tmp_path, monkeypat
         f"tween: error: {shot} {SKEL}: skeleton topology: 2 root joints ('Twin', 'Hips')"
     )
     assert "'Twin' and 'Hips' each hold 21 joints" in lines[0], err
-    assert _digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+    assert digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
 
 
 def test_a_mapping_naming_a_joint_under_the_other_root_is_one_line(tmp_path, monkeypatch, capsys):
@@ -204,7 +177,7 @@ def test_a_mapping_naming_a_joint_under_the_other_root_is_one_line(tmp_path, mon
     _second_root(shot)
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({"Foot_L": "IK_Foot_L/Pole_L"}))
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--mapping", mapping)
     assert rc == 2, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
@@ -215,7 +188,7 @@ def test_a_mapping_naming_a_joint_under_the_other_root_is_one_line(tmp_path, mon
     assert "mapping override Foot_L -> 'IK_Foot_L/Pole_L'" in errors[0], err
     # Named as what it is: a joint of the skeleton, under another root than the character's.
     assert "a joint under another root joint than the character's 'Hips'" in errors[0], err
-    assert _digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+    assert digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
 
 
 def test_review_approve_and_publish_a_fill_of_several_roots(tmp_path, monkeypatch, capsys):
@@ -248,7 +221,7 @@ def test_review_approve_and_publish_a_fill_of_several_roots(tmp_path, monkeypatc
     rc, err = tween(monkeypatch, capsys, "publish", shot)
     assert rc == 0, err
     published = shot.parent / "sh010.publish.v002.usda"
-    joints, values = _samples(published, ANIM)  # a plain animation over the animator's
+    joints, values = layer_samples(published, ANIM, ATTRS)  # a plain animation over the animator's
     stage = Usd.Stage.Open(str(shot))
     src = stage.GetPrimAtPath(ANIM)
     assert joints == list(src.GetAttribute("joints").Get())
@@ -260,14 +233,14 @@ def test_review_approve_and_publish_a_fill_of_several_roots(tmp_path, monkeypatc
 
 
 def _refused(monkeypatch, capsys, shot: Path, *reason: str) -> None:
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "interp")
     assert rc == 2, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"tween: error: {shot} "), err
     for r in reason:
         assert r in lines[0], err
-    assert _digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
+    assert digest(shot) == before and sorted(p.name for p in shot.parent.iterdir()) == [shot.name]
 
 
 def test_a_second_root_that_is_a_renamed_joint_of_the_character_is_refused(tmp_path, monkeypatch, capsys):

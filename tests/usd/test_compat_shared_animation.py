@@ -6,25 +6,15 @@ the shot is refused, one line naming both skeletons and the animation."""
 
 from __future__ import annotations
 
-import hashlib
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from pipeline.cli import main
+from usd_fixtures import digest, tween
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
 ANIM = "/World/Walker/Skel/Anim"
 FIRST, SECOND = "/World/Walker/Skel", "/World/Walker2/Skel"
-
-
-def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
-    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    return e.value.code or 0, capsys.readouterr().err
 
 
 def _second_character(shot: Path, how: str) -> None:
@@ -71,10 +61,6 @@ def _second_character(shot: Path, how: str) -> None:
     layer.Save()
 
 
-def _digest(p: Path) -> str:
-    return hashlib.sha256(p.read_bytes()).hexdigest()
-
-
 @pytest.mark.parametrize("how", ["same", "order"])
 def test_one_rig_in_any_joint_order_shares_one_fill(tmp_path, monkeypatch, capsys, how):
     from pxr import Usd, UsdSkel
@@ -102,7 +88,7 @@ def test_two_rigs_on_one_animation_are_one_line(tmp_path, monkeypatch, capsys, h
     shot = tmp_path / "sh010.usda"
     shot.write_bytes(SHOT.read_bytes())
     _second_character(shot, how)
-    before = _digest(shot)
+    before = digest(shot)
     rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "interp")
     assert rc == 2, err
     lines = err.strip().splitlines()
@@ -111,4 +97,4 @@ def test_two_rigs_on_one_animation_are_one_line(tmp_path, monkeypatch, capsys, h
         assert name in lines[0], (name, err)
     said = {"rest": "rest pose of joint 'Hips/Spine'", "joints": "Toes_R' is in", "parent": "Hand_L' is in"}
     assert said[how] in lines[0], err
-    assert _digest(shot) == before and sorted(p.name for p in tmp_path.iterdir()) == [shot.name]
+    assert digest(shot) == before and sorted(p.name for p in tmp_path.iterdir()) == [shot.name]

@@ -10,21 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from usd_fixtures import ANIM, BANDAI_CLIP, tree_hashes
+from usd_fixtures import ANIM, BANDAI_CLIP, tree_hashes, tween
 
 from pipeline.cli import main
 from pipeline.errors import MotionFormatError
 from pipeline.motion import bvh
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
-
-
-def tween(monkeypatch, capsys, *args) -> tuple[int, str]:
-    """The `tween` entry point in this process: (exit status, stderr)."""
-    monkeypatch.setattr(sys, "argv", ["tween", *map(str, args)])
-    with pytest.raises(SystemExit) as e:
-        main()
-    return e.value.code or 0, capsys.readouterr().err
 
 
 def _one_error(rc: int, err: str, *names: str) -> None:
