@@ -175,11 +175,17 @@ def test_submit_to_a_broker_gone_silent_mid_command_is_one_line(redis_farm):
     assert took < 20
 
 
-def test_a_signal_while_submit_waits_on_a_silent_broker_ends_it_at_once(redis_farm):
+@pytest.mark.parametrize(
+    "command, signum",
+    [(["submit"], "SIGINT"), (["fill", "--no-progress"], "SIGTERM")],
+    ids=["submit", "fill"],
+)
+def test_a_signal_while_jobs_are_sent_to_a_silent_broker_ends_it_at_once(redis_farm, command, signum):
     """The broker went silent at the publish, its result backend answering: SIGINT (or
-    SIGTERM) was counted, not acted on, and `tween submit` waited out reply_timeout, then
-    failed, the job's record left "queued" for ever. Now the signal ends it at once, exit
-    130, and the job it had begun to send is cancelled (whatever of it reaches the farm)."""
+    SIGTERM) was counted, not acted on, and `tween submit` (and a farm `tween fill`) waited
+    out reply_timeout, then failed, the job's record left "queued" for ever. Now the signal
+    ends it at once, exit 130, and the job it had begun to send is cancelled (whatever of it
+    reaches the farm)."""
     import signal
 
     from typer.testing import CliRunner
@@ -189,6 +195,7 @@ def test_a_signal_while_submit_waits_on_a_silent_broker_ends_it_at_once(redis_fa
     from workers.app import app
     from workers.settings import load_settings
 
+    sig = getattr(signal, signum)
     server, shot, env = redis_farm
     relay = _relay(server, quiet_at=b"tween.validate")
     env = {**env, "TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": f"redis://127.0.0.1:{relay.port}/0",
@@ -198,15 +205,15 @@ def test_a_signal_while_submit_waits_on_a_silent_broker_ends_it_at_once(redis_fa
     def interrupt_once_silent():
         if relay.quiet.wait(30) and running.is_set():
             time.sleep(0.1)
-            os.kill(os.getpid(), signal.SIGINT)
+            os.kill(os.getpid(), sig)
 
-    before = signal.signal(signal.SIGINT, lambda *_: None)  # one that came late is lost, not pytest's
+    before = signal.signal(sig, lambda *_: None)  # one that came late is lost, not pytest's
     configure_app(app, load_settings(env))
     try:
         threading.Thread(target=interrupt_once_silent, daemon=True).start()
         running.set()
         t0 = time.monotonic()
-        res = CliRunner().invoke(cli, ["submit", str(shot), "--model", "interp"])
+        res = CliRunner().invoke(cli, [command[0], str(shot), "--model", "interp", *command[1:]])
         took = time.monotonic() - t0
         running.clear()
         assert res.exit_code == 130 and res.stdout == "", res.output
@@ -218,52 +225,7 @@ def test_a_signal_while_submit_waits_on_a_silent_broker_ends_it_at_once(redis_fa
     finally:
         relay.close()
         configure_app(app, old)
-        signal.signal(signal.SIGINT, before)
-
-
-def test_a_signal_while_a_farm_fill_sends_to_a_silent_broker_ends_it_at_once(redis_farm):
-    """`tween fill` on a farm counted a signal while it sent its jobs, and waited out a
-    silent broker's reply_timeout before acting on it. Now, as `tween submit`, the signal
-    ends the sending at once, exit 130, and the job it had begun to send is cancelled."""
-    import signal
-
-    from typer.testing import CliRunner
-
-    from pipeline.cli import app as cli
-    from workers import jobs
-    from workers.app import app
-    from workers.settings import load_settings
-
-    server, shot, env = redis_farm
-    relay = _relay(server, quiet_at=b"tween.validate")
-    env = {**env, "TWEEN_FARM_CONFIG": os.devnull, "TWEEN_BROKER_URL": f"redis://127.0.0.1:{relay.port}/0",
-           "TWEEN_RESULT_BACKEND": server.url, "TWEEN_REPLY_TIMEOUT": "8"}  # fmt: skip
-    old, running = app.conf.tween, threading.Event()
-
-    def interrupt_once_silent():
-        if relay.quiet.wait(30) and running.is_set():
-            time.sleep(0.1)
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    before = signal.signal(signal.SIGTERM, lambda *_: None)  # one that came late is lost
-    configure_app(app, load_settings(env))
-    try:
-        threading.Thread(target=interrupt_once_silent, daemon=True).start()
-        running.set()
-        t0 = time.monotonic()
-        res = CliRunner().invoke(cli, ["fill", str(shot), "--model", "interp", "--no-progress"])
-        took = time.monotonic() - t0
-        running.clear()
-        assert res.exit_code == 130 and res.stdout == "", res.output
-        (line,) = res.stderr.splitlines()
-        assert line.startswith("tween: interrupted: cancelled the 1 job(s) it had sent ("), line
-        job = line.rsplit("(", 1)[1].rstrip(")")
-        assert jobs.state(job).state == "CANCELLED"
-        assert took < 5  # reply_timeout is 8 s
-    finally:
-        relay.close()
-        configure_app(app, old)
-        signal.signal(signal.SIGTERM, before)
+        signal.signal(sig, before)
 
 
 def test_a_fill_whose_broker_goes_silent_while_it_waits_names_its_job(redis_farm):
