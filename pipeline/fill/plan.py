@@ -109,6 +109,18 @@ def _shares_a_fill(chars: list[CharPlan], c: Character) -> bool:
     return same is not None
 
 
+def _every_frame_keyed(path: str, c: Character, k: np.ndarray, notes: list[str]) -> None:
+    """A warning where ``c``'s keys are its authored samples and those lie on every frame (a
+    DCC's export samples every frame: Blender's does): every frame is then a key and nothing
+    is in-betweened, which the fill said nothing of (it wrote a layer of the keys alone)."""
+    if len(k) > 2 and np.all(np.diff(k) <= 1 + TIME_EPS):
+        notes.append(
+            f"tween: warning: {path} {c.anim_path}: a sample on every frame from {k[0]:g} to {k[-1]:g} and "
+            f"no keys named, so every frame is a key and nothing is in-betweened; name the keys with "
+            f"--keys (e.g. --keys {k[0]:g}-{k[-1]:g}x10) or tween:keyTimes on the animation"
+        )
+
+
 def _keys_for(shot: Shot, char: Character, want: np.ndarray | None) -> np.ndarray:
     """``want``: the parsed --keys, or None (tween:keyTimes, else the authored samples)."""
     if want is None and char.key_override is not None:
@@ -335,6 +347,8 @@ def make_plan(
             )
         _check_size(path, c, fr)
         authored = not keys and c.key_override is None
+        if authored:
+            _every_frame_keyed(path, c, k, notes)
         chars.append(CharPlan(c, rt, k, fr, folder, float(fps), authored_keys=authored, jumps=jumps))
     if not chars:
         prim, why = refused[0]
