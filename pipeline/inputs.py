@@ -10,7 +10,9 @@ from __future__ import annotations
 import errno
 import math
 import os
+import re
 import stat
+import zipfile
 from pathlib import Path
 
 
@@ -86,3 +88,20 @@ def frame_rate_trouble(value) -> str | None:
     if number and math.isfinite(value) and 0 < value <= FPS_MAX:
         return None
     return f"must be a number of frames a second above 0 and at most {FPS_MAX:,}, not {value!r}"
+
+
+#: torch.load(weights_only=True)'s words for a pickle that names what only a full unpickler
+#: would run (torch 2.4 and later): "GLOBAL os.system was not an allowed global", "... whose
+#: module os is blocked".
+_UNSAFE = re.compile(r"GLOBAL \S+ was not an allowed global|whose module \S+ is blocked", re.I)
+
+
+def refused_for_safety(path: str | Path, error: Exception) -> bool:
+    """Whether ``torch.load(path, weights_only=True)`` raised ``error`` because the file is a
+    torch checkpoint (a zip) whose pickle names code or classes, not because it is damaged or
+    foreign: a text file starting with ``c`` reads as pickle's GLOBAL opcode, so the error's
+    words alone said "refused for safety" of it."""
+    try:
+        return zipfile.is_zipfile(path) and bool(_UNSAFE.search(str(error)))
+    except OSError:
+        return False

@@ -24,6 +24,9 @@ def pytest_configure(config):
     # Keep cache writes (parsed clips, statistics) out of the user's home during tests
     # unless a cache is configured; reuse one across the session.
     os.environ.setdefault("TWEEN_CACHE", str(Path(__file__).resolve().parents[1] / ".cache" / "tests"))
+    # A studio's library in the shell (every fill's default, fill-local's too) would change
+    # every default-model fill here; the library tests set it themselves.
+    os.environ.pop("TWEEN_LIBRARY", None)
 
 
 def pytest_collection_finish(session):

@@ -27,7 +27,7 @@ import numpy as np
 
 from pipeline.atomic import save_torch, write_bytes
 from pipeline.errors import TweenError
-from pipeline.inputs import not_a_file
+from pipeline.inputs import not_a_file, refused_for_safety
 from pipeline.motion.clip import Motion
 from pipeline.rig.options import check_device
 from pipeline.rig.progress import Progress, ProgressBar, ProgressCallback
@@ -358,7 +358,7 @@ class Trainer:
         except OSError as e:
             raise TrainError(f"{path}: cannot read the checkpoint: {e.strerror or e}") from None
         except pickle.UnpicklingError as e:
-            if "global" not in str(e).lower():  # a cut or foreign pickle: damaged, below
+            if not refused_for_safety(path, e):  # a cut or foreign pickle: damaged, below
                 state = None
             else:  # weights_only refused what it names (os.system, a class): not damage, a danger
                 raise TrainError(

@@ -87,7 +87,8 @@ HEAD_BYTES = 4096
 
 def _take_entries(folder: Path, include: str | None):
     """Every path under ``folder`` named like a take (``take_files``'s walk and globs), of
-    whatever kind: a pipe, a link loop or a folder too, which ``take_files`` passes over."""
+    whatever kind: a pipe or a link that leads nowhere too, which ``take_files`` passes over
+    (a folder named like a take is walked into, as it walks into one)."""
     from pipeline.usd.take import TAKE_SUFFIXES
 
     def unlisted(e: OSError):  # a subfolder that cannot be listed may hold takes
@@ -101,7 +102,7 @@ def _take_entries(folder: Path, include: str | None):
             dirs[:] = []
             continue
         seen.add(real)
-        for n in names + dirs:
+        for n in names:  # a folder named like a take is walked into, as take_files does
             if n.lower().endswith(TAKE_SUFFIXES) and (not pats or any(fnmatch.fnmatch(n, q) for q in pats)):
                 yield Path(top) / n
 

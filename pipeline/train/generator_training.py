@@ -32,7 +32,7 @@ from pipeline.infer.features import (
     feature_options,
     key_neighbours,
 )
-from pipeline.inputs import not_a_file
+from pipeline.inputs import not_a_file, refused_for_safety
 from pipeline.motion.augment import joint_offsets
 from pipeline.motion.fk import fk
 from pipeline.networks.discriminator import Discriminator, DiscriminatorConfig, d_loss, g_loss
@@ -259,7 +259,7 @@ def read_checkpoint(path: Path, role: str, map_location="cpu", hint: str = "", c
     try:  # weights_only: a checkpoint holds tensors and plain values; a crafted one runs no code
         state = torch.load(path, weights_only=True, map_location=map_location)
     except pickle.UnpicklingError as e:
-        if "global" in str(e).lower():  # weights_only refused what it names (os.system, a class)
+        if refused_for_safety(path, e):  # weights_only refused what it names (os.system, a class)
             raise TweenError(
                 f"{path}: {role}: holds something other than tensors and plain values and was "
                 f"refused for safety (nothing in it was run){hint}"

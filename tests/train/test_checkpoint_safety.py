@@ -139,3 +139,15 @@ def test_a_damaged_log_line_is_not_a_step():
     assert _logged_step(b"[" * 100_000 + b"\n") is None
     assert _logged_step(b'{"step": true}\n') is None
     assert _logged_step(b'{"step": 3}\n') == 3
+
+
+def test_a_text_file_is_damaged_not_refused_for_safety(tmp_path):
+    """A file whose first byte is ``c`` reads as pickle's GLOBAL opcode, and torch's error
+    named a "global": a text file was said to be refused for safety. Only a torch checkpoint
+    (a zip) whose pickle names code is that; this is not a checkpoint."""
+    path = tmp_path / "generator.pt"
+    path.write_text("config: lr=0.1\nsteps: 100\n")
+    with pytest.raises(TweenError) as e:
+        load_init(str(path))
+    assert "not a checkpoint that `tween train` wrote" in str(e.value), str(e.value)
+    assert "safety" not in str(e.value)

@@ -56,7 +56,6 @@ def _bad_takes(folder: Path) -> dict:
     return {
         "zzz.bvh": (fifo, "not a regular file (a pipe, socket or device), not a take file"),
         "zzz_empty.bvh": (lambda p: p.write_bytes(b""), "an empty file, not a take"),
-        "zzz_folder.usd": (lambda p: p.mkdir(), "a folder named like a take, not a take file"),
         "zzz_noise.bvh": (lambda p: p.write_bytes(os.urandom(3000)), "not a BVH take (it does not start with HIERARCHY)"),
         "zzz_noise.usdc": (lambda p: p.write_bytes(os.urandom(3000)), "not a USD take (it does not start as USD text"),
         "zzz_noise.bvh.gz": (lambda p: p.write_bytes(b"HIERARCHY\n"), "named .gz, but not gzip data"),
@@ -79,7 +78,9 @@ def test_an_odd_file_among_many_takes_is_refused_at_once_before_any_take_is_read
         )
         took = time.monotonic() - t0
         assert line.startswith(f"tween: error: {bad}: {why}") and line.endswith(WHY), line
-        assert took < 2.0, f"{name}: refused after {took:.1f} s"  # reading the takes takes ~1 s each
+        # no_take_read fails the test if a take is read first; the bound is only a backstop
+        # (reading the 62 takes takes about a minute).
+        assert took < 20.0, f"{name}: refused after {took:.1f} s"
         (bad.rmdir if bad.is_dir() else bad.unlink)()
     assert not out.exists()
 
@@ -96,7 +97,7 @@ def test_links_that_lead_nowhere_are_refused_as_well(data_dir, tmp_path, capsys,
         t0 = time.monotonic()
         line = failed(["train", "--out", tmp_path / "run", *RUN, "--data", folder], capsys)
         assert line.startswith(f"tween: error: {folder / name}: {why}; ") and line.endswith(WHY), line
-        assert time.monotonic() - t0 < 2.0
+        assert time.monotonic() - t0 < 20.0  # no_take_read is the check; this a backstop
         (folder / name).unlink()
     assert not (tmp_path / "run").exists()
 
@@ -131,3 +132,15 @@ def test_the_path_predictor_checks_the_takes_before_it_reads_one(
     (small / "zzz.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")  # starts as a BVH, is cut short
     with pytest.raises(TweenError, match=rf"^{re.escape(str(small / 'zzz.bvh'))}:\d+: .*truncated"):
         train_path(PathTrainConfig(steps=4, batch=2, data=str(small)), tmp_path / "run")
+
+
+def test_a_folder_named_like_a_take_is_looked_into_not_refused(tmp_path):
+    """``archive.bvh/`` holding takes: the takes listing walks into it, and so does the check
+    (it was refused as "a folder named like a take")."""
+    from pipeline.train.corpus import check_takes
+
+    inner = tmp_path / "takes" / "archive.bvh"
+    inner.mkdir(parents=True)
+    take = inner / "walk.bvh"
+    take.write_text("HIERARCHY\nROOT Hips\n{\n}\n")
+    assert check_takes(tmp_path / "takes") == [take]
