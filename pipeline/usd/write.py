@@ -333,17 +333,41 @@ def _author_samples(layer, spec, data: dict, extra=None) -> None:
         layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(s))
 
 
-#: The value of an attribute an animation never authors, for the joints its skeleton lacks.
+#: The value of an attribute an animation never authors, for the joints its skeleton lacks
+#: (UsdSkel ignores those joints: any value shows the same).
 _UNAUTHORED = {"rotations": (0, 0, 0, 1), "translations": (0, 0, 0), "scales": (1, 1, 1)}
 
 
-def _extra_joints(src, joints: list[str]):
+def _rest_values(stage, skel: str, authored: list[str]) -> dict:
+    """Per attribute, (len(authored), 3 or 4) values: the skeleton's rest pose (UsdSkel's
+    local rest transforms, decomposed) for the joints it has, _UNAUTHORED for the others.
+    What an attribute the animation never authors shows: UsdSkel poses nothing from an
+    animation that lacks one, so the original showed those joints at rest."""
+    from pxr import Usd, UsdSkel
+
+    out = {n: np.tile(np.array(v, np.float64), (len(authored), 1)) for n, v in _UNAUTHORED.items()}
+    query = UsdSkel.Cache().GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath(skel)))
+    local = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True) if query else None
+    if not local:
+        return out
+    trans, rots, scales = UsdSkel.DecomposeTransforms(local)
+    at = {str(t): i for i, t in enumerate(query.GetJointOrder())}
+    for name, values in (("rotations", rots), ("translations", trans), ("scales", scales)):
+        values = np.array(values, np.float64)
+        for j, t in enumerate(authored):
+            if t in at:
+                out[name][j] = values[at[t]]
+    return out
+
+
+def _extra_joints(src, joints: list[str], rest=None):
     """(every joint the animation ``src`` lists, a merge) where some are not among the
     filled ``joints`` (the skeleton lacks them, or they are under a root other than the
     character's: read.Character.anim_authored, other_joints), else None. The filled
     animation keeps them with the values ``src`` gives at each time (authored samples
     exactly, USD's interpolation between), so that it lists what the animator's does and
-    changes only what the fill filled."""
+    changes only what the fill filled; where ``src`` never authors an attribute, ``rest(authored)``
+    (:func:`_rest_values`): what the original showed."""
     authored = [str(t) for t in (src.GetAttribute("joints").Get() or [])] if src else []
     slot = {t: i for i, t in enumerate(authored)}
     if authored == list(joints) or any(t not in slot for t in joints):  # nothing to keep
@@ -351,6 +375,13 @@ def _extra_joints(src, joints: list[str]):
     slots = np.array([slot[t] for t in joints], np.int64)
     attrs = [(src.GetAttribute(n), n) for n in ("rotations", "translations", "scales")]
     dtypes = (np.float32, np.float32, np.float16)
+    fallback: dict = {}
+
+    def unauthored(name: str, dtype) -> np.ndarray:
+        if not fallback:  # read once, and only where an attribute is missing
+            fallback.update(rest(authored) if rest else {n: np.tile(np.array(v), (len(authored), 1))
+                                                         for n, v in _UNAUTHORED.items()})  # fmt: skip
+        return fallback[name].astype(dtype)
 
     def merge(t: float, *filled):
         out = []
@@ -358,7 +389,7 @@ def _extra_joints(src, joints: list[str]):
             v = attr.Get(t) if attr else None
             full = np.array(v, dtype) if v is not None and len(v) == len(authored) else None
             if full is None:
-                full = np.tile(np.array(_UNAUTHORED[name], dtype), (len(authored), 1))
+                full = unauthored(name, dtype)
             full[slots] = values
             out.append(np.ascontiguousarray(full))
         return out
@@ -456,7 +487,7 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     spec.specifier = Sdf.SpecifierDef
     spec.typeName = "SkelAnimation"
     apply_api(spec, tokens.API)
-    extra = _extra_joints(src, c["joints"])
+    extra = _extra_joints(src, c["joints"], lambda names: _rest_values(stage, c["skel"], names))
     joints = c["joints"] if extra is None else extra[0]
     author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(joints), uniform=True)
     author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))

@@ -273,3 +273,40 @@ def test_an_animation_of_the_other_root_alone_is_refused(tmp_path, monkeypatch, 
         monkeypatch, capsys, shot, f"{ANIM}: animation lists none of the joints of the hierarchy under 'Hips' "
         f"(the character) of its skeleton {SKEL} (its first is 'IK_Foot_L')",
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("cleared", ["translations", "rotations"])
+def test_an_attribute_the_animation_never_authors_keeps_the_other_roots_at_rest(
+    tmp_path, monkeypatch, capsys, cleared
+):
+    """No ``translations`` (or ``rotations``) authored at all: the fill reads the character's
+    missing values as its rest pose, and writes the attribute for every joint, but gave the
+    other roots' joints identity values (an IK target jumped to its root's origin in the
+    review). They keep the skeleton's rest values for it now, and their authored ones for the
+    other attributes."""
+    from pxr import Usd, UsdSkel
+
+    shot = _copy(tmp_path / "shot")
+    _second_root(shot)
+    stage = Usd.Stage.Open(str(shot))
+    anim = stage.GetPrimAtPath(ANIM)
+    joints = [str(j) for j in anim.GetAttribute("joints").Get()]
+    anim.GetAttribute(cleared).Clear()
+    stage.Save()
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "spline")
+    assert rc == 0, err
+
+    query = UsdSkel.Cache().GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath(SKEL)))
+    trans, rots, _ = UsdSkel.DecomposeTransforms(
+        query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True)
+    )
+    order = [str(j) for j in query.GetJointOrder()]
+    rest = {"translations": np.array(trans), "rotations": np.array(rots)}
+    kept = "rotations" if cleared == "translations" else "translations"
+    _, written = layer_samples(shot.parent / "sh010.tween.v001.usda", FILLED, ATTRS)
+    src = anim.GetAttribute(kept)
+    for t in (1005.0, 1011.0):
+        for j in SECOND:
+            a = joints.index(j)
+            np.testing.assert_allclose(written[cleared][t][a], rest[cleared][order.index(j)], atol=1e-6)
+            np.testing.assert_array_equal(written[kept][t][a], np.array(src.Get(t))[a])
