@@ -20,7 +20,16 @@ from pipeline.fill.jumps import body_centre, jump_line, key_jumps
 from pipeline.rig import store
 from pipeline.rig.store import no_model_hint
 from pipeline.usd.keys import MAX_JOINT_FRAMES, merge_times, parse_keys, parse_range
-from pipeline.usd.read import QUAT_EPS, TIME_EPS, Character, Shot, anim_values, read_shot, to_skeleton_order
+from pipeline.usd.read import (
+    QUAT_EPS,
+    TIME_EPS,
+    Character,
+    Shot,
+    anim_values,
+    read_shot,
+    say_warnings,
+    to_skeleton_order,
+)
 
 #: The most model frames one character's keys may span (the in-betweener fills them all).
 MAX_MODEL_FRAMES = 1_000_000
@@ -61,7 +70,8 @@ class Plan:
     notes: list[str] = field(default_factory=list)  # said once every check has passed
 
     def say(self) -> None:
-        """Its notes and the characters it skipped, on stderr."""
+        """The shot's reading warnings, its notes and the characters it skipped, on stderr."""
+        say_warnings(self.shot)
         for note in self.notes:
             print(note, file=sys.stderr)
         for prim, why in self.refused:
@@ -312,7 +322,7 @@ def make_plan(
     fits a character wins over the human mapping), RIG_OFF (human model only) or a rig
     model folder (that model only); ``own_rig``: every character on its own rig, mapped or
     not (interpolation needs no model skeleton). ``say``: its notes now (else :meth:`Plan.say`)."""
-    shot = read_shot(path)
+    shot = read_shot(path, say=False)  # its warnings with the plan's notes: a refusal is one line
     try:
         override = load_override(mapping)
     except MappingError as e:

@@ -637,12 +637,16 @@ def check_span(path: str, start: float, end: float, what: str) -> None:
         raise ShotError(path, f"{what} {start:g}-{end:g} spans more than {MAX_FRAMES:,} frames")
 
 
-def read_shot(path: str | Path) -> Shot:
+def read_shot(path: str | Path, say: bool = True) -> Shot:
     """Every skeleton with a bound animation in the shot (UsdSkel binding resolution).
-    USD's diagnostics while reading are captured, and folded into a refusal."""
+    USD's diagnostics while reading are captured, and folded into a refusal. ``say``: its
+    warnings now (else the caller's :func:`say_warnings`, once its checks have passed)."""
     path = str(path)
     with usd_diagnostics(path):
-        return _read_shot(path)
+        shot = _read_shot(path)
+    if say:
+        say_warnings(shot)
+    return shot
 
 
 @dataclass
@@ -789,12 +793,18 @@ def _read_shot(path: str) -> Shot:
         allt = np.concatenate([c.sample_times for c in chars if len(c.sample_times)] or [np.zeros(1)])
         start, end = float(allt.min()), float(allt.max())
         check_span(path, start, end, "the animation's time samples")
-    for c in chars:  # said once the shot is read: a refusal is its one line
-        if c.extra.get("roots"):
-            _warn_once(path, c.skel_path, c.extra["roots"])
-        if c.extra.get("warning"):
-            _warn_once(path, c.anim_path, c.extra["warning"])
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
+
+
+def say_warnings(shot: Shot) -> None:
+    """The reader's warnings of ``shot`` (several roots, joints the skeleton lacks), each once
+    a process for a version of the file: said by the caller once its own checks have passed,
+    so that a refusal is its one line."""
+    for c in shot.characters:
+        if c.extra.get("roots"):
+            _warn_once(shot.path, c.skel_path, c.extra["roots"])
+        if c.extra.get("warning"):
+            _warn_once(shot.path, c.anim_path, c.extra["warning"])
 
 
 def anim_values(stage, char: Character, times) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -310,3 +310,25 @@ def test_an_attribute_the_animation_never_authors_keeps_the_other_roots_at_rest(
             a = joints.index(j)
             np.testing.assert_allclose(written[cleared][t][a], rest[cleared][order.index(j)], atol=1e-6)
             np.testing.assert_array_equal(written[kept][t][a], np.array(src.Get(t))[a])
+
+
+def test_a_refusal_after_the_shot_is_read_is_its_one_line(tmp_path, monkeypatch, capsys):
+    """The reader said its warning (several roots) as it read the shot, so a refusal by the
+    fill's plan after it (no keys at all) came second, after that warning: two lines. The
+    warnings now wait with the plan's notes until every check has passed."""
+    from pxr import Usd
+
+    shot = _copy(tmp_path / "shot")
+    _second_root(shot)
+    stage = Usd.Stage.Open(str(shot))
+    for name in ("rotations", "translations"):  # one value each, no samples: no keys
+        attr = stage.GetPrimAtPath(ANIM).GetAttribute(name)
+        first = attr.Get(attr.GetTimeSamples()[0])
+        attr.Clear()
+        attr.Set(first)
+    stage.Save()
+    before = digest(shot)
+    rc, err = tween(monkeypatch, capsys, "fill-local", shot, "--model", "interp")
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith(f"tween: error: {shot} {ANIM}"), err
+    assert "key" in lines[0] and digest(shot) == before, err
