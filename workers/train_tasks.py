@@ -10,7 +10,7 @@ import tempfile
 
 from celery.exceptions import SoftTimeLimitExceeded
 
-from pipeline.library.options import command_args
+from pipeline.library.options import LOCK_WAIT_S, MAX_LOCK_WAIT_S, command_args
 from workers.app import train_app
 from workers.errors import JobError
 from workers.limits import train_limit_message
@@ -31,6 +31,16 @@ def train(self, args: list[str]) -> dict:
 _PROGRESS = re.compile(r"^tween: library progress (\d+)/(\d+)")
 
 
+def farm_lock_wait(soft_limit: float | None) -> float:
+    """Seconds a farm build waits for another build of its library to finish: half its soft
+    time limit (the other half for its own build), from LOCK_WAIT_S to MAX_LOCK_WAIT_S. With
+    `tween library build`'s own 300 s, a build queued behind another of the same library
+    failed after 5 minutes, where the farm is meant to queue it."""
+    if not soft_limit:
+        return LOCK_WAIT_S
+    return float(min(MAX_LOCK_WAIT_S, max(LOCK_WAIT_S, soft_limit / 2)))
+
+
 @train_app.task(name="tween.library_build", bind=True)
 def library_build(self, folder: str, out: str, options: dict) -> dict:
     """Runs ``tween library build FOLDER --out OUT`` on this worker (a subprocess, so that a
@@ -45,6 +55,7 @@ def library_build(self, folder: str, out: str, options: dict) -> dict:
     check_takes_under_roots(folder, roots)
     cmd = [sys.executable, "-m", "pipeline.cli", "library", "build", folder, "--out", out, "--no-progress"]
     cmd += command_args(options)
+    cmd += ["--lock-wait", f"{farm_lock_wait(train_app.conf.task_soft_time_limit):g}"]
     meta = {"stage": "library build", "source": folder, "out": out}
     self.update_state(state="STARTED", meta=meta)
     tail: list[str] = []

@@ -141,3 +141,43 @@ def test_the_build_reports_its_progress_as_task_state(tmp_path, data_dir, monkey
     assert progress and progress[-1]["done"] == progress[-1]["total"] == 2
     with pytest.raises(Exception, match="outside the shot roots"):
         library_build.run(str(data_dir), str(tmp_path / "lib2"), {})
+
+
+def test_a_farm_build_waits_for_another_build_of_its_library_half_its_time_limit(tmp_path, monkeypatch):
+    """The farm task ran `tween library build` with its own 300 s lock wait, so a build queued
+    behind another build of the same library failed after 5 minutes; it now waits half its
+    soft time limit (within 300 s and 24 h), the other half left for its own build."""
+    from workers import train_tasks
+    from workers.app import app as fill_app
+    from workers.app import train_app
+
+    assert train_tasks.farm_lock_wait(None) == 300
+    assert train_tasks.farm_lock_wait(100) == 300
+    assert train_tasks.farm_lock_wait(12 * 3600 * 0.95) == 12 * 3600 * 0.95 / 2
+    assert train_tasks.farm_lock_wait(10**9) == 24 * 3600
+
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    (takes / "walk.bvh").write_text("HIERARCHY\n")  # listed, never read: the build is not run
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def popen(cmd, **kw):
+        seen.append(cmd)
+        raise Stop
+
+    monkeypatch.setattr(train_tasks.subprocess, "Popen", popen)
+    from dataclasses import replace
+
+    soft, settings = train_app.conf.task_soft_time_limit, fill_app.conf.tween
+    train_app.conf.task_soft_time_limit = 41040  # the default 12 h limit's soft one
+    fill_app.conf.tween = replace(settings, shot_roots=(str(tmp_path),))
+    try:
+        with pytest.raises(Stop):
+            train_tasks.library_build.run(str(takes), str(tmp_path / "lib"), {})
+    finally:
+        train_app.conf.task_soft_time_limit, fill_app.conf.tween = soft, settings
+    (cmd,) = seen
+    assert cmd[cmd.index("--lock-wait") + 1] == "20520", cmd
