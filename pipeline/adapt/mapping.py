@@ -139,16 +139,30 @@ def load_override(path: str | Path | None) -> dict[str, str | None]:
 
 
 def map_joints(
-    joints: tuple[str, ...], parents: np.ndarray, override: dict[str, str | None] | None = None
+    joints: tuple[str, ...],
+    parents: np.ndarray,
+    override: dict[str, str | None] | None = None,
+    others: tuple[str, ...] = (),
 ) -> dict[str, int]:
     """Model joint name → rig joint index for every joint that maps."""
-    return map_joints_info(joints, parents, override).roles
+    return map_joints_info(joints, parents, override, others).roles
+
+
+def _named_by(target: str, joints) -> list[int]:
+    """The indices of ``joints`` an override's ``target`` names: its path, or its last name."""
+    return [i for i, t in enumerate(joints) if target in (t, t.rsplit("/", 1)[-1])]
 
 
 def map_joints_info(
-    joints: tuple[str, ...], parents: np.ndarray, override: dict[str, str | None] | None = None
+    joints: tuple[str, ...],
+    parents: np.ndarray,
+    override: dict[str, str | None] | None = None,
+    others: tuple[str, ...] = (),
 ) -> JointMapping:
     """The mapping, the convention that named the joints, and the model joints the rig lacks.
+    ``others``: the skeleton's joints under roots other than the character's (``joints``,
+    rooted at ``joints[0]``; pipeline.usd.read.character_joints), which an override names
+    in vain.
 
     Every convention reads the names; the one that explains the most rig joints (placed or
     known as its extras) wins, then the one placing the most model joints, then the first in
@@ -165,7 +179,13 @@ def map_joints_info(
             out.pop(role, None)
             removed.add(role)
             continue
-        hit = [i for i, (t, n) in enumerate(zip(joints, names, strict=False)) if target in (t, n)]
+        hit = _named_by(target, joints)
+        if not hit and _named_by(target, others):
+            raise MappingError(
+                f"mapping override {role} -> {target!r}: a joint under another root joint than the "
+                f"character's {joints[0]!r}; the fill fills the hierarchy under {joints[0]!r} and "
+                "keeps the other roots' joints as authored: name a joint of that hierarchy"
+            )
         if not hit:
             raise MappingError(f"mapping override {role} -> {target!r}: no such joint in the skeleton")
         out[role] = hit[0]

@@ -188,23 +188,6 @@ def _check_key_values(path: str, c: Character, k: np.ndarray, rot, tr, sc) -> No
         )
 
 
-def _under_other_root(c: Character, override) -> str | None:
-    """Why a --mapping override names a joint of the skeleton that is not the character's
-    (under another root joint: pipeline.usd.read.character_joints), or None; the mapping
-    said "no such joint in the skeleton" of it, which is there."""
-    ours = set(c.joints) | {t.rsplit("/", 1)[-1] for t in c.joints}
-    for role, target in (override or {}).items():
-        if target is None or target in ours:
-            continue
-        if any(target in (t, t.rsplit("/", 1)[-1]) for t in c.other_joints):
-            return (
-                f"mapping override {role} -> {target!r}: a joint under another root joint than the "
-                f"character's {c.joints[0]!r}; the fill fills the hierarchy under {c.joints[0]!r} and "
-                "keeps the other roots' joints as authored: name a joint of that hierarchy"
-            )
-    return None
-
-
 def _retarget_for(
     path: str,
     shot,
@@ -229,10 +212,8 @@ def _retarget_for(
             return None, folder, None
         if rt is not None:
             return rt, folder, rt.info.fps
-    if (elsewhere := _under_other_root(c, override)) is not None:
-        return None, elsewhere, None
     try:
-        roles = map_joints(c.joints, c.parents, override)
+        roles = map_joints(c.joints, c.parents, override, c.other_joints)
         rt = Retarget(c, roles, shot.up_axis, shot.meters_per_unit, (k, *pose))
     except MappingError as e:
         why = str(e)

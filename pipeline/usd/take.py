@@ -34,7 +34,9 @@ def _usd_take(path: Path, fps: float, name: str, source: Path | None = None, ove
     shot = read_shot(path)
     c = shot.characters[0]
     try:
-        rt = Retarget(c, map_joints(c.joints, c.parents, override), shot.up_axis, shot.meters_per_unit)
+        rt = Retarget(
+            c, map_joints(c.joints, c.parents, override, c.other_joints), shot.up_axis, shot.meters_per_unit
+        )
     except MappingError as e:
         # Libraries and DNA read takes by their names alone; a corpus source may give a mapping.
         how = "with the source's mapping" if override else "by their joint names alone"
