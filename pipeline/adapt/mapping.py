@@ -153,6 +153,21 @@ def _named_by(target: str, joints) -> list[int]:
     return [i for i, t in enumerate(joints) if target in (t, t.rsplit("/", 1)[-1])]
 
 
+def _override_joint(role: str, target: str, joints, others) -> int:
+    """The joint of ``joints`` the override ``role -> target`` names (the first); MappingError
+    where none is, saying so of one under another root (``others``: map_joints_info)."""
+    hit = _named_by(target, joints)
+    if not hit and _named_by(target, others):
+        raise MappingError(
+            f"mapping override {role} -> {target!r}: a joint under another root joint than the "
+            f"character's {joints[0]!r}; the fill fills the hierarchy under {joints[0]!r} and "
+            "keeps the other roots' joints as authored: name a joint of that hierarchy"
+        )
+    if not hit:
+        raise MappingError(f"mapping override {role} -> {target!r}: no such joint in the skeleton")
+    return hit[0]
+
+
 def map_joints_info(
     joints: tuple[str, ...],
     parents: np.ndarray,
@@ -179,16 +194,7 @@ def map_joints_info(
             out.pop(role, None)
             removed.add(role)
             continue
-        hit = _named_by(target, joints)
-        if not hit and _named_by(target, others):
-            raise MappingError(
-                f"mapping override {role} -> {target!r}: a joint under another root joint than the "
-                f"character's {joints[0]!r}; the fill fills the hierarchy under {joints[0]!r} and "
-                "keeps the other roots' joints as authored: name a joint of that hierarchy"
-            )
-        if not hit:
-            raise MappingError(f"mapping override {role} -> {target!r}: no such joint in the skeleton")
-        out[role] = hit[0]
+        out[role] = _override_joint(role, target, joints, others)
     if "Hips" not in (override or {}):  # a hips the user named is taken as it is
         _hips(out, parents)
     _torso(out, names, parents, removed)
