@@ -13,7 +13,6 @@ where ``--out`` says::
 from __future__ import annotations
 
 import errno
-import fnmatch
 import hashlib
 import json
 import os
@@ -85,28 +84,6 @@ USD_MAGIC = {".usda": (b"#usda", b"PXR-USDC"), ".usdc": (b"#usda", b"PXR-USDC"),
 HEAD_BYTES = 4096
 
 
-def _take_entries(folder: Path, include: str | None):
-    """Every path under ``folder`` named like a take (``take_files``'s walk and globs), of
-    whatever kind: a pipe or a link that leads nowhere too, which ``take_files`` passes over
-    (a folder named like a take is walked into, as it walks into one)."""
-    from pipeline.usd.take import TAKE_SUFFIXES
-
-    def unlisted(e: OSError):  # a subfolder that cannot be listed may hold takes
-        raise TweenError(f"{e.filename}: --data: cannot list this folder of takes: {e.strerror or e}")
-
-    pats = [p.strip() for p in (include or "").split(",") if p.strip()]
-    seen = set()
-    for top, dirs, names in os.walk(folder, onerror=unlisted, followlinks=True):
-        real = os.path.realpath(top)
-        if real in seen:  # a link to a folder above, or one linked twice: listed once
-            dirs[:] = []
-            continue
-        seen.add(real)
-        for n in names:  # a folder named like a take is walked into, as take_files does
-            if n.lower().endswith(TAKE_SUFFIXES) and (not pats or any(fnmatch.fnmatch(n, q) for q in pats)):
-                yield Path(top) / n
-
-
 def _not_a_take(path: Path) -> str | None:
     """None where ``path`` is plausibly a take, from its kind, size and first bytes alone; else
     why not, as a phrase."""
@@ -161,11 +138,18 @@ def check_takes(folder: str | Path, include: str | None = None) -> list[Path]:
     without reading it (a regular file, not empty, readable, within the reader's size
     bound, its first bytes those of its kind): one that is not is a TweenError naming it.
     Refused, not skipped: a studio mends its folder rather than train on part of it."""
-    from pipeline.usd.take import take_files
+    from pipeline.usd.take import include_globs, included, take_files, take_paths
+
+    def unlisted(e: OSError):  # a subfolder that cannot be listed may hold takes
+        raise TweenError(f"{e.filename}: --data: cannot list this folder of takes: {e.strerror or e}")
 
     folder = Path(folder)
     if folder.is_dir():
-        for path in sorted(_take_entries(folder.resolve(), include)):
+        # Every path named like a take, a pipe or a link that leads nowhere too (which the
+        # takes listing passes over), through the listing's own walk and globs.
+        globs = include_globs(include)
+        named = (p for p in take_paths(folder.resolve(), onerror=unlisted) if included(p.name, globs))
+        for path in sorted(named):
             if (why := _not_a_take(path)) is not None:
                 raise TweenError(
                     f"{path}: {why}; --data reads every take in its folder: mend or remove this one, "

@@ -83,40 +83,51 @@ def model_take(path: str | Path, fps: float = 30.0, mapping: str | Path | None =
 TAKE_SUFFIXES = (".bvh", ".bvh.gz", ".usd", ".usda", ".usdc", ".usdz")
 
 
-def _walk(folder: Path):
-    """Every file path under ``folder``, through linked folders too (each real folder once,
-    so a link to a folder above is no loop); a link to nothing is reported on stderr."""
+def take_paths(folder: Path, onerror=None):
+    """Every path under ``folder`` named like a take, of whatever kind (a file, a pipe, a link
+    that leads nowhere), through linked folders too (each real folder once, so a link to a
+    folder above is no loop); a folder named like a take is walked into. ``onerror``:
+    ``os.walk``'s, for a folder that cannot be listed (passed over without it)."""
     seen = set()
-    for top, dirs, names in os.walk(folder, followlinks=True):
+    for top, dirs, names in os.walk(folder, onerror=onerror, followlinks=True):
         real = os.path.realpath(top)
         if real in seen:
             dirs[:] = []
             continue
         seen.add(real)
         for n in names:
-            p = Path(top) / n
-            if p.is_file():
-                yield p
-            elif p.is_symlink() and n.lower().endswith(TAKE_SUFFIXES):
-                print(f"tween: skipped take: {p}: a link to nothing ({os.readlink(p)})", file=sys.stderr)
+            if n.lower().endswith(TAKE_SUFFIXES):
+                yield Path(top) / n
+
+
+def include_globs(include: str | None) -> list[str]:
+    """``include`` (comma-separated file-name globs, e.g. ``"001_*,002_*"``) as its globs."""
+    return [p.strip() for p in (include or "").split(",") if p.strip()]
+
+
+def included(name: str, globs: list[str]) -> bool:
+    """Whether the file ``name`` matches one of ``globs`` (every name, with none)."""
+    return not globs or any(fnmatch.fnmatch(name, q) for q in globs)
 
 
 def take_files(folder: str | Path, include: str | None = None) -> list[Path]:
     """The BVH and USD takes under ``folder`` (recursively), sorted; with ``include``
-    (comma-separated file-name globs, e.g. ``"001_*,002_*"``) only the names that match one."""
+    (comma-separated file-name globs, e.g. ``"001_*,002_*"``) only the names that match one.
+    A link to nothing named like a take is reported on stderr."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ShotError(
             folder, "is a file, not a folder of takes" if folder.exists() else "no such folder of takes"
         )
     folder = folder.resolve()  # one cache for a folder, however it is named
-    pats = [p.strip() for p in (include or "").split(",") if p.strip()]
-    files = sorted(
-        p
-        for p in _walk(folder)
-        if p.name.lower().endswith(TAKE_SUFFIXES)
-        and (not pats or any(fnmatch.fnmatch(p.name, q) for q in pats))
-    )
+    pats = include_globs(include)
+    files = []
+    for p in take_paths(folder):
+        if p.is_file():
+            files.append(p)
+        elif p.is_symlink():
+            print(f"tween: skipped take: {p}: a link to nothing ({os.readlink(p)})", file=sys.stderr)
+    files = sorted(p for p in files if included(p.name, pats))
     if not files:
         what = f"matching {include!r}" if pats else "(" + ", ".join(TAKE_SUFFIXES) + ")"
         raise ShotError(folder, f"no BVH or USD takes {what} in this folder")
