@@ -22,7 +22,7 @@ from pipeline.infer.dna_poses import n_dna_channels
 from pipeline.infer.folder import FORMAT, model_hash, read_json_object, read_model_json
 from pipeline.networks.generator import Generator, GeneratorConfig
 from pipeline.networks.path import PathConfig, PathPredictor
-from pipeline.train.generator_training import MAX_WEIGHTS, check_network_size, read_checkpoint
+from pipeline.train.generator_training import check_network_size, check_weight_count, read_checkpoint
 from pipeline.usd.take import load_takes
 
 
@@ -43,7 +43,7 @@ def _load(cls, cfg_cls, ckpt: Path, key="model"):
             check_network_size(cfg, state[key], f"{ckpt}: the run's checkpoint")
         else:
             cfg = cfg_cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in mcfg.items()})
-            _check_path_size(cls, cfg, state[key], f"{ckpt}: the run's checkpoint")
+            check_weight_count(cls, cfg, state[key], f"{ckpt}: the run's checkpoint")
         net = cls(cfg)
         net.load_state_dict(state[key])
     except (TypeError, ValueError, KeyError, RuntimeError, AttributeError) as e:
@@ -62,20 +62,6 @@ def _load(cls, cfg_cls, ckpt: Path, key="model"):
         raise TweenError(f"{ckpt}: the run's checkpoint: {which} not finite numbers (the run diverged)")
     net.eval()
     return net, cfg, state
-
-
-def _check_path_size(cls, cfg, weights: dict, where: str) -> None:
-    """The path predictor ``cfg`` describes, sized as :func:`check_network_size` sizes a generator:
-    built on the meta device (no memory) and given ``weights`` (their shapes must be its own:
-    RuntimeError as when loaded), then TweenError naming ``where`` over MAX_WEIGHTS weights."""
-    with torch.device("meta"):
-        net = cls(cfg)
-    net.load_state_dict({**net.state_dict(), **weights}, assign=True)
-    n = sum(p.numel() for p in net.parameters())
-    if n > MAX_WEIGHTS:
-        raise TweenError(
-            f"{where}: its config describes a network of {n:,} weights (at most {MAX_WEIGHTS:,})"
-        )
 
 
 def macs_per_frame(net: torch.nn.Module, channels: int, frames: int = 256) -> float:

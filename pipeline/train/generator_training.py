@@ -626,8 +626,15 @@ def check_network_size(model: GeneratorConfig, weights: dict, where: str) -> Non
     would otherwise allocate gigabytes before the weights were compared."""
     if len(model.levels) + len(model.bottleneck_dilations) > MAX_LAYERS:
         raise TweenError(f"{where}: its config describes a network of over {MAX_LAYERS} layers")
+    check_weight_count(Generator, model, weights, where)
+
+
+def check_weight_count(cls, config, weights: dict, where: str) -> None:
+    """The network ``cls(config)`` built on the meta device (no memory) and given ``weights``
+    (their shapes must be its own: RuntimeError as when loaded); TweenError naming ``where``
+    when it holds over MAX_WEIGHTS weights."""
     with torch.device("meta"):
-        net = Generator(model)
+        net = cls(config)
     net.load_state_dict({**net.state_dict(), **weights}, assign=True)
     n = sum(p.numel() for p in net.parameters())
     if n > MAX_WEIGHTS:
