@@ -20,7 +20,7 @@ from pipeline.fill.api import precheck, trust_line
 from pipeline.fill.options import NOT_NETWORKS, PATH_FIELDS, FillOptions, with_fill_options
 from pipeline.inputs import not_a_file
 from pipeline.library.options import LibraryBuildOptions, with_library_options
-from pipeline.library.store import LibraryError, open_library
+from pipeline.library.store import setting_library
 from pipeline.outputs import given_path, refuse_read_only
 from pipeline.rig.options import TrainRigOptions, with_train_rig_options
 from pipeline.staging import refuse_model
@@ -48,22 +48,11 @@ def _opts(opts) -> dict:
     default = load_settings().library  # the studio's library, for every job that names none
     # (a job asking for a curve, --model spline or interp, gets the curve: no network to probe)
     if not out.get("library") and default and out.get("model") not in NOT_NETWORKS:
-        out["library"] = _farm_library(default)
+        # opened here: one that is no library is one line naming the setting
+        out["library"] = setting_library(
+            default, f"library {default} (the farm's setting: TWEEN_LIBRARY or the farm config's `library`)"
+        )
     return out
-
-
-def _farm_library(setting: str) -> str:
-    """The farm's ``library`` setting as a folder, opened here: one that is no library is
-    one line naming the setting (the fill's own line named only a folder the user never gave)."""
-    folder = os.path.abspath(os.path.expanduser(setting))
-    try:
-        open_library(folder)
-    except LibraryError as e:
-        why = str(e).removeprefix(f"{folder}: ")
-        raise TweenError(
-            f"library {setting} (the farm's setting: TWEEN_LIBRARY or the farm config's `library`): {why}"
-        ) from None
-    return folder
 
 
 def _int_opt(opt: str, value: int | None, lo: int, hi: int) -> None:

@@ -21,7 +21,7 @@ from pipeline.atomic import writable
 from pipeline.errors import TweenError
 from pipeline.fill.api import fill_shot
 from pipeline.fill.options import NOT_NETWORKS, FillOptions, with_fill_options
-from pipeline.library.store import LibraryError, open_library
+from pipeline.library.store import setting_library
 from pipeline.usd.write import check_shot_name
 
 
@@ -148,13 +148,7 @@ def _studio_library(opts: FillOptions) -> FillOptions:
         return opts
     if not raw.strip():  # the farm's wording (workers/settings.py)
         raise TweenError(f"{LIBRARY_VAR}={raw!r}: empty; give library a value, or leave it out")
-    folder = os.path.abspath(os.path.expanduser(raw))  # relative to the working folder, as the farm's
-    try:
-        open_library(folder)
-    except LibraryError as e:
-        why = str(e).removeprefix(f"{folder}: ")
-        raise TweenError(f"{LIBRARY_VAR}={raw}: {why}") from None
-    return replace(opts, library=folder)
+    return replace(opts, library=setting_library(raw, f"{LIBRARY_VAR}={raw}"))  # as the farm's
 
 
 @with_fill_options

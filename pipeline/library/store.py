@@ -192,6 +192,18 @@ def open_library(folder: str | Path) -> Library:
     return Library(folder, manifest)
 
 
+def setting_library(value: str, named: str) -> str:
+    """The library a setting names (``value``: a folder, relative to the working folder), as
+    its absolute folder, opened: one that is no library is a LibraryError naming the setting
+    as ``named`` (``TWEEN_LIBRARY=…``), not a folder the user never typed."""
+    folder = os.path.abspath(os.path.expanduser(value))
+    try:
+        open_library(folder)
+    except LibraryError as e:
+        raise LibraryError(f"{named}: {str(e).removeprefix(f'{folder}: ')}") from None
+    return folder
+
+
 def _is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
