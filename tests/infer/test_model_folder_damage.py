@@ -6,38 +6,17 @@ numbers in model.json, rig.json or a pose bank's header asked for gigabytes."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from damaged_inputs import DEEP_JSON, DEEP_TOML, linked_copy, replace_with
 from pipe_guard import within
 
 from pipeline.errors import TweenError
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"
-DEEP_JSON = "[" * 100_000 + "]" * 100_000
-DEEP_TOML = "a = " + "[" * 100_000 + "]" * 100_000 + "\n"
-
-
-def _linked_copy(src: Path, dst: Path) -> Path:
-    """``dst`` holding a link to each of ``src``'s files and folders (the networks are not
-    copied): a file then damaged in ``dst`` is replaced, never written through its link."""
-    dst.mkdir(parents=True)
-    for p in src.iterdir():
-        (dst / p.name).symlink_to(p)
-    return dst
-
-
-def _replace(path: Path, how: str, payload: str = "") -> None:
-    path.unlink(missing_ok=True)
-    if how == "fifo":
-        os.mkfifo(path)
-    elif how == "zero":
-        path.symlink_to("/dev/zero")
-    else:
-        path.write_text(payload)
 
 
 def _fails_fast(load, path: Path, seconds: float = 20.0) -> str:
@@ -58,7 +37,7 @@ def _fails_fast(load, path: Path, seconds: float = 20.0) -> str:
 
 # -- the human model folder ------------------------------------------------------------------
 def _human(tmp_path: Path) -> Path:
-    folder = _linked_copy(MODELS / "default", tmp_path / "mdl")
+    folder = linked_copy(MODELS / "default", tmp_path / "mdl")
     (folder / "model.json").unlink()
     (folder / "model.json").write_text((MODELS / "default" / "model.json").read_text())
     return folder
@@ -87,10 +66,10 @@ def test_damaged_human_model_file(tmp_path, name, how):
     folder = _human(tmp_path)
     target = folder
     if name.startswith("delta/"):
-        target = _linked_copy(MODELS / "default" / "delta", folder / "delta_copy")
+        target = linked_copy(MODELS / "default" / "delta", folder / "delta_copy")
         name = name.split("/", 1)[1]
     payload = {"deep": DEEP_JSON, "multiple": _meta_with(folder, multiple=10**9)}.get(how, "")
-    _replace(target / name, how, payload)
+    replace_with(target / name, how, payload)
     msg = _fails_fast(lambda: load_folder(target), target / name)
     if how == "multiple":
         assert "'multiple'" in msg
@@ -112,11 +91,11 @@ def test_pose_bank_header_is_checked_before_its_data(tmp_path, dtype, poses):
 
 # -- rig models ------------------------------------------------------------------------------
 def _rig(tmp_path: Path, how: str) -> Path:
-    folder = _linked_copy(MODELS / "elephant", tmp_path / "models" / "eleph")
+    folder = linked_copy(MODELS / "elephant", tmp_path / "models" / "eleph")
     meta = json.loads((MODELS / "elephant" / "rig.json").read_text())
     meta["levels"][0]["train_length"] = 10**9
     payload = {"deep": DEEP_JSON, "train_length": json.dumps(meta)}.get(how, "")
-    _replace(folder / "rig.json", how, payload)
+    replace_with(folder / "rig.json", how, payload)
     return folder
 
 
@@ -145,8 +124,8 @@ def test_a_deep_rig_json_in_the_store_is_skipped_with_a_warning(tmp_path, capsys
 def test_damaged_library_manifest(tmp_path, how):
     from pipeline.library.store import open_library
 
-    lib = _linked_copy(MODELS / "default" / "library", tmp_path / "lib")
-    _replace(lib / "library.json", how, DEEP_JSON)
+    lib = linked_copy(MODELS / "default" / "library", tmp_path / "lib")
+    replace_with(lib / "library.json", how, DEEP_JSON)
     _fails_fast(lambda: open_library(lib), lib / "library.json")
 
 
@@ -155,7 +134,7 @@ def test_damaged_recipe(tmp_path, how):
     from pipeline.train.recipe import load_recipe
 
     path = tmp_path / "r.toml"
-    _replace(path, how, DEEP_TOML)
+    replace_with(path, how, DEEP_TOML)
     _fails_fast(lambda: load_recipe(path), path)
 
 
@@ -164,7 +143,7 @@ def test_damaged_corpus(tmp_path, how):
     from pipeline.data.corpus import load_corpus
 
     path = tmp_path / "c.toml"
-    _replace(path, how, DEEP_TOML)
+    replace_with(path, how, DEEP_TOML)
     _fails_fast(lambda: load_corpus(path), path)
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from cli_contract import refused, succeeded
+from damaged_inputs import linked_copy, replace_with
 from pipe_guard import within
 from usd_fixtures import bandai_shot
 
@@ -22,26 +23,6 @@ from pipeline.errors import TweenError
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"
-DEEP_JSON = "[" * 100_000 + "]" * 100_000
-
-
-def _linked_copy(src: Path, dst: Path) -> Path:
-    """``dst`` holding a link to each of ``src``'s files (a file damaged in it is replaced, never
-    written through its link)."""
-    dst.mkdir(parents=True)
-    for p in src.iterdir():
-        (dst / p.name).symlink_to(p)
-    return dst
-
-
-def _damage(path: Path, how: str) -> None:
-    path.unlink(missing_ok=True)
-    if how == "fifo":
-        os.mkfifo(path)
-    elif how == "zero":
-        path.symlink_to("/dev/zero")
-    else:
-        path.write_text(DEEP_JSON)
 
 
 def _one_line(fn, path: Path) -> str:
@@ -64,7 +45,7 @@ def test_a_models_licence_is_read_by_the_one_reader(tmp_path, how, file):
     from pipeline.fill.licence import folder_licence
 
     path = tmp_path / file
-    _damage(path, how)
+    replace_with(path, how)
     msg = _one_line(lambda: folder_licence(tmp_path, file), path)
     if how != "deep":
         assert "not a regular file" in msg, msg
@@ -76,15 +57,15 @@ def test_a_models_licence_is_read_by_the_one_reader(tmp_path, how, file):
 def test_a_motion_library_models_json_is_read_by_the_one_reader(tmp_path, how):
     from pipeline.library.model import LibraryModel
 
-    folder = _linked_copy(MODELS / "cmu-library", tmp_path / "lib-model")
-    _damage(folder / "model.json", how)
+    folder = linked_copy(MODELS / "cmu-library", tmp_path / "lib-model")
+    replace_with(folder / "model.json", how)
     _one_line(lambda: LibraryModel(folder), folder / "model.json")
 
 
 @pytest.mark.parametrize("how", ["fifo", "zero", "deep"])
 def test_fill_local_with_a_library_model_folder_is_one_line(tmp_path, capsys, walk, how):
-    folder = _linked_copy(MODELS / "cmu-library", tmp_path / "lib-model")
-    _damage(folder / "model.json", how)
+    folder = linked_copy(MODELS / "cmu-library", tmp_path / "lib-model")
+    replace_with(folder / "model.json", how)
     argv = ["fill-local", walk, "--model", folder, "--out-dir", tmp_path / "out"]
     line = within(lambda: refused(argv, capsys, tmp_path), [folder / "model.json"])
     assert line.startswith(f"tween: error: {folder / 'model.json'}: "), line
@@ -94,10 +75,10 @@ def test_fill_local_with_a_library_model_folder_is_one_line(tmp_path, capsys, wa
 def test_a_model_json_damaged_after_its_model_loaded_is_one_line_not_a_hang(tmp_path, capsys, walk, how):
     """A process that fills again (a farm worker) keeps its loaded model, but reads the
     model's licence at every fill: a model.json replaced by a pipe then blocked it for ever."""
-    folder = _linked_copy(MODELS / "default", tmp_path / "mdl")
+    folder = linked_copy(MODELS / "default", tmp_path / "mdl")
     argv = ["fill-local", walk, "--model", folder, "--trust", "model", "--out-dir"]
     succeeded([*argv, tmp_path / "first"], capsys)
-    _damage(folder / "model.json", how)
+    replace_with(folder / "model.json", how)
     line = within(lambda: refused([*argv, tmp_path / "again"], capsys, tmp_path), [folder / "model.json"])
     assert line.startswith(f"tween: error: {folder / 'model.json'}: "), line
     assert not (tmp_path / "again").exists()
@@ -105,7 +86,7 @@ def test_a_model_json_damaged_after_its_model_loaded_is_one_line_not_a_hang(tmp_
 
 # -- what the damage is, said as it is -------------------------------------------------------
 def test_a_rig_json_that_is_a_link_loop_is_named_as_one(tmp_path, capsys, walk):
-    folder = _linked_copy(MODELS / "elephant", tmp_path / "eleph")
+    folder = linked_copy(MODELS / "elephant", tmp_path / "eleph")
     (folder / "rig.json").unlink()
     (folder / "rig.json").symlink_to("rig.json")  # leads back to itself
     line = refused(["fill-local", walk, "--model", folder, "--out-dir", tmp_path / "out"], capsys, tmp_path)
@@ -115,7 +96,7 @@ def test_a_rig_json_that_is_a_link_loop_is_named_as_one(tmp_path, capsys, walk):
 
 
 def test_a_generator_linked_to_a_device_is_not_a_regular_file(tmp_path, capsys, walk):
-    folder = _linked_copy(MODELS / "default", tmp_path / "mdl")
+    folder = linked_copy(MODELS / "default", tmp_path / "mdl")
     (folder / "generator.onnx").unlink()
     (folder / "generator.onnx").symlink_to("/dev/zero")
     line = refused(["fill-local", walk, "--model", folder, "--out-dir", tmp_path / "out"], capsys, tmp_path)
@@ -127,7 +108,7 @@ def test_a_generator_linked_to_a_device_is_not_a_regular_file(tmp_path, capsys, 
 def test_a_model_json_frame_rate_out_of_range_is_one_line_naming_it_and_no_warning(tmp_path, walk, fps):
     """Before: 1e308 printed two numpy RuntimeWarnings and a line about the shot's keys;
     Infinity (which Python's JSON reader takes) passed the model.json check."""
-    folder = _linked_copy(MODELS / "default", tmp_path / "mdl")
+    folder = linked_copy(MODELS / "default", tmp_path / "mdl")
     text = (MODELS / "default" / "model.json").read_text()
     meta = json.loads(text)
     (folder / "model.json").unlink()

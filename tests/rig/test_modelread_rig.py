@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from cli_contract import refused
+from damaged_inputs import linked_copy
 from usd_fixtures import bandai_shot
 
 from pipeline.errors import TweenError
@@ -19,15 +20,8 @@ ROOT = Path(__file__).resolve().parents[2]
 ELEPHANT = ROOT / "models" / "elephant"
 
 
-def _linked_copy(src: Path, dst: Path) -> Path:
-    dst.mkdir(parents=True)
-    for p in src.iterdir():
-        (dst / p.name).symlink_to(p)
-    return dst
-
-
 def _rig_with(tmp_path: Path, **changes) -> Path:
-    folder = _linked_copy(ELEPHANT, tmp_path / "eleph")
+    folder = linked_copy(ELEPHANT, tmp_path / "eleph")
     meta = json.loads((ELEPHANT / "rig.json").read_text()) | changes
     (folder / "rig.json").unlink()
     (folder / "rig.json").write_text(json.dumps(meta))
@@ -61,7 +55,7 @@ def test_a_rig_json_link_loop_is_named_by_every_reader(tmp_path):
     from pipeline.rig.infer import RigInbetweener
     from pipeline.rig.store import read_rig_json
 
-    folder = _linked_copy(ELEPHANT, tmp_path / "eleph")
+    folder = linked_copy(ELEPHANT, tmp_path / "eleph")
     path = folder / "rig.json"
     path.unlink()
     path.symlink_to(path)
@@ -76,7 +70,7 @@ def test_a_rig_json_link_loop_is_named_by_every_reader(tmp_path):
 def test_a_level_linked_to_a_device_is_not_a_regular_file_nor_missing(tmp_path):
     from pipeline.rig.infer import RigInbetweener
 
-    folder = _linked_copy(ELEPHANT, tmp_path / "eleph")
+    folder = linked_copy(ELEPHANT, tmp_path / "eleph")
     level = folder / "level_1.onnx"
     level.unlink()
     level.symlink_to("/dev/zero")

@@ -7,13 +7,13 @@ the network it describes, gigabytes, before comparing its weights)."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from dataclasses import asdict
 from pathlib import Path
 
 import pytest
+from damaged_inputs import replace_with
 
 torch = pytest.importorskip("torch")
 
@@ -64,12 +64,7 @@ def test_the_init_models_json_is_read_by_the_one_reader(tmp_path, how):
     init = tmp_path / "init_model"
     init.mkdir()
     card = init / "model.json"
-    if how == "fifo":
-        os.mkfifo(card)
-    elif how == "zero":
-        card.symlink_to("/dev/zero")
-    else:
-        card.write_text("[" * 100_000 + "]" * 100_000)
+    replace_with(card, how)
     run = _run(tmp_path, {"model": asdict(SMALL), "init": str(init)})
     line, _ = _export(run, tmp_path / "new")
     assert line.startswith(f"tween: error: {card}: "), line
