@@ -81,3 +81,20 @@ def layer_samples(layer_path: Path, prim: str, attrs) -> tuple[list[str], dict[s
 def digest(path: Path) -> str:
     """The sha256 of one file (the user's shot, unchanged by a fill)."""
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def assert_kept_as_authored(written: dict, plain: dict, anim, keep: list[int], kept: list[int], keys) -> None:
+    """A fill layer's samples ``written`` (:func:`layer_samples`) of the animation ``anim``
+    (the animator's SkelAnimation prim), some of whose joints the fill keeps as authored: at
+    every time written, the filled joints ``keep`` (indices) are bit for bit ``plain`` (the
+    same fill without the kept joints), the ``kept`` ones what ``anim`` gives there; every
+    joint is bit for bit at ``keys``, and the frames between keys are written."""
+    for name, samples in written.items():
+        assert sorted(samples) == sorted(plain[name])
+        assert len([t for t in samples if keys[0] < t < keys[-1] and t not in keys]) > len(keys)
+        attr = anim.GetAttribute(name)
+        for t, v in samples.items():
+            assert np.array_equal(v[keep], plain[name][t]), (name, t)
+            assert np.array_equal(v[kept], np.array(attr.Get(t))[kept]), (name, t)
+        for t in keys:
+            assert np.array_equal(samples[t], np.array(attr.Get(t))), (name, t)
