@@ -317,7 +317,7 @@ def author_attr(spec, name, type_name, value=None, uniform=False):
 
 def _author_samples(layer, spec, data: dict, extra=None) -> None:
     """Each take's samples of the animation joints; ``extra`` (:func:`_extra_joints`): the
-    values of the joints the animation lists that its skeleton lacks, merged in per frame."""
+    take's values with those of the joints the animation lists that the fill does not, merged in."""
     from pxr import Sdf, Vt
 
     ra = author_attr(spec, "rotations", Sdf.ValueTypeNames.QuatfArray).path
@@ -326,11 +326,12 @@ def _author_samples(layer, spec, data: dict, extra=None) -> None:
     rot = np.ascontiguousarray(data["rot"], np.float32)
     tr = np.ascontiguousarray(data["trans"], np.float32)
     sc = np.ascontiguousarray(data["scale"], np.float16)
+    if extra is not None and len(data["times"]):
+        rot, tr, sc = extra(data, rot, tr, sc)
     for i, t in enumerate(data["times"].tolist()):
-        r, p, s = (rot[i], tr[i], sc[i]) if extra is None else extra(t, rot[i], tr[i], sc[i])
-        layer.SetTimeSample(ra, t, Vt.QuatfArray.FromNumpy(r))
-        layer.SetTimeSample(ta, t, Vt.Vec3fArray.FromNumpy(p))
-        layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(s))
+        layer.SetTimeSample(ra, t, Vt.QuatfArray.FromNumpy(np.ascontiguousarray(rot[i])))
+        layer.SetTimeSample(ta, t, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tr[i])))
+        layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(sc[i])))
 
 
 #: The value of an attribute an animation never authors, for the joints its skeleton lacks
@@ -360,14 +361,15 @@ def _rest_values(stage, skel: str, authored: list[str]) -> dict:
     return out
 
 
-def _extra_joints(src, joints: list[str], rest=None):
+def _extra_joints(src, joints: list[str], rest=None, follower=None):
     """(every joint the animation ``src`` lists, a merge) where some are not among the
     filled ``joints`` (the skeleton lacks them, or they are under a root other than the
     character's: read.Character.anim_authored, other_joints), else None. The filled
     animation keeps them with the values ``src`` gives at each time (authored samples
     exactly, USD's interpolation between), so that it lists what the animator's does and
     changes only what the fill filled; where ``src`` never authors an attribute, ``rest(authored)``
-    (:func:`_rest_values`): what the original showed."""
+    (:func:`_rest_values`): what the original showed. ``follower(authored)`` (:func:`_follower`):
+    what moves the root controls that follow a filled joint, where the fill moved it."""
     authored = [str(t) for t in (src.GetAttribute("joints").Get() or [])] if src else []
     slot = {t: i for i, t in enumerate(authored)}
     if authored == list(joints) or any(t not in slot for t in joints):  # nothing to keep
@@ -376,6 +378,7 @@ def _extra_joints(src, joints: list[str], rest=None):
     attrs = [(src.GetAttribute(n), n) for n in ("rotations", "translations", "scales")]
     dtypes = (np.float32, np.float32, np.float16)
     fallback: dict = {}
+    follow = follower(authored) if follower else None
 
     def unauthored(name: str, dtype) -> np.ndarray:
         if not fallback:  # read once, and only where an attribute is missing
@@ -383,18 +386,55 @@ def _extra_joints(src, joints: list[str], rest=None):
                                                          for n, v in _UNAUTHORED.items()})  # fmt: skip
         return fallback[name].astype(dtype)
 
-    def merge(t: float, *filled):
-        out = []
-        for (attr, name), dtype, values in zip(attrs, dtypes, filled, strict=True):
-            v = attr.Get(t) if attr else None
-            full = np.array(v, dtype) if v is not None and len(v) == len(authored) else None
-            if full is None:
-                full = unauthored(name, dtype)
-            full[slots] = values
-            out.append(np.ascontiguousarray(full))
-        return out
+    def at(t: float, attr, name: str, dtype) -> np.ndarray:
+        v = attr.Get(t) if attr else None
+        return np.array(v, dtype) if v is not None and len(v) == len(authored) else unauthored(name, dtype)
+
+    def merge(data: dict, *filled):
+        times = data["times"].tolist()
+        full = [np.stack([at(t, attr, name, dtype) for t in times])
+                for (attr, name), dtype in zip(attrs, dtypes, strict=True)]  # fmt: skip
+        # Where the fill left the character as authored (outside its range, at keys) the
+        # controls stay so too.
+        moved = ~np.all(
+            [(f[:, slots] == v).reshape(len(times), -1).all(1) for f, v in zip(full, filled, strict=True)], 0
+        )
+        for f, v in zip(full, filled, strict=True):
+            f[:, slots] = v
+        if follow is not None:
+            follow(data, full, moved)
+        return full
 
     return authored, merge
+
+
+def _follower(stage, c: dict, src):
+    """For :func:`_extra_joints`: given the animation's joints, what moves the kept root
+    controls that follow a character joint over the keys (pipeline.usd.follow) with the
+    filled joint, in a take's merged values, wherever the fill moved the character off its
+    keys; None for a skeleton of one root."""
+    from pipeline.usd import follow
+
+    keys_all = np.sort(np.asarray(c["keys"], np.float64))
+
+    def of(authored: list[str]):
+        rig = follow.rig_of(stage, c["skel"], authored)
+        if rig is None:
+            return None
+        found: dict = {}  # per set of keys: every take of one fill judges by the same keys
+
+        def apply(data: dict, full: list, moved: np.ndarray) -> None:
+            times = np.asarray(data["times"], np.float64)
+            keys = follow.fill_keys(keys_all, times, moved, data.get("inside"))
+            if tuple(keys) not in found:
+                values = follow.values_at(src, authored, rig, keys) if len(keys) > 1 else (None,) * 3
+                found[tuple(keys)] = follow.detect(rig, keys, *values)
+            # The keys stay bit for bit, partial keys (whose unkeyed channels the fill moved) too.
+            follow.apply(rig, found[tuple(keys)], times, *full, moved & follow.off_keys(keys_all, times))
+
+        return apply
+
+    return of
 
 
 def _author_roots(layer, chars: list[dict], takes: list[dict]) -> None:
@@ -487,7 +527,9 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     spec.specifier = Sdf.SpecifierDef
     spec.typeName = "SkelAnimation"
     apply_api(spec, tokens.API)
-    extra = _extra_joints(src, c["joints"], lambda names: _rest_values(stage, c["skel"], names))
+    extra = _extra_joints(
+        src, c["joints"], lambda names: _rest_values(stage, c["skel"], names), _follower(stage, c, src)
+    )
     joints = c["joints"] if extra is None else extra[0]
     author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(joints), uniform=True)
     author_attr(spec, tokens.KEY_TIMES, Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(c["keys"]))

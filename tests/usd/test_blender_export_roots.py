@@ -1,9 +1,11 @@
 """A real Blender 5.0.1 export (``bpy.ops.wm.usd_export``, tests/fixtures/blender/ik_roots.usda):
 an armature of the model's joint names plus an animator's two unparented, non-deforming IK
 controls (``foot_ik_L`` and its pole ``knee_pole_L``), keyed every 10 frames and sampled by
-Blender on every frame. Blender writes them as a skeleton of three root joints. The fill keeps
-the IK controls' authored values at every time it writes, fills the body between the keys and
-keeps the keys bit for bit, with one warning; the review stage poses the filled animation.
+Blender on every frame. Blender writes them as a skeleton of three root joints. The fill fills the body between the
+keys and keeps the keys bit for bit; the IK target, on the left ankle at every key, follows the
+filled ankle between them (tests/usd/test_follow_controls.py measures how closely), and the
+pole, on no joint, keeps its authored values at every time written; one warning says so. The
+review stage poses the filled animation.
 The layer's ``doc`` says how the file was made; no Blender is needed here."""
 
 from __future__ import annotations
@@ -56,22 +58,32 @@ def test_a_blender_export_with_ik_controls_fills_the_body_and_keeps_the_controls
     assert warnings[0].startswith(
         f"tween: warning: {shot} {SKEL}: 3 root joints ('Hips', 'foot_ik_L', 'knee_pole_L'): "
         "the character is the hierarchy under 'Hips' (21 joints); the 2 joints under the other "
-        "roots (the first is 'foot_ik_L') are not filled"
+        "roots (the first is 'foot_ik_L') are not filled: between the keys 'foot_ik_L' follows "
+        "the filled 'Foot_L'; 'knee_pole_L' stays as authored"
     ), err
     assert digest(shot) == before  # the animator's file is never written
 
     got, filled = layer_samples(tmp_path / "ik_roots.tween.v001.usda", FILLED, ATTRS)
     assert got == joints
     ik, body = [joints.index(n) for n in IK], [j for j, n in enumerate(joints) if n not in IK]
+    target, pole = ik
     for name in ATTRS:
         attr = src.GetAttribute(name)
         assert sorted(filled[name]) == [float(t) for t in range(1, 62)], name
         for t, v in filled[name].items():
             authored = np.array(attr.Get(t))
-            # The IK controls: Blender's values at every time, bit for bit.
-            assert np.array_equal(v[ik], authored[ik]), (name, t)
+            # The pole: Blender's values at every time, bit for bit; the target's scale too.
+            assert np.array_equal(v[pole], authored[pole]), (name, t)
+            if name == "scales":
+                assert np.array_equal(v[target], authored[target]), t
             if t in KEYS:  # keys bit for bit, every joint
                 assert np.array_equal(v, authored), (name, t)
+    # Between the keys the target moves with the filled ankle, off Blender's path.
+    tr_src = src.GetAttribute("translations")
+    moved = [t for t in filled["translations"] if t not in KEYS]
+    assert all(
+        not np.array_equal(filled["translations"][t][target], np.array(tr_src.Get(t))[target]) for t in moved
+    )
     # Between the keys the body is the fill's, not Blender's Bezier, and it moves (no hold).
     rot, rot_src = filled["rotations"], src.GetAttribute("rotations")
     between = [t for t in rot if t not in KEYS]
