@@ -6,6 +6,7 @@ CMake placeholders it leaves in plugInfo.json, which a codeless schema does not 
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import subprocess
@@ -16,7 +17,11 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent / "tween"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    # No options; a parser so that --help (or a stray argument) says so instead of rewriting the files.
+    argparse.ArgumentParser(
+        prog="python -m usd_schemas.generate", description=__doc__.split("\n")[0]
+    ).parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run(
             [sys.executable, "-m", "pxr.Usd.usdGenSchema", str(HERE / "schema.usda"), tmp], check=True
