@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ShotError
+from pipeline.usd.keys import key_distance
 from render import mannequin
 from render.geometry import Geometry
 from render.overlays import timecode
@@ -190,8 +191,7 @@ class Shot:
         tol = 0.01 * step if tol is None else tol
         if not len(self.key_times):
             return np.zeros(len(self.times), bool)
-        d = np.abs(self.times[:, None] - self.key_times[None, :]).min(axis=1)
-        return d <= tol
+        return key_distance(self.times, self.key_times) <= tol
 
     def held_times(self) -> np.ndarray:
         """Stepped blocking: each frame's time code replaced by the last key at or before it."""

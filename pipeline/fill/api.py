@@ -276,7 +276,11 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
     """Raises ShotError on bad input; returns a JSON-safe summary of what will be filled,
     with the model of each character under ``models`` and the assets it names that are
     missing under ``missing_assets``."""
+    return _validate(shot, opts)[0]
 
+
+def _validate(shot: str, opts: FillOptions):
+    """:func:`validate_shot`'s summary, and the plan it checked (for the takes of this process)."""
     opts.check()  # before any model is loaded
     from pipeline.infer.folder import ort_threads
 
@@ -317,7 +321,7 @@ def validate_shot(shot: str, opts: FillOptions) -> dict:
         net = "the human network " if opts.library else ""
         beside = f", with {net}{' and '.join(names)} probed beside it" if names else ""
         print(f"tween: {shot} {anim}: {what}{beside}", file=sys.stderr)
-    return summary
+    return summary, plan
 
 
 def trust_line(d: dict) -> str:
@@ -376,12 +380,15 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
     return h.hexdigest()[:16]
 
 
-def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str) -> str:
-    """Fills every character for take ``take`` (seed = opts.seed + take) into an .npz."""
+def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str, plan=None) -> str:
+    """Fills every character for take ``take`` (seed = opts.seed + take) into an .npz.
+    ``plan``: the one :func:`fill_shot` validated (default: the shot read again, as a farm
+    task that runs alone reads it)."""
     from pipeline.fill.solve import fill_character
 
     human = _human(opts)
-    plan = _plan(shot, opts, human, say=False)  # validate_shot said its notes, once
+    if plan is None:
+        plan = _plan(shot, opts, human, say=False)  # validate_shot said its notes, once
     inbs = [_char_model(cp, human) for cp in plan.chars]
     _check_dna(opts, inbs)
     # A human character is also probed with what ships or is asked beside it (the better decides).
@@ -447,8 +454,14 @@ def _save_take(out: Path, arrays: dict) -> None:
 def load_take(path: str) -> dict:
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
+        # "inside": the times the fill filled (its range), which the writer's following
+        # controls judge by (pipeline.usd.follow); a take written before it carried them has none.
         data = [
-            {k: z[f"c{i}_{k}"] for k in ("times", "rot", "trans", "scale", "keys")}
+            {
+                k: z[f"c{i}_{k}"]
+                for k in ("times", "rot", "trans", "scale", "keys", "inside")
+                if f"c{i}_{k}" in z
+            }
             for i in range(len(meta["chars"]))
         ]
     return dict(meta, data=data)
@@ -544,7 +557,10 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
     (``tween-take.<pid>@<host>.<rand>.tmp``); those of runs that died are removed first.
     """
 
-    summary = validate_shot(shot, opts)
+    # One plan for every take: a plan per take read (and checked) every sample of the shot
+    # again for each take; held to the end, it also keeps the shot's layers open (not parsed
+    # again) for the writer.
+    summary, plan = _validate(shot, opts)
     warn_experimental(opts.model)  # write_layers puts it in the JSON
     base = tempfile.gettempdir()
     clean_dead_temps(base, quiet=True)
@@ -554,7 +570,7 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
         raise write_error(base, e) or e from None
     try:
         with temp_full(f"filling the takes of {shot}"):  # not the layers: a full shot folder is its own line
-            files = [fill_take(shot, opts, t, work) for t in range(opts.takes)]
+            files = [fill_take(shot, opts, t, work, plan) for t in range(opts.takes)]
         result = write_layers(shot, opts, files, job_id)
     finally:
         shutil.rmtree(work, ignore_errors=True)

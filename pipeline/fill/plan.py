@@ -19,7 +19,8 @@ from pipeline.errors import ShotError, TweenError
 from pipeline.fill.jumps import body_centre, jump_line, key_jumps
 from pipeline.rig import store
 from pipeline.rig.store import no_model_hint
-from pipeline.usd.keys import MAX_JOINT_FRAMES, merge_times, parse_keys, parse_range
+from pipeline.usd.follow import keys_around
+from pipeline.usd.keys import MAX_JOINT_FRAMES, key_distance, merge_times, parse_keys, parse_range
 from pipeline.usd.read import (
     QUAT_EPS,
     TIME_EPS,
@@ -71,7 +72,10 @@ class Plan:
 
     def say(self) -> None:
         """The shot's reading warnings, its notes and the characters it skipped, on stderr."""
-        say_warnings(self.shot)
+        # The several-roots warning says which kept controls follow a joint over the keys
+        # the fill fills between, as the writer judges them.
+        in_range = {c.char.anim_path: keys_around(c.keys, *c.fill_range) for c in self.chars}
+        say_warnings(self.shot, in_range)
         for note in self.notes:
             print(note, file=sys.stderr)
         for prim, why in self.refused:
@@ -138,9 +142,7 @@ def _keys_for(shot: Shot, char: Character, want: np.ndarray | None) -> np.ndarra
     elif want is None:
         return char.sample_times
     # Snap requested keys onto authored samples within tolerance so they keep exact values.
-    return merge_times(
-        char.sample_times[np.any(np.abs(char.sample_times[:, None] - want) < TIME_EPS, 1)], want
-    )
+    return merge_times(char.sample_times[key_distance(char.sample_times, want) < TIME_EPS], want)
 
 
 def _rig_for(shot: Shot, c: Character, rig: str):
