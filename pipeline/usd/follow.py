@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.usd.keys import key_distance
 from pipeline.usd.read import TIME_EPS, character_joints
 
 #: A control follows a joint when its position in the joint's frame stays within this of
@@ -159,32 +160,32 @@ def detect(rig: Rig, keys: np.ndarray, rot, trans, scale) -> list[Follow]:
     return out
 
 
-def fill_keys(keys, times, moved, inside=None) -> np.ndarray:
-    """The keys in the fill range: the span of the take's ``inside`` times where it carries
-    them, else the keys around the ``times`` where the fill ``moved`` the character (all of
-    them under the default range, key to key; those bracketing a --range between keys)."""
-    keys, times = np.sort(np.asarray(keys, np.float64)), np.asarray(times, np.float64)
-    eps = TIME_EPS
-    if inside is not None and len(inside):
-        lo, hi = float(np.min(inside)), float(np.max(inside))
-    elif np.any(moved):
-        t = times[np.asarray(moved, bool)]
-        before, after = keys[keys <= t.min() + eps], keys[keys >= t.max() - eps]
-        lo = before[-1] if len(before) else t.min()
-        hi = after[0] if len(after) else t.max()
-    else:
-        return keys[:0]
+def keys_around(keys, lo: float, hi: float) -> np.ndarray:
+    """The sorted ``keys`` the fill of ``lo``-``hi`` fills between: those in it and the key
+    on either side of it (a --range between keys is filled from the keys around it)."""
+    keys, eps = np.sort(np.asarray(keys, np.float64)), TIME_EPS
+    before, after = keys[keys <= lo + eps], keys[keys >= hi - eps]
+    lo = before[-1] if len(before) else lo
+    hi = after[0] if len(after) else hi
     return keys[(keys >= lo - eps) & (keys <= hi + eps)]
 
 
+def fill_keys(keys, times, moved, inside=None) -> np.ndarray:
+    """The keys a take's fill filled between (:func:`keys_around`): around its ``inside``
+    times (its fill range) where it carries them, else around the ``times`` where the fill
+    ``moved`` the character."""
+    times = np.asarray(times, np.float64)
+    if inside is not None and len(inside):
+        return keys_around(keys, float(np.min(inside)), float(np.max(inside)))
+    if np.any(moved):
+        t = times[np.asarray(moved, bool)]
+        return keys_around(keys, float(t.min()), float(t.max()))
+    return np.sort(np.asarray(keys, np.float64))[:0]
+
+
 def off_keys(keys, times) -> np.ndarray:
-    """Whether each of ``times`` is off every one of the sorted ``keys`` (by TIME_EPS)."""
-    keys, times = np.asarray(keys, np.float64), np.asarray(times, np.float64)
-    if not len(keys):
-        return np.ones(len(times), bool)
-    i = np.searchsorted(keys, times)
-    below, above = keys[np.maximum(i - 1, 0)], keys[np.minimum(i, len(keys) - 1)]
-    return np.minimum(np.abs(times - below), np.abs(above - times)) >= TIME_EPS
+    """Whether each of ``times`` is off every one of the ``keys`` (by TIME_EPS)."""
+    return key_distance(times, keys) >= TIME_EPS
 
 
 def apply(rig: Rig, follows: list[Follow], times, rot, trans, scale, moved) -> None:

@@ -192,7 +192,7 @@ def test_a_prop_follows_the_filled_hand_and_a_free_control_stays_as_authored(
     assert drift.max() > 1.0, drift.max()
 
 
-def test_a_control_with_fewer_than_two_keys_in_the_fill_range_follows_nothing():
+def test_the_keys_around_a_range_judge_the_controls_and_one_key_follows_nothing():
     from pxr import Usd
 
     from pipeline.usd import follow
@@ -204,12 +204,42 @@ def test_a_control_with_fewer_than_two_keys_in_the_fill_range_follows_nothing():
     rig = follow.rig_of(stage, skel, authored)
     keys = np.arange(1.0, 62.0, 10.0)
     times = np.arange(1.0, 62.0)
-    # A fill range holding one key (16-26): that key alone, and nothing to follow by.
-    one = follow.fill_keys(keys, times, (times > 15) & (times < 27), inside=times[15:26])
-    assert one.tolist() == [21.0]
+    # A --range between keys (16-26) is filled from the keys around it: those judge the controls.
+    around = follow.fill_keys(keys, times, (times > 15) & (times < 27), inside=times[15:26])
+    assert around.tolist() == [11.0, 21.0, 31.0]
+    assert follow.keys_around(keys, 21.0, 41.0).tolist() == [21.0, 31.0, 41.0]  # a range on keys
+    said = follow.detect(rig, around, *follow.values_at(src, authored, rig, around))
+    assert rig.joints[said[0].joint].endswith("/Foot_L") and authored[said[0].slot] == "foot_ik_L"
+    # One key is no evidence of following: nothing follows.
+    one = keys[2:3]
     said = follow.detect(rig, one, *follow.values_at(src, authored, rig, one))
     assert [(authored[f.slot], f.joint) for f in said] == [("foot_ik_L", -1), ("knee_pole_L", -1)]
-    # Two keys in it: the target follows the ankle.
-    two = follow.fill_keys(keys, times, (times > 15) & (times < 37), inside=times[15:36])
-    said = follow.detect(rig, two, *follow.values_at(src, authored, rig, two))
-    assert rig.joints[said[0].joint].endswith("/Foot_L") and authored[said[0].slot] == "foot_ik_L"
+
+
+def test_a_range_between_keys_moves_the_target_there_and_keeps_it_elsewhere(tmp_path, monkeypatch, capsys):
+    """``--range 16-26`` fills only those frames, from the keys around them (11, 21, 31): the
+    target follows the filled ankle there, judged by those keys, and is Blender's elsewhere."""
+    skel = "/root/Armature/Armature"
+    shot = tmp_path / "ik_roots.usda"
+    shutil.copyfile(BLENDER, shot)
+    args = ("fill-local", shot, "--keys", "1-61x10", "--range", "16-26", "--model", "interp")
+    rc, err = tween(monkeypatch, capsys, *args)
+    assert rc == 0, err
+    assert "between the keys 'foot_ik_L' follows the filled 'Foot_L'" in _one_warning(err), err
+    frames = [float(t) for t in range(1, 62)]
+    names, src = _skel_transforms(shot, "/root/Armature", skel, frames)
+    _, out = _skel_transforms(tmp_path / "ik_roots.review.v001.usda", "/root/Armature", skel, frames)
+    foot, target = names.index("Foot_L"), names.index("foot_ik_L")
+    inside = [frames.index(t) for t in frames if 16 <= t <= 26 and t != 21]
+    outside = [frames.index(t) for t in frames if not 16 <= t <= 26]
+    assert np.array_equal(out[outside, target], src[outside, target])  # Blender's, bit for bit
+    moved = np.linalg.norm(out[inside, target, 3, :3] - src[inside, target, 3, :3], axis=1)
+    assert moved.max() > 1e-3, moved  # the filled leg moved it
+    keys = [11.0, 21.0, 31.0]
+    at = [frames.index(k) for k in keys]
+    rel = _in_frame(out, foot, target)[inside]
+    want = np.stack(
+        [np.interp([frames[i] for i in inside], keys, _in_frame(src, foot, target)[at, i]) for i in range(3)],
+        1,
+    )
+    assert np.abs(rel - want).max() < 1e-5
