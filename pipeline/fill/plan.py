@@ -19,7 +19,7 @@ from pipeline.errors import ShotError, TweenError
 from pipeline.fill.jumps import body_centre, jump_line, key_jumps
 from pipeline.rig import store
 from pipeline.rig.store import no_model_hint
-from pipeline.usd.follow import keys_around
+from pipeline.usd.follow import keys_around, roots_line
 from pipeline.usd.keys import MAX_JOINT_FRAMES, key_distance, merge_times, parse_keys, parse_range
 from pipeline.usd.read import (
     QUAT_EPS,
@@ -74,8 +74,8 @@ class Plan:
         """The shot's reading warnings, its notes and the characters it skipped, on stderr."""
         # The several-roots warning says which kept controls follow a joint over the keys
         # the fill fills between, as the writer judges them.
-        in_range = {c.char.anim_path: keys_around(c.keys, *c.fill_range) for c in self.chars}
-        say_warnings(self.shot, in_range)
+        keys = {c.char.anim_path: keys_around(c.keys, *c.fill_range) for c in self.chars}
+        say_warnings(self.shot, lambda c: roots_line(self.shot.stage, c, keys.get(c.anim_path)))
         for note in self.notes:
             print(note, file=sys.stderr)
         for prim, why in self.refused:

@@ -266,3 +266,24 @@ def note(stage, skel_path: str, anim_path: str, keys) -> str | None:
     values = values_at(src, authored, rig, keys) if len(keys) > 1 else (None, None, None)
     follows = detect(rig, keys, *values)
     return describe(rig, follows, authored) or None
+
+
+#: How the reader's several-roots warning ends (read._one_hierarchy), replaced where a kept
+#: control follows a joint.
+_KEPT = (" and keep the animation's values as authored", " and keeps the animation's values as authored")
+
+
+def roots_line(stage, c, keys=None) -> str:
+    """The several-roots warning of the character ``c`` (read.Character) for a fill: with
+    which of its kept root controls follow which filled joint over ``keys`` (the keys the
+    fill fills between; default its own: tween:keyTimes, else its samples) and which stay
+    as authored; the reader's line where none follows."""
+    if keys is None:
+        keys = np.unique(c.key_override) if c.key_override is not None else c.sample_times
+    said = note(stage, c.skel_path, c.anim_path, keys)
+    line = c.extra["roots"]
+    if not said or " follows " not in said:
+        return line
+    for end in _KEPT:
+        line = line.removesuffix(end)
+    return f"{line}: {said}"

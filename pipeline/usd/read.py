@@ -581,32 +581,10 @@ def _one_hierarchy(every: tuple, parents: np.ndarray, poses: tuple, main: np.nda
     note = (
         f"{len(roots)} root joints ({_listed(roots)}): the character is the hierarchy under "
         f"{every[main[0]]!r} ({len(main)} joints); the {len(others)} joint{'' if one else 's'} under "
-        f"the other roots (the first is {others[0]!r}) {'is' if one else 'are'} not filled"
-        f"{_KEPT_SINGULAR if one else _KEPT}"
+        f"the other roots (the first is {others[0]!r}) {'is' if one else 'are'} not filled and "
+        f"{'keeps' if one else 'keep'} the animation's values as authored"
     )
     return tuple(every[i] for i in main), sub, tuple(a[main] for a in poses), others, note
-
-
-#: How the several-roots warning ends where no kept root control follows a character joint.
-_KEPT, _KEPT_SINGULAR = (
-    " and keep the animation's values as authored",
-    " and keeps the animation's values as authored",
-)
-
-
-def _roots_line(shot: Shot, c: Character, keys) -> str:
-    """The several-roots warning of ``c`` with what its kept root controls do over ``keys``
-    (its keys in the fill range; default its own: tween:keyTimes, else its samples): which
-    follow which filled joint (pipeline.usd.follow) and which stay as authored."""
-    from pipeline.usd import follow
-
-    if keys is None:
-        keys = np.unique(c.key_override) if c.key_override is not None else c.sample_times
-    said = follow.note(shot.stage, c.skel_path, c.anim_path, keys)
-    note = c.extra["roots"]
-    if not said or " follows " not in said:
-        return note
-    return f"{note.removesuffix(_KEPT).removesuffix(_KEPT_SINGULAR)}: {said}"
 
 
 def _keyed_joints(anim_prim, anim_joints, shot_path: str, anim_path: str):
@@ -818,14 +796,15 @@ def _read_shot(path: str) -> Shot:
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
 
 
-def say_warnings(shot: Shot, keys: dict | None = None) -> None:
+def say_warnings(shot: Shot, roots_line=None) -> None:
     """The reader's warnings of ``shot`` (several roots, joints the skeleton lacks), each once
     a process for a version of the file: said by the caller once its own checks have passed,
-    so that a refusal is its one line. ``keys``: {animation: its keys in the fill range}, what
-    the several-roots warning judges the kept controls by (:func:`_roots_line`)."""
+    so that a refusal is its one line. ``roots_line(character)``: the several-roots line a
+    fill says instead of the reader's (pipeline.usd.follow.roots_line: which kept controls
+    follow a filled joint)."""
     for c in shot.characters:
         if c.extra.get("roots"):
-            _warn_once(shot.path, c.skel_path, _roots_line(shot, c, (keys or {}).get(c.anim_path)))
+            _warn_once(shot.path, c.skel_path, c.extra["roots"] if roots_line is None else roots_line(c))
         if c.extra.get("warning"):
             _warn_once(shot.path, c.anim_path, c.extra["warning"])
 
