@@ -10,6 +10,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -365,14 +366,16 @@ def _write_sheet_and_timeline(
     with folder_lock(out):
         update_timeline(timeline, tmp / timeline.name, shot.name, track, shot.facts,
                         keep=lambda url: bool(url) and (out / url).exists())  # fmt: skip
-        _move_in(tmp, out)
+        _move_in(tmp, out, _stale_frames(out, tmp, stem, ext, write_frames))
     return timeline
 
 
-def _move_in(tmp: Path, out: Path) -> None:
+def _move_in(tmp: Path, out: Path, stale: Sequence[str] = ()) -> None:
     """Moves every medium of ``tmp`` into ``out``, all or none: a folder where a medium goes is
     refused before anything moves, and a move that fails puts back what the others replaced
-    (the earlier render's media, kept aside in ``tmp``) so no timeline names a movie not there."""
+    (the earlier render's media, kept aside in ``tmp``) so no timeline names a movie not there.
+    The files of ``out`` named in ``stale`` (an earlier review's frames no new one replaces)
+    are set aside with them: gone with ``tmp`` once all moved in, else put back."""
     files = sorted(f for f in tmp.iterdir() if f.is_file())
     for f in files:
         dest = out / f.name
@@ -382,13 +385,16 @@ def _move_in(tmp: Path, out: Path) -> None:
     aside.mkdir()
     done: list[tuple[Path, Path | None]] = []
     try:
+        # Each recorded before it moves: an interrupt between the two still puts it back.
+        for name in stale:
+            done.append((out / name, aside / name))
+            (out / name).replace(aside / name)
         for f in files:
             dest = out / f.name
-            old = None
-            if dest.exists() or dest.is_symlink():
-                old = aside / f.name
-                dest.replace(old)
+            old = aside / f.name if dest.exists() or dest.is_symlink() else None
             done.append((dest, old))
+            if old is not None:
+                dest.replace(old)
             f.replace(dest)
     except BaseException:
         for dest, old in reversed(done):
@@ -397,6 +403,35 @@ def _move_in(tmp: Path, out: Path) -> None:
             elif old.exists() or old.is_symlink():
                 old.replace(dest)
         raise
+
+
+def _frame_names(names, stem: str) -> list[str]:
+    """The numbered frames of the take ``stem`` among ``names``, PNG or EXR: exactly the names a
+    review writes (``sh010_take1.1001.png``, ``sh010_take1.-001.exr``; ``_frame_finisher``)."""
+    pattern = re.compile(rf"^{re.escape(stem)}\.(-?\d+)\.(?:png|exr)$")
+    return sorted(n for n in names if (m := pattern.match(n)) and f"{int(m[1]):04d}" == m[1])
+
+
+def _stale_frames(out: Path, tmp: Path, stem: str, ext: str, write_frames: bool) -> list[str]:
+    """The numbered frames of an earlier review of this take in ``out`` that the media in
+    ``tmp`` do not replace by name: frames outside the new range, or in the other format. They
+    go with the review they belong to, so a narrower ``--frames`` or an ``--exr`` leaves no old
+    frame beside the new. Empty when ``out`` holds no earlier review of the take as
+    ``earlier_media`` finds one (its MP4, contact sheet, or with ``write_frames`` a frame in
+    ``ext``): what ``tween review`` refuses without --force, so without it nothing goes."""
+    names = set(os.listdir(out))
+    # A folder named like a medium is not the review's (earlier_media skips it too).
+    files = {
+        n
+        for n in [f"{stem}.mp4", f"{stem}_contact.png", *_frame_names(names, stem)]
+        if n in names and ((out / n).is_symlink() or not (out / n).is_dir())
+    }
+    frames = _frame_names(files, stem)
+    earlier = f"{stem}.mp4" in files or f"{stem}_contact.png" in files
+    if not (earlier or (write_frames and any(n.endswith(f".{ext}") for n in frames))):
+        return []
+    new = set(os.listdir(tmp))
+    return [n for n in frames if n not in new]
 
 
 def media_stem(shot_name: str, take: str | None) -> str:

@@ -370,10 +370,8 @@ LEAVES = {
         "dailies/sh010/sh010_v001_take1.mp4",
         "dailies/sh010/sh010_v001.otio",
     ],
-    RUN[6]: [
-        "review/sh010/sh010_v001_take0.1001.exr",
-        "review/sh010/sh010_v001_take0.1004.exr",
-    ],  # take 0: the default
+    # take 0 (the default); its EXR frames went with RUN[7]'s --force (checked below)
+    RUN[6]: ["review/sh010/sh010_v001_take0.mp4"],
     RUN[7]: ["review/sh010/sh010_v001_take0.mp4"],
     RUN[8]: ["sh010.tween.v002.usda", "sh010.review.v002.usda"],
     RUN[9]: ["sh010.publish.v002.usda"],
@@ -404,6 +402,8 @@ def test_what_the_run_commands_wrote_is_what_the_docs_say(workspace):
     assert sets and sorted(sets[0].variants.keys()) == ["take0", "take1"]
     approval = Sdf.Layer.FindOrOpen(str(ws / "sh010.tween.v002.usda")).customLayerData["tween"]["approval"]
     assert approval["take"] == 1 and approval["note"] == "good arc on the turn"
+    # RUN[7] (--force, --no-frames here) replaced take 0's review whole: none of RUN[6]'s EXR frames left
+    assert not list((ws / "review" / "sh010").glob("sh010_v001_take0.*.exr"))
     published = Sdf.Layer.FindOrOpen(str(ws / "sh010.publish.v002.usda"))
     assert not published.subLayerPaths and all(not p.variantSets for p in published.rootPrims)
     layer = Sdf.Layer.FindOrOpen(str(ws / "sh010.tween.v003.usda")).ExportToString()
