@@ -380,10 +380,11 @@ def _digest(shot: str, stage, opts: FillOptions, take: int, model_hash) -> str:
     return h.hexdigest()[:16]
 
 
-def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str, plan=None) -> str:
+def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str, plan=None, on_character=None) -> str:
     """Fills every character for take ``take`` (seed = opts.seed + take) into an .npz.
     ``plan``: the one :func:`fill_shot` validated (default: the shot read again, as a farm
-    task that runs alone reads it)."""
+    task that runs alone reads it). ``on_character(i)``: called as character ``i`` is filled
+    (fill_shot's progress; a farm task passes none and says nothing more)."""
     from pipeline.fill.solve import fill_character
 
     human = _human(opts)
@@ -412,6 +413,8 @@ def fill_take(shot: str, opts: FillOptions, take: int, work_dir: str, plan=None)
             print(f"tween: {shot} {cp.char.anim_path}: {trust_line(decision)}", file=sys.stderr)
         for k, v in data.items():
             arrays[f"c{i}_{k}"] = v
+        if on_character is not None:
+            on_character(i)
         c = cp.char
         name, model_hash = _decided_model(inb, decision)
         chars.append({"anim": c.anim_path, "skel": c.skel_path, "also": cp.also, "joints": list(c.anim_joints),
@@ -550,11 +553,14 @@ def same_takes(takes: list[dict]) -> dict[str, int]:
     return out
 
 
-def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
+def fill_shot(shot: str, opts: FillOptions, job_id: str = "", on_progress=None) -> dict:
     """Validate, fill every take and write, in this process.
 
     The takes go to a folder of the system temp folder named after this process
     (``tween-take.<pid>@<host>.<rand>.tmp``); those of runs that died are removed first.
+    ``on_progress(done, total, what)``: the steps (takes × characters, then the layers) done
+    and what runs next; first called once the shot is validated, so a refused shot reports
+    nothing (``tween fill-local`` draws its bar from it).
     """
 
     # One plan for every take: a plan per take read (and checked) every sample of the shot
@@ -570,11 +576,42 @@ def fill_shot(shot: str, opts: FillOptions, job_id: str = "") -> dict:
         raise write_error(base, e) or e from None
     try:
         with temp_full(f"filling the takes of {shot}"):  # not the layers: a full shot folder is its own line
-            files = [fill_take(shot, opts, t, work, plan) for t in range(opts.takes)]
+            files = _fill_takes(shot, opts, work, plan, on_progress or _quiet)
         result = write_layers(shot, opts, files, job_id)
+        steps = opts.takes * len(plan.chars) + 1
+        (on_progress or _quiet)(steps, steps, "")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     result["characters"] = summary["characters"]
     result["skeletons"] = summary["skeletons"]  # per animation: the skeletons its fill is bound to
     result["retarget"] = summary["retarget"]  # per character: reference pose, joints the rig lacks
     return result
+
+
+def _quiet(done: int, total: int, what: str) -> None:
+    """A fill_shot that nobody follows (the API's, the tests')."""
+
+
+def _fill_takes(shot: str, opts: FillOptions, work: str, plan, on_progress) -> list[str]:
+    """Every take of ``plan`` into ``work``, saying each step to ``on_progress`` (see fill_shot):
+    a take already in ``work`` (the same digest) counts as done whole."""
+    n = len(plan.chars)
+    total = opts.takes * n + 1  # the layers are the last step
+    anims = [cp.char.anim_path for cp in plan.chars]
+
+    def what(t: int, i: int) -> str:
+        if t >= opts.takes:
+            return "writing the layers"
+        return f"take {t + 1}/{opts.takes} {anims[i]}" if opts.takes > 1 else anims[i]
+
+    on_progress(0, total, what(0, 0))
+    files = []
+    for t in range(opts.takes):
+
+        def said(i: int, t: int = t) -> None:
+            done = t * n + i + 1
+            on_progress(done, total, what(*divmod(done, n)))
+
+        files.append(fill_take(shot, opts, t, work, plan, on_character=said))
+        on_progress((t + 1) * n, total, what(t + 1, 0))
+    return files
