@@ -153,7 +153,9 @@ def review(
         help="Folder of the shot's fill layers, to find its latest fill (default: beside the shot).",
     ),
     force: bool = typer.Option(
-        False, "--force", help="Replace the media an earlier review of these takes left in --out."
+        False,
+        "--force",
+        help="Replace the media an earlier review of these takes left in --out: its movie, contact sheet and every numbered frame (a narrower --frames, --exr or --no-frames leaves none of the old).",
     ),
 ) -> None:
     """Renders review media for a filled shot: H.264 MP4, numbered frames, contact sheet."""

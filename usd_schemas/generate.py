@@ -17,11 +17,16 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent / "tween"
 
 
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        """One line and exit status 2, as every command of the project refuses."""
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def main(argv: list[str] | None = None) -> None:
     # No options; a parser so that --help (or a stray argument) says so instead of rewriting the files.
-    argparse.ArgumentParser(
-        prog="python -m usd_schemas.generate", description=__doc__.split("\n")[0]
-    ).parse_args(argv)
+    _Parser(prog="python -m usd_schemas.generate", description=__doc__.split("\n")[0]).parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run(
             [sys.executable, "-m", "pxr.Usd.usdGenSchema", str(HERE / "schema.usda"), tmp], check=True

