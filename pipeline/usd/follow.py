@@ -115,15 +115,16 @@ def skel_space(rig: Rig, rot, trans, scale) -> np.ndarray:
 
 
 def _unit_rotations(mats: np.ndarray):
-    """The rotations of (..., 4, 4) transforms, their scale removed: the nearest proper
-    rotation (polar decomposition by SVD), also for a mirrored joint (a scale of -1, as a
-    Maya rig's right side may carry) or one scaled to nothing, where scipy's from_matrix
-    refuses a non-positive determinant."""
+    """The rotations of (..., 4, 4) transforms, their scale removed: the orthogonal polar
+    factor (by SVD), negated where the joint is mirrored (a scale of -1, as a Maya rig's
+    right side may carry), which is a proper rotation that moves continuously with the joint
+    (flipping one singular vector instead jumped up to 180° a frame where two scales tie);
+    scipy's from_matrix refuses a mirrored or vanishing matrix."""
     from scipy.spatial.transform import Rotation
 
     u, _, vt = np.linalg.svd(mats[..., :3, :3].reshape(-1, 3, 3))
-    u[:, :, -1] *= np.sign(np.linalg.det(u @ vt))[:, None] + (np.linalg.det(u @ vt) == 0)[:, None]
-    return Rotation.from_matrix(u @ vt)
+    q = u @ vt
+    return Rotation.from_matrix(q * np.sign(np.linalg.det(q))[:, None, None])
 
 
 #: Frames whose skeleton-space transforms are computed at once: bounds the memory of a long
