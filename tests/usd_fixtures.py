@@ -98,3 +98,17 @@ def assert_kept_as_authored(written: dict, plain: dict, anim, keep: list[int], k
             assert np.array_equal(v[kept], np.array(attr.Get(t))[kept]), (name, t)
         for t in keys:
             assert np.array_equal(samples[t], np.array(attr.Get(t))), (name, t)
+
+
+def add_root_joints(skel, anim, names: list[str]) -> None:
+    """Adds joints ``names`` to the Skeleton prim ``skel`` as roots of their own (first in its
+    joint order, identity rest and bind) and to the SkelAnimation prim ``anim``'s joint list
+    (last): a rig's unparented controls, as Blender writes them. Their samples are the caller's."""
+    from pxr import Gf, Vt
+
+    skel.GetAttribute("joints").Set(Vt.TokenArray(list(names) + list(skel.GetAttribute("joints").Get())))
+    for n in ("restTransforms", "bindTransforms"):
+        a = skel.GetAttribute(n)
+        a.Set(Vt.Matrix4dArray([Gf.Matrix4d(1)] * len(names) + list(a.Get())))
+    listed = anim.GetAttribute("joints")
+    listed.Set(Vt.TokenArray(list(listed.Get()) + list(names)))

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from usd_fixtures import digest, layer_samples, tween
+from usd_fixtures import add_root_joints, digest, layer_samples, tween
 
 ATTRS = ("rotations", "translations", "scales")
 BLENDER = Path(__file__).resolve().parents[1] / "fixtures" / "blender" / "ik_roots.usda"
@@ -126,13 +126,7 @@ def _with_controls(shot: Path) -> None:
         k: UsdSkel.DecomposeTransform(_rel() * query.ComputeJointSkelTransforms(Usd.TimeCode(k))[hand])
         for k in keys
     }
-    skel = stage.GetPrimAtPath(SKEL)
-    skel.GetAttribute("joints").Set(Vt.TokenArray(CONTROLS + list(skel.GetAttribute("joints").Get())))
-    for n in ("restTransforms", "bindTransforms"):
-        a = skel.GetAttribute(n)
-        a.Set(Vt.Matrix4dArray([Gf.Matrix4d(1)] * len(CONTROLS) + list(a.Get())))
-    listed = anim.GetAttribute("joints")
-    listed.Set(Vt.TokenArray(list(listed.Get()) + CONTROLS))
+    add_root_joints(stage.GetPrimAtPath(SKEL), anim, CONTROLS)
     rot, tr = anim.GetAttribute("rotations"), anim.GetAttribute("translations")
     for k in keys:
         t, r, _ = held[k]

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from hypothesis import HealthCheck, assume, event, example, given, settings
 from hypothesis import strategies as st
-from usd_fixtures import digest, layer_samples, tween
+from usd_fixtures import add_root_joints, digest, layer_samples, tween
 
 SHOT = Path(__file__).resolve().parents[2] / "examples" / "sh010_walk.usda"
 ROOT, SKEL = "/World/Walker", "/World/Walker/Skel"
@@ -150,13 +150,7 @@ def _build(shot: Path, c: Case) -> None:
             rot = np.tile(Rotation.random(random_state=k.seed % 2**31).as_matrix(), (len(times), 1, 1))
         rots.append(Rotation.from_matrix(rot).as_quat())
         trs.append(pos)
-    skel = stage.GetPrimAtPath(SKEL)
-    skel.GetAttribute("joints").Set(Vt.TokenArray(names + list(skel.GetAttribute("joints").Get())))
-    for n in ("restTransforms", "bindTransforms"):
-        a = skel.GetAttribute(n)
-        a.Set(Vt.Matrix4dArray([Gf.Matrix4d(1)] * len(names) + list(a.Get())))
-    listed = anim.GetAttribute("joints")
-    listed.Set(Vt.TokenArray(list(listed.Get()) + names))
+    add_root_joints(stage.GetPrimAtPath(SKEL), anim, names)
     rot_a, tr_a = anim.GetAttribute("rotations"), anim.GetAttribute("translations")
     walk_r = {t: np.array(rot_a.Get(t), np.float32) for t in times}
     walk_t = {t: np.array(tr_a.Get(t), np.float32) for t in times}
