@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.usd.keys import key_distance
-from pipeline.usd.read import TIME_EPS, character_joints
+from pipeline.usd.read import TIME_EPS, character_joints, rest_values
 
 #: A control follows a joint when its position in the joint's frame stays within this of
 #: its mean over the keys (metres, converted to skeleton units). An IK solver that reaches
@@ -42,6 +42,9 @@ class Rig:
     character: np.ndarray  # (S,) bool: under the character's root
     skel_of: np.ndarray  # (A,) skeleton index of each joint the animation lists, -1 for none
     tolerance: float  # TOLERANCE_M in skeleton units
+    unauthored: (
+        dict  # per attribute, (A, 4|3): what shows where the animation authors none (read.rest_values)
+    )
 
 
 @dataclass
@@ -85,6 +88,7 @@ def rig_of(stage, skel_path: str, authored: list[str]) -> Rig | None:
         character=character,
         skel_of=np.array([at.get(t, -1) for t in authored], np.int64),
         tolerance=TOLERANCE_M / UsdGeom.GetStageMetersPerUnit(stage) / scale,
+        unauthored=rest_values(stage, skel_path, authored),
     )
 
 
@@ -132,11 +136,12 @@ def _unit_rotations(mats: np.ndarray):
 BLOCK = 4096
 
 
-def _skel_blocks(rig: Rig, rot, trans, scale):
-    """(block slice, its (B, S, 4, 4) skeleton-space transforms) over the times of the
-    animation values ``rot``/``trans``/``scale``, :data:`BLOCK` times at a time."""
-    for s in range(0, len(rot), BLOCK):
-        b = slice(s, min(s + BLOCK, len(rot)))
+def _skel_blocks(rig: Rig, rot, trans, scale, rows=None):
+    """(rows, their (B, S, 4, 4) skeleton-space transforms) over the ``rows`` (default all)
+    of the animation values ``rot``/``trans``/``scale``, :data:`BLOCK` rows at a time."""
+    rows = np.arange(len(rot)) if rows is None else rows
+    for s in range(0, len(rows), BLOCK):
+        b = rows[s : s + BLOCK]
         yield b, skel_space(rig, rot[b], trans[b], scale[b])
 
 
@@ -229,9 +234,7 @@ def apply(rig: Rig, follows: list[Follow], times, rot, trans, scale, moved) -> N
     at = np.flatnonzero(moved)
     if not live or not len(at):
         return
-    for s in range(0, len(at), BLOCK):  # a block of frames' skeleton at a time
-        block = at[s : s + BLOCK]
-        world = skel_space(rig, rot[block], trans[block], scale[block])
+    for block, world in _skel_blocks(rig, rot, trans, scale, at):
         _apply_block(live, times, block, rot, trans, world)
 
 
@@ -269,20 +272,11 @@ def describe(rig: Rig, follows: list[Follow], authored: list[str]) -> str:
 def values_at(src, authored: list[str], rig: Rig, times) -> list[np.ndarray]:
     """The animation ``src``'s (T, A, 4|3) rotations, translations and scales at ``times``
     as USD gives them (interpolated between samples); an attribute it never authors, or one
-    of another length, at the rest pose (UsdSkel's reading), a joint the skeleton lacks at
-    identity."""
-    from scipy.spatial.transform import Rotation
-
-    rest_r = np.tile([0.0, 0, 0, 1], (len(authored), 1))
-    rest_t, rest_s = np.zeros((len(authored), 3)), np.ones((len(authored), 3))
-    has = rig.skel_of >= 0
-    rest = rig.rest[rig.skel_of[has]]
-    rest_s[has] = np.linalg.norm(rest[:, :3, :3], axis=-2)
-    rest_r[has] = Rotation.from_matrix(rest[:, :3, :3] / rest_s[has][:, None, :]).as_quat()
-    rest_t[has] = rest[:, :3, 3]
+    of another length, as the writer keeps it (``rig.unauthored``: the rest pose, a joint the
+    skeleton lacks at identity)."""
     out = []
-    for name, fallback in (("rotations", rest_r), ("translations", rest_t), ("scales", rest_s)):
-        attr = src.GetAttribute(name)
+    for name in ("rotations", "translations", "scales"):
+        attr, fallback = src.GetAttribute(name), rig.unauthored[name]
         rows = []
         for t in times:
             v = attr.Get(float(t)) if attr else None

@@ -796,6 +796,33 @@ def _read_shot(path: str) -> Shot:
     return Shot(path, stage, tcps, float(start), float(end), up, mpu, chars)
 
 
+#: The value of an attribute an animation never authors, for the joints its skeleton lacks
+#: (UsdSkel ignores those joints: any value shows the same).
+UNAUTHORED = {"rotations": (0, 0, 0, 1), "translations": (0, 0, 0), "scales": (1, 1, 1)}
+
+
+def rest_values(stage, skel: str, authored: list[str]) -> dict:
+    """Per attribute, (len(authored), 3 or 4) values: the skeleton's rest pose (UsdSkel's
+    local rest transforms, decomposed) for the joints it has, UNAUTHORED for the others.
+    What an attribute the animation never authors shows: UsdSkel poses nothing from an
+    animation that lacks one, so the original showed those joints at rest."""
+    from pxr import Usd, UsdSkel
+
+    out = {n: np.tile(np.array(v, np.float64), (len(authored), 1)) for n, v in UNAUTHORED.items()}
+    query = UsdSkel.Cache().GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath(skel)))
+    local = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True) if query else None
+    if not local:
+        return out
+    trans, rots, scales = UsdSkel.DecomposeTransforms(local)
+    at = {str(t): i for i, t in enumerate(query.GetJointOrder())}
+    for name, values in (("rotations", rots), ("translations", trans), ("scales", scales)):
+        values = np.array(values, np.float64)
+        for j, t in enumerate(authored):
+            if t in at:
+                out[name][j] = values[at[t]]
+    return out
+
+
 def say_warnings(shot: Shot, roots_line=None) -> None:
     """The reader's warnings of ``shot`` (several roots, joints the skeleton lacks), each once
     a process for a version of the file: said by the caller once its own checks have passed,

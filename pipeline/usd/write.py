@@ -334,41 +334,14 @@ def _author_samples(layer, spec, data: dict, extra=None) -> None:
         layer.SetTimeSample(sa, t, Vt.Vec3hArray.FromNumpy(np.ascontiguousarray(sc[i])))
 
 
-#: The value of an attribute an animation never authors, for the joints its skeleton lacks
-#: (UsdSkel ignores those joints: any value shows the same).
-_UNAUTHORED = {"rotations": (0, 0, 0, 1), "translations": (0, 0, 0), "scales": (1, 1, 1)}
-
-
-def _rest_values(stage, skel: str, authored: list[str]) -> dict:
-    """Per attribute, (len(authored), 3 or 4) values: the skeleton's rest pose (UsdSkel's
-    local rest transforms, decomposed) for the joints it has, _UNAUTHORED for the others.
-    What an attribute the animation never authors shows: UsdSkel poses nothing from an
-    animation that lacks one, so the original showed those joints at rest."""
-    from pxr import Usd, UsdSkel
-
-    out = {n: np.tile(np.array(v, np.float64), (len(authored), 1)) for n, v in _UNAUTHORED.items()}
-    query = UsdSkel.Cache().GetSkelQuery(UsdSkel.Skeleton(stage.GetPrimAtPath(skel)))
-    local = query.ComputeJointLocalTransforms(Usd.TimeCode.Default(), True) if query else None
-    if not local:
-        return out
-    trans, rots, scales = UsdSkel.DecomposeTransforms(local)
-    at = {str(t): i for i, t in enumerate(query.GetJointOrder())}
-    for name, values in (("rotations", rots), ("translations", trans), ("scales", scales)):
-        values = np.array(values, np.float64)
-        for j, t in enumerate(authored):
-            if t in at:
-                out[name][j] = values[at[t]]
-    return out
-
-
-def _extra_joints(src, joints: list[str], rest=None, follower=None):
+def _extra_joints(src, joints: list[str], rest, follower=None):
     """(every joint the animation ``src`` lists, a merge) where some are not among the
     filled ``joints`` (the skeleton lacks them, or they are under a root other than the
     character's: read.Character.anim_authored, other_joints), else None. The filled
     animation keeps them with the values ``src`` gives at each time (authored samples
     exactly, USD's interpolation between), so that it lists what the animator's does and
     changes only what the fill filled; where ``src`` never authors an attribute, ``rest(authored)``
-    (:func:`_rest_values`): what the original showed. ``follower(authored)`` (:func:`_follower`):
+    (read.rest_values): what the original showed. ``follower(authored)`` (:func:`_follower`):
     what moves the root controls that follow a filled joint, where the fill moved it."""
     authored = [str(t) for t in (src.GetAttribute("joints").Get() or [])] if src else []
     slot = {t: i for i, t in enumerate(authored)}
@@ -382,8 +355,7 @@ def _extra_joints(src, joints: list[str], rest=None, follower=None):
 
     def unauthored(name: str, dtype) -> np.ndarray:
         if not fallback:  # read once, and only where an attribute is missing
-            fallback.update(rest(authored) if rest else {n: np.tile(np.array(v), (len(authored), 1))
-                                                         for n, v in _UNAUTHORED.items()})  # fmt: skip
+            fallback.update(rest(authored))
         return fallback[name].astype(dtype)
 
     def at(t: float, attr, name: str, dtype) -> np.ndarray:
@@ -517,7 +489,10 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     the keys, the provenance and each take's samples (in its variant, for several takes)."""
     from pxr import Sdf, Vt
 
-    from pipeline.usd.read import binding_prim  # here: the reader brings scipy, `tween --help` not
+    from pipeline.usd.read import (
+        binding_prim,
+        rest_values,
+    )  # here: the reader brings scipy, `tween --help` not
 
     many = len(takes) > 1
     src = stage.GetPrimAtPath(c["anim"])
@@ -534,7 +509,7 @@ def _author_character(layer, stage, ci: int, c: dict, takes: list[dict], meta: d
     spec.typeName = "SkelAnimation"
     apply_api(spec, tokens.API)
     extra = _extra_joints(
-        src, c["joints"], lambda names: _rest_values(stage, c["skel"], names), _follower(stage, c, src)
+        src, c["joints"], lambda names: rest_values(stage, c["skel"], names), _follower(stage, c, src)
     )
     joints = c["joints"] if extra is None else extra[0]
     author_attr(spec, "joints", Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(joints), uniform=True)

@@ -292,3 +292,32 @@ def test_moving_the_controls_of_a_long_fill_takes_bounded_memory():
     finally:
         tracemalloc.stop()
     assert peak < 120e6, peak / 1e6
+
+
+def test_a_mirrored_rest_pose_under_an_unauthored_attribute_reads_as_the_writer_keeps_it(tmp_path):
+    """Where the animation authors no scales, a joint shows its rest transform: a mirrored one
+    (scale -1 in its rest) decomposed by UsdSkel, as the writer keeps it (read.rest_values),
+    not by scipy's from_matrix, which refused it."""
+    from pxr import Gf, Usd, Vt
+
+    from pipeline.usd import follow
+
+    shot = tmp_path / "ik_roots.usda"  # a copy: the fixture's layer is never edited in memory
+    shutil.copyfile(BLENDER, shot)
+    stage = Usd.Stage.Open(str(shot))
+    src = stage.GetPrimAtPath("/root/Armature/Armature/ArmatureAction")
+    authored = [str(t) for t in src.GetAttribute("joints").Get()]
+    skel = stage.GetPrimAtPath("/root/Armature/Armature")
+    rest_attr = skel.GetAttribute("restTransforms")
+    rest = list(rest_attr.Get())
+    foot = [str(t) for t in skel.GetAttribute("joints").Get()].index("Hips/UpperLeg_L/LowerLeg_L/Foot_L")
+    rest[foot] = Gf.Matrix4d().SetScale(Gf.Vec3d(-1, 1, 1)) * rest[foot]
+    rest_attr.Set(Vt.Matrix4dArray(rest))
+    src.GetAttribute("scales").Clear()
+    rig = follow.rig_of(stage, "/root/Armature/Armature", authored)
+    keys = np.arange(1.0, 62.0, 10.0)
+    values = follow.values_at(src, authored, rig, keys)
+    slot = authored.index("Hips/UpperLeg_L/LowerLeg_L/Foot_L")
+    assert np.allclose(values[2][:, slot], (-1, 1, 1)) or np.allclose(np.prod(values[2][:, slot], 1), -1)
+    said = follow.detect(rig, keys, *values)
+    assert rig.joints[said[0].joint].endswith("/Foot_L")
